@@ -1,0 +1,49 @@
+"""`dropvision` command line. Each command lives in its own module exposing
+``register(subparsers)``; that adds a sub-parser whose ``func(args) -> int`` runs it."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+#: Modules that contribute sub-commands, in the order they appear in --help.
+COMMAND_MODULES = (
+    "dropvision.synth.cli",
+    "dropvision.measure",
+    "dropvision.campaign",
+)
+
+
+class UsageError(Exception):
+    """Bad input the user can fix: printed as one line, exit status 2."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dropvision", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:  # command not built yet
+            if exc.name is not None and name.startswith(exc.name):
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    from dropvision.io import SequenceError
+
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (SequenceError, UsageError) as exc:
+        print(f"dropvision {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
