@@ -1,0 +1,20 @@
+"""Software versions written into every result, so that it can be reproduced."""
+
+from __future__ import annotations
+
+import platform
+from importlib import metadata
+
+_PACKAGES = ("dropvision", "numpy", "scipy", "pandas", "pyarrow", "opencv-python-headless",
+             "scikit-image", "tifffile", "rerun-sdk")
+
+
+def software_versions() -> dict[str, str]:
+    """Versions of Python and of the packages a result depends on ("missing" if absent)."""
+    out = {"python": platform.python_version()}
+    for name in _PACKAGES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "missing"
+    return out

@@ -1,0 +1,64 @@
+"""Atomic writes and the executor factory."""
+
+import json
+import os
+
+import pytest
+
+from dropvision.atomic import atomic_dir, write_json, write_text
+from dropvision.campaign import parse_range, shard_name
+from dropvision.executors import SerialExecutor, make_executor
+
+
+def _square(x):
+    return x * x
+
+
+def test_write_json_nan_is_null(tmp_path):
+    p = write_json(tmp_path / "a" / "x.json", {"v": float("nan"), "w": 1.5})
+    assert json.loads(p.read_text()) == {"v": None, "w": 1.5}
+    assert [f.name for f in p.parent.iterdir()] == ["x.json"]
+
+
+def test_atomic_dir_failure_leaves_old_result(tmp_path):
+    final = tmp_path / "out"
+    with atomic_dir(final) as tmp:
+        write_text(tmp / "a.txt", "first")
+    with pytest.raises(RuntimeError):
+        with atomic_dir(final) as tmp:
+            write_text(tmp / "a.txt", "second")
+            raise RuntimeError("boom")
+    assert (final / "a.txt").read_text() == "first"
+    assert sorted(os.listdir(tmp_path)) == ["out"]
+    with atomic_dir(final) as tmp:
+        write_text(tmp / "b.txt", "third")
+    assert sorted(os.listdir(final)) == ["b.txt"]
+    assert sorted(os.listdir(tmp_path)) == ["out"]
+
+
+def test_serial_executor_delivers_exceptions():
+    ex = SerialExecutor()
+    assert ex.submit(_square, 3).result() == 9
+    fut = ex.submit(lambda: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        fut.result()
+
+
+def test_process_pool_and_bad_arguments():
+    with make_executor(2) as ex:
+        assert list(ex.map(_square, range(4))) == [0, 1, 4, 9]
+    with pytest.raises(ValueError):
+        with make_executor(0):
+            pass
+    with pytest.raises(ValueError):
+        with make_executor(dask_local=1, scheduler="tcp://x:1"):
+            pass
+
+
+def test_parse_range_and_shard_names():
+    assert parse_range("50:80:5", "--u1") == [50, 55, 60, 65, 70, 75, 80]
+    assert parse_range("20:35:2.5", "--u2")[-1] == 35
+    assert parse_range("1,2", "--u1") == [1, 2]
+    with pytest.raises(ValueError, match="--u1"):
+        parse_range("80:50:5", "--u1")
+    assert shard_name("a/b") != shard_name("a_b")
