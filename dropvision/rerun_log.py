@@ -1,0 +1,794 @@
+"""Optional Rerun (https://rerun.io) logging of a drop measurement.
+
+Logging is opt-in and costs nothing when off: this module does not import :mod:`rerun` at import
+time; the SDK is imported only when a :class:`RerunLogger` is created. The measurement receives
+``logger=None`` when logging is off and skips every call.
+
+Every logger owns an explicit :class:`rerun.RecordingStream` (never the global one), so several
+loggers can coexist (one per sequence of a campaign) and a logger can be created inside a worker
+process. Loggers themselves cannot be pickled: send the picklable :class:`RerunOptions` to the
+worker and create the logger there (``RerunLogger(options)``).
+
+Timelines
+---------
+``delay``  duration timeline, integer nanoseconds: ``round(delay_us * 1000)`` ns after the trigger.
+``frame``  sequence timeline: ``FrameRef.index`` (processing order, 0..n-1).
+
+Entity paths (all coordinates in the Rerun 2-D image space of the canonical frame, see below)
+---------------------------------------------------------------------------------------------
+``/frame``                      static :class:`rerun.AnnotationContext` (classes below)
+``/frame/raw``                  :class:`rerun.Image`, native dtype (uint8 / uint16)
+``/frame/transmission``         :class:`rerun.Image`, uint8 = ``round(255 * clip(T, 0, 1))``
+``/frame/segmentation``         :class:`rerun.SegmentationImage` of the class ids (uint8)
+``/frame/axis``                 static :class:`rerun.LineStrips2D`, nozzle axis
+``/frame/tip_plane``            static :class:`rerun.LineStrips2D`, nozzle tip plane
+``/frame/edges``                :class:`rerun.Points2D`, sub-pixel edge points
+``/frame/bodies``               :class:`rerun.Boxes2D` with class ids and labels
+``/frame/track``                :class:`rerun.LineStrips2D`, main-drop centroid track so far
+``/frame/drop``                 :class:`rerun.Points2D`, main-drop centroid in this frame
+``/series/volume_nl/<name>``    :class:`rerun.Scalars` (grown, attached, drop, detached)
+``/series/velocity_m_s/flow``   :class:`rerun.Scalars`
+``/series/position_um/<name>``  :class:`rerun.Scalars` (drop_z, drop_x)
+``/series/count/satellites``    :class:`rerun.Scalars`
+``/log``                        :class:`rerun.TextLog`, one line per frame (file, quality)
+``/calibration``                static :class:`rerun.TextDocument` (markdown)
+``/summary``                    static :class:`rerun.TextDocument` (markdown of summary.json)
+
+Pixel convention: dropvision uses integer pixel centres (pixel ``(r, c)`` spans
+``[c - 0.5, c + 0.5] x [r - 0.5, r + 0.5]``); Rerun draws pixel ``(r, c)`` over
+``[c, c + 1] x [r, r + 1]``. Points (edges, axis, tip plane, track) are therefore shifted by
+:data:`PIXEL_CENTRE_OFFSET` = +0.5 px. Body boxes ``(x0, y0, x1, y1)`` use the slice convention
+(first pixel, one past the last pixel), which maps onto Rerun's space without a shift.
+
+Tilt convention (calibration ``tilt_deg``): the axis direction in image ``(x, y)`` (y down) is
+``(sin t, cos t)``; positive tilt means drops drift to +x (right) as they fall. ``drop_x_um`` is
+measured along ``(cos t, -sin t)`` (+ to the right).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import uuid
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, is_dataclass, replace
+from dataclasses import fields as dataclass_fields
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    import rerun as rr
+    import rerun.blueprint as rrb
+
+__all__ = [
+    "CLASS_BACKGROUND",
+    "CLASS_NOZZLE",
+    "CLASS_ATTACHED",
+    "CLASS_DROP",
+    "CLASS_SATELLITE",
+    "CLASS_SPECK",
+    "CLASSES",
+    "DEFAULT_APPLICATION_ID",
+    "DEFAULT_VIEWER_URL",
+    "PIXEL_CENTRE_OFFSET",
+    "ROW_SERIES",
+    "RerunOptions",
+    "RerunLogger",
+    "add_rerun_args",
+    "options_from_args",
+    "logger_from_args",
+    "delay_ns",
+    "open_stream",
+    "measurement_blueprint",
+]
+
+# --- segmentation classes --------------------------------------------------------------------
+
+CLASS_BACKGROUND = 0
+CLASS_NOZZLE = 1
+CLASS_ATTACHED = 2
+CLASS_DROP = 3
+CLASS_SATELLITE = 4
+CLASS_SPECK = 5
+
+#: class id -> (label, RGBA colour) as logged in the annotation context at ``/frame``.
+CLASSES: dict[int, tuple[str, tuple[int, int, int, int]]] = {
+    CLASS_BACKGROUND: ("background", (0, 0, 0, 0)),
+    CLASS_NOZZLE: ("nozzle", (150, 150, 150, 255)),
+    CLASS_ATTACHED: ("attached liquid", (40, 120, 255, 255)),
+    CLASS_DROP: ("main drop", (230, 40, 40, 255)),
+    CLASS_SATELLITE: ("satellite", (255, 170, 0, 255)),
+    CLASS_SPECK: ("static speck", (60, 200, 80, 255)),
+}
+
+#: Accepted spellings of a body's class when given as a string.
+_CLASS_NAMES: dict[str, int] = {
+    "background": CLASS_BACKGROUND,
+    "nozzle": CLASS_NOZZLE,
+    "attached": CLASS_ATTACHED,
+    "attached liquid": CLASS_ATTACHED,
+    "attached_liquid": CLASS_ATTACHED,
+    "drop": CLASS_DROP,
+    "main": CLASS_DROP,
+    "main drop": CLASS_DROP,
+    "main_drop": CLASS_DROP,
+    "satellite": CLASS_SATELLITE,
+    "speck": CLASS_SPECK,
+    "static speck": CLASS_SPECK,
+    "static_speck": CLASS_SPECK,
+}
+
+#: Rerun draws pixel (r, c) over [c, c+1] x [r, r+1]; dropvision pixel centres are integers.
+PIXEL_CENTRE_OFFSET = 0.5
+
+DEFAULT_APPLICATION_ID = "dropvision"
+_APP_ID_RE = re.compile(r"[A-Za-z0-9_\- ]+")
+DEFAULT_VIEWER_URL = "rerun+http://127.0.0.1:9876/proxy"
+
+#: frame-table column -> (entity path, series name shown in the legend)
+ROW_SERIES: dict[str, tuple[str, str]] = {
+    "grown_volume_nl": ("/series/volume_nl/grown", "grown volume [nl]"),
+    "attached_volume_nl": ("/series/volume_nl/attached", "attached volume [nl]"),
+    "drop_volume_nl": ("/series/volume_nl/drop", "main drop volume [nl]"),
+    "detached_volume_nl": ("/series/volume_nl/detached", "detached volume [nl]"),
+    "flow_velocity_m_s": ("/series/velocity_m_s/flow", "flow velocity [m/s]"),
+    "drop_z_um": ("/series/position_um/drop_z", "drop z (along axis) [um]"),
+    "drop_x_um": ("/series/position_um/drop_x", "drop x (across axis) [um]"),
+    "n_satellites": ("/series/count/satellites", "satellites"),
+}
+
+_SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
+    "grown_volume_nl": (40, 120, 255),
+    "attached_volume_nl": (120, 180, 255),
+    "drop_volume_nl": (230, 40, 40),
+    "detached_volume_nl": (255, 120, 120),
+    "flow_velocity_m_s": (40, 170, 90),
+    "drop_z_um": (230, 40, 40),
+    "drop_x_um": (255, 170, 0),
+    "n_satellites": (255, 170, 0),
+}
+
+
+def delay_ns(delay_us: float) -> int:
+    """Delay after the trigger in integer nanoseconds, the unit of the ``delay`` timeline.
+
+    Parameters
+    ----------
+    delay_us : float
+        Strobe delay in microseconds (finite).
+
+    Returns
+    -------
+    int
+        ``round(delay_us * 1000)``.
+    """
+    value = float(delay_us)
+    if not math.isfinite(value):
+        raise ValueError(f"delay_us must be finite, got {delay_us!r}")
+    return int(round(value * 1000.0))
+
+
+# --- options ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class RerunOptions:
+    """Where a Rerun recording goes. Picklable; create the logger from it in the worker.
+
+    Parameters
+    ----------
+    path : Path or None
+        Write the recording (and its blueprint) to this ``.rrd`` file; parent folders are created.
+    spawn : bool
+        Start a local Rerun viewer and stream to it live.
+    connect_url : str or None
+        Stream to an already running viewer at this gRPC URL (e.g. :data:`DEFAULT_VIEWER_URL`).
+    application_id : str
+        Rerun application id (letters, digits, ``_``, ``-``, spaces); recordings with the same
+        id share the viewer's blueprint.
+    recording_id : str or None
+        Rerun recording id; ``None`` gives a fresh random UUID per logger.
+    recording_name : str or None
+        Name shown in the viewer's recording list (e.g. the sequence folder name).
+    """
+
+    path: Path | None = None
+    spawn: bool = False
+    connect_url: str | None = None
+    application_id: str = DEFAULT_APPLICATION_ID
+    recording_id: str | None = None
+    recording_name: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.path is not None:
+            object.__setattr__(self, "path", Path(self.path))
+            if self.path.is_dir():
+                raise ValueError(f"--rerun {self.path}: is a directory, expected a .rrd file path")
+        if not _APP_ID_RE.fullmatch(self.application_id or ""):
+            raise ValueError(f"Rerun application id {self.application_id!r}: use only letters, digits, "
+                             "'_', '-' and spaces (rerun 0.41 rewrites e.g. '.' or '/' into a hashed id)")
+
+    @property
+    def enabled(self) -> bool:
+        """True when at least one sink (file, spawned viewer, viewer URL) is requested."""
+        return self.path is not None or self.spawn or self.connect_url is not None
+
+    def for_sequence(self, name: str) -> RerunOptions:
+        """Options for one sequence of a campaign.
+
+        The file ``campaign.rrd`` becomes ``campaign-<name>.rrd`` (same folder; ``name`` is made
+        filename-safe), the recording is named ``name`` and gets a fresh recording id. A spawned
+        viewer is not spawned again per sequence: call :meth:`start_viewer` once first.
+
+        Parameters
+        ----------
+        name : str
+            Sequence name (e.g. its folder name).
+        """
+        safe = re.sub(r"[^A-Za-z0-9._=+-]+", "_", str(name)).strip("._") or "sequence"
+        path = None if self.path is None else self.path.with_name(f"{self.path.stem}-{safe}.rrd")
+        return replace(self, path=path, recording_id=None, recording_name=str(name))
+
+    def start_viewer(self, *, port: int = 9876) -> RerunOptions:
+        """Spawn one viewer now and return options that connect to it (``spawn=False``).
+
+        Use before fanning out to worker processes so they all stream to the same viewer.
+        Returns ``self`` unchanged when ``spawn`` is False.
+        """
+        if not self.spawn:
+            return self
+        import rerun as rr
+
+        rr.spawn(port=port, connect=False)
+        return replace(self, spawn=False, connect_url=f"rerun+http://127.0.0.1:{port}/proxy")
+
+
+# --- blueprint -------------------------------------------------------------------------------
+
+
+def measurement_blueprint() -> rrb.Blueprint:
+    """Default layout: frame (raw | normalised tabs) left, time series stacked right.
+
+    ``Horizontal(Tabs(Spatial2DView raw, Spatial2DView normalised),
+    Vertical(TimeSeriesView volume, velocity, position, TextDocumentView summary))``, with the
+    ``delay`` timeline selected in the time panel.
+    """
+    import rerun.blueprint as rrb
+
+    overlays = ["/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
+                "/frame/bodies", "/frame/track", "/frame/drop"]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Tabs(
+                rrb.Spatial2DView(name="raw frame", origin="/frame",
+                                  contents=["/frame", "/frame/raw", *overlays]),
+                rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
+                                  contents=["/frame", "/frame/transmission", *overlays]),
+            ),
+            rrb.Vertical(
+                rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
+                rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
+                rrb.TimeSeriesView(name="drop position [um]", origin="/series/position_um"),
+                rrb.Tabs(
+                    rrb.TextDocumentView(name="summary", origin="/summary"),
+                    rrb.TextDocumentView(name="calibration", origin="/calibration"),
+                    rrb.TextLogView(name="frames", origin="/log"),
+                ),
+                row_shares=[3, 2, 2, 2],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="delay"),
+        collapse_panels=False,
+    )
+
+
+def open_stream(options: RerunOptions, blueprint: rrb.BlueprintLike | None = None) -> rr.RecordingStream:
+    """Create an explicit :class:`rerun.RecordingStream` with the sinks ``options`` asks for.
+
+    The blueprint is written into the ``.rrd`` (and sent to a viewer) as the default blueprint,
+    so the file opens with that layout. Shared by :class:`RerunLogger` and :mod:`identify.rerun_log`.
+
+    Raises
+    ------
+    ValueError
+        If no sink is requested (``options.enabled`` is False).
+    """
+    if not options.enabled:
+        raise ValueError("RerunOptions: no sink requested (give path, spawn or connect_url)")
+    import rerun as rr
+
+    rec = rr.RecordingStream(
+        options.application_id,
+        recording_id=options.recording_id or uuid.uuid4(),
+    )
+    # Timelines are only `delay` and `frame`: the wall-clock log_time would only clutter the
+    # timeline menu and make files differ between identical runs.
+    rec.set_log_time_enabled(False)
+    sinks: list[Any] = []
+    if options.path is not None:
+        options.path.parent.mkdir(parents=True, exist_ok=True)
+        sinks.append(rr.FileSink(options.path))
+    url = options.connect_url
+    if options.spawn:
+        rr.spawn(connect=False)
+        url = url or DEFAULT_VIEWER_URL
+    if url is not None:
+        sinks.append(rr.GrpcSink(url))
+    rec.set_sinks(*sinks, default_blueprint=blueprint)
+    if options.recording_name:
+        rec.send_recording_name(options.recording_name)
+    return rec
+
+
+# --- duck-typed accessors --------------------------------------------------------------------
+
+
+def _get(obj: Any, names: Iterable[str], default: Any = None) -> Any:
+    """First present attribute or mapping key of ``obj`` among ``names``."""
+    keyed = isinstance(obj, Mapping) or (hasattr(obj, "keys") and hasattr(obj, "__getitem__"))
+    for name in names:
+        if keyed:  # dict, pandas Series, ...
+            if name in obj.keys():
+                return obj[name]
+        elif hasattr(obj, name):
+            return getattr(obj, name)
+    return default
+
+
+def _finite(value: Any) -> float | None:
+    """``float(value)`` if it is a finite number (bools count as 0/1), else None."""
+    if value is None or isinstance(value, str):
+        return None
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if math.isfinite(out) else None
+
+
+def _class_id(body: Any, index: int) -> int:
+    raw = _get(body, ("class_id", "cls", "klass", "kind", "class"))
+    if raw is None:
+        raise ValueError(f"log_frame: bodies[{index}] has no class (class_id / cls / kind / class)")
+    if isinstance(raw, str):
+        key = raw.strip().lower()
+        if key not in _CLASS_NAMES:
+            raise ValueError(f"log_frame: bodies[{index}] has unknown class {raw!r}; "
+                             f"expected one of {sorted(_CLASS_NAMES)} or an id 0..5")
+        return _CLASS_NAMES[key]
+    cid = int(raw)
+    if cid not in CLASSES:
+        raise ValueError(f"log_frame: bodies[{index}] has class id {cid}, expected 0..5")
+    return cid
+
+
+def _markdown_table(items: Iterable[tuple[str, Any]], header: tuple[str, str] = ("key", "value")) -> str:
+    lines = [f"| {header[0]} | {header[1]} |", "|---|---|"]
+    for key, value in items:
+        if isinstance(value, (float, np.floating)):
+            text = f"{value:.6g}"
+        elif isinstance(value, (list, tuple)):
+            text = "; ".join(str(v) for v in value)
+        else:
+            text = str(value)
+        lines.append(f"| {key} | {text.replace('|', '/')} |")
+    return "\n".join(lines)
+
+
+def _flatten(mapping: Mapping[str, Any], prefix: str = "") -> list[tuple[str, Any]]:
+    out: list[tuple[str, Any]] = []
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.extend(_flatten(value, name + "."))
+        else:
+            out.append((name, value))
+    return out
+
+
+@dataclass(frozen=True)
+class _Box:
+    """A body normalised to full-frame coordinates (half-open box)."""
+
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    class_id: int
+    volume_nl: float | None
+    centroid_xy: tuple[float, float] | None
+
+
+def _body_boxes(bodies: list[Any], ox: int = 0, oy: int = 0) -> list[_Box]:
+    out = []
+    for i, body in enumerate(bodies):
+        bbox = _get(body, ("bbox",))
+        if bbox is None:
+            corners = [_get(body, (k,)) for k in ("x0", "y0", "x1", "y1")]
+            bbox = None if any(v is None for v in corners) else corners
+        if bbox is None or len(bbox) != 4:
+            raise ValueError(f"log_frame: bodies[{i}] needs bbox = (x0, y0, x1, y1) or x0, y0, x1, y1; "
+                             f"got {body!r}")
+        x0, y0, x1, y1 = (float(v) for v in bbox)
+        if not (x0 <= x1 and y0 <= y1):
+            raise ValueError(f"log_frame: bodies[{i}] bbox {tuple(bbox)!r} has x1 < x0 or y1 < y0")
+        centroid = _get(body, ("centroid_xy",))
+        if centroid is not None:
+            centroid = (float(centroid[0]) + ox, float(centroid[1]) + oy)
+        out.append(_Box(x0 + ox, y0 + oy, x1 + ox, y1 + oy, _class_id(body, i),
+                        _finite(_get(body, ("volume_nl",))), centroid))
+    return out
+
+
+# --- logger ----------------------------------------------------------------------------------
+
+
+@dataclass
+class _Calibration:
+    tip_row: float
+    axis_col: float
+    tilt_rad: float
+    pixel_size_um: float | None
+
+
+class RerunLogger:
+    """Logs one measured sequence to Rerun (file and/or live viewer).
+
+    The measurement calls :meth:`log_calibration` once, :meth:`log_frame` per frame (delay
+    order), :meth:`log_summary` once, then :meth:`close`. Also usable as a context manager.
+
+    Parameters
+    ----------
+    options : RerunOptions, optional
+        Sinks and ids; must have ``options.enabled``. Alternatively give the keywords below
+        (not both): ``RerunLogger(path="seq.rrd", app_id="dropvision")``.
+    path, spawn, connect_url, app_id, recording_id, recording_name
+        As the :class:`RerunOptions` fields (``app_id`` = ``application_id``).
+    blueprint : rerun.blueprint.BlueprintLike, optional
+        Layout saved with the recording; default :func:`measurement_blueprint`.
+    """
+
+    def __init__(self, options: RerunOptions | None = None, *, path: str | Path | None = None,
+                 spawn: bool = False, connect_url: str | None = None,
+                 app_id: str = DEFAULT_APPLICATION_ID, recording_id: str | None = None,
+                 recording_name: str | None = None,
+                 blueprint: rrb.BlueprintLike | None = None) -> None:
+        if options is None:
+            options = RerunOptions(path=None if path is None else Path(path), spawn=spawn,
+                                   connect_url=connect_url, application_id=app_id,
+                                   recording_id=recording_id, recording_name=recording_name)
+        elif (path, spawn, connect_url, app_id, recording_id, recording_name) != (
+                None, False, None, DEFAULT_APPLICATION_ID, None, None):
+            raise TypeError("RerunLogger: give either options or the keyword fields, not both")
+        import rerun as rr
+
+        self._rr = rr
+        self.options = options
+        self.stream: rr.RecordingStream = open_stream(
+            options, blueprint if blueprint is not None else measurement_blueprint())
+        self._calibration: _Calibration | None = None
+        self._shape: tuple[int, int] | None = None
+        self._lines_logged = False
+        self._track_px: list[tuple[float, float]] = []
+        self._closed = False
+        self._log_static_layout()
+
+    # pickling a live stream makes no sense: give the worker the options instead
+    def __reduce__(self) -> Any:
+        raise TypeError("RerunLogger cannot be pickled; pass RerunOptions to the worker and "
+                        "create RerunLogger(options) there")
+
+    def __enter__(self) -> RerunLogger:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _log_static_layout(self) -> None:
+        rr = self._rr
+        rec = self.stream
+        rec.log("/frame", rr.AnnotationContext(
+            [(cid, label, colour) for cid, (label, colour) in CLASSES.items()]), static=True)
+        for column, (path, name) in ROW_SERIES.items():
+            rec.log(path, rr.SeriesLines(names=name, colors=_SERIES_COLOURS[column]), static=True)
+            rec.log(path, rr.SeriesPoints(names=name, colors=_SERIES_COLOURS[column],
+                                          marker_sizes=2.0), static=True)
+
+    # -- calibration ---------------------------------------------------------------------------
+
+    def log_calibration(self, calib: Any, *, shape: tuple[int, int] | None = None) -> None:
+        """Log the nozzle axis and tip plane (static) and a calibration table.
+
+        Parameters
+        ----------
+        calib : object or mapping
+            With ``tip_row``, ``axis_col`` (canonical full-frame pixel coords, integer pixel
+            centres), optional ``tilt_deg`` or ``tilt_rad`` (default 0, see module docstring),
+            ``pixel_size_um`` and ``shape``; ``to_dict()`` (if present) fills the table.
+        shape : (rows, cols), optional
+            Image shape for the line extents; default ``calib.shape``, else the first frame's.
+        """
+        self._check_open()
+        tip_row = _finite(_get(calib, ("tip_row", "nozzle_tip_row")))
+        axis_col = _finite(_get(calib, ("axis_col",)))
+        if tip_row is None or axis_col is None:
+            raise ValueError("log_calibration: calib needs finite tip_row and axis_col, got "
+                             f"tip_row={_get(calib, ('tip_row', 'nozzle_tip_row'))!r}, "
+                             f"axis_col={_get(calib, ('axis_col',))!r}")
+        tilt_deg = _get(calib, ("tilt_deg",))
+        if tilt_deg is None:
+            tilt_rad = _get(calib, ("tilt_rad",), 0.0)
+            tilt_deg = None if _finite(tilt_rad) is None else math.degrees(float(tilt_rad))
+        tilt_deg = _finite(tilt_deg)
+        if tilt_deg is None or abs(tilt_deg) >= 45.0:
+            raise ValueError(f"log_calibration: tilt_deg must be finite and |tilt| < 45, "
+                             f"got {_get(calib, ('tilt_deg',))!r}")
+        self._calibration = _Calibration(tip_row, axis_col, math.radians(tilt_deg),
+                                         _finite(_get(calib, ("pixel_size_um",))))
+        if shape is None:
+            shape = _get(calib, ("shape",))
+        if shape is not None:
+            if len(shape) != 2:
+                raise ValueError(f"log_calibration: shape must be (rows, cols), got {shape!r}")
+            self._shape = (int(shape[0]), int(shape[1]))
+        self._lines_logged = False
+        if self._shape is not None:
+            self._log_calibration_lines()
+        items: list[tuple[str, Any]] = [("tip_row [px]", tip_row), ("axis_col [px]", axis_col),
+                                        ("tilt [deg]", tilt_deg)]
+        if callable(getattr(calib, "to_dict", None)):
+            fields_ = dict(calib.to_dict())
+        elif isinstance(calib, Mapping):
+            fields_ = dict(calib)
+        elif is_dataclass(calib) and not isinstance(calib, type):
+            fields_ = {f.name: getattr(calib, f.name) for f in dataclass_fields(calib)}
+        else:
+            fields_ = {k: getattr(calib, k) for k in ("pixel_size_um",) if hasattr(calib, k)}
+        items.extend((k, v) for k, v in _flatten(fields_)
+                     if k not in ("tip_row", "nozzle_tip_row", "axis_col", "tilt_deg", "tilt_rad")
+                     and (isinstance(v, (str, list, tuple)) or np.ndim(v) == 0)
+                     and not is_dataclass(v) and len(str(v)) <= 200)
+        self.stream.log("/calibration", self._rr.TextDocument(
+            "## Calibration\n\n" + _markdown_table(items), media_type="text/markdown"), static=True)
+
+    def _log_calibration_lines(self) -> None:
+        cal, shape = self._calibration, self._shape
+        if cal is None or shape is None or self._lines_logged:
+            return
+        rows, cols = shape
+        t = math.tan(cal.tilt_rad)
+        ys = np.array([-0.5, rows - 0.5])
+        axis = np.column_stack([cal.axis_col + (ys - cal.tip_row) * t, ys])
+        xs = np.array([-0.5, cols - 0.5])
+        tip = np.column_stack([xs, cal.tip_row - (xs - cal.axis_col) * t])
+        rr = self._rr
+        self.stream.log("/frame/axis", rr.LineStrips2D([axis + PIXEL_CENTRE_OFFSET],
+                        colors=(255, 255, 0), radii=-1.0, labels="axis"), static=True)
+        self.stream.log("/frame/tip_plane", rr.LineStrips2D([tip + PIXEL_CENTRE_OFFSET],
+                        colors=(0, 255, 255), radii=-1.0, labels="tip plane"), static=True)
+        self._lines_logged = True
+
+    # -- per frame ------------------------------------------------------------------------------
+
+    def log_frame(self, ref: Any, image: np.ndarray | None, transmission: np.ndarray | None,
+                  labels: np.ndarray | None, edges: np.ndarray | None, bodies: Iterable[Any] | None,
+                  row: Mapping[str, Any] | None, *, roi_origin_xy: tuple[int, int] = (0, 0)) -> None:
+        """Log one frame at its ``delay`` (ns) and ``frame`` (index) times.
+
+        Parameters
+        ----------
+        ref : FrameRef-like
+            ``index`` (int), ``delay_us`` (float), optional ``file``; attributes or mapping keys.
+        image : 2-D array or None
+            Raw canonical frame (uint8/uint16), logged unchanged at ``/frame/raw``.
+        transmission : 2-D float array or None
+            Illumination-normalised frame (1 = background); logged as uint8 ``255*clip(T,0,1)``.
+        labels : 2-D integer array or None
+            Class id per pixel (``CLASS_*`` constants, 0 = background): the image's shape, or a
+            region of interest placed at ``roi_origin_xy`` (padded with background).
+        edges : (N, 2) array or None
+            Sub-pixel edge points as ``(x, y)`` = (column, row), integer pixel centres.
+        bodies : iterable or None
+            Objects/mappings with ``bbox`` = ``(x0, y0, x1, y1)`` or attributes/keys ``x0, y0,
+            x1, y1`` (half-open: ``labels[y0:y1, x0:x1]``), a class (``class_id``/``cls``/
+            ``kind``/``class``: id or name), optional ``volume_nl`` (box label) and
+            ``centroid_xy`` (track point when the table has no ``drop_z_um``).
+        row : mapping, pandas Series or None
+            Frame-table values (column names of ``MeasureResult.frames``); finite values of the
+            columns in :data:`ROW_SERIES` become scalar series; ``quality`` goes to ``/log``.
+        roi_origin_xy : (int, int)
+            Full-frame ``(x, y)`` of the region of interest's top-left pixel, added to
+            ``labels`` placement, ``edges`` and ``bodies`` given in ROI coordinates.
+        """
+        self._check_open()
+        rr, rec = self._rr, self.stream
+        index = _get(ref, ("index",))
+        delay_us = _get(ref, ("delay_us",))
+        if index is None or delay_us is None:
+            raise ValueError(f"log_frame: ref needs index and delay_us, got {ref!r}")
+        rec.set_time("frame", sequence=int(index))
+        rec.set_time("delay", duration=np.timedelta64(delay_ns(delay_us), "ns"))
+
+        shape = None
+        if image is not None:
+            image = np.asarray(image)
+            if image.ndim != 2:
+                raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
+            shape = image.shape
+            rec.log("/frame/raw", rr.Image(image))
+        if transmission is not None:
+            transmission = np.asarray(transmission)
+            if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
+                raise ValueError(f"log_frame: transmission shape {transmission.shape} must be 2-D "
+                                 f"and equal the image shape {shape}")
+            shape = shape or transmission.shape
+            if transmission.dtype != np.uint8:
+                transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
+                                        * 255.0).astype(np.uint8)
+            rec.log("/frame/transmission", rr.Image(transmission, draw_order=-5.0))
+        ox, oy = (int(v) for v in roi_origin_xy)
+        if labels is not None:
+            labels = np.asarray(labels)
+            if (ox, oy) != (0, 0) and labels.ndim == 2 and shape is not None:
+                if ox < 0 or oy < 0 or oy + labels.shape[0] > shape[0] or ox + labels.shape[1] > shape[1]:
+                    raise ValueError(f"log_frame: labels {labels.shape} at roi_origin_xy {(ox, oy)} "
+                                     f"do not fit in the image shape {shape}")
+                full = np.zeros(shape, dtype=labels.dtype)
+                full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
+                labels = full
+            if labels.ndim != 2 or (shape is not None and labels.shape != shape):
+                raise ValueError(f"log_frame: labels shape {labels.shape} must be 2-D and equal "
+                                 f"the image shape {shape}")
+            if labels.dtype.kind not in "iub":
+                raise ValueError(f"log_frame: labels must be an integer array, got {labels.dtype}")
+            if labels.size and (labels.min() < 0 or labels.max() > max(CLASSES)):
+                raise ValueError(f"log_frame: labels must hold class ids 0..{max(CLASSES)}, got "
+                                 f"range {labels.min()}..{labels.max()}")
+            shape = shape or labels.shape
+            rec.log("/frame/segmentation", rr.SegmentationImage(labels.astype(np.uint8), opacity=0.45))
+        if shape is not None and self._shape is None:
+            self._shape = (int(shape[0]), int(shape[1]))
+            self._log_calibration_lines()
+
+        if edges is not None:
+            pts = np.asarray(edges, dtype=float)
+            if pts.size == 0:
+                pts = pts.reshape(0, 2)
+            if pts.ndim != 2 or pts.shape[1] != 2:
+                raise ValueError(f"log_frame: edges must be an (N, 2) array of (x, y), got shape {pts.shape}")
+            rec.log("/frame/edges", rr.Points2D(pts + (ox + PIXEL_CENTRE_OFFSET, oy + PIXEL_CENTRE_OFFSET),
+                                                radii=-1.5, colors=(255, 0, 255)))
+        boxes = None if bodies is None else _body_boxes(list(bodies), ox, oy)
+        if boxes is not None:
+            self._log_bodies(boxes)
+
+        if row is None:
+            row = {}
+        point = self._drop_point_px(row, boxes)
+        if point is not None:
+            self._track_px.append(point)
+            rec.log("/frame/drop", rr.Points2D([point], radii=-4.0, class_ids=CLASS_DROP))
+        else:
+            rec.log("/frame/drop", rr.Clear(recursive=False))
+        if len(self._track_px) >= 2:
+            rec.log("/frame/track", rr.LineStrips2D([self._track_px], radii=-1.0,
+                                                    colors=CLASSES[CLASS_DROP][1]))
+        for column, (path, _name) in ROW_SERIES.items():
+            value = _finite(row.get(column))
+            if value is not None:
+                rec.log(path, rr.Scalars(value))
+        file = _get(ref, ("file",), "")
+        quality = row.get("quality")
+        text = f"frame {int(index)} delay {float(delay_us):g} us {file}".rstrip()
+        level = "INFO"
+        if isinstance(quality, str) and quality and quality.lower() != "ok":
+            text += f": {quality}"
+            level = "WARN"
+        elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
+            text += f": quality {float(quality):g}"
+        rec.log("/log", rr.TextLog(text, level=level))
+
+    def _log_bodies(self, boxes: list[_Box]) -> None:
+        rr = self._rr
+        if not boxes:
+            self.stream.log("/frame/bodies", rr.Clear(recursive=False))
+            return
+        texts = [CLASSES[b.class_id][0] + ("" if b.volume_nl is None else f" {b.volume_nl:.3g} nl")
+                 for b in boxes]
+        self.stream.log("/frame/bodies", rr.Boxes2D(
+            mins=[(b.x0, b.y0) for b in boxes], sizes=[(b.x1 - b.x0, b.y1 - b.y0) for b in boxes],
+            class_ids=[b.class_id for b in boxes], labels=texts, show_labels=False))
+
+    def _drop_point_px(self, row: Mapping[str, Any], boxes: list[_Box] | None) -> tuple[float, float] | None:
+        """Main-drop centroid in Rerun pixel space: from the table (needs calibration), else bodies."""
+        cal = self._calibration
+        z_um, x_um = _finite(row.get("drop_z_um")), _finite(row.get("drop_x_um"))
+        if cal is not None and cal.pixel_size_um and z_um is not None:
+            x_um = x_um or 0.0
+            s, c = math.sin(cal.tilt_rad), math.cos(cal.tilt_rad)
+            x = cal.axis_col + (z_um * s + x_um * c) / cal.pixel_size_um
+            y = cal.tip_row + (z_um * c - x_um * s) / cal.pixel_size_um
+            return (x + PIXEL_CENTRE_OFFSET, y + PIXEL_CENTRE_OFFSET)
+        drops = [b for b in boxes or () if b.class_id == CLASS_DROP]
+        if not drops:
+            return None
+        best = max(drops, key=lambda b: (b.x1 - b.x0) * (b.y1 - b.y0))
+        if best.centroid_xy is not None:
+            return (best.centroid_xy[0] + PIXEL_CENTRE_OFFSET, best.centroid_xy[1] + PIXEL_CENTRE_OFFSET)
+        return ((best.x0 + best.x1) / 2.0, (best.y0 + best.y1) / 2.0)  # half-open box centre
+
+    # -- per sequence ---------------------------------------------------------------------------
+
+    def log_summary(self, summary: Mapping[str, Any]) -> None:
+        """Log the sequence summary (``summary.json`` content) as a static markdown table."""
+        self._check_open()
+        if not isinstance(summary, Mapping):
+            raise ValueError(f"log_summary: summary must be a mapping, got {type(summary).__name__}")
+        self.stream.log("/summary", self._rr.TextDocument(
+            "## Summary\n\n" + _markdown_table(_flatten(summary)), media_type="text/markdown"),
+            static=True)
+
+    def close(self) -> None:
+        """Flush and finalise the sinks (the .rrd footer is written); idempotent."""
+        if self._closed:
+            return
+        self._closed = True
+        self.stream.flush()
+        self.stream.disconnect()
+
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError("RerunLogger is closed")
+
+
+# --- command line ----------------------------------------------------------------------------
+
+
+def add_rerun_args(parser: argparse.ArgumentParser) -> None:
+    """Add ``--rerun FILE.rrd``, ``--rerun-spawn`` and ``--rerun-connect [URL]`` to ``parser``.
+
+    Rerun's own ``rr.script_add_args`` flags (``--save``, ``--connect``, ``--url``,
+    ``--headless``, ...) are deliberately not used: their generic names would clash with or
+    confuse the dropvision options.
+    """
+    group = parser.add_argument_group("Rerun visualisation (optional)")
+    group.add_argument("--rerun", type=Path, default=None, metavar="FILE.rrd",
+                       help="write a Rerun recording (open it with `rerun FILE.rrd`)")
+    group.add_argument("--rerun-spawn", action="store_true",
+                       help="start a Rerun viewer and stream to it live")
+    group.add_argument("--rerun-connect", nargs="?", const=DEFAULT_VIEWER_URL, default=None,
+                       metavar="URL", help=f"stream to a running Rerun viewer (default {DEFAULT_VIEWER_URL})")
+
+
+def options_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID, *,
+                      recording_name: str | None = None) -> RerunOptions | None:
+    """:class:`RerunOptions` from parsed :func:`add_rerun_args` flags, or None when logging is off.
+
+    Does not import rerun. Raises ``dropvision.cli.UsageError`` for a bad ``--rerun`` path.
+    """
+    path = getattr(args, "rerun", None)
+    spawn = bool(getattr(args, "rerun_spawn", False))
+    url = getattr(args, "rerun_connect", None)
+    if path is None and not spawn and url is None:
+        return None
+    try:
+        return RerunOptions(path=path, spawn=spawn, connect_url=url, application_id=app_id,
+                            recording_name=recording_name)
+    except ValueError as exc:
+        from dropvision.cli import UsageError
+
+        raise UsageError(str(exc)) from exc
+
+
+def logger_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID, *,
+                     recording_name: str | None = None) -> RerunLogger | None:
+    """A :class:`RerunLogger` from parsed :func:`add_rerun_args` flags, or None when off.
+
+    When None is returned nothing from rerun has been imported or initialised.
+    """
+    options = options_from_args(args, app_id, recording_name=recording_name)
+    return None if options is None else RerunLogger(options)

@@ -1,0 +1,478 @@
+"""Rerun logging (dropvision/rerun_log.py, identify/rerun_log.py): write tiny .rrd files and read
+them back with the SDK's independent reader ``rerun.chunk.RrdReader``; check entity paths,
+timeline values and logged values against the inputs (known answers).
+
+No warning filters are needed: reading and writing emit no warnings with rerun-sdk 0.41.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import pickle
+import subprocess
+import sys
+import textwrap
+from collections import defaultdict
+from dataclasses import dataclass
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pytest
+
+from dropvision import rerun_log as drl
+from dropvision.rerun_log import (
+    CLASS_ATTACHED,
+    CLASS_DROP,
+    CLASS_NOZZLE,
+    CLASS_SATELLITE,
+    CLASS_SPECK,
+    RerunLogger,
+    RerunOptions,
+    add_rerun_args,
+    logger_from_args,
+    options_from_args,
+)
+from identify import rerun_log as irl
+
+ROWS, COLS = 48, 64
+DELAYS_US = [0.0, 30.5, 1150.25]
+PIXEL_UM = 4.0
+TIP_ROW, AXIS_COL = 9.0, 31.0
+
+
+# --- reading back (independent: rerun.chunk.RrdReader + pyarrow) -------------------------------
+
+
+class Rrd:
+    """All chunks of the first recording in an .rrd, grouped by entity path."""
+
+    def __init__(self, path: Path) -> None:
+        import rerun as rr
+
+        self.reader = rr.chunk.RrdReader(path)
+        self.static: dict[str, dict[str, list]] = defaultdict(dict)
+        temporal: dict[str, list[pa.RecordBatch]] = defaultdict(list)
+        for chunk in self.reader.stream():
+            batch = chunk.to_record_batch()
+            if chunk.is_static:
+                for name in batch.schema.names:
+                    if ":" in name:
+                        self.static[chunk.entity_path][name] = batch.column(name).to_pylist()[-1]
+            else:
+                temporal[chunk.entity_path].append(batch)
+        self.temporal = dict(temporal)
+
+    def entities(self) -> set[str]:
+        return set(self.static) | set(self.temporal)
+
+    def series(self, entity: str, component: str) -> pd.DataFrame:
+        """Rows of one temporal component sorted by frame/delay: columns delay_ns, frame, value."""
+        parts = []
+        for batch in self.temporal[entity]:
+            if component not in batch.schema.names:
+                continue
+            frame = (batch.column("frame").to_pylist() if "frame" in batch.schema.names
+                     else [None] * batch.num_rows)
+            parts.append(pd.DataFrame({
+                "delay_ns": batch.column("delay").cast(pa.int64()).to_pylist(),
+                "frame": frame,
+                "value": batch.column(component).to_pylist(),
+            }))
+        out = pd.concat(parts, ignore_index=True)
+        return out.sort_values(["delay_ns"], kind="stable").reset_index(drop=True)
+
+
+# --- synthetic frame data ----------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FrameRefLike:  # same fields as dropvision.io.FrameRef (interfaces.md)
+    index: int
+    file: str
+    page: int | None
+    delay_us: float
+    repeat: int
+
+
+@dataclass(frozen=True)
+class CalibrationLike:
+    tip_row: float
+    axis_col: float
+    tilt_deg: float
+    pixel_size_um: float
+    method: str
+
+
+
+def _labels(i: int) -> np.ndarray:
+    lab = np.zeros((ROWS, COLS), dtype=np.int32)
+    lab[: int(TIP_ROW) + 1, 24:40] = CLASS_NOZZLE
+    lab[10:16, 28:35] = CLASS_ATTACHED
+    lab[20 + 5 * i:26 + 5 * i, 29:34] = CLASS_DROP
+    lab[40, 50:52] = CLASS_SATELLITE
+    lab[3, 3] = CLASS_SPECK
+    return lab
+
+
+def _frame(i: int):
+    rng = np.random.default_rng(i)
+    image = rng.integers(0, 256, size=(ROWS, COLS), dtype=np.uint8)
+    transmission = np.linspace(-0.2, 1.3, ROWS * COLS).reshape(ROWS, COLS)
+    edges = np.array([[28.25 + i, 20.5], [33.75, 21.0 + i], [30.0, 25.5]])
+    bodies = [
+        {"bbox": (29, 20 + 5 * i, 34, 26 + 5 * i), "class": "main drop", "volume_nl": 2.0 + i},
+        {"bbox": (50, 40, 52, 41), "class_id": CLASS_SATELLITE},
+    ]
+    row = {
+        "file": f"f_{i}.png",
+        "grown_volume_nl": 1.5 * i + 0.25,
+        "drop_volume_nl": math.nan if i == 0 else 10.0 + i,
+        "flow_velocity_m_s": 1.3 - 0.1 * i,
+        "drop_z_um": math.nan if i == 0 else 60.0 * i,
+        "drop_x_um": 0.0 if i == 0 else 4.0 * i,
+        "n_satellites": i,
+        "quality": "ok" if i else "low contrast",
+    }
+    ref = FrameRefLike(index=i, file=f"f_{i}.png", page=None, delay_us=DELAYS_US[i], repeat=0)
+    # the measurement may pass a row of its frames DataFrame (a pandas Series) or a dict
+    return ref, image, transmission, _labels(i), edges, bodies, (pd.Series(row) if i == 2 else row)
+
+
+@pytest.fixture(scope="module")
+def measured_rrd(tmp_path_factory) -> tuple[Path, list]:
+    path = tmp_path_factory.mktemp("rrd") / "sub" / "seq.rrd"  # parent folder created on open
+    frames = [_frame(i) for i in range(len(DELAYS_US))]
+    with RerunLogger(RerunOptions(path=path, application_id="dv_test", recording_name="seq")) as logger:
+        logger.log_calibration({"tip_row": TIP_ROW, "axis_col": AXIS_COL, "tilt_deg": 0.0,
+                                "pixel_size_um": PIXEL_UM})
+        for frame in frames:
+            logger.log_frame(*frame)
+        logger.log_summary({"inflight_volume_nl": 12.345, "fit": {"pinchoff_us": 1050.0}})
+    return path, frames
+
+
+# --- measurement logger ------------------------------------------------------------------------
+
+
+def test_entities_and_timelines(measured_rrd):
+    path, _ = measured_rrd
+    rrd = Rrd(path)
+    assert [s.application_id for s in rrd.reader.recordings()] == ["dv_test"]
+    expected = {"/frame", "/frame/raw", "/frame/transmission", "/frame/segmentation", "/frame/axis",
+                "/frame/tip_plane", "/frame/edges", "/frame/bodies", "/frame/track", "/frame/drop",
+                "/series/volume_nl/grown", "/series/volume_nl/drop", "/series/velocity_m_s/flow",
+                "/series/position_um/drop_z", "/series/position_um/drop_x",
+                "/series/count/satellites", "/log", "/summary", "/calibration"}
+    assert expected <= rrd.entities()
+    grown = rrd.series("/series/volume_nl/grown", "Scalars:scalars")
+    # delay timeline: integer nanoseconds; frame timeline: processing index
+    assert grown["delay_ns"].tolist() == [0, 30_500, 1_150_250]
+    assert grown["frame"].tolist() == [0, 1, 2]
+    assert [v[0] for v in grown["value"]] == [0.25, 1.75, 3.25]
+    # NaN values are not logged (gaps, not zeros)
+    drop = rrd.series("/series/volume_nl/drop", "Scalars:scalars")
+    assert drop["delay_ns"].tolist() == [30_500, 1_150_250]
+    assert [v[0] for v in drop["value"]] == [11.0, 12.0]
+    # no wall-clock timeline
+    for batches in rrd.temporal.values():
+        assert "log_time" not in batches[0].schema.names
+
+
+def test_annotation_context_and_segmentation(measured_rrd):
+    path, frames = measured_rrd
+    rrd = Rrd(path)
+    context = rrd.static["/frame"]["AnnotationContext:context"][0]
+    classes = {c["class_id"]: c["class_description"]["info"]["label"] for c in context}
+    assert classes == {0: "background", 1: "nozzle", 2: "attached liquid", 3: "main drop",
+                       4: "satellite", 5: "static speck"}
+    seg = rrd.series("/frame/segmentation", "SegmentationImage:buffer")
+    fmt = rrd.series("/frame/segmentation", "SegmentationImage:format")
+    for i, (buf, f) in enumerate(zip(seg["value"], fmt["value"])):
+        assert (f[0]["width"], f[0]["height"]) == (COLS, ROWS)
+        labels = np.asarray(buf[0], dtype=np.uint8).reshape(ROWS, COLS)
+        np.testing.assert_array_equal(labels, frames[i][3])
+        assert set(np.unique(labels)) == {0, 1, 2, 3, 4, 5}
+
+
+def test_images(measured_rrd):
+    path, frames = measured_rrd
+    rrd = Rrd(path)
+    raw = rrd.series("/frame/raw", "Image:buffer")["value"]
+    trans = rrd.series("/frame/transmission", "Image:buffer")["value"]
+    for i in range(len(frames)):
+        np.testing.assert_array_equal(np.asarray(raw[i][0], np.uint8).reshape(ROWS, COLS), frames[i][1])
+        expected = np.round(np.clip(frames[i][2], 0, 1) * 255).astype(np.uint8)
+        np.testing.assert_array_equal(np.asarray(trans[i][0], np.uint8).reshape(ROWS, COLS), expected)
+
+
+def test_geometry_overlays(measured_rrd):
+    path, frames = measured_rrd
+    rrd = Rrd(path)
+    # dropvision pixel centres are integers; Rerun's are at +0.5
+    edges = rrd.series("/frame/edges", "Points2D:positions")["value"]
+    for i in range(len(frames)):
+        np.testing.assert_allclose(np.asarray(edges[i]), frames[i][4] + 0.5)
+    axis = np.asarray(rrd.static["/frame/axis"]["LineStrips2D:strips"][0])
+    np.testing.assert_allclose(axis[:, 0], AXIS_COL + 0.5)
+    np.testing.assert_allclose(axis[:, 1], [0.0, ROWS])  # whole image height
+    tip = np.asarray(rrd.static["/frame/tip_plane"]["LineStrips2D:strips"][0])
+    np.testing.assert_allclose(tip[:, 1], TIP_ROW + 0.5)
+    np.testing.assert_allclose(tip[:, 0], [0.0, COLS])
+    centers = rrd.series("/frame/bodies", "Boxes2D:centers")["value"]
+    half = rrd.series("/frame/bodies", "Boxes2D:half_sizes")["value"]
+    ids = rrd.series("/frame/bodies", "Boxes2D:class_ids")["value"]
+    for i in range(len(frames)):
+        assert ids[i] == [CLASS_DROP, CLASS_SATELLITE]
+        x0, y0, x1, y1 = frames[i][5][0]["bbox"]
+        np.testing.assert_allclose(centers[i][0], [(x0 + x1) / 2, (y0 + y1) / 2])
+        np.testing.assert_allclose(half[i][0], [(x1 - x0) / 2, (y1 - y0) / 2])
+    # drop centroid from the table (z along the axis, x across) and the calibration
+    drop = rrd.series("/frame/drop", "Points2D:positions")
+    expected_from_table = [
+        (AXIS_COL + 4.0 * i / PIXEL_UM + 0.5, TIP_ROW + 60.0 * i / PIXEL_UM + 0.5) for i in (1, 2)]
+    np.testing.assert_allclose([v[0] for v in drop["value"][1:]], expected_from_table)
+    # frame 0 has no z: centre of the main-drop box (slice convention, no shift)
+    np.testing.assert_allclose(drop["value"][0][0], [31.5, 23.0])
+    track = rrd.series("/frame/track", "LineStrips2D:strips")
+    assert track["frame"].tolist() == [1, 2]  # a line needs two points
+    np.testing.assert_allclose(track["value"].iloc[-1][0],
+                               [[31.5, 23.0], *expected_from_table])
+
+
+def test_texts_and_blueprint(measured_rrd):
+    path, _ = measured_rrd
+    rrd = Rrd(path)
+    summary = rrd.static["/summary"]["TextDocument:text"][0]
+    assert "| inflight_volume_nl | 12.345 |" in summary and "| fit.pinchoff_us | 1050 |" in summary
+    assert "| tip_row [px] | 9 |" in rrd.static["/calibration"]["TextDocument:text"][0]
+    log = rrd.series("/log", "TextLog:text")["value"].tolist()
+    assert log[0] == ["frame 0 delay 0 us f_0.png: low contrast"]
+    assert rrd.series("/log", "TextLog:level")["value"].tolist() == [["WARN"], ["INFO"], ["INFO"]]
+    # the blueprint travels in the same file
+    (blueprint,) = rrd.reader.blueprints()
+    kinds, origins = [], []
+    for chunk in rrd.reader.stream(store=blueprint):
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" in batch.schema.names:
+            kinds += batch.column("ViewBlueprint:class_identifier").to_pylist()
+            origins += batch.column("ViewBlueprint:space_origin").to_pylist()
+    kinds = [k[0] for k in kinds]
+    assert kinds.count("2D") == 2 and kinds.count("TimeSeries") == 3
+    assert ["/series/volume_nl"] in origins and ["/frame"] in origins
+
+
+def test_tilted_calibration_lines(tmp_path):
+    tilt_deg = 5.0
+    path = tmp_path / "tilt.rrd"
+    logger = RerunLogger(RerunOptions(path=path))
+    logger.log_calibration(CalibrationLike(10.0, 30.0, tilt_deg, 2.0, "edge fit"), shape=(ROWS, COLS))
+    logger.log_frame({"index": 0, "delay_us": 500.0}, None, None, None, None, None,
+                     {"drop_z_um": 40.0, "drop_x_um": 0.0})
+    logger.close()
+    rrd = Rrd(path)
+    assert "| method | edge fit |" in rrd.static["/calibration"]["TextDocument:text"][0]
+    t = math.radians(tilt_deg)
+    pivot = np.array([30.5, 10.5])
+    axis = np.asarray(rrd.static["/frame/axis"]["LineStrips2D:strips"][0]) - pivot
+    tip = np.asarray(rrd.static["/frame/tip_plane"]["LineStrips2D:strips"][0]) - pivot
+    # axis along (sin t, cos t) through the tip point; tip plane perpendicular to it
+    np.testing.assert_allclose(axis[:, 0] * math.cos(t) - axis[:, 1] * math.sin(t), 0.0, atol=1e-4)
+    np.testing.assert_allclose(tip @ np.array([math.sin(t), math.cos(t)]), 0.0, atol=1e-4)
+    drop = np.asarray(rrd.series("/frame/drop", "Points2D:positions")["value"][0][0])
+    np.testing.assert_allclose(drop - pivot, 20.0 * np.array([math.sin(t), math.cos(t)]), atol=1e-5)
+
+
+@dataclass(frozen=True)
+class BodyLike:  # like dropvision.segmentation.Body plus a class (half-open box, ROI coordinates)
+    label: int
+    x0: int
+    y0: int
+    x1: int
+    y1: int
+    class_id: int
+
+
+def test_roi_coordinates_and_keyword_constructor(tmp_path):
+    path = tmp_path / "roi.rrd"
+    with pytest.raises(ValueError, match="application id 'dropvision.measure'"):
+        RerunLogger(path=path, app_id="dropvision.measure")  # rerun would rename it "dropvision-measureea52"
+    logger = RerunLogger(path=path, app_id="dropvision-measure")
+    roi = np.zeros((10, 20), np.uint16)
+    roi[2:5, 3:6] = CLASS_DROP
+    body = BodyLike(label=7, x0=3, y0=2, x1=6, y1=5, class_id=CLASS_DROP)
+    logger.log_frame({"index": 0, "delay_us": 1.0}, np.zeros((ROWS, COLS), np.uint8), None, roi,
+                     np.array([[3.0, 2.0]]), [body], None, roi_origin_xy=(30, 5))
+    logger.close()
+    rrd = Rrd(path)
+    assert [s.application_id for s in rrd.reader.recordings()] == ["dropvision-measure"]
+    labels = np.asarray(rrd.series("/frame/segmentation", "SegmentationImage:buffer")["value"][0][0])
+    expected = np.zeros((ROWS, COLS), np.uint8)
+    expected[7:10, 33:36] = CLASS_DROP
+    np.testing.assert_array_equal(labels.reshape(ROWS, COLS), expected)
+    np.testing.assert_allclose(rrd.series("/frame/edges", "Points2D:positions")["value"][0], [[33.5, 7.5]])
+    np.testing.assert_allclose(rrd.series("/frame/bodies", "Boxes2D:centers")["value"][0], [[34.5, 8.5]])
+    np.testing.assert_allclose(rrd.series("/frame/drop", "Points2D:positions")["value"][0], [[34.5, 8.5]])
+    with pytest.raises(TypeError, match="not both"):
+        RerunLogger(RerunOptions(path=path), path=path)
+
+
+def test_two_loggers_are_independent(tmp_path):
+    import rerun as rr
+
+    a = RerunLogger(RerunOptions(path=tmp_path / "a.rrd", application_id="dv_a"))
+    b = RerunLogger(RerunOptions(path=tmp_path / "b.rrd", application_id="dv_b"))
+    for i in range(2):
+        a.log_frame({"index": i, "delay_us": 10.0 * i}, None, None, None, None, None, {"grown_volume_nl": 1.0 + i})
+        b.log_frame({"index": i, "delay_us": 20.0 * i}, None, None, None, None, None, {"grown_volume_nl": 5.0 + i})
+    a.close()
+    b.close()
+    a.close()  # idempotent
+    assert rr.get_global_data_recording() is None  # never touched the global stream
+    ga = Rrd(tmp_path / "a.rrd").series("/series/volume_nl/grown", "Scalars:scalars")
+    gb = Rrd(tmp_path / "b.rrd").series("/series/volume_nl/grown", "Scalars:scalars")
+    assert ga["delay_ns"].tolist() == [0, 10_000] and [v[0] for v in ga["value"]] == [1.0, 2.0]
+    assert gb["delay_ns"].tolist() == [0, 20_000] and [v[0] for v in gb["value"]] == [5.0, 6.0]
+    with pytest.raises(RuntimeError, match="closed"):
+        a.log_summary({})
+
+
+def _worker_writes(path: str) -> str:
+    logger = RerunLogger(RerunOptions(path=Path(path), application_id="dv_worker"))
+    logger.log_frame({"index": 0, "delay_us": 250.0}, None, None, None, None, None, {"grown_volume_nl": 7.5})
+    logger.close()
+    return path
+
+
+def test_logger_in_worker_process(tmp_path):
+    options = RerunOptions(path=tmp_path / "w.rrd")
+    assert pickle.loads(pickle.dumps(options)) == options
+    with ProcessPoolExecutor(1, mp_context=get_context("spawn")) as pool:
+        path = pool.submit(_worker_writes, str(options.path)).result(timeout=60)
+    grown = Rrd(Path(path)).series("/series/volume_nl/grown", "Scalars:scalars")
+    assert grown["delay_ns"].tolist() == [250_000] and grown["value"].tolist() == [[7.5]]
+
+
+def test_bad_inputs(tmp_path):
+    logger = RerunLogger(RerunOptions(path=tmp_path / "bad.rrd"))
+    ref = {"index": 0, "delay_us": 0.0}
+    img = np.zeros((ROWS, COLS), np.uint8)
+    with pytest.raises(ValueError, match="labels shape"):
+        logger.log_frame(ref, img, None, np.zeros((ROWS, COLS + 1), int), None, None, None)
+    with pytest.raises(ValueError, match="class ids 0..5"):
+        logger.log_frame(ref, img, None, np.full((ROWS, COLS), 9), None, None, None)
+    with pytest.raises(ValueError, match=r"edges must be an \(N, 2\)"):
+        logger.log_frame(ref, None, None, None, np.zeros((3, 3)), None, None)
+    with pytest.raises(ValueError, match="unknown class 'blob'"):
+        logger.log_frame(ref, None, None, None, None, [{"bbox": (0, 0, 1, 1), "class": "blob"}], None)
+    with pytest.raises(ValueError, match="tip_row and axis_col"):
+        logger.log_calibration({"tip_row": math.nan, "axis_col": 3.0})
+    with pytest.raises(TypeError, match="pass RerunOptions"):
+        pickle.dumps(logger)
+    logger.close()
+
+
+# --- command line / logging off ------------------------------------------------------------------
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser()
+    add_rerun_args(parser)
+    return parser
+
+
+def test_cli_flags(tmp_path):
+    args = _parser().parse_args(["--rerun", str(tmp_path / "x.rrd")])
+    opts = options_from_args(args, "dv_cli", recording_name="seq")
+    assert opts == RerunOptions(path=tmp_path / "x.rrd", application_id="dv_cli", recording_name="seq")
+    assert opts.for_sequence("d 01/a").path == tmp_path / "x-d_01_a.rrd"
+    connect = options_from_args(_parser().parse_args(["--rerun-connect"]))
+    assert connect.connect_url == drl.DEFAULT_VIEWER_URL and connect.path is None
+    assert options_from_args(_parser().parse_args(["--rerun-spawn"])).spawn
+    from dropvision.cli import UsageError
+
+    with pytest.raises(UsageError, match="is a directory"):
+        options_from_args(_parser().parse_args(["--rerun", str(tmp_path)]))
+
+
+def test_logging_off_creates_no_stream(monkeypatch):
+    import rerun as rr
+
+    def forbidden(*args, **kwargs):
+        raise AssertionError("a RecordingStream was created with logging off")
+
+    monkeypatch.setattr(rr, "RecordingStream", forbidden)
+    args = _parser().parse_args([])
+    assert logger_from_args(args, "dv") is None
+    assert irl.recording_from_args(args) is None
+    assert logger_from_args(argparse.Namespace(), "dv") is None  # parser without the flags
+
+
+def test_logging_off_does_not_import_rerun():
+    code = textwrap.dedent("""
+        import argparse, sys
+        from dropvision.rerun_log import add_rerun_args, logger_from_args
+        from identify.rerun_log import recording_from_args
+        p = argparse.ArgumentParser(); add_rerun_args(p); a = p.parse_args([])
+        assert logger_from_args(a, "dv") is None and recording_from_args(a) is None
+        assert not [m for m in sys.modules if m == "rerun" or m.startswith(("rerun.", "rerun_"))], "rerun imported"
+    """)
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=Path(__file__).parents[1], timeout=60)
+
+
+# --- identification ----------------------------------------------------------------------------
+
+
+def test_identify_logging(tmp_path):
+    path = tmp_path / "identify.rrd"
+    rec = irl.open_identify_recording(RerunOptions(path=path, application_id="dv_identify"))
+    t_us = np.array([220.0, 500.0, 1000.0, 1200.5])
+    measured = np.array([0.5, 8.0, math.nan, 17.0])
+    sim_t = np.arange(0.0, 1300.0, 100.0)
+    simulated = 0.01 * sim_t
+    irl.log_sequence_fit(rec, "u1=70 u2=25", t_us, measured, simulated, sim_t_us=sim_t,
+                         measured_flow_m_s=[1.0, 1.3, 0.2, -0.1], simulated_flow_m_s=np.ones(sim_t.size))
+    cv = pd.DataFrame({"rmse_volume_nl": [0.12, 0.34], "n": [5, 6]}, index=pd.Index(["fold 1", "fold 2"], name="fold"))
+    irl.log_cv_table(rec, cv, value_column="rmse_volume_nl")
+    band_t = np.array([300.0, 600.0, 900.0])
+    irl.log_monte_carlo_band(rec, "u1=70 u2=25", band_t, [1.0, 2.0, 3.0], [0.9, 1.8, 2.7], [1.1, 2.2, 3.3])
+    with pytest.raises(ValueError, match="low > high"):
+        irl.log_monte_carlo_band(rec, "bad", band_t, [1, 2, 3], [1, 2, 3], [0, 0, 0])
+    with pytest.raises(ValueError, match="simulated_volume_nl has 4 values, expected 13"):
+        irl.log_sequence_fit(rec, "bad", t_us, measured, measured, sim_t_us=sim_t)
+    with pytest.raises(ValueError, match="value_column 'cv'"):
+        irl.log_cv_table(rec, cv, value_column="cv")
+    irl.close_recording(rec)
+
+    rrd = Rrd(path)
+    seq = "u1\\=70\\ u2\\=25"  # rr.escape_entity_path_part
+    m = rrd.series(f"/identify/volume_nl/{seq}/measured", "Scalars:scalars")
+    assert m["delay_ns"].tolist() == [220_000, 500_000, 1_200_500]  # NaN skipped
+    assert [v[0] for v in m["value"]] == [0.5, 8.0, 17.0]
+    s = rrd.series(f"/identify/volume_nl/{seq}/simulated", "Scalars:scalars")
+    assert s["delay_ns"].tolist() == [int(x) * 1000 for x in sim_t]
+    np.testing.assert_allclose([v[0] for v in s["value"]], simulated)
+    f = rrd.series(f"/identify/flow_m_s/{seq}/measured", "Scalars:scalars")
+    assert [v[0] for v in f["value"]] == [1.0, 1.3, 0.2, -0.1]
+    for kind, expected in (("mean", [1.0, 2.0, 3.0]), ("low", [0.9, 1.8, 2.7]), ("high", [1.1, 2.2, 3.3])):
+        band = rrd.series(f"/identify/monte_carlo/volume_nl/{seq}/{kind}", "Scalars:scalars")
+        assert band["delay_ns"].tolist() == [300_000, 600_000, 900_000]
+        np.testing.assert_allclose([v[0] for v in band["value"]], expected)
+    table = rrd.static["/identify/cv/table"]["TextDocument:text"][0]
+    assert "| fold | rmse_volume_nl | n |" in table and "| fold 2 | 0.34 | 6 |" in table
+    np.testing.assert_allclose(rrd.static["/identify/cv/bar"]["BarChart:values"][0]["buffer"], [0.12, 0.34])
+    assert {k[0] for k in _view_kinds(rrd)} == {"TimeSeries", "TextDocument", "BarChart"}
+
+
+def _view_kinds(rrd: Rrd) -> list:
+    (blueprint,) = rrd.reader.blueprints()
+    out = []
+    for chunk in rrd.reader.stream(store=blueprint):
+        batch = chunk.to_record_batch()
+        if "ViewBlueprint:class_identifier" in batch.schema.names:
+            out += batch.column("ViewBlueprint:class_identifier").to_pylist()
+    return out
