@@ -1,0 +1,82 @@
+"""Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv.
+
+All files go through the shared writers of :mod:`dropvision.io` (images, multi-page TIFF,
+sequence.json) and :mod:`dropvision.atomic`; the whole folder is built in a temporary sibling
+and renamed into place at the end, so a failure never leaves a half-written sequence.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from dropvision.atomic import atomic_dir, write_json, write_text
+from dropvision.io import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.synth.sequence import STACK_FILE, SynthConfig, frames_table, plan, sequence_truth, synthesize
+
+__all__ = ["write_synthetic_sequence", "sequence_metadata"]
+
+
+def sequence_metadata(config: SynthConfig, frames) -> dict:
+    """sequence.json content (without the schema key) for a config and its frame list."""
+    cfg, ph = config, config.physics
+    meta = {
+        "pixel_size_um": float(cfg.pixel_size_um),
+        "nozzle_inner_diameter_um": float(ph.nozzle_inner_diameter_um),
+        "nozzle_outer_diameter_um": float(ph.nozzle_outer_diameter_um),
+        "orientation": "down",
+        "waveform": {"u1_um_per_ms": float(cfg.u1_um_per_ms), "u2_um": float(cfg.u2_um),
+                     "u3_um_per_ms": float(ph.u3_um_per_ms), "hold_us": float(ph.hold_us),
+                     "dead_time_us": float(ph.dead_time_us)},
+        "ink": {"name": ph.ink_name, "density_kg_m3": float(ph.density_kg_m3),
+                "viscosity_mPa_s": float(ph.viscosity_mpa_s),
+                "surface_tension_mN_m": float(ph.surface_tension_mn_m)},
+        "bit_depth": int(cfg.bit_depth),
+        "synthetic": True,
+        "frames": [({"file": f, "page": int(pg), "delay_us": float(d)} if pg is not None
+                    else {"file": f, "delay_us": float(d)}) for _, f, pg, d, _ in frames],
+    }
+    return meta
+
+
+def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | None = None) -> Path:
+    """Render ``config`` and write the sequence folder with its ground truth.
+
+    Parameters
+    ----------
+    config : SynthConfig
+    out_dir : str or Path
+        Target folder. It is created, or replaced if it holds an earlier synthetic sequence
+        (a ``truth.json``); a non-empty folder without one is refused.
+    progress : bool or None
+        tqdm progress bar (None: only on a terminal).
+
+    Returns
+    -------
+    Path
+        The sequence folder.
+    """
+    out = Path(out_dir)
+    if out.exists():
+        if not out.is_dir():
+            raise ValueError(f"{out}: exists and is not a folder")
+        if any(out.iterdir()) and not (out / "truth.json").exists():
+            raise ValueError(f"{out}: folder is not empty and holds no synthetic sequence "
+                             "(truth.json); refusing to replace it")
+    p = plan(config)
+    rows = []
+    with atomic_dir(out) as tmp:
+        if config.format == "tiff-stack":
+            pages = []
+            for img, truth in synthesize(config, progress=progress, synth_plan=p):
+                pages.append(img)
+                rows.append(truth)
+            write_multipage_tiff(tmp / STACK_FILE, pages, [r.delay_us for r in rows],
+                                 pixel_size_um=config.pixel_size_um)
+        else:
+            for img, truth in synthesize(config, progress=progress, synth_plan=p):
+                write_image(tmp / truth.file, img)
+                rows.append(truth)
+        write_sequence_json(tmp, sequence_metadata(config, p.frames))
+        write_json(tmp / "truth.json", sequence_truth(p))
+        write_text(tmp / "truth_frames.csv", frames_table(rows).to_csv(index=False, float_format="%.9g"))
+    return out

@@ -1,0 +1,197 @@
+"""`identify` command line: fit, predict, design, paper.
+
+    identify fit DATASET --out model.json
+    identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
+    identify design model.json --volume-nl V [--velocity-m-s W] [--json]
+    identify paper --u1 U1 --u2 U2 [--samples N] [--seed S] [--json]
+
+Bad input exits with status 2 and a one-line message on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+import pandas as pd
+
+OUTPUT_UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_volume_nl": "nl",
+                "jetting_velocity_m_s": "m/s"}
+
+
+class UsageError(Exception):
+    """Bad input the user can fix: printed as one line, exit status 2."""
+
+
+def _positive(name):
+    def conv(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
+        if not np.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
+        return v
+    return conv
+
+
+def _print_table(title: str, df: pd.DataFrame) -> None:
+    print(f"\n{title}")
+    with pd.option_context("display.width", 160, "display.max_columns", 20, "display.float_format", "{:.4g}".format):
+        print(df.to_string(index=False))
+
+
+def _print_summary(summary: dict, header: str) -> None:
+    print(header)
+    for k, s in summary.items():
+        print(f"  {k:30s} mean {s['mean']:.4g}  std {s['std']:.3g}  95% [{s['low']:.4g}, {s['high']:.4g}] {OUTPUT_UNITS.get(k, '')}")
+
+
+def cmd_fit(args) -> int:
+    from identify.dataset import load_dataset
+    from identify.hybrid import fit_hybrid
+
+    ds = load_dataset(args.dataset)
+    rep = fit_hybrid(ds, folds=args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
+                     adjuster_reference=args.adjuster_reference, progress=sys.stderr.isatty())
+    m = rep.model
+    if rep.arx_selection is not None:
+        t = rep.arx_selection.table
+        _print_table(f"ARX structure selection (selected na, nb, nk = {tuple(rep.arx_selection.selected)})",
+                     t.head(args.max_rows) if len(t) > args.max_rows else t)
+    c = m.ecm_coefficients
+    print("\nECM coefficients (SI)")
+    ci = m.to_dict()["ecm"]["coefficients_ci95"] or {}
+    for k in ("A3", "A2", "A1", "A0", "B1", "B0"):
+        e = ci.get(k)
+        print(f"  {k} = {getattr(c, k):.5g}" + ("" if e is None else f" (+/- {e:.3g})"))
+    for name, sel in (("pinch-off instant (us)", rep.pinchoff_selection), ("volume adjuster (nl)", rep.volume_selection),
+                      ("velocity adjuster (m/s)", rep.velocity_selection)):
+        _print_table(f"{name}: 10-fold CV, selected (n1, n2) = {sel.selected}", sel.table)
+        _print_table(f"{name}: coefficients with 95 % intervals", sel.fit.to_pandas())
+    for n in rep.notes:
+        print(f"note: {n}")
+    m.to_json(args.out)
+    print(f"\nwrote {args.out}")
+    return 0
+
+
+def _load_model(path):
+    from identify.hybrid import HybridModel
+
+    return HybridModel.from_json(path)
+
+
+def cmd_predict(args) -> int:
+    m = _load_model(args.model)
+    if args.samples < 1:
+        raise UsageError(f"--samples must be >= 1, got {args.samples}")
+    res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed)
+    summary = res.summary()
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    if m.controls is not None:
+        from identify.design import _Region
+
+        if not _Region(m.controls).inside(args.u1, args.u2)[0]:
+            print("warning: (u1, u2) outside the training region: extrapolation", file=sys.stderr)
+    _print_summary(summary, f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
+    return 0
+
+
+def cmd_design(args) -> int:
+    from identify.design import design
+
+    m = _load_model(args.model)
+    r = design(m, args.volume_nl, args.velocity_m_s, tolerance_percent=args.tolerance_percent,
+               samples=args.samples, seed=args.seed)
+    if args.json:
+        print(json.dumps(r.to_dict()))
+    else:
+        print(r.message)
+        if r.spread:
+            _print_summary(r.spread, "predicted spread:")
+    return 0 if r.feasible else 1
+
+
+def cmd_paper(args) -> int:
+    try:
+        from identify.paper import paper_prediction
+    except ImportError:
+        raise UsageError("identify.paper is not available in this installation") from None
+    out = paper_prediction(args.u1, args.u2, samples=args.samples, seed=args.seed)
+    summary = {k: out[k] for k in OUTPUT_UNITS if k in out}
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        _print_summary(summary, f"published colour-ink model at u1 = {args.u1} um/ms, u2 = {args.u2} um")
+    return 0
+
+
+class _Parser(argparse.ArgumentParser):
+    """Argument errors as one line on stderr, exit status 2."""
+
+    def error(self, message):  # noqa: D401 - argparse API
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder")
+    f.add_argument("dataset")
+    f.add_argument("--out", required=True, help="model.json to write")
+    f.add_argument("--folds", type=int, default=10)
+    f.add_argument("--seed", type=int, default=0)
+    f.add_argument("--no-arx", action="store_true", help="skip the ARX structure selection")
+    f.add_argument("--ecm-method", default="oe", choices=["oe", "delta"])
+    f.add_argument("--adjuster-reference", default="ecm", choices=["ecm", "measured"])
+    f.add_argument("--max-rows", type=int, default=30, help="rows of the ARX table to print")
+    f.set_defaults(func=cmd_fit)
+
+    q = sub.add_parser("predict", help="predict drop volume/velocity with uncertainty")
+    q.add_argument("model")
+    q.add_argument("--u1", type=_positive("--u1"), required=True, help="stroke velocity (um/ms)")
+    q.add_argument("--u2", type=_positive("--u2"), required=True, help="stroke (um)")
+    q.add_argument("--samples", type=int, default=10_000)
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--json", action="store_true")
+    q.set_defaults(func=cmd_predict)
+
+    d = sub.add_parser("design", help="find (u1, u2) for a target drop volume (and velocity)")
+    d.add_argument("model")
+    d.add_argument("--volume-nl", type=_positive("--volume-nl"), required=True)
+    d.add_argument("--velocity-m-s", type=_positive("--velocity-m-s"), default=None)
+    d.add_argument("--tolerance-percent", type=_positive("--tolerance-percent"), default=1.0)
+    d.add_argument("--samples", type=int, default=2000)
+    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--json", action="store_true")
+    d.set_defaults(func=cmd_design)
+
+    r = sub.add_parser("paper", help="published colour-ink model of the paper")
+    r.add_argument("--u1", type=_positive("--u1"), required=True)
+    r.add_argument("--u2", type=_positive("--u2"), required=True)
+    r.add_argument("--samples", type=int, default=10_000)
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--json", action="store_true")
+    r.set_defaults(func=cmd_paper)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, ValueError, OSError) as exc:
+        msg = " ".join(str(exc).split())
+        print(f"identify {args.command}: error: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

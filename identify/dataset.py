@@ -1,0 +1,571 @@
+"""Training dataset of the hybrid model: reader, validator and synthetic generator.
+
+A dataset is a folder with three files:
+
+``timeseries.parquet``
+    One row per strobe sample: ``sequence_id`` (int or str), ``u1_um_per_ms``, ``u2_um``,
+    ``delay_us`` (from the firing trigger), ``grown_volume_nl`` (grown drop volume, initial
+    meniscus subtracted), ``flow_velocity_m_s`` (average flow velocity in the nozzle; may be
+    NaN) and ``attached`` (bool: the drop is still attached to the nozzle). Volumes may be
+    NaN only in rows with ``attached == False``.
+``summary.parquet``
+    One row per sequence: ``sequence_id``, ``u1_um_per_ms``, ``u2_um``, ``pinchoff_us``
+    (pinch-off instant from the trigger), ``grown_volume_at_pinchoff_nl`` (grown volume right
+    before pinch-off), ``inflight_volume_nl``, ``jetting_velocity_m_s``,
+    ``flow_velocity_at_max_stroke_m_s`` (may be NaN).
+``dataset.json``
+    ``nozzle_inner_diameter_um`` (required), ``sample_interval_us`` (required),
+    ``dead_time_us`` (default 220), ``u3_um_per_ms`` (default 2), ``hold_us`` (default 20),
+    optional ``ink`` {density_kg_m3, viscosity_mPa_s, surface_tension_mN_m} and ``nozzle``
+    {length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm} for the hydraulic
+    equivalents of Eq. (2).
+
+Several sequences may share one (u1, u2). :func:`load_dataset` raises
+:class:`DatasetError` naming the file and the column for every problem it finds.
+
+:func:`make_synthetic_dataset` writes such a folder from the default synthetic physics of
+the project (ECM + pinch-off and adjuster laws), whose truth is exactly known.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from identify.ecm import EcmParameters, flow_velocity_m_s, pipe_inertance, pipe_resistance, simulate
+from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, SAMPLE_INTERVAL_US, U3_PRESET_UM_PER_MS, Waveform
+
+SCHEMA = "identify.dataset/1"
+
+#: Columns of timeseries.parquet and their kinds ("f" float, "b" bool, "id").
+TIMESERIES_COLUMNS = {
+    "sequence_id": "id",
+    "u1_um_per_ms": "f",
+    "u2_um": "f",
+    "delay_us": "f",
+    "grown_volume_nl": "f",
+    "flow_velocity_m_s": "f",
+    "attached": "b",
+}
+#: Columns of summary.parquet.
+SUMMARY_COLUMNS = {
+    "sequence_id": "id",
+    "u1_um_per_ms": "f",
+    "u2_um": "f",
+    "pinchoff_us": "f",
+    "grown_volume_at_pinchoff_nl": "f",
+    "inflight_volume_nl": "f",
+    "jetting_velocity_m_s": "f",
+    "flow_velocity_at_max_stroke_m_s": "f",
+}
+#: Summary columns that may hold NaN.
+_SUMMARY_NAN_OK = {"flow_velocity_at_max_stroke_m_s"}
+
+
+class DatasetError(ValueError):
+    """Invalid training dataset; the message names the file, the column and the problem."""
+
+
+# ---------------------------------------------------------------------------------------
+# Default synthetic physics (the single place holding the numbers of notes/team.md)
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SyntheticPhysics:
+    """Colour-ink-like synthetic printhead: ECM parameters and pinch-off/adjuster laws.
+
+    The pinch-off law is ``t_p = pinchoff_base_us + pinchoff_du1*(u1-70) + pinchoff_du2*(u2-25)``
+    (µs from the trigger); the adjusters are Eq. (16)/(17) of the paper.
+    """
+
+    density_kg_m3: float = 993.0
+    viscosity_mPa_s: float = 2.21
+    surface_tension_mN_m: float = 28.72
+    nozzle_inner_diameter_um: float = 200.0
+    nozzle_outer_diameter_um: float = 360.0
+    nozzle_length_mm: float = 5.0
+    reservoir_channel_radius_um: float = 94.0
+    reservoir_channel_length_mm: float = 20.0
+    resonance_hz: float = 800.0
+    La_kg_m4: float = 4e-13
+    Ra_over_La_per_s: float = 3333.0
+    kc_factor: float = -6.8e-7  # Kc = kc_factor * La / (CN * LR)
+    dead_time_us: float = DEAD_TIME_US
+    u3_um_per_ms: float = U3_PRESET_UM_PER_MS
+    hold_us: float = HOLD_PRESET_US
+    pinchoff_base_us: float = 1050.0
+    pinchoff_du1_us: float = -14.0
+    pinchoff_du2_us: float = 10.2
+    volume_adjuster: tuple[float, float, float] = (0.16, 0.014, 0.0037)
+    velocity_adjuster: tuple[float, float, float] = (-0.155, 0.0025, 0.0008)
+
+    def hydraulics(self) -> dict[str, float]:
+        """LN, RN, LR, RR of Eq. (2) in SI units."""
+        rho, mu = self.density_kg_m3, self.viscosity_mPa_s * 1e-3
+        rn = self.nozzle_inner_diameter_um * 0.5e-6
+        ln_m, rr, lr_m = self.nozzle_length_mm * 1e-3, self.reservoir_channel_radius_um * 1e-6, self.reservoir_channel_length_mm * 1e-3
+        return {
+            "LN": pipe_inertance(rho, ln_m, rn),
+            "RN": pipe_resistance(mu, ln_m, rn),
+            "LR": pipe_inertance(rho, lr_m, rr),
+            "RR": pipe_resistance(mu, lr_m, rr),
+        }
+
+    def ecm_parameters(self) -> EcmParameters:
+        """Physical ECM parameters (SI) of the synthetic printhead."""
+        h = self.hydraulics()
+        cn = 1.0 / ((2 * np.pi * self.resonance_hz) ** 2 * (h["LN"] + h["LR"]))
+        la = self.La_kg_m4
+        return EcmParameters(La=la, Ra=self.Ra_over_La_per_s * la, CN=cn, Kc=self.kc_factor * la / (cn * h["LR"]), **h)
+
+    def pinchoff_us(self, u1, u2):
+        """Pinch-off instant (µs from the trigger)."""
+        return self.pinchoff_base_us + self.pinchoff_du1_us * (np.asarray(u1) - 70.0) + self.pinchoff_du2_us * (np.asarray(u2) - 25.0)
+
+    def volume_adjust_nl(self, u1, u2):
+        c = self.volume_adjuster
+        return c[0] + c[1] * np.asarray(u1) + c[2] * np.asarray(u2)
+
+    def velocity_adjust_m_s(self, u1, u2):
+        c = self.velocity_adjuster
+        return c[0] + c[1] * np.asarray(u1) + c[2] * np.asarray(u2)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+#: SyntheticPhysics field <- dropvision.synth.physics.SynthPhysics attribute.
+_SYNTH_FIELD_MAP = {
+    "density_kg_m3": "density_kg_m3",
+    "viscosity_mPa_s": "viscosity_mpa_s",
+    "surface_tension_mN_m": "surface_tension_mn_m",
+    "nozzle_inner_diameter_um": "nozzle_inner_diameter_um",
+    "nozzle_outer_diameter_um": "nozzle_outer_diameter_um",
+    "nozzle_length_mm": "nozzle_length_mm",
+    "reservoir_channel_radius_um": "reservoir_channel_radius_um",
+    "reservoir_channel_length_mm": "reservoir_channel_length_mm",
+    "resonance_hz": "meniscus_resonance_hz",
+    "La_kg_m4": "piston_inertance_kg_m4",
+    "Ra_over_La_per_s": "piston_loss_ratio_per_s",
+    "kc_factor": "compliance_ratio_coefficient",
+    "dead_time_us": "dead_time_us",
+    "u3_um_per_ms": "u3_um_per_ms",
+    "hold_us": "hold_us",
+    "volume_adjuster": "volume_adjuster_nl",
+    "velocity_adjuster": "velocity_adjuster_m_s",
+}
+
+
+def physics_from_synth(sp) -> SyntheticPhysics:
+    """Convert a ``dropvision.synth.physics.SynthPhysics`` into :class:`SyntheticPhysics`."""
+    kw = {ours: getattr(sp, theirs) for ours, theirs in _SYNTH_FIELD_MAP.items()}
+    kw["volume_adjuster"] = tuple(kw["volume_adjuster"])
+    kw["velocity_adjuster"] = tuple(kw["velocity_adjuster"])
+    c0, c1, c2 = sp.pinchoff_law_us
+    return SyntheticPhysics(pinchoff_base_us=c0, pinchoff_du1_us=c1, pinchoff_du2_us=c2, **kw)
+
+
+def default_physics() -> SyntheticPhysics:
+    """The project's default synthetic physics (notes/team.md).
+
+    Taken from ``dropvision.synth.physics.SynthPhysics()`` (the single place holding the
+    numbers) when that module is importable; otherwise the defaults of
+    :class:`SyntheticPhysics` (identical numbers).
+    """
+    try:
+        from dropvision.synth.physics import SynthPhysics
+    except ImportError:  # pragma: no cover - synth package absent
+        return SyntheticPhysics()
+    return physics_from_synth(SynthPhysics())
+
+
+# ---------------------------------------------------------------------------------------
+# Dataset
+# ---------------------------------------------------------------------------------------
+
+
+@dataclass
+class Dataset:
+    """A validated training dataset (see the module docstring for the columns)."""
+
+    timeseries: pd.DataFrame
+    summary: pd.DataFrame
+    nozzle_inner_diameter_um: float
+    sample_interval_us: float
+    dead_time_us: float = DEAD_TIME_US
+    u3_um_per_ms: float = U3_PRESET_UM_PER_MS
+    hold_us: float = HOLD_PRESET_US
+    ink: dict | None = None
+    nozzle: dict | None = None
+    path: Path | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n_sequences(self) -> int:
+        return len(self.summary)
+
+    def waveform(self, u1: float, u2: float) -> Waveform:
+        return Waveform(float(u1), float(u2), self.u3_um_per_ms, self.hold_us)
+
+    def sequence(self, sequence_id) -> pd.DataFrame:
+        """Time-series rows of one sequence, sorted by delay."""
+        ts = self.timeseries
+        return ts[ts["sequence_id"] == sequence_id].sort_values("delay_us")
+
+    def distinct_controls(self) -> np.ndarray:
+        """Distinct (u1, u2) pairs, shape (m, 2)."""
+        return np.unique(self.summary[["u1_um_per_ms", "u2_um"]].to_numpy(float), axis=0)
+
+    def hydraulics(self) -> dict[str, float] | None:
+        """LN, RN, LR, RR (SI) from the ink and nozzle geometry (Eq. 2), or None if absent."""
+        if not self.ink or not self.nozzle:
+            return None
+        try:
+            rho = float(self.ink["density_kg_m3"])
+            mu = float(self.ink["viscosity_mPa_s"]) * 1e-3
+            ln_m = float(self.nozzle["length_mm"]) * 1e-3
+            rr = float(self.nozzle["reservoir_channel_radius_um"]) * 1e-6
+            lr_m = float(self.nozzle["reservoir_channel_length_mm"]) * 1e-3
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DatasetError(f"{self._json_name()}: ink/nozzle geometry incomplete or invalid ({exc})") from None
+        rn = self.nozzle_inner_diameter_um * 0.5e-6
+        return {
+            "LN": pipe_inertance(rho, ln_m, rn),
+            "RN": pipe_resistance(mu, ln_m, rn),
+            "LR": pipe_inertance(rho, lr_m, rr),
+            "RR": pipe_resistance(mu, lr_m, rr),
+        }
+
+    def _json_name(self) -> str:
+        return str(self.path / "dataset.json") if self.path else "dataset.json"
+
+    def metadata(self) -> dict:
+        out = {
+            "schema": SCHEMA,
+            "nozzle_inner_diameter_um": self.nozzle_inner_diameter_um,
+            "sample_interval_us": self.sample_interval_us,
+            "dead_time_us": self.dead_time_us,
+            "u3_um_per_ms": self.u3_um_per_ms,
+            "hold_us": self.hold_us,
+        }
+        if self.ink:
+            out["ink"] = dict(self.ink)
+        if self.nozzle:
+            out["nozzle"] = dict(self.nozzle)
+        out.update(self.extra)
+        return out
+
+    def save(self, out_dir) -> Path:
+        """Write the three files into ``out_dir`` (atomically, as one folder)."""
+        from dropvision.atomic import atomic_dir, write_json
+
+        out_dir = Path(out_dir)
+        with atomic_dir(out_dir) as tmp:
+            self.timeseries.to_parquet(tmp / "timeseries.parquet", index=False)
+            self.summary.to_parquet(tmp / "summary.parquet", index=False)
+            write_json(tmp / "dataset.json", self.metadata())
+        return out_dir
+
+
+def _check_columns(df: pd.DataFrame, spec: dict, fname: str) -> None:
+    missing = [c for c in spec if c not in df.columns]
+    if missing:
+        raise DatasetError(f"{fname}: missing column(s) {', '.join(missing)}")
+    for col, kind in spec.items():
+        s = df[col]
+        if kind == "f" and not (pd.api.types.is_numeric_dtype(s) and not pd.api.types.is_bool_dtype(s)):
+            raise DatasetError(f"{fname}: column {col} must be numeric, got dtype {s.dtype}")
+        if kind == "b" and not pd.api.types.is_bool_dtype(s):
+            raise DatasetError(f"{fname}: column {col} must be boolean, got dtype {s.dtype}")
+        if kind == "id" and s.isna().any():
+            raise DatasetError(f"{fname}: column {col} has missing values")
+
+
+def _finite(df: pd.DataFrame, col: str, fname: str, mask=None) -> None:
+    v = df[col].to_numpy(float)
+    if mask is not None:
+        v = v[np.asarray(mask)]
+    bad = ~np.isfinite(v)
+    if bad.any():
+        raise DatasetError(f"{fname}: column {col} has {int(bad.sum())} NaN/inf value(s)")
+
+
+def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
+    """Check a dataset's content; raise :class:`DatasetError` on the first problem.
+
+    ``min_controls`` is the least number of distinct (u1, u2) pairs accepted (the linear
+    polynomial of Eq. 7 has three coefficients).
+    """
+    base = ds.path if ds.path is not None else Path(".")
+    f_ts, f_su, f_js = str(base / "timeseries.parquet"), str(base / "summary.parquet"), str(base / "dataset.json")
+    if not np.isfinite(ds.nozzle_inner_diameter_um) or ds.nozzle_inner_diameter_um <= 0:
+        raise DatasetError(f"{f_js}: nozzle_inner_diameter_um must be > 0, got {ds.nozzle_inner_diameter_um!r}")
+    if not np.isfinite(ds.sample_interval_us) or ds.sample_interval_us <= 0:
+        raise DatasetError(f"{f_js}: sample_interval_us must be > 0, got {ds.sample_interval_us!r}")
+    if not np.isfinite(ds.dead_time_us) or ds.dead_time_us < 0:
+        raise DatasetError(f"{f_js}: dead_time_us must be >= 0, got {ds.dead_time_us!r}")
+    for name in ("u3_um_per_ms", "hold_us"):
+        v = getattr(ds, name)
+        if not np.isfinite(v) or v < 0 or (name == "u3_um_per_ms" and v == 0):
+            raise DatasetError(f"{f_js}: {name} invalid: {v!r}")
+
+    ts, su = ds.timeseries, ds.summary
+    _check_columns(ts, TIMESERIES_COLUMNS, f_ts)
+    _check_columns(su, SUMMARY_COLUMNS, f_su)
+    if len(ts) == 0:
+        raise DatasetError(f"{f_ts}: no rows")
+    for col in ("u1_um_per_ms", "u2_um", "delay_us"):
+        _finite(ts, col, f_ts)
+    att = ts["attached"].to_numpy(bool)
+    _finite(ts, "grown_volume_nl", f_ts, mask=att)
+    for col in SUMMARY_COLUMNS:
+        if SUMMARY_COLUMNS[col] == "f" and col not in _SUMMARY_NAN_OK:
+            _finite(su, col, f_su)
+    for fname, df in ((f_ts, ts), (f_su, su)):
+        for col in ("u1_um_per_ms", "u2_um"):
+            if (df[col].to_numpy(float) <= 0).any():
+                raise DatasetError(f"{fname}: column {col} must be > 0 (found {df[col].min()!r})")
+    if (ts["delay_us"].to_numpy(float) < 0).any():
+        raise DatasetError(f"{f_ts}: column delay_us must be >= 0")
+    for col in ("inflight_volume_nl", "grown_volume_at_pinchoff_nl"):
+        if (su[col].to_numpy(float) < 0).any():
+            raise DatasetError(f"{f_su}: column {col} has negative volumes")
+    if (su["pinchoff_us"].to_numpy(float) <= ds.dead_time_us).any():
+        raise DatasetError(f"{f_su}: column pinchoff_us must exceed the dead time {ds.dead_time_us} us")
+    if (su["jetting_velocity_m_s"].to_numpy(float) <= 0).any():
+        raise DatasetError(f"{f_su}: column jetting_velocity_m_s must be > 0")
+    gv = ts["grown_volume_nl"].to_numpy(float)[att]
+    # grown volumes are meniscus-subtracted, so slightly negative values from noise are fine;
+    # a clearly negative volume signals a sign or unit error.
+    scale = max(float(np.nanmax(np.abs(gv))) if gv.size else 0.0, 1e-12)
+    if gv.size and gv.min() < -0.5 * scale:
+        raise DatasetError(f"{f_ts}: column grown_volume_nl has strongly negative volumes (min {gv.min():.3g} nl)")
+
+    if su["sequence_id"].duplicated().any():
+        dup = su["sequence_id"][su["sequence_id"].duplicated()].iloc[0]
+        raise DatasetError(f"{f_su}: sequence_id {dup!r} appears more than once")
+    ids_ts, ids_su = set(ts["sequence_id"].unique()), set(su["sequence_id"])
+    if ids_ts != ids_su:
+        only = sorted(map(str, ids_ts ^ ids_su))[:3]
+        raise DatasetError(f"{f_ts} and {f_su}: sequence_id sets differ (e.g. {', '.join(only)})")
+    if len(su) < 2:
+        raise DatasetError(f"{f_su}: only {len(su)} sequence; identification needs several sequences")
+
+    h = ds.sample_interval_us
+    su_idx = su.set_index("sequence_id")
+    for sid, g in ts.groupby("sequence_id", sort=False):
+        d = g["delay_us"].to_numpy(float)
+        if np.unique(g["u1_um_per_ms"]).size != 1 or np.unique(g["u2_um"]).size != 1:
+            raise DatasetError(f"{f_ts}: sequence {sid!r} has several (u1_um_per_ms, u2_um) values")
+        row = su_idx.loc[sid]
+        if not np.isclose(g["u1_um_per_ms"].iloc[0], row["u1_um_per_ms"]) or not np.isclose(g["u2_um"].iloc[0], row["u2_um"]):
+            raise DatasetError(f"{f_ts}: sequence {sid!r} (u1_um_per_ms, u2_um) differs from {f_su}")
+        ds_sorted = np.sort(d)
+        if np.any(np.diff(ds_sorted) == 0):
+            raise DatasetError(f"{f_ts}: sequence {sid!r} has duplicated delay_us values")
+        k = ds_sorted / h
+        if not np.allclose(k, np.round(k), atol=1e-6):
+            raise DatasetError(
+                f"{f_ts}: sequence {sid!r} column delay_us is not on the {h} us sampling grid "
+                "(non-uniform sampling)"
+            )
+        if np.any(np.diff(np.round(k)) != 1):
+            raise DatasetError(f"{f_ts}: sequence {sid!r} column delay_us has gaps (non-uniform sampling)")
+        if d.size < 5:
+            raise DatasetError(f"{f_ts}: sequence {sid!r} has only {d.size} samples")
+    n_ctrl = len(ds.distinct_controls())
+    if n_ctrl < min_controls:
+        raise DatasetError(
+            f"{f_su}: only {n_ctrl} distinct (u1_um_per_ms, u2_um) pair(s); the polynomial models "
+            f"need at least {min_controls}"
+        )
+    return ds
+
+
+def load_dataset(path, *, min_controls: int = 3) -> Dataset:
+    """Read and validate a dataset folder.
+
+    Raises
+    ------
+    DatasetError
+        Missing folder/file, bad JSON, missing columns, wrong dtypes, NaNs, out-of-range
+        values, non-uniform sampling, duplicated delays, a single sequence, too few
+        distinct (u1, u2) pairs.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise DatasetError(f"{path}: dataset folder not found")
+    files = {n: path / n for n in ("timeseries.parquet", "summary.parquet", "dataset.json")}
+    for n, f in files.items():
+        if not f.is_file():
+            raise DatasetError(f"{f}: missing file")
+    try:
+        meta = json.loads(files["dataset.json"].read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise DatasetError(f"{files['dataset.json']}: invalid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise DatasetError(f"{files['dataset.json']}: must hold a JSON object")
+    frames = {}
+    for n in ("timeseries.parquet", "summary.parquet"):
+        try:
+            frames[n] = pd.read_parquet(files[n])
+        except Exception as exc:  # noqa: BLE001 - pyarrow raises many types
+            raise DatasetError(f"{files[n]}: cannot read parquet ({type(exc).__name__}: {exc})") from None
+
+    def num(key, default=None, required=False):
+        if key not in meta or meta[key] is None:
+            if required:
+                raise DatasetError(f"{files['dataset.json']}: missing key {key}")
+            return default
+        try:
+            return float(meta[key])
+        except (TypeError, ValueError):
+            raise DatasetError(f"{files['dataset.json']}: {key} must be a number, got {meta[key]!r}") from None
+
+    known = {"schema", "nozzle_inner_diameter_um", "sample_interval_us", "dead_time_us", "u3_um_per_ms", "hold_us", "ink", "nozzle"}
+    ds = Dataset(
+        timeseries=frames["timeseries.parquet"],
+        summary=frames["summary.parquet"],
+        nozzle_inner_diameter_um=num("nozzle_inner_diameter_um", required=True),
+        sample_interval_us=num("sample_interval_us", required=True),
+        dead_time_us=num("dead_time_us", DEAD_TIME_US),
+        u3_um_per_ms=num("u3_um_per_ms", U3_PRESET_UM_PER_MS),
+        hold_us=num("hold_us", HOLD_PRESET_US),
+        ink=meta.get("ink"),
+        nozzle=meta.get("nozzle"),
+        path=path,
+        extra={k: v for k, v in meta.items() if k not in known},
+    )
+    validate(ds, min_controls=min_controls)
+    ds.hydraulics()  # validates ink/nozzle geometry if given
+    return ds
+
+
+# ---------------------------------------------------------------------------------------
+# Synthetic dataset
+# ---------------------------------------------------------------------------------------
+
+
+def paper_grid(step_u1: float = 5.0, step_u2: float = 1.25) -> list[tuple[float, float]]:
+    """Colour-ink campaign grid of Table 1: u1 50..80 um/ms, u2 20..35 um."""
+    u1 = np.arange(50.0, 80.0 + 1e-9, step_u1)
+    u2 = np.arange(20.0, 35.0 + 1e-9, step_u2)
+    return [(float(a), float(b)) for a in u1 for b in u2]
+
+
+def _ecm_truth(physics: SyntheticPhysics, u1: float, u2: float, t_us: np.ndarray, t_p: float):
+    """Exact ECM volume/flow on ``t_us`` and at the pinch-off instant / maximum stroke."""
+    from identify.montecarlo import ecm_response_at
+
+    coeffs = physics.ecm_parameters().coefficients()
+    w = Waveform(u1, u2, physics.u3_um_per_ms, physics.hold_us)
+    u = w.displacement_um(t_us - physics.dead_time_us)
+    vol, flow = simulate(coeffs, t_us, u)
+    c = np.array([[coeffs.A3, coeffs.A2, coeffs.A1, coeffs.A0, coeffs.B1, coeffs.B0]])
+    v_p, _ = ecm_response_at(c, w, np.array([t_p - physics.dead_time_us]))
+    _, q_max = ecm_response_at(c, w, np.array([w.max_stroke_us]))
+    return vol, flow, float(v_p[0]), float(q_max[0])
+
+
+def make_synthetic_dataset(
+    out_dir,
+    grid=None,
+    noise_percent: float = 1.0,
+    seed: int = 0,
+    physics: SyntheticPhysics | None = None,
+    *,
+    repeats: int = 1,
+    sample_interval_us: float = SAMPLE_INTERVAL_US,
+    tail_samples: int = 3,
+) -> Dataset:
+    """Write a synthetic dataset with exactly known truth and return it.
+
+    For each (u1, u2) of ``grid`` (default :func:`paper_grid`) and each repeat, the grown
+    volume is the ECM response of ``physics`` to the delayed waveform, sampled every
+    ``sample_interval_us`` from the trigger until pinch-off (+ ``tail_samples`` detached
+    rows with NaN volume). The summary holds the pinch-off law, the ECM grown volume at the
+    pinch-off instant, in-flight volume = that + volume adjuster, and jetting velocity = ECM
+    flow velocity at maximum stroke + velocity adjuster (Eq. 8).
+
+    Noise: every volume, velocity and pinch-off value gets independent Gaussian noise of
+    ``noise_percent`` % of its own magnitude (time series: of the sequence's peak volume /
+    velocity). The truth is written to ``truth.json``.
+    """
+    physics = physics or default_physics()
+    if not isinstance(physics, SyntheticPhysics):
+        physics = physics_from_synth(physics)
+    grid = paper_grid() if grid is None else [(float(a), float(b)) for a, b in grid]
+    rng = np.random.default_rng(seed)
+    sigma = noise_percent / 100.0
+    d_um = physics.nozzle_inner_diameter_um
+    h = float(sample_interval_us)
+    ts_rows, su_rows, truth_rows = [], [], []
+    sid = 0
+    for u1, u2 in grid:
+        t_p = float(physics.pinchoff_us(u1, u2))
+        n = int(np.floor(t_p / h)) + 1 + tail_samples
+        t = np.arange(n) * h
+        vol, flow, v_p, q_max = _ecm_truth(physics, u1, u2, t, t_p)
+        vel = flow_velocity_m_s(flow, d_um)
+        v_max = flow_velocity_m_s(q_max, d_um)
+        inflight = v_p + float(physics.volume_adjust_nl(u1, u2))
+        jet = v_max + float(physics.velocity_adjust_m_s(u1, u2))
+        truth_rows.append({"u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": t_p, "grown_volume_at_pinchoff_nl": v_p,
+                           "inflight_volume_nl": inflight, "jetting_velocity_m_s": jet,
+                           "flow_velocity_at_max_stroke_m_s": v_max})
+        for _ in range(repeats):
+            tp_meas = t_p * (1 + sigma * rng.standard_normal())
+            attached = t < tp_meas
+            vn = vol + sigma * np.abs(vol).max() * rng.standard_normal(n)
+            fn = vel + sigma * np.abs(vel).max() * rng.standard_normal(n)
+            vn[~attached] = np.nan
+            fn[~attached] = np.nan
+            ts_rows.append(pd.DataFrame({
+                "sequence_id": sid, "u1_um_per_ms": u1, "u2_um": u2, "delay_us": t,
+                "grown_volume_nl": vn, "flow_velocity_m_s": fn, "attached": attached,
+            }))
+            su_rows.append({
+                "sequence_id": sid, "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp_meas,
+                "grown_volume_at_pinchoff_nl": v_p * (1 + sigma * rng.standard_normal()),
+                "inflight_volume_nl": inflight * (1 + sigma * rng.standard_normal()),
+                "jetting_velocity_m_s": jet * (1 + sigma * rng.standard_normal()),
+                "flow_velocity_at_max_stroke_m_s": v_max * (1 + sigma * rng.standard_normal()),
+            })
+            sid += 1
+    ts = pd.concat(ts_rows, ignore_index=True)
+    ts["sequence_id"] = ts["sequence_id"].astype("int64")
+    su = pd.DataFrame(su_rows)
+    ds = Dataset(
+        timeseries=ts, summary=su, nozzle_inner_diameter_um=d_um, sample_interval_us=h,
+        dead_time_us=physics.dead_time_us, u3_um_per_ms=physics.u3_um_per_ms, hold_us=physics.hold_us,
+        ink={"name": "synthetic colour ink", "density_kg_m3": physics.density_kg_m3,
+             "viscosity_mPa_s": physics.viscosity_mPa_s, "surface_tension_mN_m": physics.surface_tension_mN_m},
+        nozzle={"length_mm": physics.nozzle_length_mm, "outer_diameter_um": physics.nozzle_outer_diameter_um,
+                "reservoir_channel_radius_um": physics.reservoir_channel_radius_um,
+                "reservoir_channel_length_mm": physics.reservoir_channel_length_mm},
+        extra={"synthetic": {"noise_percent": noise_percent, "seed": seed, "repeats": repeats}},
+    )
+    out_dir = Path(out_dir)
+    ds.save(out_dir)
+    from dropvision.atomic import write_json
+
+    p = physics.ecm_parameters()
+    write_json(out_dir / "truth.json", {
+        "schema": "identify.truth/1",
+        "physics": physics.to_dict(),
+        "ecm_parameters": p.to_dict(),
+        "ecm_coefficients": p.coefficients().to_dict(),
+        "per_control": truth_rows,
+    })
+    ds.path = out_dir
+    return ds
+
+
+def with_path(ds: Dataset, path) -> Dataset:
+    """Copy of ``ds`` with ``path`` set (used in error messages)."""
+    return replace(ds, path=Path(path))

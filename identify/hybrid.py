@@ -1,0 +1,516 @@
+"""Hybrid model of drop formation, Eq. (8): ECM + pinch-off instant + adjusters.
+
+Prediction at control parameters (u1, u2):
+
+- pinch-off instant t_p (µs from the trigger) from the pinch-off polynomial (Eq. 7);
+- grown volume at pinch-off = ECM volume (Eq. 6) at t_p for the waveform delayed by the
+  dead time (exact, :func:`identify.montecarlo.ecm_response_at`);
+- in-flight volume = that + volume adjuster polynomial (nl);
+- jetting velocity = ECM flow at maximum stroke (t = dead + 1000 u2/u1 µs) / nozzle
+  cross-section + velocity adjuster polynomial (m/s).
+
+Adjuster training targets (``adjuster_reference``)
+--------------------------------------------------
+``"ecm"`` (default): volume adjustment = measured in-flight volume - ECM-simulated grown
+volume at the *measured* pinch-off instant of that sequence; velocity adjustment = measured
+jetting velocity - ECM flow velocity at maximum stroke. The adjuster then also absorbs any
+bias of the identified ECM, so prediction (which uses the ECM) and training are consistent,
+while the pinch-off uncertainty stays in the pinch-off polynomial.
+``"measured"``: the paper's Section 4.1.2: in-flight volume - grown volume measured right
+before pinch-off; jetting velocity - measured flow velocity at maximum stroke (summary
+columns ``grown_volume_at_pinchoff_nl`` and ``flow_velocity_at_max_stroke_m_s``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from identify.dataset import Dataset, DatasetError
+from identify.ecm import EcmCoefficients, EcmParameters, flow_velocity_m_s
+from identify.montecarlo import COEFF_NAMES, OUTPUTS, ecm_response_at, modal_form, run_monte_carlo
+from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, select_order
+from identify.waveform import Waveform
+
+SCHEMA = "identify.hybrid-model/1"
+
+
+class ModelFileError(ValueError):
+    """model.json missing, unreadable or of the wrong schema."""
+
+
+def nozzle_area_m2(d_um: float) -> float:
+    return float(np.pi * (d_um * 1e-6) ** 2 / 4)
+
+
+@dataclass
+class HybridModel:
+    """Identified hybrid model (Eq. 8). See the module docstring."""
+
+    dead_time_us: float
+    sample_interval_us: float
+    nozzle_inner_diameter_um: float
+    u3_um_per_ms: float
+    hold_us: float
+    ecm_coefficients: EcmCoefficients
+    ecm_coeff_cov: np.ndarray | None
+    pinchoff: PolynomialFit
+    volume_adjuster: PolynomialFit
+    velocity_adjuster: PolynomialFit
+    arx_structure: dict | None = None
+    ecm_parameters: dict | None = None  # SI, {"La": {"value", "ci95"}, ...}
+    controls: np.ndarray | None = None  # distinct training (u1, u2), shape (m, 2)
+    adjuster_reference: str = "ecm"
+    versions: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    # ---- prediction ----------------------------------------------------------------
+    def waveform(self, u1: float, u2: float) -> Waveform:
+        return Waveform(float(u1), float(u2), self.u3_um_per_ms, self.hold_us)
+
+    def predict(self, u1: float, u2: float) -> dict:
+        """Nominal prediction: dict of :data:`identify.montecarlo.OUTPUTS` (+ ECM flow velocity at max stroke)."""
+        w = self.waveform(u1, u2)
+        t_p = float(self.pinchoff.predict(u1, u2))
+        modal = modal_form(self.ecm_coefficients)
+        v_p, _ = ecm_response_at(modal, w, np.array([t_p - self.dead_time_us]))
+        _, q = ecm_response_at(modal, w, np.array([w.max_stroke_us]))
+        v_max = float(flow_velocity_m_s(q[0], self.nozzle_inner_diameter_um))
+        return {
+            "pinchoff_us": t_p,
+            "grown_volume_at_pinchoff_nl": float(v_p[0]),
+            "inflight_volume_nl": float(v_p[0] + self.volume_adjuster.predict(u1, u2)),
+            "jetting_velocity_m_s": float(v_max + self.velocity_adjuster.predict(u1, u2)),
+            "flow_velocity_at_max_stroke_m_s": v_max,
+        }
+
+    def predict_grid(self, u1, u2) -> pd.DataFrame:
+        """Nominal predictions for arrays of (u1, u2), vectorised; one row per pair.
+
+        Columns: u1_um_per_ms, u2_um and the keys of :meth:`predict`.
+        """
+        from identify.montecarlo import ecm_response_at_controls
+
+        u1, u2 = np.broadcast_arrays(np.atleast_1d(np.asarray(u1, float)), np.atleast_1d(np.asarray(u2, float)))
+        if np.any(~np.isfinite(u1) | ~np.isfinite(u2) | (u1 <= 0) | (u2 <= 0)):
+            raise ValueError("u1 and u2 must be positive numbers")
+        modal = modal_form(self.ecm_coefficients)
+        t_p = self.pinchoff.predict(u1, u2)
+        args = (self.u3_um_per_ms, self.hold_us)
+        v_p, _ = ecm_response_at_controls(modal, u1, u2, t_p - self.dead_time_us, *args)
+        _, q = ecm_response_at_controls(modal, u1, u2, 1000.0 * u2 / u1, *args)
+        v_max = flow_velocity_m_s(q, self.nozzle_inner_diameter_um)
+        return pd.DataFrame({
+            "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": t_p, "grown_volume_at_pinchoff_nl": v_p,
+            "inflight_volume_nl": v_p + self.volume_adjuster.predict(u1, u2),
+            "jetting_velocity_m_s": v_max + self.velocity_adjuster.predict(u1, u2),
+            "flow_velocity_at_max_stroke_m_s": v_max,
+        })
+
+    def monte_carlo(self, u1: float, u2: float, samples: int = 10_000, seed: int | None = 0, **kw):
+        """Monte Carlo of Section 5.1 (see :func:`identify.montecarlo.run_monte_carlo`)."""
+        return run_monte_carlo(self, u1, u2, samples=samples, seed=seed, **kw)
+
+    @property
+    def nozzle_area_m2(self) -> float:
+        return nozzle_area_m2(self.nozzle_inner_diameter_um)
+
+    # ---- serialisation --------------------------------------------------------------
+    def to_dict(self) -> dict:
+        c = self.ecm_coefficients
+        cov = None if self.ecm_coeff_cov is None else np.asarray(self.ecm_coeff_cov)
+        ci = None if cov is None else (1.959963984540054 * np.sqrt(np.clip(np.diag(cov), 0, None))).tolist()
+        return {
+            "schema": SCHEMA,
+            "dead_time_us": self.dead_time_us,
+            "sample_interval_us": self.sample_interval_us,
+            "nozzle_inner_diameter_um": self.nozzle_inner_diameter_um,
+            "nozzle_area_m2": self.nozzle_area_m2,
+            "waveform": {"u3_um_per_ms": self.u3_um_per_ms, "hold_us": self.hold_us},
+            "arx_structure": self.arx_structure,
+            "ecm": {
+                "units": "SI: displacement m, volume m^3, time s",
+                "coefficients": {k: getattr(c, k) for k in COEFF_NAMES},
+                "coefficients_ci95": None if ci is None else dict(zip(COEFF_NAMES, ci)),
+                "coefficient_order": list(COEFF_NAMES),
+                "coefficient_covariance": None if cov is None else cov.tolist(),
+                "parameters": self.ecm_parameters,
+            },
+            "pinchoff": self.pinchoff.to_dict(),
+            "volume_adjuster": self.volume_adjuster.to_dict(),
+            "velocity_adjuster": self.velocity_adjuster.to_dict(),
+            "adjuster_reference": self.adjuster_reference,
+            "training_controls": None if self.controls is None else np.asarray(self.controls).tolist(),
+            "versions": self.versions,
+            "extra": self.extra,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, *, source: str = "model.json") -> "HybridModel":
+        if not isinstance(d, dict) or d.get("schema") != SCHEMA:
+            raise ModelFileError(f"{source}: not a hybrid model file (schema {SCHEMA!r} expected)")
+        try:
+            e = d["ecm"]
+            cov = e.get("coefficient_covariance")
+            return cls(
+                dead_time_us=float(d["dead_time_us"]),
+                sample_interval_us=float(d["sample_interval_us"]),
+                nozzle_inner_diameter_um=float(d["nozzle_inner_diameter_um"]),
+                u3_um_per_ms=float(d["waveform"]["u3_um_per_ms"]),
+                hold_us=float(d["waveform"]["hold_us"]),
+                ecm_coefficients=EcmCoefficients(**{k: float(e["coefficients"][k]) for k in COEFF_NAMES}),
+                ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
+                pinchoff=PolynomialFit.from_dict(d["pinchoff"]),
+                volume_adjuster=PolynomialFit.from_dict(d["volume_adjuster"]),
+                velocity_adjuster=PolynomialFit.from_dict(d["velocity_adjuster"]),
+                arx_structure=d.get("arx_structure"),
+                ecm_parameters=e.get("parameters"),
+                controls=None if d.get("training_controls") is None else np.asarray(d["training_controls"], float),
+                adjuster_reference=d.get("adjuster_reference", "ecm"),
+                versions=d.get("versions", {}),
+                extra=d.get("extra", {}),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ModelFileError(f"{source}: invalid model file ({type(exc).__name__}: {exc})") from None
+
+    def to_json(self, path) -> Path:
+        """Write model.json atomically."""
+        from dropvision.atomic import write_json
+
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def from_json(cls, path) -> "HybridModel":
+        path = Path(path)
+        if not path.is_file():
+            raise ModelFileError(f"{path}: model file not found")
+        try:
+            d = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise ModelFileError(f"{path}: invalid JSON ({exc})") from None
+        return cls.from_dict(d, source=str(path))
+
+
+@dataclass
+class FitReport:
+    """Everything :func:`fit_hybrid` produced: the model and the selection tables."""
+
+    model: HybridModel
+    arx_selection: object | None
+    ecm_fit: object
+    pinchoff_selection: OrderSelection
+    volume_selection: OrderSelection
+    velocity_selection: OrderSelection
+    training: pd.DataFrame  # per-sequence targets of the polynomials
+    notes: list = field(default_factory=list)
+
+    def tables(self) -> dict[str, pd.DataFrame]:
+        out = {
+            "pinchoff": self.pinchoff_selection.table,
+            "volume_adjuster": self.volume_selection.table,
+            "velocity_adjuster": self.velocity_selection.table,
+        }
+        if self.arx_selection is not None and getattr(self.arx_selection, "table", None) is not None:
+            out["arx"] = self.arx_selection.table
+        return out
+
+
+# ---------------------------------------------------------------------------------------
+# adapters to identify.arx and identify.ecm_fit
+# ---------------------------------------------------------------------------------------
+
+
+def _sequences(ds: Dataset):
+    """Per sequence: (summary row, attached rows sorted by delay)."""
+    out = []
+    for _, row in ds.summary.iterrows():
+        g = ds.sequence(row["sequence_id"])
+        g = g[g["attached"].to_numpy(bool)]
+        out.append((row, g))
+    return out
+
+
+def arx_sequences(ds: Dataset) -> list[tuple[np.ndarray, np.ndarray]]:
+    """ARX data: u = Eq. (9) waveform without dead time sampled from the trigger, y = grown volume.
+
+    Each sequence is cut at its last attached sample; samples start at delay 0 (missing
+    leading samples are not allowed by the validator's no-gap rule only within a sequence,
+    so sequences not starting at delay 0 are skipped).
+    """
+    h = ds.sample_interval_us
+    out = []
+    for row, g in _sequences(ds):
+        d = g["delay_us"].to_numpy(float)
+        if d.size < 5 or abs(d[0]) > 1e-6:
+            continue
+        kp = int(round(d[-1] / h))
+        u = ds.waveform(row["u1_um_per_ms"], row["u2_um"]).sampled_um(kp, h)
+        out.append((u, g["grown_volume_nl"].to_numpy(float)))
+    return out
+
+
+def _make_ecm_data(cls, **values):
+    """Build an ``identify.ecm_fit.EcmData`` from our values, matching its field names."""
+    names = [f.name for f in dataclasses.fields(cls)]
+    kw = {}
+    for n in names:
+        if n in values:
+            kw[n] = values[n]
+        elif "pinch" in n and "vol" in n:
+            kw[n] = values["pinchoff_volume_nl"]
+        elif "pinch" in n and ("disp" in n or n.startswith("u")):
+            kw[n] = values["pinchoff_displacement_um"]
+    return cls(**kw)
+
+
+def ecm_sequences(ds: Dataset) -> list[dict]:
+    """Per sequence: t_us (from trigger), u_um (delayed waveform), volume_nl, pinch-off values."""
+    out = []
+    for row, g in _sequences(ds):
+        w = ds.waveform(row["u1_um_per_ms"], row["u2_um"])
+        t = g["delay_us"].to_numpy(float)
+        out.append({
+            "t_us": t,
+            "u_um": w.displacement_um(t - ds.dead_time_us),
+            "volume_nl": g["grown_volume_nl"].to_numpy(float),
+            "pinchoff_volume_nl": float(row["grown_volume_at_pinchoff_nl"]),
+            "pinchoff_displacement_um": float(w.displacement_um(row["pinchoff_us"] - ds.dead_time_us)),
+            "u1_um_per_ms": float(row["u1_um_per_ms"]),
+            "u2_um": float(row["u2_um"]),
+        })
+    return out
+
+
+def _fit_ecm(ds: Dataset, method: str, notes: list):
+    """Fit the ECM through identify.ecm_fit (or the local fallback if that module is absent)."""
+    hyd = ds.hydraulics()
+    if hyd is None:
+        raise DatasetError(
+            f"{ds._json_name()}: ink (density_kg_m3, viscosity_mPa_s) and nozzle geometry (length_mm, "
+            "reservoir_channel_radius_um, reservoir_channel_length_mm) are needed for Eq. (2)"
+        )
+    seqs = ecm_sequences(ds)
+    try:
+        from identify import ecm_fit as _ef  # type: ignore
+    except ImportError:
+        notes.append("identify.ecm_fit not available: used the local output-error fallback (La fixed)")
+        return _fallback_fit_ecm(seqs, hyd)
+    data = [_make_ecm_data(_ef.EcmData, **s) for s in seqs]
+    return _ef.fit_ecm(data, _ef.Hydraulics(hyd["LN"], hyd["RN"], hyd["LR"], hyd["RR"]), method=method)
+
+
+@dataclass
+class _FallbackEcmFit:
+    parameters: EcmParameters
+    coefficients: EcmCoefficients
+    coeff_cov: np.ndarray
+    param_ci95: dict
+
+    def to_dict(self) -> dict:
+        return {"parameters": self.parameters.to_dict(), "coefficients": self.coefficients.to_dict(),
+                "coeff_cov": self.coeff_cov.tolist(), "param_ci95": self.param_ci95, "method": "fallback-oe"}
+
+
+def _fallback_fit_ecm(seqs: list[dict], hyd: dict, La: float = 4e-13) -> _FallbackEcmFit:
+    """Output-error fit of (La/Ra, CN, Kc/Ra) with known hydraulics; La fixed (scale not identifiable)."""
+    from scipy.optimize import least_squares
+
+    from identify.montecarlo import simulate_batch
+
+    LN, RN, LR, RR = hyd["LN"], hyd["RN"], hyd["LR"], hyd["RR"]
+
+    def params(x):
+        tau, cn, kap = np.exp(x)
+        ra = La / tau
+        return EcmParameters(La=La, Ra=ra, CN=cn, Kc=-kap * ra, LN=LN, RN=RN, LR=LR, RR=RR)
+
+    def coeffs(x):
+        c = params(x).coefficients()
+        return np.array([getattr(c, k) for k in COEFF_NAMES])
+
+    def resid(x):
+        with np.errstate(all="ignore"):
+            c = coeffs(x)[None]
+            modal = modal_form(c)
+            r = []
+            for s in seqs:
+                v, _ = simulate_batch(modal, s["t_us"], s["u_um"], use_numba=False)
+                r.append(v[0] - s["volume_nl"])
+            out = np.concatenate(r)
+        return np.where(np.isfinite(out), out, 1e6)
+
+    g = np.median([s["pinchoff_volume_nl"] / max(s["pinchoff_displacement_um"], 1e-9) for s in seqs])
+    best = None
+    for f_hz in (400.0, 1000.0, 2500.0):
+        for tau in (1e-4, 1e-3):
+            cn = 1 / ((2 * np.pi * f_hz) ** 2 * (LN + LR))
+            kap = max(g * 1e-6 / (cn * RR), 1e-30)
+            x0 = np.log([tau, cn, kap])
+            try:
+                sol = least_squares(resid, x0, x_scale=1.0, max_nfev=200)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            if best is None or sol.cost < best.cost:
+                best = sol
+    x = best.x
+    J = best.jac
+    dof = max(J.shape[0] - J.shape[1], 1)
+    s2 = 2 * best.cost / dof
+    cov_x = s2 * np.linalg.pinv(J.T @ J)
+    # coefficient Jacobian by central differences in x
+    Jc = np.empty((6, 3))
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1e-6
+        Jc[:, k] = (coeffs(x + e) - coeffs(x - e)) / 2e-6
+    cov_c = Jc @ cov_x @ Jc.T
+    p = params(x)
+    # parameter intervals: Ra, CN, Kc from x (delta method)
+    def pvec(xx):
+        q = params(xx)
+        return np.array([q.Ra, q.CN, q.Kc])
+    Jp = np.empty((3, 3))
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = 1e-6
+        Jp[:, k] = (pvec(x + e) - pvec(x - e)) / 2e-6
+    ci = 1.96 * np.sqrt(np.clip(np.diag(Jp @ cov_x @ Jp.T), 0, None))
+    return _FallbackEcmFit(parameters=p, coefficients=p.coefficients(), coeff_cov=cov_c,
+                           param_ci95={"La": 0.0, "Ra": ci[0], "CN": ci[1], "Kc": ci[2]})
+
+
+def _arx_select(ds: Dataset, notes: list, ranges: dict | None, folds: int, progress: bool):
+    try:
+        from identify import arx as _arx  # type: ignore
+    except ImportError:
+        notes.append("identify.arx not available: ARX structure selection skipped")
+        return None
+    seqs = arx_sequences(ds)
+    if len(seqs) < 2:
+        notes.append("ARX structure selection skipped: fewer than 2 sequences start at delay 0")
+        return None
+    nk0 = int(round(ds.dead_time_us / ds.sample_interval_us))
+    r = {"na_range": range(2, 5), "nb_range": range(1, 4), "nk_range": range(max(1, nk0 - 1), nk0 + 2)}
+    r.update(ranges or {})
+    return _arx.select_structure(seqs, r["na_range"], r["nb_range"], r["nk_range"], folds=min(folds, len(seqs)), seed=0)
+
+
+def _param_dict(fit) -> dict | None:
+    p = getattr(fit, "parameters", None)
+    if p is None:
+        return None
+    ci = getattr(fit, "param_ci95", None) or {}
+    pd_ = p.to_dict() if hasattr(p, "to_dict") else dict(p)
+    out = {}
+    for k, v in pd_.items():
+        entry = {"value": float(v), "low": None, "high": None}
+        c = ci.get(k)
+        if c is not None and np.ndim(c) == 1 and len(c) == 2:  # (low, high)
+            entry["low"], entry["high"] = float(c[0]), float(c[1])
+        elif c is not None and np.ndim(c) == 0:  # half-width
+            entry["low"], entry["high"] = float(v) - float(c), float(v) + float(c)
+        out[k] = entry
+    return out
+
+
+# ---------------------------------------------------------------------------------------
+# fitting
+# ---------------------------------------------------------------------------------------
+
+
+def fit_hybrid(
+    ds: Dataset, *, orders=DEFAULT_ORDERS, folds: int = 10, seed: int = 0, ecm_method: str = "oe",
+    adjuster_reference: str = "ecm", arx: bool = True, arx_ranges: dict | None = None,
+    progress: bool = False,
+) -> FitReport:
+    """Identify the hybrid model of Eq. (8) from a validated dataset.
+
+    Steps: ARX structure selection (Section 4.2, reported only), ECM identification
+    (Section 4.3, through :mod:`identify.ecm_fit`), then 10-fold CV order selection and
+    fits of the pinch-off polynomial and the two adjusters (Section 4.4).
+    """
+    from tqdm import tqdm
+
+    if adjuster_reference not in ("ecm", "measured"):
+        raise ValueError(f"adjuster_reference must be 'ecm' or 'measured', got {adjuster_reference!r}")
+    notes: list = []
+    bar = tqdm(total=5, desc="identify fit", disable=not progress, leave=False)
+    arx_sel = _arx_select(ds, notes, arx_ranges, folds, progress) if arx else None
+    bar.update(1)
+    efit = _fit_ecm(ds, ecm_method, notes)
+    bar.update(1)
+    coeffs = efit.coefficients
+    c_arr = np.array([[getattr(coeffs, k) for k in COEFF_NAMES]])
+    modal = modal_form(c_arr)
+    su = ds.summary
+    u1 = su["u1_um_per_ms"].to_numpy(float)
+    u2 = su["u2_um"].to_numpy(float)
+    tp = su["pinchoff_us"].to_numpy(float)
+    inflight = su["inflight_volume_nl"].to_numpy(float)
+    jet = su["jetting_velocity_m_s"].to_numpy(float)
+    v_ecm = np.empty(len(su))
+    q_ecm = np.empty(len(su))
+    for i in range(len(su)):
+        w = ds.waveform(u1[i], u2[i])
+        v_ecm[i] = ecm_response_at(modal, w, np.array([tp[i] - ds.dead_time_us]))[0][0]
+        q_ecm[i] = ecm_response_at(modal, w, np.array([w.max_stroke_us]))[1][0]
+    vel_ecm = flow_velocity_m_s(q_ecm, ds.nozzle_inner_diameter_um)
+    if adjuster_reference == "ecm":
+        vol_target = inflight - v_ecm
+        vel_target = jet - vel_ecm
+    else:
+        meas_vel = su["flow_velocity_at_max_stroke_m_s"].to_numpy(float)
+        if not np.all(np.isfinite(meas_vel)):
+            raise DatasetError(
+                f"{ds.path or '.'}/summary.parquet: column flow_velocity_at_max_stroke_m_s has NaN; "
+                "it is needed with adjuster_reference='measured'"
+            )
+        vol_target = inflight - su["grown_volume_at_pinchoff_nl"].to_numpy(float)
+        vel_target = jet - meas_vel
+    kw = dict(orders=orders, folds=folds, seed=seed)
+    sel_p = select_order(u1, u2, tp, name="pinchoff", unit="us", **kw)
+    bar.update(1)
+    sel_v = select_order(u1, u2, vol_target, name="volume_adjuster", unit="nl", **kw)
+    bar.update(1)
+    sel_q = select_order(u1, u2, vel_target, name="velocity_adjuster", unit="m/s", **kw)
+    bar.update(1)
+    bar.close()
+    try:
+        from dropvision.versions import software_versions
+
+        versions = software_versions()
+    except ImportError:  # pragma: no cover
+        versions = {}
+    import identify
+
+    versions["identify"] = identify.__version__
+    arx_struct = None
+    if arx_sel is not None and getattr(arx_sel, "selected", None) is not None:
+        na, nb, nk = arx_sel.selected
+        arx_struct = {"na": int(na), "nb": int(nb), "nk": int(nk)}
+    cov = getattr(efit, "coeff_cov", None)
+    model = HybridModel(
+        dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
+        nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, u3_um_per_ms=ds.u3_um_per_ms, hold_us=ds.hold_us,
+        ecm_coefficients=EcmCoefficients(*c_arr[0]),
+        ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
+        pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
+        arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=ds.distinct_controls(),
+        adjuster_reference=adjuster_reference, versions=versions,
+        extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
+    )
+    training = pd.DataFrame({
+        "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,
+        "ecm_grown_volume_at_pinchoff_nl": v_ecm, "ecm_flow_velocity_at_max_stroke_m_s": vel_ecm,
+        "volume_adjustment_nl": vol_target, "velocity_adjustment_m_s": vel_target,
+    })
+    return FitReport(model=model, arx_selection=arx_sel, ecm_fit=efit, pinchoff_selection=sel_p,
+                     volume_selection=sel_v, velocity_selection=sel_q, training=training, notes=notes)
+
+
+__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS"]

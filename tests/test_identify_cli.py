@@ -1,0 +1,75 @@
+"""`identify` console script end to end on a small synthetic dataset."""
+
+import json
+
+import numpy as np
+import pytest
+
+from identify.cli import main
+from identify.dataset import make_synthetic_dataset
+
+GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]
+KEYS = {"pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s"}
+
+
+@pytest.fixture(scope="module")
+def fitted(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli")
+    make_synthetic_dataset(root / "ds", grid=GRID, noise_percent=0.5, seed=4)
+    return root
+
+
+def test_fit_predict_design(fitted, capsys):
+    model = fitted / "model.json"
+    assert main(["fit", str(fitted / "ds"), "--out", str(model), "--folds", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "10-fold CV" in out and "val_rmse" in out and "ARX" in out and "wrote" in out
+    d = json.loads(model.read_text())
+    assert d["arx_structure"] is not None and set(d["arx_structure"]) == {"na", "nb", "nk"}
+    assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "2000", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == KEYS
+    for v in res.values():
+        assert set(v) == {"mean", "std", "low", "high"} and v["low"] <= v["mean"] <= v["high"]
+    assert 15 < res["inflight_volume_nl"]["mean"] < 23
+    assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500"]) == 0
+    assert "inflight_volume_nl" in capsys.readouterr().out
+    assert main(["design", str(model), "--volume-nl", str(res["inflight_volume_nl"]["mean"]), "--samples", "200", "--json"]) == 0
+    des = json.loads(capsys.readouterr().out)
+    assert des["feasible"] and abs(des["error_percent"]["volume"]) < 1
+    assert main(["design", str(model), "--volume-nl", "900"]) == 1
+    assert "infeasible" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "argv, match",
+    [
+        (["fit", "/nonexistent/ds", "--out", "x.json"], "dataset folder not found"),
+        (["predict", "/nonexistent/model.json", "--u1", "70", "--u2", "25"], "model file not found"),
+        (["predict", "m.json", "--u1", "-70", "--u2", "25"], "--u1 must be > 0"),
+        (["design", "m.json"], "--volume-nl"),
+    ],
+)
+def test_bad_input_exit_2(argv, match, capsys):
+    with pytest.raises(SystemExit) if argv[0] == "design" or "-70" in argv else _nullcontext() as exc:
+        code = main(argv)
+    if exc is not None and hasattr(exc, "value"):
+        code = exc.value.code
+    assert code == 2
+    err = capsys.readouterr().err
+    assert match in err and err.count("\n") == 1
+
+
+class _nullcontext:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *a):
+        return False
+
+
+def test_paper_command(capsys):
+    pytest.importorskip("identify.paper")
+    assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert set(res) == KEYS
