@@ -73,3 +73,9 @@ def test_paper_command(capsys):
     assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert set(res) == KEYS
+
+
+def test_paper_command_text_output(capsys):
+    assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000"]) == 0
+    out = capsys.readouterr().out
+    assert "pinchoff_us" in out and "inflight_volume_nl" in out and "note:" in out
