@@ -92,7 +92,18 @@ def cmd_predict(args) -> int:
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
     res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed)
-    summary = res.summary()
+    mc = res.summary()
+    nominal = m.predict(args.u1, args.u2)
+    # Same keys as `identify paper`: nominal pinch-off and grown volume, Monte Carlo spreads of
+    # the in-flight volume and jetting velocity (and of the first two under *_mc keys).
+    summary = {
+        "pinchoff_us": nominal["pinchoff_us"],
+        "grown_volume_at_pinchoff_nl": nominal["grown_volume_at_pinchoff_nl"],
+        "inflight_volume_nl": mc["inflight_volume_nl"],
+        "jetting_velocity_m_s": mc["jetting_velocity_m_s"],
+        "pinchoff_us_mc": mc["pinchoff_us"],
+        "grown_volume_at_pinchoff_mc_nl": mc["grown_volume_at_pinchoff_nl"],
+    }
     if args.json:
         print(json.dumps(summary))
         return 0
