@@ -13,7 +13,9 @@ writes the dataset:
   pinchoff_us, grown_volume_at_pinchoff_nl, inflight_volume_nl, jetting_velocity_m_s,
   flow_velocity_at_max_stroke_m_s (+ inflight_volume_std_nl, jetting_velocity_se_m_s,
   satellites, n_frames, n_errors);
-- ``dataset.json``: nozzle_inner_diameter_um, ink, sample_interval_us, dead_time_us,
+- ``dataset.json``: nozzle_inner_diameter_um, ink, nozzle (geometry for Eq. 2: length_mm,
+  reservoir_channel_radius_um, reservoir_channel_length_mm, from sequence.json's optional
+  ``nozzle`` block), sample_interval_us, dead_time_us,
   u3_um_per_ms, hold_us, pixel_size_um, the sequences, software versions;
 - ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash);
 - ``manifest.json``: each sequence's path, input hash, status and error.
@@ -154,6 +156,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
             "ink": meta.ink,
             "nozzle_inner_diameter_um": meta.nozzle_inner_diameter_um,
             "pixel_size_um": meta.pixel_size_um,
+            "nozzle": (meta.extra or {}).get("nozzle"),
         }
         return {"status": "ok", "error": None, "meta": info}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
@@ -263,6 +266,7 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
         "schema": DATASET_SCHEMA,
         "nozzle_inner_diameter_um": _common([m.get("nozzle_inner_diameter_um") for m, _ in metas], "nozzle_inner_diameter_um"),
         "ink": _common([m.get("ink") for m, _ in metas], "ink"),
+        "nozzle": _common([m.get("nozzle") for m, _ in metas], "nozzle geometry"),
         "pixel_size_um": _common([m.get("pixel_size_um") for m, _ in metas], "pixel_size_um", tol=1e-6),
         "sample_interval_us": float(np.median(steps)) if steps.size else None,
         "dead_time_us": _common([w.get("dead_time_us", 220.0) for _, w in metas], "waveform dead_time_us"),

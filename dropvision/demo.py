@@ -1,10 +1,271 @@
-"""`make demo`: the main job on the shipped sample frames (grows with every issue)."""
+"""`make demo`: the full loop on synthetic data with exact truth.
 
+1. measure the shipped sample sequences (``sample_frames/``) and compare with their truth;
+2. render a small calibration campaign (a grid of (u1, u2), like the paper's Table 1);
+3. measure it into a training dataset (`dropvision campaign`);
+4. fit the hybrid model (`identify fit`): ARX structure, ECM, pinch-off and adjusters;
+5. predict one operating point with Monte Carlo and inverse-design a target volume;
+6. write ``out/``: dataset, model.json, Rerun recordings, PNG plots like Figs. 6 and 7;
+7. print a report: measured and predicted values against the synthetic truth.
+
+Run ``python -m dropvision.demo --help`` for options (``--quick`` for a smaller grid).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
 import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+SAMPLE_FRAMES = REPO / "sample_frames"
 
 
-def main() -> int:
-    print("dropvision demo: pipeline under construction")
+def _rel_err(measured, truth) -> str:
+    if measured is None or truth is None or not np.isfinite(measured) or not np.isfinite(truth) or truth == 0:
+        return "   n/a"
+    return f"{100.0 * (measured - truth) / truth:+6.2f} %"
+
+
+def _fmt(x, spec=".3f") -> str:
+    return "nan" if x is None or not np.isfinite(x) else format(x, spec)
+
+
+def measure_samples(out: Path, rerun: bool) -> list[dict]:
+    """Measure every sample sequence; return rows comparing summary and truth."""
+    from dropvision.measure import MeasureConfig, measure_sequence
+
+    rows = []
+    for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):
+        logger = None
+        if rerun:
+            from dropvision.rerun_log import RerunLogger
+
+            logger = RerunLogger(path=out / f"measure-{seq.name}.rrd", recording_name=seq.name)
+        try:
+            t0 = time.perf_counter()
+            res = measure_sequence(seq, out / "sample_measurements" / seq.name, MeasureConfig(), logger=logger)
+            dt = time.perf_counter() - t0
+        finally:
+            if logger is not None:
+                logger.close()
+        truth = json.loads((seq / "truth.json").read_text())
+        s = res.summary
+        rows.append({"sequence": seq.name, "frames": len(res.frames), "seconds": dt, "summary": s, "truth": truth})
+    return rows
+
+
+def print_sample_report(rows: list[dict]) -> None:
+    print("\n== 1. sample_frames/: measured vs synthetic truth ==")
+    keys = [
+        ("pinchoff_us", "pinch-off (us)", ".0f"),
+        ("grown_volume_at_pinchoff_nl", "grown volume at pinch-off (nl)", ".3f"),
+        ("inflight_volume_nl", "in-flight volume (nl)", ".3f"),
+        ("jetting_velocity_m_s", "jetting velocity (m/s)", ".4f"),
+        ("flow_velocity_at_max_stroke_m_s", "flow velocity at max stroke (m/s)", ".3f"),
+        ("satellites", "satellites", ".0f"),
+    ]
+    for r in rows:
+        s, t = r["summary"], r["truth"]
+        print(f"\n{r['sequence']}: {r['frames']} frames in {r['seconds']:.2f} s; errors: {len(s.get('errors') or [])}")
+        print(f"  {'quantity':36s} {'measured':>10s} {'truth':>10s} {'error':>9s}")
+        for key, label, spec in keys:
+            m, tv = s.get(key), t.get(key)
+            m = float("nan") if m is None else float(m)
+            tv = float("nan") if tv is None else float(tv)
+            print(f"  {label:36s} {_fmt(m, spec):>10s} {_fmt(tv, spec):>10s} {_rel_err(m, tv):>9s}")
+
+
+def make_plots(out: Path, ds, model, mc, truth_fn, u1: float, u2: float) -> list[Path]:
+    """Figs. 6 and 7 of the paper, from our dataset and model."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ts, su = ds.timeseries, ds.summary
+    paths = []
+    # Fig. 6: volumes and flow velocities at fixed u1 (varying u2) and fixed u2 (varying u1).
+    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True)
+    for col, (fixed, varying, value) in enumerate((("u1_um_per_ms", "u2_um", u1), ("u2_um", "u1_um_per_ms", u2))):
+        sel = su[np.isclose(su[fixed], value)].sort_values(varying)
+        cmap = plt.get_cmap("viridis", max(len(sel), 2))
+        for i, row in enumerate(sel.itertuples()):
+            g = ts[ts.sequence_id == row.sequence_id].sort_values("delay_us")
+            g = g[g.attached]
+            a, b = (row.u1_um_per_ms, row.u2_um)
+            t = np.arange(0.0, float(g.delay_us.max()) + 1.0, 1.0)
+            vol, vel = model.simulate(a, b, t)
+            c = cmap(i)
+            lab = f"{varying.split('_')[0]} = {getattr(row, varying):g}"
+            axes[0, col].plot(g.delay_us, g.grown_volume_nl, "o", ms=3, color=c, label=lab)
+            axes[0, col].plot(t, vol, "-", lw=1, color=c)
+            axes[0, col].errorbar([row.pinchoff_us + 30], [row.inflight_volume_nl], fmt="s", color=c, ms=6)
+            axes[1, col].plot(g.delay_us, g.flow_velocity_m_s, "o", ms=3, color=c)
+            axes[1, col].plot(t, vel, "-", lw=1, color=c)
+            axes[1, col].plot([row.pinchoff_us + 30], [row.jetting_velocity_m_s], "s", color=c, ms=6)
+        axes[0, col].set_title(f"{fixed.split('_')[0]} = {value:g}: measured (dots), ECM (lines), in-flight (squares)")
+        axes[0, col].legend(fontsize=8)
+    axes[0, 0].set_ylabel("grown volume (nl)")
+    axes[1, 0].set_ylabel("flow velocity (m/s)")
+    for ax in axes[1]:
+        ax.set_xlabel("delay after trigger (us)")
+    fig.tight_layout()
+    p = out / "fig6_volume_flow.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+
+    # Fig. 7: one operating point, with the Monte Carlo band and the in-flight predictions.
+    band = mc.band
+    sel = su[np.isclose(su.u1_um_per_ms, u1) & np.isclose(su.u2_um, u2)]
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
+    for ax, (vcol, bcol, out_key, unit) in zip(
+        axes,
+        (("grown_volume_nl", "volume", "inflight_volume_nl", "nl"),
+         ("flow_velocity_m_s", "flow_velocity", "jetting_velocity_m_s", "m/s")),
+    ):
+        suffix = "_nl" if unit == "nl" else "_m_s"
+        if band is not None:
+            ax.fill_between(band.delay_us, band[f"{bcol}_low{suffix}"], band[f"{bcol}_high{suffix}"], color="r", alpha=0.2,
+                            label="ECM 95 % band (Monte Carlo)")
+            ax.plot(band.delay_us, band[f"{bcol}_nominal{suffix}"], "r-", label="ECM nominal")
+        for row in sel.itertuples():
+            g = ts[(ts.sequence_id == row.sequence_id) & ts.attached].sort_values("delay_us")
+            ax.plot(g.delay_us, g[vcol], "k.-", lw=0.8, label="measured" if row.Index == sel.index[0] else None)
+            ax.plot([row.pinchoff_us + 40], [getattr(row, out_key)], "ko")
+        s = mc.summary()[out_key]
+        x = float(mc.nominal["pinchoff_us"]) + 60
+        ax.errorbar([x], [s["mean"]], yerr=[[s["mean"] - s["low"]], [s["high"] - s["mean"]]], fmt="ro", capsize=4,
+                    label="hybrid model: mean, 95 %")
+        ax.axhline(truth_fn(u1, u2)[out_key], color="g", ls=":", label="synthetic truth")
+        ax.set_xlabel("delay after trigger (us)")
+        ax.set_ylabel(f"{out_key} / {vcol} ({unit})")
+        ax.legend(fontsize=8)
+    fig.suptitle(f"u1 = {u1:g} um/ms, u2 = {u2:g} um")
+    fig.tight_layout()
+    p = out / "fig7_hybrid_montecarlo.png"
+    fig.savefig(p, dpi=110)
+    plt.close(fig)
+    paths.append(p)
+    return paths
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m dropvision.demo", description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default out/)")
+    parser.add_argument("--quick", action="store_true", help="3 x 3 grid instead of 4 x 4")
+    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
+    parser.add_argument("--no-rerun", action="store_true", help="skip the Rerun recordings")
+    args = parser.parse_args(argv)
+
+    from dropvision.campaign import run_campaign, synth_campaign
+    from dropvision.synth import SynthPhysics
+    from dropvision.synth.physics import drop_history
+    from identify.dataset import load_dataset
+    from identify.design import design
+    from identify.hybrid import fit_hybrid
+
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    t_start = time.perf_counter()
+    progress = sys.stderr.isatty()
+
+    rows = measure_samples(out, rerun=not args.no_rerun)
+    print_sample_report(rows)
+
+    # 2-3. campaign -> dataset
+    u1_grid = [55.0, 65.0, 75.0] if args.quick else [50.0, 60.0, 70.0, 80.0]
+    u2_grid = [20.0, 27.5, 35.0] if args.quick else [20.0, 25.0, 30.0, 35.0]
+    overrides = {"width_px": 192, "height_px": 640, "tip_row": 40.4, "axis_col": 95.6,
+                 "delays_us": tuple(float(d) for d in range(0, 1601, 10)), "noise": 0.5}
+    print(f"\n== 2. rendering a {len(u1_grid)} x {len(u2_grid)} synthetic campaign (u1 {u1_grid}, u2 {u2_grid}) ==")
+    t0 = time.perf_counter()
+    synth_campaign(out / "campaign", u1_grid, u2_grid, workers=args.workers, progress=progress, overrides=overrides)
+    print(f"rendered in {time.perf_counter() - t0:.1f} s -> {out / 'campaign'}")
+    print("\n== 3. measuring the campaign into a training dataset ==")
+    t0 = time.perf_counter()
+    res = run_campaign(out / "campaign", out / "dataset", workers=args.workers, progress=progress)
+    print(f"{len(res.measured)} measured, {len(res.skipped)} unchanged, {len(res.failed)} failed "
+          f"in {time.perf_counter() - t0:.1f} s -> {out / 'dataset'}")
+    for sid, err in res.failed.items():
+        print(f"  failed {sid}: {err}")
+
+    # 4. identification
+    print("\n== 4. identifying the hybrid model ==")
+    ds = load_dataset(out / "dataset")
+    rep = fit_hybrid(ds, folds=min(10, len(ds.summary)), progress=progress)
+    model = rep.model
+    model.to_json(out / "model.json")
+    if rep.arx_selection is not None:
+        print(f"ARX structure selected (na, nb, nk): {tuple(rep.arx_selection.selected)}")
+        print(rep.arx_selection.table.head(8).to_string(index=False, float_format="{:.4g}".format))
+    physics = SynthPhysics()
+    true_ratios = physics.ecm_parameters().coefficients().ratios()
+    fit_ratios = model.ecm_coefficients.ratios()
+    names = ["A2/A3", "A1/A3", "A0/A3", "B1/A3", "B0/A3"]
+    print("ECM coefficient ratios, identified vs truth: " + ", ".join(
+        f"{n} {_rel_err(f, t).strip()}" for n, f, t in zip(names, fit_ratios, true_ratios)))
+    for n in rep.notes:
+        print(f"note: {n}")
+
+    def truth_fn(a, b):
+        h = drop_history(physics, a, b)
+        return {"inflight_volume_nl": h.inflight_volume_nl, "jetting_velocity_m_s": h.jetting_velocity_m_s,
+                "pinchoff_us": h.pinchoff_instant_us, "grown_volume_at_pinchoff_nl": h.grown_volume_at_pinchoff_instant_nl}
+
+    # 5. prediction and inverse design
+    u1, u2 = (65.0, 27.5) if args.quick else (70.0, 25.0)
+    mc = model.monte_carlo(u1, u2, samples=10_000, seed=0, band=True)
+    summ = mc.summary()
+    truth = truth_fn(u1, u2)
+    print(f"\n== 5. prediction at u1 = {u1:g} um/ms, u2 = {u2:g} um (10,000 Monte Carlo samples) ==")
+    meas = ds.summary[np.isclose(ds.summary.u1_um_per_ms, u1) & np.isclose(ds.summary.u2_um, u2)]
+    print(f"  {'quantity':28s} {'predicted (95 %)':>26s} {'measured':>9s} {'truth':>9s} {'pred. error':>11s}")
+    for key in ("inflight_volume_nl", "jetting_velocity_m_s"):
+        s = summ[key]
+        m = float(meas[key].mean()) if len(meas) else float("nan")
+        print(f"  {key:28s} {s['mean']:8.3f} [{s['low']:7.3f}, {s['high']:7.3f}] {_fmt(m):>9s} "
+              f"{truth[key]:9.3f} {_rel_err(s['mean'], truth[key]):>11s}")
+    target = round(float(np.mean(ds.summary.inflight_volume_nl)), 1)
+    d = design(model, target, samples=2000)
+    print(f"\ninverse design for an in-flight volume of {target} nl: u1 = {d.u1_um_per_ms:.2f} um/ms, u2 = {d.u2_um:.2f} um "
+          f"({'feasible' if d.feasible else 'infeasible'}: {d.message})")
+    td = truth_fn(d.u1_um_per_ms, d.u2_um)
+    print(f"  synthetic truth there: in-flight volume {td['inflight_volume_nl']:.3f} nl "
+          f"({_rel_err(td['inflight_volume_nl'], target).strip()} from the target), "
+          f"jetting velocity {td['jetting_velocity_m_s']:.3f} m/s")
+
+    # 6. plots and the identification recording
+    plots = make_plots(out, ds, model, mc, truth_fn, u1, u2)
+    if not args.no_rerun:
+        from dropvision.rerun_log import RerunOptions
+        from identify.rerun_log import close_recording, log_cv_table, log_monte_carlo_band, log_sequence_fit, open_identify_recording
+
+        rec = open_identify_recording(RerunOptions(path=out / "identify.rrd", application_id="dropvision-identify"))
+        try:
+            for row in ds.summary.itertuples():
+                g = ds.timeseries[(ds.timeseries.sequence_id == row.sequence_id) & ds.timeseries.attached]
+                g = g.sort_values("delay_us")
+                t = g.delay_us.to_numpy(float)
+                vol, vel = model.simulate(row.u1_um_per_ms, row.u2_um, t)
+                log_sequence_fit(rec, row.sequence_id, t, g.grown_volume_nl.to_numpy(float), vol,
+                                 measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel)
+            if rep.arx_selection is not None:
+                log_cv_table(rec, rep.arx_selection.table.head(20), value_column="val_rmse_nl", title="ARX structure selection")
+            b = mc.band
+            log_monte_carlo_band(rec, f"u1={u1:g},u2={u2:g}", b.delay_us, b.volume_mean_nl, b.volume_low_nl,
+                                 b.volume_high_nl, quantity="volume_nl")
+        finally:
+            close_recording(rec)
+    print(f"\n== 6. outputs in {out}/ ==")
+    for p in [out / "dataset", out / "model.json", *plots, *sorted(out.glob("*.rrd"))]:
+        print(f"  {p}")
+    print(f"\ndemo finished in {time.perf_counter() - t_start:.0f} s")
     return 0
 
 

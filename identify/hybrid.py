@@ -89,6 +89,19 @@ class HybridModel:
             "flow_velocity_at_max_stroke_m_s": v_max,
         }
 
+    def simulate(self, u1: float, u2: float, t_us) -> tuple[np.ndarray, np.ndarray]:
+        """Nominal ECM growth (Eqs. 4 and 6) on a uniform time grid from the trigger.
+
+        Returns the grown volume (nl) and the average flow velocity (m/s) at ``t_us``; the
+        waveform is delayed by the dead time. Valid up to the pinch-off instant.
+        """
+        from identify.ecm import simulate as ecm_simulate
+
+        t = np.asarray(t_us, dtype=float)
+        w = self.waveform(u1, u2)
+        vol, flow = ecm_simulate(self.ecm_coefficients, t, w.displacement_um(t - self.dead_time_us))
+        return vol, flow_velocity_m_s(flow, self.nozzle_inner_diameter_um)
+
     def predict_grid(self, u1, u2) -> pd.DataFrame:
         """Nominal predictions for arrays of (u1, u2), vectorised; one row per pair.
 

@@ -30,6 +30,9 @@ def sequence_metadata(config: SynthConfig, frames) -> dict:
         "ink": {"name": ph.ink_name, "density_kg_m3": float(ph.density_kg_m3),
                 "viscosity_mPa_s": float(ph.viscosity_mpa_s),
                 "surface_tension_mN_m": float(ph.surface_tension_mn_m)},
+        "nozzle": {"length_mm": float(ph.nozzle_length_mm),
+                   "reservoir_channel_radius_um": float(ph.reservoir_channel_radius_um),
+                   "reservoir_channel_length_mm": float(ph.reservoir_channel_length_mm)},
         "bit_depth": int(cfg.bit_depth),
         "synthetic": True,
         "frames": [({"file": f, "page": int(pg), "delay_us": float(d)} if pg is not None

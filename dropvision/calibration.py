@@ -1,0 +1,578 @@
+"""Calibration of a strobe sequence from its own frames.
+
+- Background (illumination) `estimate_background`: from a few frames spread over the
+  sequence, the pixels away from any dark body are averaged, and a smooth 2-D polynomial is
+  fitted to them (robustly); it carries the backlight fall-off under the nozzle and the liquid.
+  Where the frames show a static, partly transparent speck (dust on the optics), the measured
+  attenuation is folded into the background (it is then invisible in the transmission);
+  specks that stay dark in every frame and are not joined to the nozzle are *opaque dust*,
+  removed from every dark mask.  One frame only: the polynomial alone, no dust detection.
+- Nozzle `find_nozzle`: the dark body touching the top edge (canonical orientation); its
+  straight part is the longest run of rows whose outer width is the modal width; the outer
+  walls' sub-pixel 50 % edges over those rows give the midline (axis column, tilt) and the
+  outer width (cross-check of the pixel size).
+- Tip plane `find_tip`: in a frame with the meniscus at rest, the vertical transmission
+  profiles of the wall annulus columns (between the inner and outer radius) cross 50 % at the
+  tip; when liquid hangs below the walls (annulus dark below the straight part) the tip is the
+  row where the silhouette leaves the straight walls.
+- Liquid interior level `interior_level`: median transmission inside liquid bodies (their
+  bright lens spot excluded); the edge threshold is half-way between it and 1.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from dropvision.segmentation import fill_holes
+from dropvision.volume import runs, subpixel_edges
+
+
+class CalibrationError(ValueError):
+    """The frames do not allow a calibration (no nozzle found...)."""
+
+
+class CalibrationWarning(UserWarning):
+    """A calibration cross-check disagrees (e.g. pixel size vs nozzle width)."""
+
+
+# ----------------------------------------------------------------------------- background
+@dataclass
+class BackgroundModel:
+    """Illumination estimate for the whole frame.
+
+    Attributes
+    ----------
+    background : ndarray of float32
+        Expected grey level of an empty pixel (dust attenuation included).
+    opaque : ndarray of bool or None
+        Opaque static specks (never liquid).
+    n_frames : int
+        Frames used.
+    dust_pixels : int
+        Pixels with a static attenuation (corrected or opaque).
+    falloff : float
+        1 - min/max of the smooth illumination over the frame.
+    """
+
+    background: np.ndarray
+    opaque: np.ndarray | None
+    n_frames: int
+    dust_pixels: int
+    falloff: float
+
+
+def _poly_terms(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
+    return np.stack([x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
+
+
+def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -> np.ndarray:
+    h, w = values.shape
+    ys, xs = np.mgrid[0:h:step, 0:w:step]
+    v = values[ys, xs]
+    ok = valid[ys, xs]
+    sx, sy = 2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)
+    x = xs[ok] * sx - 1.0
+    y = ys[ok] * sy - 1.0
+    v = v[ok].astype(np.float64)
+    if v.size < 50:
+        raise CalibrationError("too few background pixels to estimate the illumination")
+    a = _poly_terms(x, y, degree)
+    keep = np.ones(v.size, bool)
+    coef = None
+    for _ in range(4):
+        coef, *_ = np.linalg.lstsq(a[keep], v[keep], rcond=None)
+        r = v - a @ coef
+        sigma = 1.4826 * np.median(np.abs(r[keep])) + 1e-3 * np.median(v)
+        new = np.abs(r) < 4 * sigma
+        if np.array_equal(new, keep):
+            break
+        keep = new
+    # evaluate on a coarse grid and interpolate bilinearly (the surface is a smooth polynomial)
+    g = 8
+    cw, ch = (w + g - 1) // g + 1, (h + g - 1) // g + 1
+    gx = np.arange(cw) * g * sx - 1.0
+    gy = np.arange(ch) * g * sy - 1.0
+    coarse = np.zeros((ch, cw), np.float64)
+    k = 0
+    for i in range(degree + 1):
+        for j in range(degree + 1 - i):
+            coarse += coef[k] * np.outer(gy**j, gx**i)
+            k += 1
+    # map pixel (x, y) to coarse coordinate x / g: warp with an affine scale
+    m = np.array([[1.0 / g, 0, 0], [0, 1.0 / g, 0]])
+    out = cv2.warpAffine(coarse.astype(np.float32), m, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                         borderMode=cv2.BORDER_REPLICATE)
+    return out
+
+
+def dark_bodies_mask(image: np.ndarray, margin_px: int) -> np.ndarray:
+    """Bool mask of dark bodies (below half the bright level), holes filled, grown by ``margin_px``."""
+    img = np.asarray(image, np.float32)
+    level = float(np.percentile(img[::4, ::4], 95))
+    mask = (img < 0.5 * level).astype(np.uint8) * 255
+    mask = fill_holes(mask)
+    if margin_px > 0:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
+        mask = cv2.dilate(mask, k)
+    return mask > 0
+
+
+def estimate_background(
+    images: list[np.ndarray], degree: int = 4, margin_px: int = 6, dust_min_attenuation: float = 0.03
+) -> BackgroundModel:
+    """Estimate the illumination from the frames themselves (see module docstring).
+
+    Parameters
+    ----------
+    images : list of ndarray
+        A few frames spread over the sequence (same shape).
+    degree : int
+        Total degree of the smooth polynomial illumination.
+    margin_px : int
+        Pixels around dark bodies not used as background samples.
+    dust_min_attenuation : float
+        A static attenuation larger than this is folded into the background.
+    """
+    if not images:
+        raise CalibrationError("no readable frame to estimate the background from")
+    h, w = images[0].shape
+    acc = np.zeros((h, w), np.float64)
+    cnt = np.zeros((h, w), np.int32)
+    for img in images:
+        bright = ~dark_bodies_mask(img, margin_px)
+        acc[bright] += img[bright]
+        cnt[bright] += 1
+    valid = cnt > 0
+    mean = np.where(valid, acc / np.maximum(cnt, 1), 0.0).astype(np.float32)
+    step = max(2, int(np.sqrt(h * w / 20000)))
+    smooth = _fit_smooth(mean, valid, degree, step)
+    smooth = np.maximum(smooth, 1e-3 * float(np.max(smooth)))
+    background = smooth.copy()
+    opaque = None
+    dust_pixels = 0
+    if len(images) >= 3:
+        ratio = np.where(valid, mean / smooth, 1.0).astype(np.float32)
+        ratio = cv2.GaussianBlur(ratio, (0, 0), 0.7)
+        dust = valid & (ratio < 1.0 - dust_min_attenuation)
+        background = np.where(dust, smooth * ratio, smooth).astype(np.float32)
+        dust_pixels = int(dust.sum())
+        never = (~valid).astype(np.uint8)
+        n, lab, stats, _ = cv2.connectedComponentsWithStats(never, connectivity=8)
+        top_labels = np.unique(lab[0][never[0] > 0])
+        op = (lab > 0) & ~np.isin(lab, top_labels)
+        if op.any():
+            opaque = op
+            dust_pixels += int(op.sum())
+    falloff = float(1.0 - smooth.min() / smooth.max())
+    return BackgroundModel(background, opaque, len(images), dust_pixels, falloff)
+
+
+# ----------------------------------------------------------------------------- nozzle
+@dataclass
+class Nozzle:
+    """Outer walls of the nozzle (full-frame coordinates).
+
+    Attributes
+    ----------
+    rows : ndarray
+        Rows of the straight part used for the fit.
+    left_px, right_px : ndarray
+        Sub-pixel outer wall edges on those rows.
+    axis_a, axis_b : float
+        Midline ``col = axis_a + axis_b * row``.
+    outer_width_px : float
+        Mean horizontal outer width (multiply by cos(tilt) for the diameter).
+    straight_end_row : int
+        Last row of the straight part.
+    interior_level : float
+        Median transmission inside the nozzle.
+    """
+
+    rows: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    axis_a: float
+    axis_b: float
+    outer_width_px: float
+    straight_end_row: int
+    interior_level: float
+
+    @property
+    def tilt_rad(self) -> float:
+        return float(np.arctan(self.axis_b))
+
+    @property
+    def outer_diameter_px(self) -> float:
+        return self.outer_width_px * float(np.cos(self.tilt_rad))
+
+    def axis_col(self, row: float) -> float:
+        return self.axis_a + self.axis_b * row
+
+
+def _longest_true_run(flags: np.ndarray) -> tuple[int, int]:
+    """(start, stop) of the longest run of True; (0, 0) if none."""
+    best = (0, 0)
+    start = None
+    for i, f in enumerate(np.append(flags, False)):
+        if f and start is None:
+            start = i
+        elif not f and start is not None:
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = None
+    return best
+
+
+def find_nozzle(transmission: np.ndarray, threshold: float = 0.5) -> Nozzle:
+    """Locate the nozzle (dark body at the top edge) and fit its outer walls.
+
+    Parameters
+    ----------
+    transmission : ndarray of float
+        Background-normalised frame (canonical orientation).
+    threshold : float
+        Edge level (50 % between background and the nozzle's interior).
+    """
+    t = np.asarray(transmission, np.float32)
+    h, w = t.shape
+    mask = (t < threshold).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0]
+    if not top:
+        raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
+    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
+    body = fill_holes((lab == k).astype(np.uint8) * 255) > 0
+    y1 = stats[k, cv2.CC_STAT_TOP] + stats[k, cv2.CC_STAT_HEIGHT]
+    rr, s, e = runs(body[:y1])
+    # outer silhouette per row: first start .. last stop
+    first = np.full(y1, -1)
+    last = np.full(y1, -1)
+    np.maximum.at(last, rr, e)
+    first_vals = np.full(y1, w + 1)
+    np.minimum.at(first_vals, rr, s)
+    first = np.where(first_vals <= w, first_vals, -1)
+    width = np.where(first >= 0, last - first, 0)
+    cand = (width > 2) & (width < 0.9 * w) & (first > 0) & (last < w)
+    if cand.sum() < 3:
+        raise CalibrationError("no nozzle: the dark body at the top edge has no straight walls")
+    vals, counts = np.unique(width[cand], return_counts=True)
+    mode = vals[np.argmax(counts)]
+    straight = cand & (np.abs(width - mode) <= 1.5)
+    a, b = _longest_true_run(straight)
+    if b - a < 3:
+        raise CalibrationError("no nozzle: fewer than 3 straight wall rows at the top edge")
+    # sub-pixel edges of the outer walls, away from the tip (blur)
+    use_stop = max(a + 3, b - 4)
+    rows = np.arange(a, use_stop)
+    ones = np.ones_like(t)
+    edges = subpixel_edges(t, ones, rows, first[rows], last[rows], threshold)
+    left, right = edges.left_px, edges.right_px
+    mid = 0.5 * (left + right)
+    coef = np.polyfit(rows.astype(float), mid, 1) if rows.size >= 2 else np.array([0.0, mid[0]])
+    inner = cv2.erode(body[: b].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    vals_in = t[: b][inner & (t[: b] < threshold)]
+    level = float(np.median(vals_in)) if vals_in.size else 0.0
+    return Nozzle(rows, left, right, float(coef[1]), float(coef[0]), float(np.mean(right - left)), int(b - 1), level)
+
+
+def _crossing_down(profile: np.ndarray, start: int, stop: int, threshold: float) -> float:
+    """First downward crossing of ``threshold`` (dark -> bright) in ``profile[start:stop]``."""
+    seg = profile[start:stop]
+    above = np.nonzero(seg >= threshold)[0]
+    above = above[above > 0]
+    for i in above:
+        if seg[i - 1] < threshold:
+            f = (threshold - seg[i - 1]) / (seg[i] - seg[i - 1])
+            return start + i - 1 + float(f)
+    return np.nan
+
+
+def find_tip(
+    transmission: np.ndarray,
+    nozzle: Nozzle,
+    threshold: float,
+    inner_radius_px: float | None = None,
+) -> tuple[float, str]:
+    """Sub-pixel row of the nozzle tip plane at the axis, and how it was found.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        A frame with the meniscus at rest (normalised).
+    nozzle : Nozzle
+    threshold : float
+        50 % level between background and the nozzle's interior.
+    inner_radius_px : float, optional
+        Nozzle inner radius (pixels), to place the annulus columns on the wall.
+
+    Returns
+    -------
+    tip_row : float
+    source : str
+        ``"wall annulus 50 % crossing"`` or ``"silhouette leaves the straight walls"``.
+    """
+    t = np.asarray(transmission, np.float32)
+    h, w = t.shape
+    r_out = 0.5 * nozzle.outer_diameter_px
+    tan = nozzle.axis_b
+    end = nozzle.straight_end_row
+    lo = r_out * 0.6 if inner_radius_px is None else inner_radius_px + 1.5
+    hi = r_out - 2.5
+    tips = {}
+    if hi > lo:
+        offsets = np.linspace(lo, hi, max(2, int(hi - lo) + 1))
+        for side in (-1, 1):
+            vals = []
+            for d in offsets:
+                col = nozzle.axis_col(end) + side * d
+                c = int(round(col))
+                if not 0 <= c < w:
+                    continue
+                y = _crossing_down(t[:, c], max(0, end - 12), min(h, end + 12), threshold)
+                if np.isfinite(y):
+                    vals.append(y + (c - nozzle.axis_col(y)) * tan)
+            if len(vals) >= 2:
+                tips[side] = float(np.median(vals))
+    if len(tips) == 2 and abs(tips[-1] - tips[1]) < 1.0 and abs(0.5 * (tips[-1] + tips[1]) - end) < 4:
+        return 0.5 * (tips[-1] + tips[1]), "wall annulus 50 % crossing"
+    # silhouette departure from the straight wall lines: the deviation of the outer edges from
+    # the fitted wall lines, extrapolated linearly back to zero from its first rows above 0.3 px
+    rows = np.arange(end + 1, min(h, end + 60))
+    mask = (t < threshold)
+    fl = np.polyfit(nozzle.rows.astype(float), nozzle.left_px, 1)
+    fr = np.polyfit(nozzle.rows.astype(float), nozzle.right_px, 1)
+    ys, devs = [], []
+    for y in rows:
+        cl = np.polyval(fl, y)
+        cr = np.polyval(fr, y)
+        row = mask[y]
+        c0 = int(max(0, np.floor(cl - r_out)))
+        c1 = int(min(w, np.ceil(cr + r_out)))
+        if not np.any(row[c0:c1]):
+            return float(y - 0.5), "silhouette leaves the straight walls (ends)"
+        rr, s, e = runs(row[None, c0:c1])
+        ed = subpixel_edges(t[y:y + 1, c0:c1], np.ones((1, c1 - c0), np.float32), np.zeros_like(s), s, e, threshold)
+        dev = max(abs(ed.left_px.min() + c0 - cl), abs(ed.right_px.max() + c0 - cr))
+        ys.append(y)
+        devs.append(dev)
+        if dev > 3.0:
+            break
+    ys = np.array(ys, float)
+    devs = np.array(devs, float)
+    sel = devs > 0.3
+    if sel.sum() >= 2:
+        k = np.nonzero(sel)[0]
+        k = k[: max(2, min(len(k), 4))]
+        slope, icpt = np.polyfit(ys[k], devs[k], 1)
+        if slope > 0:
+            y0 = -icpt / slope
+            return float(np.clip(y0, end - 1.0, ys[k[0]])), "silhouette leaves the straight walls"
+    if sel.any():
+        return float(ys[np.argmax(sel)] - 0.5), "silhouette leaves the straight walls"
+    return float(end + 0.5), "end of the straight walls"
+
+
+def interior_level(transmission: np.ndarray, region: np.ndarray, erode_px: int = 4, threshold: float = 0.5) -> float:
+    """Median transmission inside dark bodies of ``region`` (bool), eroded, lens spot excluded."""
+    t = np.asarray(transmission, np.float32)
+    mask = (region & (t < threshold)).astype(np.uint8) * 255
+    filled = fill_holes(mask)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erode_px + 1, 2 * erode_px + 1))
+    inner = cv2.erode(filled, k) > 0
+    vals = t[inner & (t < threshold)]
+    return float(np.median(vals)) if vals.size >= 20 else float("nan")
+
+
+# ----------------------------------------------------------------------------- calibration
+@dataclass
+class Calibration:
+    """Everything the per-frame measurement needs (full-frame canonical coordinates)."""
+
+    shape: tuple[int, int]
+    pixel_size_um: float
+    pixel_size_source: str
+    tip_row: float
+    tip_source: str
+    axis_col: float
+    axis_source: str
+    tilt_rad: float
+    tilt_source: str
+    liquid_level: float
+    nozzle_level: float
+    threshold: float
+    nozzle_outer_diameter_px: float
+    nozzle_outer_diameter_um_measured: float
+    pixel_size_disagreement_percent: float
+    background: BackgroundModel
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def tilt_deg(self) -> float:
+        return float(np.degrees(self.tilt_rad))
+
+    def to_dict(self) -> dict:
+        return {
+            "pixel_size_um": self.pixel_size_um,
+            "pixel_size_source": self.pixel_size_source,
+            "tip_row": self.tip_row,
+            "tip_row_source": self.tip_source,
+            "axis_col": self.axis_col,
+            "axis_col_source": self.axis_source,
+            "tilt_deg": self.tilt_deg,
+            "tilt_source": self.tilt_source,
+            "coordinates": "canonical frame (nozzle at the top, drops travel down), pixel centres integers",
+            "liquid_interior_transmission": self.liquid_level,
+            "nozzle_interior_transmission": self.nozzle_level,
+            "edge_threshold_transmission": self.threshold,
+            "nozzle_outer_diameter_px": self.nozzle_outer_diameter_px,
+            "nozzle_outer_diameter_um_measured": self.nozzle_outer_diameter_um_measured,
+            "pixel_size_disagreement_percent": self.pixel_size_disagreement_percent,
+            "background": {
+                "method": "robust degree-4 polynomial fit to pixels away from dark bodies"
+                + (", static dust attenuation folded in" if self.background.n_frames >= 3 else ""),
+                "frames_used": self.background.n_frames,
+                "dust_pixels": self.background.dust_pixels,
+                "illumination_falloff": self.background.falloff,
+            },
+            "notes": list(self.notes),
+        }
+
+
+def calibrate(
+    first: np.ndarray,
+    spread: list[np.ndarray],
+    pixel_size_um: float,
+    *,
+    nozzle_outer_diameter_um: float | None = None,
+    nozzle_inner_diameter_um: float | None = None,
+    tip_row: float | None = None,
+    axis_col: float | None = None,
+    pixel_size_tolerance: float = 0.02,
+) -> Calibration:
+    """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
+
+    Parameters
+    ----------
+    first : ndarray
+        The first frame in delay order.
+    spread : list of ndarray
+        Frames spread over the sequence (``first`` included), for the background.
+    pixel_size_um : float
+        From the metadata.
+    nozzle_outer_diameter_um, nozzle_inner_diameter_um : float, optional
+        Nozzle dimensions (cross-check of the pixel size; annulus columns).
+    tip_row, axis_col : float, optional
+        User-given values override the detection.
+    """
+    bg = estimate_background(spread)
+    t_first = np.asarray(first, np.float32) / bg.background
+    notes: list[str] = []
+    # first pass with a 50 % threshold, refined with the measured nozzle level
+    nozzle = find_nozzle(t_first, 0.5)
+    thr_n = 0.5 * (1.0 + nozzle.interior_level)
+    nozzle = find_nozzle(t_first, thr_n)
+    r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
+    tip, tip_src = find_tip(t_first, nozzle, thr_n, r_in)
+    tilt = nozzle.tilt_rad
+    axis = nozzle.axis_col(tip)
+    axis_src = "nozzle outer walls midline fit"
+    tilt_src = "nozzle outer walls midline fit"
+    if tip_row is not None:
+        tip, tip_src = float(tip_row), "user (sequence.json nozzle_tip_row)"
+        axis = nozzle.axis_col(tip)
+    if axis_col is not None:
+        axis, axis_src = float(axis_col), "user (sequence.json axis_col)"
+    d_px = nozzle.outer_diameter_px
+    d_um = d_px * pixel_size_um
+    disagree = float("nan")
+    if nozzle_outer_diameter_um:
+        disagree = 100.0 * (d_um / nozzle_outer_diameter_um - 1.0)
+        if abs(disagree) > 100 * pixel_size_tolerance:
+            msg = (
+                f"pixel size {pixel_size_um} um disagrees by {disagree:+.1f} % with the nozzle's outer "
+                f"width ({d_px:.1f} px for {nozzle_outer_diameter_um} um)"
+            )
+            notes.append(msg)
+            warnings.warn(msg, CalibrationWarning, stacklevel=2)
+    # liquid interior level from liquid below the tip in the spread frames
+    h, w = t_first.shape
+    region = np.zeros((h, w), bool)
+    region[int(np.ceil(tip)) + 3:, :] = True
+    if bg.opaque is not None:
+        region &= ~bg.opaque
+    levels = []
+    for img in spread:
+        lv = interior_level(np.asarray(img, np.float32) / bg.background, region, threshold=thr_n)
+        if np.isfinite(lv):
+            levels.append(lv)
+    if levels:
+        liquid = float(np.median(levels))
+    else:
+        liquid = nozzle.interior_level
+        notes.append("no liquid body large enough to measure its interior level: nozzle level used")
+    return Calibration(
+        shape=(h, w),
+        pixel_size_um=float(pixel_size_um),
+        pixel_size_source="sequence.json pixel_size_um",
+        tip_row=float(tip),
+        tip_source=tip_src,
+        axis_col=float(axis),
+        axis_source=axis_src,
+        tilt_rad=float(tilt),
+        tilt_source=tilt_src,
+        liquid_level=liquid,
+        nozzle_level=nozzle.interior_level,
+        threshold=0.5 * (1.0 + liquid),
+        nozzle_outer_diameter_px=float(d_px),
+        nozzle_outer_diameter_um_measured=float(d_um),
+        pixel_size_disagreement_percent=disagree,
+        background=bg,
+        notes=notes,
+    )
+
+
+def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int = 8) -> float:
+    """Effective blur of straight edges (px): Gaussian sigma including the pixel box.
+
+    The transmission samples across the nozzle's outer walls, placed at their distance from
+    each row's sub-pixel 50 % edge, are pooled into one finely sampled edge-spread function and
+    fitted by least squares with an error function ``(1 + erf(u / (sqrt(2) sigma))) / 2``
+    (plus a shift).  This sigma (optics and pixel box together) is the smoothing that displaces
+    a curved 50 % edge by ``sigma^2 * curvature / 2``.
+    """
+    from scipy.special import erf
+
+    t = np.asarray(transmission, np.float64)
+    h, w = t.shape
+    lo = nozzle.interior_level
+    us, vs = [], []
+    for edges, sign in ((nozzle.left_px, -1.0), (nozzle.right_px, 1.0)):
+        for y, xe in zip(nozzle.rows, edges):
+            c = int(round(xe))
+            c0, c1 = c - half_window_px, c + half_window_px + 1
+            if c0 < 0 or c1 > w:
+                continue
+            x = np.arange(c0, c1)
+            us.append(sign * (x - xe))
+            vs.append((t[y, c0:c1] - lo) / (1.0 - lo))
+    if not us:
+        return float("nan")
+    u = np.concatenate(us)
+    v = np.concatenate(vs)
+
+    sig, shift = 1.0, 0.0
+    for _ in range(30):  # Gauss-Newton on (sigma, shift)
+        z = (u - shift) / (np.sqrt(2.0) * sig)
+        r = 0.5 * (1.0 + erf(z)) - v
+        g = np.exp(-z * z) / np.sqrt(np.pi)  # d/dz of the model
+        j = np.column_stack([g * (-z / sig), g * (-1.0 / (np.sqrt(2.0) * sig))])
+        step, *_ = np.linalg.lstsq(j, -r, rcond=None)
+        sig = float(np.clip(sig + step[0], 0.05, 20.0))
+        shift = float(shift + step[1])
+        if abs(step[0]) < 1e-6:
+            break
+    return sig

@@ -1,0 +1,29 @@
+"""Accuracy sweep of `dropvision measure` against the synthesizer's exact truth
+(the same cases as tools/accuracy_report.py, on smaller frames with 20 us steps)."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+_spec = importlib.util.spec_from_file_location(
+    "accuracy_report", Path(__file__).resolve().parents[1] / "tools" / "accuracy_report.py")
+ar = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(ar)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(ar.SWEEP))
+def test_accuracy_against_synthetic_truth(name, tmp_path):
+    r = ar.run_case(ar.cases()[name], tmp_path)
+    assert r["grown_nan"] == 0 and r["unexpected_flags"] == 0
+    assert r["grown_max_pct"] <= 0.5
+    assert r["grown_median_pct"] <= 0.2
+    assert r["inflight_frames"] == r["inflight_frames_truth"] >= 3
+    assert r["drop_max_pct"] <= 0.3
+    assert abs(r["inflight_pct"]) <= 0.3
+    assert abs(r["velocity_pct"]) <= 0.5
+    assert r["pinchoff_ok"]
+    assert r["satellites_ok"]
+    assert r["dust_ok"]
+    assert abs(r["tip_err_px"]) < 0.1 and abs(r["tilt_err_deg"]) < 0.05

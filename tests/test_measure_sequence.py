@@ -1,0 +1,111 @@
+"""`dropvision measure` end to end: CLI, output files, bad input, real pendant drop."""
+
+import json
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+from dropvision.cli import main
+from dropvision.io import SequenceError
+from dropvision.measure import FRAME_COLUMNS, MeasureResult, measure_sequence
+
+PENDANT = Path("/work/shared/realdata/menipy-pendant-drop")
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    out = tmp_path_factory.mktemp("m") / "seq"
+    cfg = SynthConfig(width_px=256, height_px=640, delays_us=tuple(float(d) for d in range(0, 1401, 40)),
+                      repeats=2, seed=5)
+    return write_synthetic_sequence(cfg, out, progress=False)
+
+
+def test_cli_writes_complete_result(seq, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["measure", str(seq), "--out", str(out), "--csv"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frames.csv", "frames.parquet", "per_delay.parquet",
+                                                     "summary.json"]
+    frames = pd.read_parquet(out / "frames.parquet")
+    assert list(frames.columns) == FRAME_COLUMNS
+    truth = pd.read_csv(seq / "truth_frames.csv")
+    assert len(frames) == len(truth)  # repeated frames all kept
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("schema_version", "pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl",
+                "inflight_volume_std_nl", "jetting_velocity_m_s", "jetting_velocity_se_m_s",
+                "trajectory_angle_mrad", "satellites", "flow_velocity_at_max_stroke_m_s", "calibration",
+                "errors", "software", "config"):
+        assert key in summary
+    assert summary["pinchoff_us"] == json.loads((seq / "truth.json").read_text())["pinchoff_us"]
+    per = pd.read_parquet(out / "per_delay.parquet")
+    assert (per["n_frames"] == 2).all()
+    assert not frames.loc[frames.attached, "drop_volume_nl"].notna().any()
+    assert frames.loc[~frames.attached, "flow_velocity_m_s"].isna().all()
+
+
+def test_python_api_per_delay(seq):
+    res = measure_sequence(seq)
+    assert isinstance(res, MeasureResult)
+    per = res.per_delay()
+    g = res.frames.groupby("delay_us")["grown_volume_nl"]
+    assert np.allclose(per["grown_volume_nl_mean"], g.mean().to_numpy(), equal_nan=True)
+    assert np.allclose(per["grown_volume_nl_std"], g.std().to_numpy(), equal_nan=True)
+
+
+def test_unreadable_frames_are_skipped_and_reported(seq, tmp_path):
+    bad = tmp_path / "bad"
+    shutil.copytree(seq, bad)
+    files = sorted(bad.glob("*.png"))
+    files[5].write_bytes(files[5].read_bytes()[:200])  # truncated
+    files[7].write_bytes(b"")  # zero bytes
+    res = measure_sequence(bad, tmp_path / "out")
+    assert len(res.frames) == len(files) - 2
+    assert {e["file"] for e in res.summary["errors"]} == {files[5].name, files[7].name}
+    assert all(e["reason"] for e in res.summary["errors"])
+
+
+def test_other_frame_size_exit_2_and_no_output(seq, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(seq, bad)
+    f = sorted(bad.glob("*.png"))[20]
+    cv2.imwrite(str(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)[:-4])
+    out = tmp_path / "out"
+    assert main(["measure", str(bad), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f.name in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not list(tmp_path.glob(".out*"))
+
+
+def test_empty_folder_and_missing_pixel_size(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["measure", str(tmp_path / "empty"), "--out", str(tmp_path / "o")]) == 2
+    nopx = tmp_path / "nopx"
+    nopx.mkdir()
+    cv2.imwrite(str(nopx / "a_0us.png"), np.full((50, 50), 200, np.uint8))
+    (nopx / "sequence.json").write_text(json.dumps({"frames": [{"file": "a_0us.png", "delay_us": 0}]}))
+    assert main(["measure", str(nopx), "--out", str(tmp_path / "o")]) == 2
+    with pytest.raises(SequenceError):
+        measure_sequence(nopx)
+
+
+def test_no_nozzle_is_a_sequence_error(tmp_path):
+    d = tmp_path / "blank"
+    d.mkdir()
+    cv2.imwrite(str(d / "a_0us.png"), np.full((80, 60), 200, np.uint8))
+    (d / "sequence.json").write_text(json.dumps({"pixel_size_um": 5.0}))
+    with pytest.raises(SequenceError, match="nozzle"):
+        measure_sequence(d)
+
+
+def test_real_pendant_drop_volume():
+    res = measure_sequence(PENDANT)
+    truth = json.loads((PENDANT / "truth.json").read_text())
+    v = res.frames["attached_volume_nl"].iloc[0]
+    assert abs(v / truth["attached_volume_nl"] - 1) * 100 <= truth["tolerance_percent"]
+    assert res.frames["quality"].iloc[0] == "ok"
+    assert abs(res.summary["calibration"]["pixel_size_disagreement_percent"]) < 2
