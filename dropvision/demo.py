@@ -244,22 +244,12 @@ def main(argv: list[str] | None = None) -> int:
     plots = make_plots(out, ds, model, mc, truth_fn, u1, u2)
     if not args.no_rerun:
         from dropvision.rerun_log import RerunOptions
-        from identify.rerun_log import close_recording, log_cv_table, log_monte_carlo_band, log_sequence_fit, open_identify_recording
+        from identify.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
 
         rec = open_identify_recording(RerunOptions(path=out / "identify.rrd", application_id="dropvision-identify"))
         try:
-            for row in ds.summary.itertuples():
-                g = ds.timeseries[(ds.timeseries.sequence_id == row.sequence_id) & ds.timeseries.attached]
-                g = g.sort_values("delay_us")
-                t = g.delay_us.to_numpy(float)
-                vol, vel = model.simulate(row.u1_um_per_ms, row.u2_um, t)
-                log_sequence_fit(rec, row.sequence_id, t, g.grown_volume_nl.to_numpy(float), vol,
-                                 measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel)
-            if rep.arx_selection is not None:
-                log_cv_table(rec, rep.arx_selection.table.head(20), value_column="val_rmse_nl", title="ARX structure selection")
-            b = mc.band
-            log_monte_carlo_band(rec, f"u1={u1:g},u2={u2:g}", b.delay_us, b.volume_mean_nl, b.volume_low_nl,
-                                 b.volume_high_nl, quantity="volume_nl")
+            log_model_fit(rec, ds, model, rep.arx_selection)
+            log_prediction(rec, mc)
         finally:
             close_recording(rec)
     print(f"\n== 6. outputs in {out}/ ==")

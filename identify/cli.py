@@ -78,7 +78,21 @@ def cmd_fit(args) -> int:
         print(f"note: {n}")
     m.to_json(args.out)
     print(f"\nwrote {args.out}")
+    _with_recording(args, lambda rec, lg: lg.log_model_fit(rec, ds, m, rep.arx_selection))
     return 0
+
+
+def _with_recording(args, log) -> None:
+    """Run ``log(rec, identify.rerun_log)`` when --rerun/--rerun-spawn/--rerun-connect was given."""
+    from identify import rerun_log
+
+    rec = rerun_log.recording_from_args(args)
+    if rec is None:
+        return
+    try:
+        log(rec, rerun_log)
+    finally:
+        rerun_log.close_recording(rec)
 
 
 def _load_model(path):
@@ -91,7 +105,9 @@ def cmd_predict(args) -> int:
     m = _load_model(args.model)
     if args.samples < 1:
         raise UsageError(f"--samples must be >= 1, got {args.samples}")
-    res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed)
+    want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
+    res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
+    _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res))
     mc = res.summary()
     nominal = m.predict(args.u1, args.u2)
     # Same keys as `identify paper`: nominal pinch-off and grown volume, Monte Carlo spreads of
@@ -164,6 +180,8 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from dropvision.rerun_log import add_rerun_args
+
     p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
@@ -176,6 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--ecm-method", default="oe", choices=["oe", "delta"])
     f.add_argument("--adjuster-reference", default="ecm", choices=["ecm", "measured"])
     f.add_argument("--max-rows", type=int, default=30, help="rows of the ARX table to print")
+    add_rerun_args(f)
     f.set_defaults(func=cmd_fit)
 
     q = sub.add_parser("predict", help="predict drop volume/velocity with uncertainty")
@@ -185,6 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--samples", type=int, default=10_000)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--json", action="store_true")
+    add_rerun_args(q)
     q.set_defaults(func=cmd_predict)
 
     d = sub.add_parser("design", help="find (u1, u2) for a target drop volume (and velocity)")

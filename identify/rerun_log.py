@@ -277,3 +277,38 @@ def log_monte_carlo_band(rec: rr.RecordingStream, name: str, t_us: Sequence[floa
         path = f"{base}/{kind}"
         _style(rec, path, f"{name} {kind}", colour, points=False, width=width)
         _send_series(rec, path, t, values)
+
+
+def log_model_fit(rec: "rr.RecordingStream", dataset, model, arx_selection=None, *, max_cv_rows: int = 20) -> None:
+    """Log an identified model against its training dataset.
+
+    For every sequence of ``dataset`` (an :class:`identify.dataset.Dataset`): the measured grown
+    volume and flow velocity before pinch-off and the nominal ECM simulation of ``model``
+    (:class:`identify.hybrid.HybridModel`) at the same delays; plus the ARX structure-selection
+    table when given.
+    """
+    ts = dataset.timeseries
+    for row in dataset.summary.itertuples():
+        g = ts[(ts.sequence_id == row.sequence_id) & ts.attached].sort_values("delay_us")
+        if len(g) < 2:
+            continue
+        t = g.delay_us.to_numpy(float)
+        vol, vel = model.simulate(row.u1_um_per_ms, row.u2_um, t)
+        log_sequence_fit(rec, str(row.sequence_id), t, g.grown_volume_nl.to_numpy(float), vol,
+                         measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel)
+    if arx_selection is not None:
+        log_cv_table(rec, arx_selection.table.head(max_cv_rows), value_column="val_rmse_nl",
+                     title="ARX structure selection")
+
+
+def log_prediction(rec: "rr.RecordingStream", mc) -> None:
+    """Log the per-time Monte Carlo band of a prediction (:class:`identify.montecarlo.MonteCarloResult`
+    computed with ``band=True``): volume and flow velocity, mean between low and high."""
+    b = mc.band
+    if b is None:
+        raise ValueError("the Monte Carlo result has no band: run it with band=True")
+    name = f"u1={mc.u1_um_per_ms:g},u2={mc.u2_um:g}"
+    log_monte_carlo_band(rec, name, b.delay_us, b.volume_mean_nl, b.volume_low_nl, b.volume_high_nl,
+                         quantity="volume_nl")
+    log_monte_carlo_band(rec, name, b.delay_us, b.flow_velocity_mean_m_s, b.flow_velocity_low_m_s,
+                         b.flow_velocity_high_m_s, quantity="flow_m_s")

@@ -82,3 +82,27 @@ def test_paper_command_text_output(capsys):
     assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000"]) == 0
     out = capsys.readouterr().out
     assert "pinchoff_us" in out and "inflight_volume_nl" in out and "note:" in out
+
+
+def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):
+    from rrdtools import Rrd
+
+    model = tmp_path / "model.json"
+    rrd_fit, rrd_pred = tmp_path / "fit.rrd", tmp_path / "pred.rrd"
+    assert main(["fit", str(fitted / "ds"), "--out", str(model), "--folds", "4", "--rerun", str(rrd_fit)]) == 0
+    assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500", "--rerun", str(rrd_pred)]) == 0
+    capsys.readouterr()
+    fit = Rrd(rrd_fit)
+    measured = [e for e in fit.entities() if e.startswith("/identify/volume_nl/") and e.endswith("/measured")]
+    simulated = [e for e in fit.entities() if e.startswith("/identify/volume_nl/") and e.endswith("/simulated")]
+    assert len(measured) == len(simulated) == len(GRID)
+    assert "/identify/cv/table" in fit.entities()
+    # measured values logged are the dataset's grown volumes (first sequence, first attached delays)
+    vals = fit.series(sorted(measured)[0], "Scalars:scalars")["value"].map(lambda v: v[0]).to_numpy()
+    assert np.all(np.isfinite(vals)) and vals.max() > 5
+    pred = Rrd(rrd_pred)
+    band = {e for e in pred.entities() if e.startswith("/identify/monte_carlo/")}
+    assert any(e.endswith("/low") for e in band) and any(e.endswith("/high") for e in band)
+    lo = pred.series(sorted(e for e in band if "volume_nl" in e and e.endswith("/low"))[0], "Scalars:scalars")
+    hi = pred.series(sorted(e for e in band if "volume_nl" in e and e.endswith("/high"))[0], "Scalars:scalars")
+    assert np.all(np.concatenate(hi["value"]) >= np.concatenate(lo["value"]) - 1e-12)
