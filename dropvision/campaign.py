@@ -29,6 +29,7 @@ half-written shard. Re-running resumes: a sequence whose shard carries the same 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import hashlib
 import json
 import math
@@ -326,6 +327,9 @@ def run_campaign(
     from dropvision.measure import MeasureConfig
 
     config = config or MeasureConfig()
+    if workers != 1 or dask_local is not None or scheduler is not None:
+        # one process per core already: no threads inside a worker (no oversubscription)
+        config = dataclasses.replace(config, workers=1)
     root, dataset_dir = Path(root), Path(dataset_dir)
     folders = find_sequences(root, exclude=[dataset_dir])
     if not folders:
@@ -334,7 +338,7 @@ def run_campaign(
     manifest_path = dataset_dir / "manifest.json"
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})
-    config_repr = repr(config)
+    config_repr = repr(dataclasses.replace(config, workers=0))  # threads do not change results
     entries: dict[str, dict] = {}
     todo = []
     result = CampaignResult(dataset_dir=dataset_dir)
