@@ -154,6 +154,7 @@ class FrameContext:
     allowed: np.ndarray | None
     opaque: np.ndarray | None
     threshold: float
+    liquid_level: float
     tip_roi: float
     axis_col: float
     tip_row: float
@@ -165,6 +166,7 @@ class FrameContext:
     sample_cols: np.ndarray
     min_area_px: int
     gain_tolerance: float
+    noise_t: float = 0.01
 
     @classmethod
     def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig) -> "FrameContext":
@@ -190,7 +192,7 @@ class FrameContext:
             r0=r0, c0=c0, c1=c1, height=h, width=w,
             inv_background=(1.0 / bg).astype(np.float32), background=bg,
             thr_image=threshold_image(bg, cal.threshold, dtype), allowed=allowed, opaque=opaque,
-            threshold=cal.threshold, tip_roi=cal.tip_row - r0, axis_col=cal.axis_col, tip_row=cal.tip_row,
+            threshold=cal.threshold, liquid_level=cal.liquid_level, tip_roi=cal.tip_row - r0, axis_col=cal.axis_col, tip_row=cal.tip_row,
             tilt_rad=cal.tilt_rad, sigma_px=sigma_px if config.blur_correction else 0.0,
             pixel_size_um=cal.pixel_size_um, max_value=max_value,
             sample_rows=sample_rows, sample_cols=sample_cols, min_area_px=config.min_body_area_px,
@@ -299,6 +301,9 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             k = np.argmin(np.where(upper, chord, np.inf))
             if widest - rows[k] >= 3 and chord[k] < 0.5 * chord.max():
                 rec.neck_px = float(chord[k])
+    threads = set()
+    if nozzle_body is not None and np.isfinite(rec.attached_bottom_row):
+        threads = _thread_joined(roi, ctx, seg, nozzle_body, rec.attached_bottom_row, gain)
     for b in seg.bodies:
         if b.nozzle:
             continue
@@ -307,6 +312,11 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             all_edges.append(ed)
         bv = integrate(ed, ctx.tilt_rad, None, ctx.sigma_px)
         if bv.volume_px3 <= 0:
+            continue
+        if b.label in threads:  # still joined by a thread thinner than the blur: attached liquid
+            if np.isfinite(rec.attached_volume_nl):
+                rec.attached_volume_nl += bv.volume_px3 * px3_nl
+            rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
         z, x = ctx.to_axis_um(bv.centroid_row, bv.centroid_col)
         leaves = b.y1 >= hh or (b.x0 == 0 and ctx.c0 == 0) or (b.x1 >= ww and ctx.c1 >= ctx.width)
@@ -324,6 +334,50 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     if logger is not None:
         _log_frame(logger, ref, image, ctx, seg, nozzle_body, rec, all_edges)
     return rec
+
+
+def _thread_joined(roi, ctx: FrameContext, seg, nozzle_body, bottom_row: float, gain: float) -> set:
+    """Labels of detached bodies still joined to the attached liquid by an unresolved thread.
+
+    A liquid thread much thinner than the blur never reaches the 50 % level, but it leaves a
+    faint dark line across the gap.  Along the straight path from the attached liquid's bottom
+    to a body's top, the brightest point of the path (per gap row the darkest pixel within
+    2 px of the path) is compared with what the blurred tails of the two ends alone would give
+    at the gap's middle, ``1 - 2 (1 - L) (1 - Phi(g / 2 sigma))``: darker by more than
+    4 noise standard deviations (and by at least 0.02) means a thread.
+    """
+    from math import erf, sqrt
+
+    out = set()
+    labels = seg.labels
+    hh, ww = roi.shape
+    yb = int(round(bottom_row))
+    cols_b = np.nonzero(labels[yb] == nozzle_body.label)[0]
+    if cols_b.size == 0:
+        return out
+    xb = 0.5 * (cols_b[0] + cols_b[-1])
+    sig = ctx.sigma_px if ctx.sigma_px > 0 else 1.0
+    for b in seg.bodies:
+        if b.nozzle or b.y0 <= yb or b.y0 - yb > 100:
+            continue
+        cols_t = np.nonzero(labels[b.y0] == b.label)[0]
+        xt = 0.5 * (cols_t[0] + cols_t[-1])
+        g = b.y0 - yb - 1
+        if g < 1:
+            out.add(b.label)
+            continue
+        best = 0.0
+        for y in range(yb + 1, b.y0):
+            xc = int(round(xb + (xt - xb) * (y - yb) / (b.y0 - yb)))
+            c0, c1 = max(0, xc - 2), min(ww, xc + 3)
+            t = roi[y, c0:c1].astype(np.float32) * ctx.inv_background[y, c0:c1] / gain
+            best = max(best, float(t.min()))
+        half = 0.5 * (g + 1)
+        tail = 0.5 * (1.0 - erf(half / (sqrt(2.0) * sig)))
+        expected = 1.0 - 2.0 * (1.0 - ctx.liquid_level) * tail
+        if expected - best > max(0.02, 4.0 * ctx.noise_t):
+            out.add(b.label)
+    return out
 
 
 def _clip_to_tip_plane(ed, tip_roi: float, axis_roi: float, tilt_rad: float) -> None:
@@ -487,6 +541,11 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig()) -> tuple[Ca
     sigma = edge_sigma_px(t_first, nozzle)
     max_value = 2 ** int(meta.bit_depth) - 1
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
+    # transmission noise: robust spread of the horizontal differences of bright background pixels
+    tb = t_first[ctx.r0:, ctx.c0:ctx.c1]
+    d = np.diff(tb, axis=1)[(tb[:, 1:] > 0.9) & (tb[:, :-1] > 0.9)]
+    if d.size > 100:
+        ctx.noise_t = float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
     return cal, sigma, ctx
 
 

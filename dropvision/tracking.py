@@ -22,7 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from identify.ecm import flow_velocity_m_s
+
+def flow_velocity_m_s(flow_nl_per_us, nozzle_inner_diameter_um: float):
+    """`identify.ecm.flow_velocity_m_s` (imported on first use: it pulls in scipy)."""
+    from identify.ecm import flow_velocity_m_s as f
+
+    return f(flow_nl_per_us, nozzle_inner_diameter_um)
 
 
 @dataclass(frozen=True)

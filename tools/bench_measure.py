@@ -4,7 +4,7 @@
 
 Renders a default synthetic sequence (640 x 1024, 8-bit PNG), then on ONE core (one thread):
 
-- baseline: cv2 PNG decode, Otsu threshold, fill holes, label, regionprops, whole-pixel row
+- baseline: cv2 PNG decode (also skimage.io.imread, the plain choice), Otsu threshold, fill holes, label, regionprops, whole-pixel row
   widths (V = sum pi (w/2)^2) per body;
 - dropvision, end to end (`measure_sequence`, calibration pass and PNG decode included);
 - both with the frames already in memory (dropvision: `measure_frame`);
@@ -89,6 +89,12 @@ def main(argv=None) -> int:
     for f in files:
         baseline_frame(cv2.imread(str(f), cv2.IMREAD_UNCHANGED))
     base_e2e = n / (time.perf_counter() - t)
+    from skimage.io import imread as sk_imread
+
+    t = time.perf_counter()
+    for f in files:
+        baseline_frame(sk_imread(str(f)))
+    base_e2e_sk = n / (time.perf_counter() - t)
     # --- dropvision end to end, one thread
     t = time.perf_counter()
     res = measure_sequence(seq, config=MeasureConfig(workers=1))
@@ -136,6 +142,8 @@ def main(argv=None) -> int:
         "baseline_end_to_end_fps": base_e2e,
         "dropvision_end_to_end_fps": ours_e2e,
         "end_to_end_speedup": ours_e2e / base_e2e,
+        "baseline_skimage_imread_end_to_end_fps": base_e2e_sk,
+        "end_to_end_speedup_vs_skimage_imread": ours_e2e / base_e2e_sk,
         "baseline_in_memory_fps": base_mem,
         "dropvision_in_memory_fps": ours_mem,
         "in_memory_speedup": ours_mem / base_mem,

@@ -1,0 +1,99 @@
+"""Campaigns: sequences -> dataset, identical serially, on a process pool and on Dask."""
+
+import json
+import shutil
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from dropvision.campaign import find_sequences, run_campaign, synth_campaign
+from dropvision.cli import main as dropvision_main
+from identify.dataset import load_dataset
+
+SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
+         "delays_us": tuple(float(d) for d in range(0, 1501, 10)), "noise": 0.3, "dust": 1}
+
+
+@pytest.fixture(scope="module")
+def campaign_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("campaign")
+    synth_campaign(root / "grid", [60.0, 75.0], [22.5, 30.0], workers=1, progress=False, overrides=SMALL)
+    return root / "grid"
+
+
+def _read(ds):
+    ts = pd.read_parquet(ds / "timeseries.parquet")
+    su = pd.read_parquet(ds / "summary.parquet")
+    meta = json.loads((ds / "dataset.json").read_text())
+    meta.pop("versions")
+    return ts, su, meta
+
+
+def test_serial_processes_and_dask_give_identical_datasets(campaign_root, tmp_path):
+    serial = run_campaign(campaign_root, tmp_path / "serial", workers=1, progress=False)
+    assert len(serial.measured) == 4 and not serial.failed
+    run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
+    pytest.importorskip("dask.distributed")
+    run_campaign(campaign_root, tmp_path / "dask", dask_local=2, progress=False)
+    ref = _read(tmp_path / "serial")
+    for other in ("pool", "dask"):
+        got = _read(tmp_path / other)
+        pd.testing.assert_frame_equal(ref[0], got[0])
+        pd.testing.assert_frame_equal(ref[1], got[1])
+        assert ref[2] == got[2]
+    ts, su, meta = ref
+    assert list(ts.columns) == ["sequence_id", "u1_um_per_ms", "u2_um", "delay_us", "grown_volume_nl",
+                                "flow_velocity_m_s", "attached"]
+    assert meta["nozzle_inner_diameter_um"] == 200.0 and meta["sample_interval_us"] == 10.0
+    assert meta["nozzle"]["length_mm"] == 5.0
+    # the dataset is what identify reads, and it matches each sequence's synthetic truth
+    ds = load_dataset(tmp_path / "serial")
+    assert len(ds.summary) == 4
+    for row in su.itertuples():
+        truth = json.loads((campaign_root / row.sequence_id / "truth.json").read_text())
+        assert row.pinchoff_us == truth["pinchoff_us"]
+        assert row.inflight_volume_nl == pytest.approx(truth["inflight_volume_nl"], rel=3e-3)
+        assert row.jetting_velocity_m_s == pytest.approx(truth["jetting_velocity_m_s"], rel=5e-3)
+
+
+def test_resume_skips_unchanged_and_remeasures_changed(campaign_root, tmp_path):
+    root = tmp_path / "root"
+    shutil.copytree(campaign_root, root)
+    ds = tmp_path / "ds"
+    first = run_campaign(root, ds, workers=1, progress=False)
+    assert len(first.measured) == 4
+    again = run_campaign(root, ds, workers=1, progress=False)
+    assert again.measured == [] and len(again.skipped) == 4
+    seq = sorted(find_sequences(root))[0]
+    meta = json.loads((seq / "sequence.json").read_text())
+    meta["comment"] = "edited"
+    (seq / "sequence.json").write_text(json.dumps(meta))
+    third = run_campaign(root, ds, workers=1, progress=False)
+    assert third.measured == [seq.name] and len(third.skipped) == 3
+    manifest = json.loads((ds / "manifest.json").read_text())
+    assert {e["status"] for e in manifest["sequences"].values()} == {"ok"}
+    assert not [p for p in ds.rglob("*") if p.name.endswith((".tmp", ".old"))]
+
+
+def test_failed_sequence_is_recorded_and_does_not_stop_others(campaign_root, tmp_path):
+    root = tmp_path / "root"
+    shutil.copytree(campaign_root, root)
+    bad = root / "broken"
+    bad.mkdir()
+    (bad / "sequence.json").write_text('{"frames": []}')
+    ds = tmp_path / "ds"
+    res = run_campaign(root, ds, workers=2, progress=False)
+    assert len(res.measured) == 4 and list(res.failed) == ["broken"]
+    assert "sequence.json" in res.failed["broken"] and "SequenceError" in res.failed["broken"]
+    manifest = json.loads((ds / "manifest.json").read_text())
+    assert manifest["sequences"]["broken"]["status"] == "failed"
+    assert len(pd.read_parquet(ds / "summary.parquet")) == 4
+
+
+def test_campaign_cli(campaign_root, tmp_path, capsys):
+    assert dropvision_main(["campaign", str(campaign_root), "--out", str(tmp_path / "ds"), "--workers", "1"]) == 0
+    assert "4 measured" in capsys.readouterr().out
+    assert dropvision_main(["campaign", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
+    assert "campaign root is not a folder" in capsys.readouterr().err
+    assert dropvision_main(["synth-campaign", str(tmp_path / "s"), "--u1", "80:50:5"]) == 2
