@@ -33,11 +33,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _quiet_opencv() -> None:
+    """Our reader reports undecodable frames itself (one line, in summary.json): silence
+    OpenCV's own decoder warnings so that they do not interleave with ours."""
+    try:
+        import cv2
+
+        cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)
+    except (ImportError, AttributeError):  # pragma: no cover - depends on the OpenCV build
+        pass
+
+
 def main(argv: list[str] | None = None) -> int:
     from dropvision.io import SequenceError
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    _quiet_opencv()
     try:
         return int(args.func(args) or 0)
     except (SequenceError, UsageError) as exc:

@@ -604,6 +604,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
     result = MeasureResult(frames, summary)
     if logger is not None:
+        logger.log_table(frames)
         logger.log_summary(summary)
     if out_dir is not None:
         from dropvision.atomic import atomic_dir
@@ -627,6 +628,19 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     pinch = pinchoff_delay(delay, has_det) if m else float("nan")
     attached = ~has_det & ((delay < pinch) if np.isfinite(pinch) else True)
     grown, flow, meniscus, grown_by_delay = grown_and_flow(delay, att_vol, attached, meta.nozzle_inner_diameter_um)
+    # The grown volume is relative to the initial meniscus (Section 4.1.1): that needs a frame
+    # taken before the piston moves (delay <= dead time). Without one, no grown volume or flow.
+    wf0 = meta.waveform or {}
+    dead_time = float(wf0.get("dead_time_us", config.dead_time_us))
+    meniscus_at_rest = bool(m) and float(np.min(delay)) <= dead_time
+    if not meniscus_at_rest:
+        grown[:] = np.nan
+        flow[:] = np.nan
+        grown_by_delay = grown_by_delay.iloc[0:0]
+        meniscus = float("nan")
+        for k in range(m):
+            if attached[k]:
+                flags[k].append(q.NO_REST_MENISCUS)
     drop_vol = np.full(m, np.nan)
     det_vol = np.full(m, np.nan)
     drop_z = np.full(m, np.nan)
@@ -703,7 +717,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     last_att = delay[attached & (delay < pinch)] if np.isfinite(pinch) else delay[attached]
     g_pinch = float("nan")
     if np.isfinite(pinch) and last_att.size:
-        g_pinch = float(np.nanmean(grown[(delay == last_att.max()) & attached]))
+        at_last = grown[(delay == last_att.max()) & attached]
+        at_last = at_last[np.isfinite(at_last)]
+        g_pinch = float(np.mean(at_last)) if at_last.size else float("nan")
     inf_vol = drop_vol[inflight]
     line = fit_line(delay[inflight], drop_z[inflight])
     traj = fit_line(drop_z[inflight], drop_x[inflight])
@@ -727,6 +743,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "pinchoff_us": pinch,
         "grown_volume_at_pinchoff_nl": g_pinch,
         "initial_meniscus_volume_nl": meniscus,
+        "initial_meniscus_source": (f"attached volume of the first frame(s), delay {float(np.min(delay)):g} us <= dead time "
+                                    f"{dead_time:g} us" if meniscus_at_rest else q.NO_REST_MENISCUS),
         "inflight_volume_nl": float(np.mean(inf_vol)) if inf_vol.size else float("nan"),
         "inflight_volume_std_nl": float(np.std(inf_vol, ddof=1)) if inf_vol.size >= 2 else float("nan"),
         "inflight_frames": int(inf_vol.size),
@@ -768,8 +786,15 @@ def _run(args: argparse.Namespace) -> int:
     seq = Path(args.seq_dir)
     if not seq.exists():
         raise UsageError(f"{seq}: no such folder")
+    from dropvision.rerun_log import logger_from_args
+
     config = MeasureConfig(workers=args.workers)
-    res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv)
+    logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
+    try:
+        res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv, logger=logger)
+    finally:
+        if logger is not None:
+            logger.close()
     s = res.summary
     print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; pinch-off {s['pinchoff_us']} us, "
           f"in-flight volume {s['inflight_volume_nl']:.4g} nl, jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
@@ -785,4 +810,7 @@ def register(subparsers) -> None:
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
     p.add_argument("--workers", type=int, default=2, help="decoding/measuring threads (default 2)")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr")
+    from dropvision.rerun_log import add_rerun_args
+
+    add_rerun_args(p)
     p.set_defaults(func=_run)

@@ -21,6 +21,7 @@ DUST_OVERLAP = "drop overlaps a static speck"
 AMBIGUOUS = "ambiguous separation"
 NO_DROP = "no drop in the field of view"
 TAIL = "tail still joined to the drop"
+NO_REST_MENISCUS = "no frame shows the meniscus at rest (first delay after the dead time): grown volume unknown"
 
 
 def join(flags) -> str:

@@ -85,6 +85,17 @@ __all__ = [
     "measurement_blueprint",
 ]
 
+def pd_to_float(values: Any) -> np.ndarray:
+    """Float array from a column that may be a nullable pandas dtype (NA -> NaN)."""
+    to_numpy = getattr(values, "to_numpy", None)
+    if to_numpy is not None:
+        try:
+            return to_numpy(dtype=float, na_value=np.nan)
+        except TypeError:
+            return to_numpy(dtype=float)
+    return np.asarray(values, dtype=float)
+
+
 # --- segmentation classes --------------------------------------------------------------------
 
 CLASS_BACKGROUND = 0
@@ -722,6 +733,31 @@ class RerunLogger:
         return ((best.x0 + best.x1) / 2.0, (best.y0 + best.y1) / 2.0)  # half-open box centre
 
     # -- per sequence ---------------------------------------------------------------------------
+
+    def log_table(self, frames: Any) -> None:
+        """Log the scalar series of the final frame table (``MeasureResult.frames``).
+
+        Sequence-level quantities (grown volume relative to the initial meniscus, flow velocity,
+        pinch-off-dependent drop values) are only known once every frame is measured; they are
+        logged here at each row's ``delay`` (and ``frame`` = row position) from the table, the
+        source of truth, so that the plots show exactly what ``frames.parquet`` holds.
+        """
+        self._check_open()
+        rr, rec = self._rr, self.stream
+        delays = np.asarray(frames["delay_us"], dtype=float)
+        for column, (path, _name) in ROW_SERIES.items():
+            if column not in frames:
+                continue
+            values = np.asarray(pd_to_float(frames[column]), dtype=float)
+            ok = np.isfinite(values) & np.isfinite(delays)
+            if not ok.any():
+                continue
+            rec.send_columns(
+                path,
+                indexes=[rr.TimeColumn("delay", duration=np.array([delay_ns(d) for d in delays[ok]], dtype="timedelta64[ns]")),
+                         rr.TimeColumn("frame", sequence=np.flatnonzero(ok))],
+                columns=rr.Scalars.columns(scalars=values[ok]),
+            )
 
     def log_summary(self, summary: Mapping[str, Any]) -> None:
         """Log the sequence summary (``summary.json`` content) as a static markdown table."""

@@ -109,3 +109,41 @@ def test_real_pendant_drop_volume():
     assert abs(v / truth["attached_volume_nl"] - 1) * 100 <= truth["tolerance_percent"]
     assert res.frames["quality"].iloc[0] == "ok"
     assert abs(res.summary["calibration"]["pixel_size_disagreement_percent"]) < 2
+
+
+def test_no_frame_at_rest_gives_no_grown_volume():
+    """A sequence starting after the piston moved has no initial meniscus: grown volume and flow
+    are NaN with a reason, never numbers relative to a moving meniscus; the drop is still measured."""
+    import json
+    from pathlib import Path
+
+    seq = Path(__file__).resolve().parent.parent / "sample_frames" / "satellite_dust_tiff16"
+    res = measure_sequence(seq)
+    truth = json.loads((seq / "truth.json").read_text())
+    att = res.frames[res.frames.attached]
+    assert att.grown_volume_nl.isna().all() and att.flow_velocity_m_s.isna().all()
+    assert att.quality.str.contains("meniscus at rest").all()
+    s = res.summary
+    assert s["grown_volume_at_pinchoff_nl"] != s["grown_volume_at_pinchoff_nl"]  # NaN
+    assert s["pinchoff_us"] == truth["pinchoff_us"] and s["satellites"] == truth["satellites"]
+    assert abs(s["inflight_volume_nl"] / truth["inflight_volume_nl"] - 1) < 3e-3
+
+
+def test_measure_cli_writes_rerun_recording(tmp_path):
+    """`dropvision measure --rerun` logs every stage; the values read back equal frames.parquet."""
+    from rrdtools import Rrd
+
+    seq = Path(__file__).resolve().parent.parent / "sample_frames" / "u55_u30"
+    rrd = tmp_path / "m.rrd"
+    assert main(["measure", str(seq), "--out", str(tmp_path / "out"), "--rerun", str(rrd)]) == 0
+    frames = pd.read_parquet(tmp_path / "out" / "frames.parquet")
+    r = Rrd(rrd)
+    for entity in ("/frame/raw", "/frame/transmission", "/frame/segmentation", "/frame/edges", "/frame/bodies",
+                   "/frame/axis", "/frame/tip_plane", "/series/volume_nl/grown", "/summary", "/calibration"):
+        assert entity in r.entities(), entity
+    grown = r.series("/series/volume_nl/grown", "Scalars:scalars")
+    logged = dict(zip(grown.delay_ns // 1000, [v[0] for v in grown.value]))
+    expected = frames.dropna(subset=["grown_volume_nl"]).set_index("delay_us").grown_volume_nl
+    assert len(logged) == len(expected)
+    for d, v in expected.items():
+        assert logged[int(d)] == pytest.approx(v, rel=1e-6)

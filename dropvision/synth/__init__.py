@@ -7,12 +7,23 @@ Modules: :mod:`~dropvision.synth.physics` (waveform -> ECM -> pinch-off and adju
 :mod:`~dropvision.synth.writer` (sequence folder), :mod:`~dropvision.synth.cli`.
 """
 
-from dropvision.synth.physics import DropHistory, SynthPhysics, drop_history
-from dropvision.synth.sequence import (FORMATS, TRUTH_COLUMNS, FrameTruth, SynthConfig, parse_delays,
-                                       plan, sequence_truth, synthesize)
-from dropvision.synth.shapes import DropShapeModel, ShapeParams
-from dropvision.synth.writer import write_synthetic_sequence
+import importlib
 
-__all__ = ["DropHistory", "SynthPhysics", "drop_history", "FORMATS", "TRUTH_COLUMNS", "FrameTruth",
-           "SynthConfig", "parse_delays", "plan", "sequence_truth", "synthesize", "DropShapeModel",
-           "ShapeParams", "write_synthetic_sequence"]
+# Imported on first use, so that `dropvision <command>` does not pay for scipy.interpolate etc.
+_WHERE = {
+    "DropHistory": "physics", "SynthPhysics": "physics", "drop_history": "physics",
+    "FORMATS": "sequence", "TRUTH_COLUMNS": "sequence", "FrameTruth": "sequence", "SynthConfig": "sequence",
+    "parse_delays": "sequence", "plan": "sequence", "sequence_truth": "sequence", "synthesize": "sequence",
+    "DropShapeModel": "shapes", "ShapeParams": "shapes", "write_synthetic_sequence": "writer",
+}
+__all__ = list(_WHERE)
+
+
+def __getattr__(name):
+    if name in _WHERE:
+        return getattr(importlib.import_module(f"dropvision.synth.{_WHERE[name]}"), name)
+    raise AttributeError(f"module 'dropvision.synth' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + __all__)
