@@ -202,7 +202,9 @@ def main(argv: list[str] | None = None) -> int:
     model = rep.model
     model.to_json(out / "model.json")
     if rep.arx_selection is not None:
-        print(f"ARX structure selected (na, nb, nk): {tuple(rep.arx_selection.selected)}")
+        na, nb, nk = rep.arx_selection.selected
+        print(f"ARX structure selected (na, nb, nk): ({na}, {nb}, {nk}); nk in MATLAB's convention, = {nk - 1} "
+              f"samples in SIPPY's/the paper's (dead time 220 us = 22 samples of 10 us; identify/arx.py explains the +1)")
         print(rep.arx_selection.table.head(8).to_string(index=False, float_format="{:.4g}".format))
     physics = SynthPhysics()
     true_ratios = physics.ecm_parameters().coefficients().ratios()

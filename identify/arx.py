@@ -919,9 +919,9 @@ def select_structure(
 
     Selection rule: ``best`` minimises ``val_rmse_nl``. A structure is *acceptable* when
     its validation RMSE <= best + max(tolerance * best, absolute_tolerance_nl). Among the
-    acceptable ones, ``selected`` is the simplest: fewest parameters ``na + nb``, then
-    fewest poles ``na``, then the smallest validation RMSE (which picks the delay
-    ``nk``). Near the noise floor σ a relative tolerance r accepts structures whose own
+    acceptable ones, ``selected`` is the simplest: fewest parameters ``na + nb``, then,
+    among structures with as many parameters, the smallest validation RMSE (which also
+    picks the delay ``nk``; e.g. (3, 2) and (2, 3) cost the same, the data decide). Near the noise floor σ a relative tolerance r accepts structures whose own
     simulation error is below about σ sqrt((1+r)^2 - 1) (0.32 σ for the default
     r = 0.05): extra parameters that only fit sampling zeros or noise are dropped, a
     missing pole, input term or a wrong delay whose error is comparable to the noise is
@@ -980,7 +980,7 @@ def select_structure(
         threshold = best_rmse + max(tolerance * best_rmse, absolute_tolerance_nl)
         ok = finite[finite.val_rmse_nl <= threshold].copy()
         ok["n_params"] = ok.na + ok.nb
-        s = ok.sort_values(["n_params", "na", "val_rmse_nl"], kind="stable").iloc[0]
+        s = ok.sort_values(["n_params", "val_rmse_nl", "na"], kind="stable").iloc[0]
         return (int(b.na), int(b.nb), int(b.nk)), (int(s.na), int(s.nb), int(s.nk)), threshold
 
     if focus == "prediction":
