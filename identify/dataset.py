@@ -30,13 +30,13 @@ the project (ECM + pinch-off and adjuster laws), whose truth is exactly known.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from identify.ecm import EcmParameters, flow_velocity_m_s, pipe_inertance, pipe_resistance, simulate
+from identify.ecm import flow_velocity_m_s, pipe_inertance, pipe_resistance, simulate
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, SAMPLE_INTERVAL_US, U3_PRESET_UM_PER_MS, Waveform
 
 SCHEMA = "identify.dataset/1"
@@ -75,113 +75,13 @@ class DatasetError(ValueError):
 # ---------------------------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class SyntheticPhysics:
-    """Colour-ink-like synthetic printhead: ECM parameters and pinch-off/adjuster laws.
+def default_physics():
+    """The project's default synthetic physics: ``dropvision.synth.physics.SynthPhysics()``,
+    the single place holding the numbers of the synthetic printhead (ECM, pinch-off law and
+    adjusters)."""
+    from dropvision.synth.physics import SynthPhysics
 
-    The pinch-off law is ``t_p = pinchoff_base_us + pinchoff_du1*(u1-70) + pinchoff_du2*(u2-25)``
-    (µs from the trigger); the adjusters are Eq. (16)/(17) of the paper.
-    """
-
-    density_kg_m3: float = 993.0
-    viscosity_mPa_s: float = 2.21
-    surface_tension_mN_m: float = 28.72
-    nozzle_inner_diameter_um: float = 200.0
-    nozzle_outer_diameter_um: float = 360.0
-    nozzle_length_mm: float = 5.0
-    reservoir_channel_radius_um: float = 94.0
-    reservoir_channel_length_mm: float = 20.0
-    resonance_hz: float = 800.0
-    La_kg_m4: float = 4e-13
-    Ra_over_La_per_s: float = 3333.0
-    kc_factor: float = -6.8e-7  # Kc = kc_factor * La / (CN * LR)
-    dead_time_us: float = DEAD_TIME_US
-    u3_um_per_ms: float = U3_PRESET_UM_PER_MS
-    hold_us: float = HOLD_PRESET_US
-    pinchoff_base_us: float = 1050.0
-    pinchoff_du1_us: float = -14.0
-    pinchoff_du2_us: float = 10.2
-    volume_adjuster: tuple[float, float, float] = (0.16, 0.014, 0.0037)
-    velocity_adjuster: tuple[float, float, float] = (-0.155, 0.0025, 0.0008)
-
-    def hydraulics(self) -> dict[str, float]:
-        """LN, RN, LR, RR of Eq. (2) in SI units."""
-        rho, mu = self.density_kg_m3, self.viscosity_mPa_s * 1e-3
-        rn = self.nozzle_inner_diameter_um * 0.5e-6
-        ln_m, rr, lr_m = self.nozzle_length_mm * 1e-3, self.reservoir_channel_radius_um * 1e-6, self.reservoir_channel_length_mm * 1e-3
-        return {
-            "LN": pipe_inertance(rho, ln_m, rn),
-            "RN": pipe_resistance(mu, ln_m, rn),
-            "LR": pipe_inertance(rho, lr_m, rr),
-            "RR": pipe_resistance(mu, lr_m, rr),
-        }
-
-    def ecm_parameters(self) -> EcmParameters:
-        """Physical ECM parameters (SI) of the synthetic printhead."""
-        h = self.hydraulics()
-        cn = 1.0 / ((2 * np.pi * self.resonance_hz) ** 2 * (h["LN"] + h["LR"]))
-        la = self.La_kg_m4
-        return EcmParameters(La=la, Ra=self.Ra_over_La_per_s * la, CN=cn, Kc=self.kc_factor * la / (cn * h["LR"]), **h)
-
-    def pinchoff_us(self, u1, u2):
-        """Pinch-off instant (µs from the trigger)."""
-        return self.pinchoff_base_us + self.pinchoff_du1_us * (np.asarray(u1) - 70.0) + self.pinchoff_du2_us * (np.asarray(u2) - 25.0)
-
-    def volume_adjust_nl(self, u1, u2):
-        c = self.volume_adjuster
-        return c[0] + c[1] * np.asarray(u1) + c[2] * np.asarray(u2)
-
-    def velocity_adjust_m_s(self, u1, u2):
-        c = self.velocity_adjuster
-        return c[0] + c[1] * np.asarray(u1) + c[2] * np.asarray(u2)
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-#: SyntheticPhysics field <- dropvision.synth.physics.SynthPhysics attribute.
-_SYNTH_FIELD_MAP = {
-    "density_kg_m3": "density_kg_m3",
-    "viscosity_mPa_s": "viscosity_mpa_s",
-    "surface_tension_mN_m": "surface_tension_mn_m",
-    "nozzle_inner_diameter_um": "nozzle_inner_diameter_um",
-    "nozzle_outer_diameter_um": "nozzle_outer_diameter_um",
-    "nozzle_length_mm": "nozzle_length_mm",
-    "reservoir_channel_radius_um": "reservoir_channel_radius_um",
-    "reservoir_channel_length_mm": "reservoir_channel_length_mm",
-    "resonance_hz": "meniscus_resonance_hz",
-    "La_kg_m4": "piston_inertance_kg_m4",
-    "Ra_over_La_per_s": "piston_loss_ratio_per_s",
-    "kc_factor": "compliance_ratio_coefficient",
-    "dead_time_us": "dead_time_us",
-    "u3_um_per_ms": "u3_um_per_ms",
-    "hold_us": "hold_us",
-    "volume_adjuster": "volume_adjuster_nl",
-    "velocity_adjuster": "velocity_adjuster_m_s",
-}
-
-
-def physics_from_synth(sp) -> SyntheticPhysics:
-    """Convert a ``dropvision.synth.physics.SynthPhysics`` into :class:`SyntheticPhysics`."""
-    kw = {ours: getattr(sp, theirs) for ours, theirs in _SYNTH_FIELD_MAP.items()}
-    kw["volume_adjuster"] = tuple(kw["volume_adjuster"])
-    kw["velocity_adjuster"] = tuple(kw["velocity_adjuster"])
-    c0, c1, c2 = sp.pinchoff_law_us
-    return SyntheticPhysics(pinchoff_base_us=c0, pinchoff_du1_us=c1, pinchoff_du2_us=c2, **kw)
-
-
-def default_physics() -> SyntheticPhysics:
-    """The project's default synthetic physics (notes/team.md).
-
-    Taken from ``dropvision.synth.physics.SynthPhysics()`` (the single place holding the
-    numbers) when that module is importable; otherwise the defaults of
-    :class:`SyntheticPhysics` (identical numbers).
-    """
-    try:
-        from dropvision.synth.physics import SynthPhysics
-    except ImportError:  # pragma: no cover - synth package absent
-        return SyntheticPhysics()
-    return physics_from_synth(SynthPhysics())
+    return SynthPhysics()
 
 
 # ---------------------------------------------------------------------------------------
@@ -458,7 +358,7 @@ def paper_grid(step_u1: float = 5.0, step_u2: float = 1.25) -> list[tuple[float,
     return [(float(a), float(b)) for a in u1 for b in u2]
 
 
-def _ecm_truth(physics: SyntheticPhysics, u1: float, u2: float, t_us: np.ndarray, t_p: float):
+def _ecm_truth(physics, u1: float, u2: float, t_us: np.ndarray, t_p: float):
     """Exact ECM volume/flow on ``t_us`` and at the pinch-off instant / maximum stroke."""
     from identify.montecarlo import ecm_response_at
 
@@ -477,7 +377,7 @@ def make_synthetic_dataset(
     grid=None,
     noise_percent: float = 1.0,
     seed: int = 0,
-    physics: SyntheticPhysics | None = None,
+    physics=None,
     *,
     repeats: int = 1,
     sample_interval_us: float = SAMPLE_INTERVAL_US,
@@ -497,8 +397,6 @@ def make_synthetic_dataset(
     velocity). The truth is written to ``truth.json``.
     """
     physics = physics or default_physics()
-    if not isinstance(physics, SyntheticPhysics):
-        physics = physics_from_synth(physics)
     grid = paper_grid() if grid is None else [(float(a), float(b)) for a, b in grid]
     rng = np.random.default_rng(seed)
     sigma = noise_percent / 100.0
@@ -507,14 +405,14 @@ def make_synthetic_dataset(
     ts_rows, su_rows, truth_rows = [], [], []
     sid = 0
     for u1, u2 in grid:
-        t_p = float(physics.pinchoff_us(u1, u2))
+        t_p = float(physics.pinchoff_instant_us(u1, u2))
         n = int(np.floor(t_p / h)) + 1 + tail_samples
         t = np.arange(n) * h
         vol, flow, v_p, q_max = _ecm_truth(physics, u1, u2, t, t_p)
         vel = flow_velocity_m_s(flow, d_um)
         v_max = flow_velocity_m_s(q_max, d_um)
-        inflight = v_p + float(physics.volume_adjust_nl(u1, u2))
-        jet = v_max + float(physics.velocity_adjust_m_s(u1, u2))
+        inflight = v_p + float(physics.volume_adjuster_nl_at(u1, u2))
+        jet = v_max + float(physics.velocity_adjuster_m_s_at(u1, u2))
         truth_rows.append({"u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": t_p, "grown_volume_at_pinchoff_nl": v_p,
                            "inflight_volume_nl": inflight, "jetting_velocity_m_s": jet,
                            "flow_velocity_at_max_stroke_m_s": v_max})
@@ -544,7 +442,7 @@ def make_synthetic_dataset(
         timeseries=ts, summary=su, nozzle_inner_diameter_um=d_um, sample_interval_us=h,
         dead_time_us=physics.dead_time_us, u3_um_per_ms=physics.u3_um_per_ms, hold_us=physics.hold_us,
         ink={"name": "synthetic colour ink", "density_kg_m3": physics.density_kg_m3,
-             "viscosity_mPa_s": physics.viscosity_mPa_s, "surface_tension_mN_m": physics.surface_tension_mN_m},
+             "viscosity_mPa_s": physics.viscosity_mpa_s, "surface_tension_mN_m": physics.surface_tension_mn_m},
         nozzle={"length_mm": physics.nozzle_length_mm, "outer_diameter_um": physics.nozzle_outer_diameter_um,
                 "reservoir_channel_radius_um": physics.reservoir_channel_radius_um,
                 "reservoir_channel_length_mm": physics.reservoir_channel_length_mm},

@@ -175,11 +175,10 @@ def hydraulics_from_geometry(ink: Any = None, geometry: NozzleGeometry | None = 
 
 
 def default_synthetic_parameters() -> EcmParameters:
-    """The team's default synthetic physics (colour-ink-like, see notes/team.md)."""
-    LN, RN, LR, RR = hydraulics_from_geometry()
-    CN = 1.0 / ((2 * np.pi * 800.0) ** 2 * (LN + LR))
-    La = 4e-13
-    return EcmParameters(La=La, Ra=3333.0 * La, CN=CN, Kc=-6.8e-7 * La / (CN * LR), LN=LN, RN=RN, LR=LR, RR=RR)
+    """The team's default synthetic physics (``dropvision.synth.physics.SynthPhysics``)."""
+    from dropvision.synth.physics import SynthPhysics
+
+    return SynthPhysics().ecm_parameters()
 
 
 def _params_from(la: float, ra: float, cn: float, kc: float, hyd: Hydraulics) -> EcmParameters:
@@ -884,8 +883,10 @@ def fit_ecm(
 
 
 def synthetic_pinchoff_us(u1_um_per_ms: float, u2_um: float) -> float:
-    """The team's synthetic pinch-off law, time from the trigger (µs)."""
-    return 1050.0 - 14.0 * (u1_um_per_ms - 70.0) + 10.2 * (u2_um - 25.0)
+    """The synthetic pinch-off law (``SynthPhysics.pinchoff_instant_us``), µs from the trigger."""
+    from dropvision.synth.physics import SynthPhysics
+
+    return float(SynthPhysics().pinchoff_instant_us(u1_um_per_ms, u2_um))
 
 
 #: Campaign grid of the colour ink (Table 1).

@@ -23,7 +23,7 @@ reported in the paper's raw form (powers of u1 in µm/ms and u2 in µm).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from math import comb
 
 import numpy as np

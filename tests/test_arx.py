@@ -10,7 +10,7 @@ import pytest
 from scipy import signal
 
 from identify.arx import ArxModel, evaluate, fit_arx, fit_percent, rmse, select_structure
-from identify.ecm import EcmParameters, _companion, pipe_inertance, pipe_resistance, simulate
+from identify.ecm import _companion, simulate
 from identify.waveform import Waveform
 
 TS_US = 10.0
@@ -23,13 +23,10 @@ DEAD_TIME_SAMPLES = 22  # 220 us / 10 us
 
 
 def _ecm_params():
-    """Default synthetic physics of notes/team.md."""
-    rho, mu = 993.0, 2.21e-3
-    LN, RN = pipe_inertance(rho, 5e-3, 100e-6), pipe_resistance(mu, 5e-3, 100e-6)
-    LR, RR = pipe_inertance(rho, 20e-3, 94e-6), pipe_resistance(mu, 20e-3, 94e-6)
-    CN = 1 / ((2 * np.pi * 800) ** 2 * (LN + LR))
-    La = 4e-13
-    return EcmParameters(La=La, Ra=3333 * La, CN=CN, Kc=-6.8e-7 * La / (CN * LR), LN=LN, RN=RN, LR=LR, RR=RR)
+    """Default synthetic physics (the one place: dropvision.synth.physics.SynthPhysics)."""
+    from dropvision.synth.physics import SynthPhysics
+
+    return SynthPhysics().ecm_parameters()
 
 
 def _pinchoff_samples(u1, u2):

@@ -94,15 +94,14 @@ def test_missing_folder_and_file(tmp_path):
         load_dataset(tmp_path)
 
 
-def test_default_physics_is_synth_physics():
-    synth = pytest.importorskip("dropvision.synth.physics")
-    from identify.dataset import SyntheticPhysics
+def test_synthetic_dataset_truth_is_the_synthesizer_truth(tmp_path):
+    """identify's synthetic datasets and dropvision's synthetic images share one physics."""
+    from dropvision.synth.physics import drop_history
 
-    sp = synth.SynthPhysics()
-    ours = default_physics()
-    assert ours.ecm_parameters() == sp.ecm_parameters()
-    assert ours.ecm_parameters() == SyntheticPhysics().ecm_parameters()
-    for u1, u2 in [(50.0, 20.0), (72.5, 31.0)]:
-        assert float(ours.pinchoff_us(u1, u2)) == pytest.approx(sp.pinchoff_instant_us(u1, u2))
-        assert float(ours.volume_adjust_nl(u1, u2)) == pytest.approx(sp.volume_adjuster_nl_at(u1, u2))
-        assert float(ours.velocity_adjust_m_s(u1, u2)) == pytest.approx(sp.velocity_adjuster_m_s_at(u1, u2))
+    ph = default_physics()
+    make_synthetic_dataset(tmp_path / "ds", grid=[(55.0, 22.5), (72.5, 31.0), (62.5, 35.0)], noise_percent=0.0, seed=0)
+    su = load_dataset(tmp_path / "ds").summary
+    for row in su.itertuples():
+        h = drop_history(ph, row.u1_um_per_ms, row.u2_um)
+        assert row.inflight_volume_nl == pytest.approx(h.inflight_volume_nl, rel=1e-3)
+        assert row.jetting_velocity_m_s == pytest.approx(h.jetting_velocity_m_s, rel=1e-3)

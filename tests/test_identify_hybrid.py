@@ -27,13 +27,13 @@ def report(dataset):
 
 def _truth(u1, u2):
     ph = default_physics()
-    tp = float(ph.pinchoff_us(u1, u2))
+    tp = float(ph.pinchoff_instant_us(u1, u2))
     _, _, vp, qm = _ecm_truth(ph, u1, u2, np.arange(0.0, 100.0, 10.0), tp)
     return {
         "pinchoff_us": tp,
         "grown_volume_at_pinchoff_nl": vp,
-        "inflight_volume_nl": vp + float(ph.volume_adjust_nl(u1, u2)),
-        "jetting_velocity_m_s": float(flow_velocity_m_s(qm, 200.0)) + float(ph.velocity_adjust_m_s(u1, u2)),
+        "inflight_volume_nl": vp + float(ph.volume_adjuster_nl_at(u1, u2)),
+        "jetting_velocity_m_s": float(flow_velocity_m_s(qm, 200.0)) + float(ph.velocity_adjuster_m_s_at(u1, u2)),
     }
 
 

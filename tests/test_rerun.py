@@ -13,7 +13,6 @@ import pickle
 import subprocess
 import sys
 import textwrap
-from collections import defaultdict
 from dataclasses import dataclass
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
@@ -21,7 +20,6 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
 import pytest
 
 from dropvision import rerun_log as drl

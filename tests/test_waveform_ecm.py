@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify.ecm import EcmParameters, pipe_inertance, pipe_resistance, simulate
+from identify.ecm import pipe_inertance, pipe_resistance, simulate
 from identify.waveform import Waveform
 
 
@@ -31,12 +31,10 @@ def test_pipe_elements_eq2():
 
 
 def _params():
-    rho, mu = 993.0, 2.21e-3
-    LN, RN = pipe_inertance(rho, 5e-3, 100e-6), pipe_resistance(mu, 5e-3, 100e-6)
-    LR, RR = pipe_inertance(rho, 20e-3, 94e-6), pipe_resistance(mu, 20e-3, 94e-6)
-    CN = 1 / ((2 * np.pi * 800) ** 2 * (LN + LR))
-    La = 4e-13
-    return EcmParameters(La=La, Ra=3333 * La, CN=CN, Kc=-6.8e-7 * La / (CN * LR), LN=LN, RN=RN, LR=LR, RR=RR)
+    """Colour-ink-like physics from nozzle geometry and ink (Eq. 2): the synthesizer's default."""
+    from dropvision.synth.physics import SynthPhysics
+
+    return SynthPhysics().ecm_parameters()
 
 
 def test_characteristic_polynomial_factorises():
