@@ -293,6 +293,24 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
 
 
 # ----------------------------------------------------------------------------- driver
+def _remove_leftovers(dataset_dir: Path) -> None:
+    """Remove what a killed run may have left: hidden temporary shard folders and files of
+    interrupted atomic writes (``.<name>.<random>.tmp``/``.old``). Finished shards are never
+    touched; one campaign run per dataset folder at a time."""
+    import shutil
+
+    for folder in (dataset_dir, dataset_dir / "shards"):
+        if not folder.is_dir():
+            continue
+        for p in folder.iterdir():
+            if p.name.startswith(".") and p.name.endswith((".tmp", ".old")):
+                if p.is_dir():
+                    shutil.rmtree(p, ignore_errors=True)
+                else:
+                    p.unlink(missing_ok=True)
+
+
+
 def run_campaign(
     root,
     dataset_dir,
@@ -335,6 +353,7 @@ def run_campaign(
     if not folders:
         raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) found")
     dataset_dir.mkdir(parents=True, exist_ok=True)
+    _remove_leftovers(dataset_dir)
     manifest_path = dataset_dir / "manifest.json"
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})

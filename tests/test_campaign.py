@@ -96,3 +96,49 @@ def test_campaign_cli(campaign_root, tmp_path, capsys):
     assert dropvision_main(["campaign", str(tmp_path / "nothing"), "--out", str(tmp_path / "x")]) == 2
     assert "campaign root is not a folder" in capsys.readouterr().err
     assert dropvision_main(["synth-campaign", str(tmp_path / "s"), "--u1", "80:50:5"]) == 2
+
+
+def test_killed_run_loses_no_finished_sequence(campaign_root, tmp_path):
+    """SIGKILL a campaign after its first finished sequence: no half-written shard, the
+    finished sequence is kept and skipped on resume, the result equals an uninterrupted run."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    ds = tmp_path / "ds"
+    cmd = [sys.executable, "-m", "dropvision.cli", "campaign", str(campaign_root), "--out", str(ds),
+           "--workers", "1", "--no-progress"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                m = json.loads((ds / "manifest.json").read_text())
+            except (OSError, ValueError):
+                m = {}
+            if any(e.get("status") == "ok" for e in m.get("sequences", {}).values()):
+                break
+            time.sleep(0.02)
+        killed = proc.poll() is None
+        if killed:
+            os.kill(proc.pid, signal.SIGKILL)
+        proc.wait(30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    manifest = json.loads((ds / "manifest.json").read_text())
+    done = {k for k, e in manifest["sequences"].items() if e["status"] == "ok"}
+    assert done
+    for entry in manifest["sequences"].values():  # every visible shard is complete
+        shard = ds / "shards" / entry["shard"]
+        if shard.exists():
+            assert (shard / "frames.parquet").exists() and (shard / "summary.json").exists()
+    resumed = run_campaign(campaign_root, ds, workers=1, progress=False)
+    assert set(resumed.skipped) == done and len(resumed.skipped) + len(resumed.measured) == 4
+    assert not [p for p in ds.rglob(".*") if p.name.endswith((".tmp", ".old"))]
+    fresh = run_campaign(campaign_root, tmp_path / "fresh", workers=1, progress=False)
+    assert not fresh.failed
+    for name in ("timeseries.parquet", "summary.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(ds / name), pd.read_parquet(tmp_path / "fresh" / name))
