@@ -340,14 +340,16 @@ def _thread_joined(roi, ctx: FrameContext, seg, nozzle_body, bottom_row: float, 
     """Labels of detached bodies still joined to the attached liquid by an unresolved thread.
 
     A liquid thread much thinner than the blur never reaches the 50 % level, but it leaves a
-    faint dark line across the gap.  Along the straight path from the attached liquid's bottom
-    to a body's top, the brightest point of the path (per gap row the darkest pixel within
-    2 px of the path) is compared with what the blurred tails of the two ends alone would give
-    at the gap's middle, ``1 - 2 (1 - L) (1 - Phi(g / 2 sigma))``: darker by more than
-    4 noise standard deviations (and by at least 0.02) means a thread.
+    faint dark line across the gap, and it crosses *every* row of the gap with about the same
+    width, so its darkening does not fade anywhere in the gap.  The blurred ends alone darken
+    the gap only by their tails, which decay away from each end.  Along the straight path from
+    the attached liquid's bottom to a body's top (per row the darkest pixel within 2 px of the
+    path), each gap row is compared with what the two ends alone would give there
+    (`_end_tails_transmission`): each end is an edge at its sub-pixel 50 % crossing along the
+    path, blurred by the calibrated blur.  The body is joined only when *every* gap row is darker
+    than that by more than 4 noise standard deviations (and by at least 0.02): one gap row
+    explained by the ends' tails alone breaks the thread.
     """
-    from math import erf, sqrt
-
     out = set()
     labels = seg.labels
     hh, ww = roi.shape
@@ -357,27 +359,53 @@ def _thread_joined(roi, ctx: FrameContext, seg, nozzle_body, bottom_row: float, 
         return out
     xb = 0.5 * (cols_b[0] + cols_b[-1])
     sig = ctx.sigma_px if ctx.sigma_px > 0 else 1.0
+    margin = max(0.02, 4.0 * ctx.noise_t)
+
+    def darkest(y: int, xc: float) -> float:  # per row, within 2 px of the path
+        c = int(round(xc))
+        c0, c1 = max(0, c - 2), min(ww, c + 3)
+        return float((roi[y, c0:c1].astype(np.float32) * ctx.inv_background[y, c0:c1]).min()) / gain
+
     for b in seg.bodies:
         if b.nozzle or b.y0 <= yb or b.y0 - yb > 100:
             continue
         cols_t = np.nonzero(labels[b.y0] == b.label)[0]
         xt = 0.5 * (cols_t[0] + cols_t[-1])
-        g = b.y0 - yb - 1
-        if g < 1:
+        if b.y0 - yb - 1 < 1:
             out.add(b.label)
             continue
-        best = 0.0
-        for y in range(yb + 1, b.y0):
-            xc = int(round(xb + (xt - xb) * (y - yb) / (b.y0 - yb)))
-            c0, c1 = max(0, xc - 2), min(ww, xc + 3)
-            t = roi[y, c0:c1].astype(np.float32) * ctx.inv_background[y, c0:c1] / gain
-            best = max(best, float(t.min()))
-        half = 0.5 * (g + 1)
-        tail = 0.5 * (1.0 - erf(half / (sqrt(2.0) * sig)))
-        expected = 1.0 - 2.0 * (1.0 - ctx.liquid_level) * tail
-        if expected - best > max(0.02, 4.0 * ctx.noise_t):
+        rows = np.arange(yb, b.y0 + 1)
+        t_path = np.array([darkest(y, xb + (xt - xb) * (y - yb) / (b.y0 - yb)) for y in rows])
+        # sub-pixel 50 % crossings of the two ends along the path (end row dark, next row not)
+        e_top = yb + _crossing_fraction(t_path[0], t_path[1], ctx.threshold)
+        e_bot = b.y0 - _crossing_fraction(t_path[-1], t_path[-2], ctx.threshold)
+        expected = _end_tails_transmission(rows[1:-1], e_top, e_bot, sig, sig, ctx.liquid_level)
+        excess = expected - t_path[1:-1]
+        if float(excess.min()) > margin:
             out.add(b.label)
     return out
+
+
+def _crossing_fraction(t_dark: float, t_next: float, threshold: float) -> float:
+    """Where (0..1 px from the dark row) a linear profile crosses ``threshold``."""
+    if not t_next > t_dark:
+        return 0.5
+    return float(np.clip((threshold - t_dark) / (t_next - t_dark), 0.0, 1.0))
+
+
+def _end_tails_transmission(rows: np.ndarray, e_top: float, e_bot: float, sigma_top_px: float,
+                            sigma_bot_px: float, liquid_level: float) -> np.ndarray:
+    """Transmission along the axis between two blurred liquid ends (no liquid between them).
+
+    Each end is an edge at its 50 % crossing (``e_top`` the upper body's bottom, ``e_bot`` the
+    lower body's top) blurred by a Gaussian: its darkening at a distance ``d`` outside is
+    ``(1 - L) (1 - Phi(d / sigma))``; the two tails add.
+    """
+    from scipy.special import ndtr
+
+    rows = np.asarray(rows, float)
+    dark = ndtr((e_top - rows) / sigma_top_px) + ndtr((rows - e_bot) / sigma_bot_px)
+    return 1.0 - (1.0 - liquid_level) * dark
 
 
 def _clip_to_tip_plane(ed, tip_roi: float, axis_roi: float, tilt_rad: float) -> None:
