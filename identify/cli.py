@@ -148,10 +148,8 @@ def cmd_design(args) -> int:
 
 
 def cmd_paper(args) -> int:
-    try:
-        from identify.paper import paper_prediction
-    except ImportError:
-        raise UsageError("identify.paper is not available in this installation") from None
+    from identify.paper import paper_prediction
+
     out = paper_prediction(args.u1, args.u2, samples=args.samples, seed=args.seed, simulation=args.simulation)
     summary = {k: out[k] for k in OUTPUT_UNITS if k in out}
     if args.json:

@@ -300,115 +300,31 @@ def ecm_sequences(ds: Dataset) -> list[dict]:
 
 
 def _fit_ecm(ds: Dataset, method: str, notes: list):
-    """Fit the ECM through identify.ecm_fit (or the local fallback if that module is absent)."""
+    """Fit the ECM through :func:`identify.ecm_fit.fit_ecm` (Section 4.3)."""
     hyd = ds.hydraulics()
     if hyd is None:
         raise DatasetError(
             f"{ds._json_name()}: ink (density_kg_m3, viscosity_mPa_s) and nozzle geometry (length_mm, "
             "reservoir_channel_radius_um, reservoir_channel_length_mm) are needed for Eq. (2)"
         )
+    from identify import ecm_fit as _ef
+
     seqs = ecm_sequences(ds)
-    try:
-        from identify import ecm_fit as _ef  # type: ignore
-    except ImportError:
-        notes.append("identify.ecm_fit not available: used the local output-error fallback (La fixed)")
-        return _fallback_fit_ecm(seqs, hyd)
     data = [_make_ecm_data(_ef.EcmData, **s) for s in seqs]
     return _ef.fit_ecm(data, _ef.Hydraulics(hyd["LN"], hyd["RN"], hyd["LR"], hyd["RR"]), method=method)
 
 
-@dataclass
-class _FallbackEcmFit:
-    parameters: EcmParameters
-    coefficients: EcmCoefficients
-    coeff_cov: np.ndarray
-    param_ci95: dict
-
-    def to_dict(self) -> dict:
-        return {"parameters": self.parameters.to_dict(), "coefficients": self.coefficients.to_dict(),
-                "coeff_cov": self.coeff_cov.tolist(), "param_ci95": self.param_ci95, "method": "fallback-oe"}
-
-
-def _fallback_fit_ecm(seqs: list[dict], hyd: dict, La: float = 4e-13) -> _FallbackEcmFit:
-    """Output-error fit of (La/Ra, CN, Kc/Ra) with known hydraulics; La fixed (scale not identifiable)."""
-    from scipy.optimize import least_squares
-
-    from identify.montecarlo import simulate_batch
-
-    LN, RN, LR, RR = hyd["LN"], hyd["RN"], hyd["LR"], hyd["RR"]
-
-    def params(x):
-        tau, cn, kap = np.exp(x)
-        ra = La / tau
-        return EcmParameters(La=La, Ra=ra, CN=cn, Kc=-kap * ra, LN=LN, RN=RN, LR=LR, RR=RR)
-
-    def coeffs(x):
-        c = params(x).coefficients()
-        return np.array([getattr(c, k) for k in COEFF_NAMES])
-
-    def resid(x):
-        with np.errstate(all="ignore"):
-            c = coeffs(x)[None]
-            modal = modal_form(c)
-            r = []
-            for s in seqs:
-                v, _ = simulate_batch(modal, s["t_us"], s["u_um"], use_numba=False)
-                r.append(v[0] - s["volume_nl"])
-            out = np.concatenate(r)
-        return np.where(np.isfinite(out), out, 1e6)
-
-    g = np.median([s["pinchoff_volume_nl"] / max(s["pinchoff_displacement_um"], 1e-9) for s in seqs])
-    best = None
-    for f_hz in (400.0, 1000.0, 2500.0):
-        for tau in (1e-4, 1e-3):
-            cn = 1 / ((2 * np.pi * f_hz) ** 2 * (LN + LR))
-            kap = max(g * 1e-6 / (cn * RR), 1e-30)
-            x0 = np.log([tau, cn, kap])
-            try:
-                sol = least_squares(resid, x0, x_scale=1.0, max_nfev=200)
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            if best is None or sol.cost < best.cost:
-                best = sol
-    x = best.x
-    J = best.jac
-    dof = max(J.shape[0] - J.shape[1], 1)
-    s2 = 2 * best.cost / dof
-    cov_x = s2 * np.linalg.pinv(J.T @ J)
-    # coefficient Jacobian by central differences in x
-    Jc = np.empty((6, 3))
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1e-6
-        Jc[:, k] = (coeffs(x + e) - coeffs(x - e)) / 2e-6
-    cov_c = Jc @ cov_x @ Jc.T
-    p = params(x)
-    # parameter intervals: Ra, CN, Kc from x (delta method)
-    def pvec(xx):
-        q = params(xx)
-        return np.array([q.Ra, q.CN, q.Kc])
-    Jp = np.empty((3, 3))
-    for k in range(3):
-        e = np.zeros(3)
-        e[k] = 1e-6
-        Jp[:, k] = (pvec(x + e) - pvec(x - e)) / 2e-6
-    ci = 1.96 * np.sqrt(np.clip(np.diag(Jp @ cov_x @ Jp.T), 0, None))
-    return _FallbackEcmFit(parameters=p, coefficients=p.coefficients(), coeff_cov=cov_c,
-                           param_ci95={"La": 0.0, "Ra": ci[0], "CN": ci[1], "Kc": ci[2]})
-
-
 def _arx_select(ds: Dataset, notes: list, ranges: dict | None, folds: int, progress: bool):
-    try:
-        from identify import arx as _arx  # type: ignore
-    except ImportError:
-        notes.append("identify.arx not available: ARX structure selection skipped")
-        return None
+    from identify import arx as _arx
+
     seqs = arx_sequences(ds)
     if len(seqs) < 2:
         notes.append("ARX structure selection skipped: fewer than 2 sequences start at delay 0")
         return None
+    # The issue's grid (Table 2 and beyond): na 1-7, nb 1-4, nk 0..40 (and past the dead time if
+    # it is longer); the delay is found from the data, not assumed from dataset.json.
     nk0 = int(round(ds.dead_time_us / ds.sample_interval_us))
-    r = {"na_range": range(2, 5), "nb_range": range(1, 4), "nk_range": range(max(1, nk0 - 1), nk0 + 2)}
+    r = {"na_range": range(1, 8), "nb_range": range(1, 5), "nk_range": range(0, max(41, nk0 + 10))}
     r.update(ranges or {})
     return _arx.select_structure(seqs, r["na_range"], r["nb_range"], r["nk_range"], folds=min(folds, len(seqs)), seed=0)
 
@@ -493,12 +409,9 @@ def fit_hybrid(
     sel_q = select_order(u1, u2, vel_target, name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     bar.close()
-    try:
-        from dropvision.versions import software_versions
+    from dropvision.versions import software_versions
 
-        versions = software_versions()
-    except ImportError:  # pragma: no cover
-        versions = {}
+    versions = software_versions()
     import identify
 
     versions["identify"] = identify.__version__

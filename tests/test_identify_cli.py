@@ -106,3 +106,16 @@ def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):
     lo = pred.series(sorted(e for e in band if "volume_nl" in e and e.endswith("/low"))[0], "Scalars:scalars")
     hi = pred.series(sorted(e for e in band if "volume_nl" in e and e.endswith("/high"))[0], "Scalars:scalars")
     assert np.all(np.concatenate(hi["value"]) >= np.concatenate(lo["value"]) - 1e-12)
+
+
+def test_fit_searches_the_whole_structure_grid(fitted):
+    """Structure selection covers na 1-7, nb 1-4, nk 0..40 (the issue's grid), not a prior."""
+    from identify.dataset import load_dataset
+    from identify.hybrid import fit_hybrid
+
+    rep = fit_hybrid(load_dataset(fitted / "ds"), folds=4)
+    t = rep.arx_selection.table
+    assert set(t.na) == set(range(1, 8)) and set(t.nb) == set(range(1, 5))
+    assert t.nk.min() == 0 and t.nk.max() >= 40
+    na, nb, nk = rep.arx_selection.selected
+    assert 21 <= nk <= 24  # the 220 us dead time at 10 us (MATLAB convention: 22 or 23)
