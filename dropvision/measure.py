@@ -482,10 +482,19 @@ def _calibration_indices(delays: np.ndarray, n: int) -> list[int]:
     return [int(first_of[i]) for i in pick]
 
 
-def _stream(seq, indices, ctx: FrameContext, workers: int, logger, errors: list, progress: bool):
-    """Yield FrameRecords in order; at most ``2 * workers`` frames decoded at once."""
+def _stream(seq, indices, ctx: FrameContext, workers: int, logger, errors: list, progress: bool,
+            decoded: dict | None = None):
+    """Yield FrameRecords in order; at most ``2 * workers`` frames decoded at once.
+
+    ``decoded`` holds images already decoded by the calibration pass (a few, fixed number):
+    they are used once and dropped instead of being decoded again.
+    """
+    decoded = {} if decoded is None else decoded
 
     def work(i):
+        image = decoded.pop(i, None)
+        if image is not None:
+            return measure_frame(image, ctx, seq.meta.frames[i], logger)
         fr = seq.read(i)
         if fr.image is None:
             return FrameRecord(fr.ref.index, fr.ref.file, fr.ref.page, fr.ref.delay_us, fr.ref.repeat, error=fr.error)
@@ -523,8 +532,12 @@ def _stream(seq, indices, ctx: FrameContext, workers: int, logger, errors: list,
             bar.close()
 
 
-def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig()) -> tuple[Calibration, float, FrameContext]:
+def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
+                       decoded: dict | None = None) -> tuple[Calibration, float, FrameContext]:
     """Calibration pass over a few frames spread over an open sequence.
+
+    ``decoded``, when given, receives the decoded calibration frames (index -> image) so that
+    the measurement pass does not decode them again.
 
     Returns
     -------
@@ -552,6 +565,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig()) -> tuple[Ca
                 break
     if not cal_frames:
         raise SequenceError(f"{meta.path}: no readable frame")
+    if decoded is not None:
+        decoded.update(cal_frames)
     first_idx = min(cal_frames)
     images = [cal_frames[i] for i in sorted(cal_frames)]
     first = cal_frames[first_idx]
@@ -612,7 +627,8 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     if n == 0:
         raise SequenceError(f"{meta.path}: no frames")
     errors: list[dict] = []
-    cal, sigma, ctx = calibrate_sequence(seq, config)
+    decoded: dict = {}
+    cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
     if logger is not None:
         logger.log_calibration(cal, shape=cal.shape)
     seq_flags = []
@@ -622,7 +638,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         seq_flags.append(q.LOW_CONTRAST)
     # --- measurement pass (streamed) -----------------------------------------------------
     records: list[FrameRecord] = []
-    for rec in _stream(seq, range(n), ctx, max(1, config.workers), logger, errors, progress):
+    for rec in _stream(seq, range(n), ctx, max(1, config.workers), logger, errors, progress, decoded):
         if rec.error is not None:
             errors.append({"file": rec.file, "page": rec.page, "delay_us": rec.delay_us, "reason": rec.error})
             continue
