@@ -187,6 +187,11 @@ def from_canonical(image: np.ndarray, orientation: str) -> np.ndarray:
     return np.ascontiguousarray(np.rot90(image, -k))
 
 
+def _flip(v, n):
+    """Mirror a pixel coordinate (pixel centres are integers) in an axis of ``n`` pixels."""
+    return None if v is None else (n - 1) - v
+
+
 def original_to_canonical(row, col, orientation: str, original_shape) -> tuple:
     """Map a (row, col) point of the stored image into the canonical frame.
 
@@ -197,16 +202,13 @@ def original_to_canonical(row, col, orientation: str, original_shape) -> tuple:
     h, w = int(original_shape[0]), int(original_shape[1])
     o = _check_orientation(orientation)
 
-    def flip(v, n):
-        return None if v is None else (n - 1) - v
-
     if o == "down":
         return row, col
     if o == "up":
-        return flip(row, h), flip(col, w)
+        return _flip(row, h), _flip(col, w)
     if o == "left":
-        return flip(col, w), row
-    return col, flip(row, h)  # right
+        return _flip(col, w), row
+    return col, _flip(row, h)  # right
 
 
 def canonical_to_original(row, col, orientation: str, canonical_shape) -> tuple:
@@ -217,16 +219,13 @@ def canonical_to_original(row, col, orientation: str, canonical_shape) -> tuple:
     hc, wc = int(canonical_shape[0]), int(canonical_shape[1])
     o = _check_orientation(orientation)
 
-    def flip(v, n):
-        return None if v is None else (n - 1) - v
-
     if o == "down":
         return row, col
     if o == "up":
-        return flip(row, hc), flip(col, wc)
+        return _flip(row, hc), _flip(col, wc)
     if o == "left":
-        return col, flip(row, hc)
-    return flip(col, wc), row  # right
+        return col, _flip(row, hc)
+    return _flip(col, wc), row  # right
 
 
 # ----------------------------------------------------------------------------------------

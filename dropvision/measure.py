@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pandas as pd
+from scipy.special import ndtr
 
 from dropvision import quality as q
 from dropvision.calibration import Calibration, CalibrationError, calibrate, edge_sigma_px, find_nozzle
@@ -401,8 +402,6 @@ def _end_tails_transmission(rows: np.ndarray, e_top: float, e_bot: float, sigma_
     lower body's top) blurred by a Gaussian: its darkening at a distance ``d`` outside is
     ``(1 - L) (1 - Phi(d / sigma))``; the two tails add.
     """
-    from scipy.special import ndtr
-
     rows = np.asarray(rows, float)
     dark = ndtr((e_top - rows) / sigma_top_px) + ndtr((rows - e_bot) / sigma_bot_px)
     return 1.0 - (1.0 - liquid_level) * dark

@@ -77,6 +77,7 @@ from identify.ecm import (
     pipe_inertance,
     pipe_resistance,
 )
+from identify.ecm import simulate as ecm_simulate
 from identify.waveform import DEAD_TIME_US, SAMPLE_INTERVAL_US, Waveform
 
 #: La used when the caller does not fix it (kg/m^4): Table 3 of the paper. La is not
@@ -286,62 +287,14 @@ class EcmData:
 # --------------------------------------------------------------------------- simulators
 
 
-def _expm_small(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential of a small matrix: scaling and squaring with an 18-term Taylor
-    series (error < 1e-16 relative for the scaled norm <= 0.5). A plain-numpy stand-in for
-    scipy.linalg.expm, which costs milliseconds per 5x5 call on a loaded machine."""
-    norm = float(np.max(np.sum(np.abs(M), axis=0)))
-    s = max(0, int(np.ceil(np.log2(norm))) + 1) if norm > 0 else 0
-    X = M / 2.0**s
-    n = M.shape[0]
-    E = np.eye(n)
-    for k in range(18, 0, -1):  # Horner: I + X/1 (I + X/2 (I + ...))
-        E = np.eye(n) + (X @ E) / k
-    for _ in range(s):
-        E = E @ E
-    return E
-
-
 def simulate_batch(coeffs: EcmCoefficients, interval_us: float, u_um) -> tuple[np.ndarray, np.ndarray]:
-    """Exact first-order-hold simulation of Eq. (6) for many inputs on one time grid.
-
-    Same discretisation as :func:`identify.ecm.simulate`, vectorised over the rows of ``u_um``.
-
-    Parameters
-    ----------
-    coeffs : EcmCoefficients
-    interval_us : float
-        Sampling interval (µs).
-    u_um : array_like, shape (m, n)
-        Displacements (µm) sampled every ``interval_us``, from rest.
-
-    Returns
-    -------
-    volume_nl, flow_nl_per_us : ndarray, shape (m, n)
-    """
-    u = np.atleast_2d(np.asarray(u_um, dtype=float))
+    """:func:`identify.ecm.simulate` for the rows of ``u_um`` (m, n), sampled every
+    ``interval_us`` from rest; returns volume_nl, flow_nl_per_us of shape (m, n)."""
     h = float(interval_us)
     if not h > 0:
         raise ValueError(f"interval_us must be > 0, got {interval_us!r}")
-    A, B, C = _companion(coeffs, 1e-6)
-    M = np.zeros((5, 5))
-    M[:3, :3] = A
-    M[:3, 3] = B
-    M[3, 4] = 1.0
-    E = _expm_small(M * h)
-    Phi, G0, G1 = E[:3, :3], E[:3, 3], E[:3, 4]
-    m, n = u.shape
-    slopes = np.diff(u, axis=1) / h
-    x = np.zeros((m, 3))
-    states = np.empty((n, m, 3))
-    states[0] = x
-    PhiT = Phi.T
-    for k in range(n - 1):
-        x = x @ PhiT + np.outer(u[:, k], G0) + np.outer(slopes[:, k], G1)
-        states[k + 1] = x
-    volume = (states @ C).T
-    flow = ((states @ A.T) @ C).T + u * (B @ C)
-    return volume, flow
+    u = np.atleast_2d(np.asarray(u_um, dtype=float))
+    return ecm_simulate(coeffs, np.arange(u.shape[1]) * h, u)
 
 
 def pwl_response(ratios, knots_us, slope_jumps_um_per_us, t_us) -> tuple[np.ndarray, np.ndarray]:

@@ -31,9 +31,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy.linalg import expm
 
-from identify.ecm import EcmCoefficients, _companion, flow_velocity_m_s, simulate
+from identify.ecm import EcmCoefficients, _companion, flow_velocity_m_s, foh_step, simulate
 from identify.waveform import Waveform
 
 COEFF_NAMES = ("A3", "A2", "A1", "A0", "B1", "B0")
@@ -198,12 +197,8 @@ def _companion_response_at(c_row: np.ndarray, w: Waveform, tau: float) -> tuple[
         d = float(np.clip(tau - a, 0.0, b - a))
         if d <= 0:
             continue
-        M = np.zeros((n + 2, n + 2))
-        M[:n, :n] = A
-        M[:n, n] = B
-        M[n, n + 1] = 1.0
-        E = expm(M * d)
-        x = E[:n, :n] @ x + E[:n, n] * u0 + E[:n, n + 1] * s
+        Phi, G0, G1 = foh_step(A, B, d)
+        x = Phi @ x + G0 * u0 + G1 * s
     u = float(w.displacement_um(tau))
     return float(C @ x), float(C @ (A @ x + B * u))
 

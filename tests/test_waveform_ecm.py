@@ -61,3 +61,17 @@ def test_simulate_matches_scipy_lsim():
     np.testing.assert_allclose(vol, y_ref, atol=1e-6 * np.abs(y_ref).max())
     np.testing.assert_allclose(flow, np.gradient(vol, t), atol=2e-3 * np.abs(flow).max())
     assert 10 < vol.max() < 25
+
+
+def test_simulate_rows_equal_single_simulations():
+    c = _params().coefficients()
+    t = np.arange(0.0, 1200.0, 10.0)
+    U = np.stack([Waveform(u1, u2).displacement_um(t - 220.0) for u1, u2 in [(50, 20), (70, 25), (80, 35)]])
+    vol, flow = simulate(c, t, U)
+    assert vol.shape == flow.shape == U.shape
+    for k in range(U.shape[0]):
+        v1, f1 = simulate(c, t, U[k])
+        np.testing.assert_allclose(vol[k], v1, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(flow[k], f1, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError):
+        simulate(c, t, U[:, :-1])
