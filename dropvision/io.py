@@ -468,6 +468,8 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
 
 
 def _read_cv2(path: Path) -> np.ndarray:
+    if path.suffix.lower() == ".png":
+        return _read_png(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:  # e.g. a path cv2 cannot open: decode from bytes
         try:
@@ -478,6 +480,25 @@ def _read_cv2(path: Path) -> np.ndarray:
     if img is None:
         raise _Unreadable(f"cannot decode {path.suffix.lstrip('.').upper() or 'image'} "
                           "(truncated or corrupt file)")
+    return img
+
+
+def _read_png(path: Path) -> np.ndarray:
+    """Grey PNGs with the fast decoder (`dropvision.png`), any other PNG with libpng (cv2)."""
+    from dropvision.png import PngError, decode_grey_png
+
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise _Unreadable(f"cannot read file ({exc.strerror})") from None
+    try:
+        img = decode_grey_png(data)
+    except PngError as exc:
+        raise _Unreadable(f"cannot decode PNG ({exc})") from None
+    if img is None:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+        if img is None:
+            raise _Unreadable("cannot decode PNG (truncated or corrupt file)")
     return img
 
 

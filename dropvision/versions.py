@@ -6,7 +6,7 @@ import platform
 from importlib import metadata
 
 _PACKAGES = ("dropvision", "numpy", "scipy", "pandas", "pyarrow", "opencv-python-headless",
-             "scikit-image", "tifffile", "rerun-sdk", "numba")
+             "scikit-image", "tifffile", "rerun-sdk", "numba", "isal", "imagecodecs")
 
 
 def software_versions() -> dict[str, str]:

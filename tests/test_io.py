@@ -211,8 +211,8 @@ def test_write_sequence_json_atomic_schema_nan(tmp_path):
 def test_open_decodes_only_first_frame(tmp_path, monkeypatch):
     _seq(tmp_path, [f"f{i}.png" for i in range(5)], [0, 1, 2, 3, 4])
     calls = []
-    real = dio.cv2.imread
-    monkeypatch.setattr(dio.cv2, "imread", lambda *a: calls.append(a[0]) or real(*a))
+    real = dio._read_cv2
+    monkeypatch.setattr(dio, "_read_cv2", lambda path: calls.append(str(path)) or real(path))
     seq = open_sequence(tmp_path)
     assert len(calls) == 1 and calls[0].endswith("f0.png")
     it = iter(seq)

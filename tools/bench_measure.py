@@ -4,6 +4,8 @@
 
 Renders a default synthetic sequence (640 x 1024, 8-bit PNG), then on ONE core (one thread):
 
+- PNG decoding alone: libpng (cv2.imread) vs dropvision's reader (`dropvision.png`, checked
+  bit-identical on every 20th frame);
 - baseline: cv2 PNG decode (also skimage.io.imread, the plain choice), Otsu threshold, fill holes, label, regionprops, whole-pixel row
   widths (V = sum pi (w/2)^2) per body;
 - dropvision, end to end (`measure_sequence`, calibration pass and PNG decode included);
@@ -94,6 +96,20 @@ def main(argv=None) -> int:
     for f in files:
         baseline_frame(sk_imread(str(f)))
     base_e2e_sk = n / (time.perf_counter() - t)
+    # --- PNG decoding alone: libpng (cv2) vs dropvision's reader (bit-identical, checked)
+    from dropvision.io import _read_cv2
+
+    t = time.perf_counter()
+    for f in files:
+        cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+    dec_libpng = (time.perf_counter() - t) / n * 1e3
+    t = time.perf_counter()
+    for f in files:
+        _read_cv2(f)
+    dec_ours = (time.perf_counter() - t) / n * 1e3
+    for f in files[:: max(1, n // 20)]:
+        if not np.array_equal(_read_cv2(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
+            raise AssertionError(f"{f}: dropvision's PNG decode differs from libpng")
     # --- dropvision end to end, one thread
     t = time.perf_counter()
     res = measure_sequence(seq, config=MeasureConfig(workers=1))
@@ -138,6 +154,8 @@ def main(argv=None) -> int:
     rss_3n = _peak_rss_mb(long_seq, 2)
 
     report.update({
+        "png_decode_ms_libpng": dec_libpng,
+        "png_decode_ms_dropvision": dec_ours,
         "baseline_end_to_end_fps": base_e2e,
         "dropvision_end_to_end_fps": ours_e2e,
         "end_to_end_speedup": ours_e2e / base_e2e,

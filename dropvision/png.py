@@ -1,0 +1,155 @@
+"""Fast decoding of grey PNG strobe frames.
+
+Decoding a 640 x 1024 8-bit PNG with libpng (OpenCV, imageio, pyspng alike) costs about 4.4 ms
+here, seven times what measuring the frame costs. Nearly all of it is zlib's inflate and the
+per-row unfiltering. This module decodes the PNGs drop watchers and `dropvision synth` write
+(grey, 8 or 16 bits, not interlaced, rows filtered with None, Sub or Up) with Intel ISA-L's
+inflate (``isal``) and vectorised unfiltering (``imagecodecs.delta_decode``): about 1.1 ms for
+the same frame, bit-identical to libpng.
+
+Every other PNG (colour, palette, 1/2/4-bit, interlaced, a ``tRNS`` chunk, rows using the
+Average or Paeth filters) is left to libpng: :func:`decode_grey_png` returns None and the
+caller decodes it with OpenCV. Broken files raise :class:`PngError`.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+
+__all__ = ["PngError", "decode_grey_png", "PNG_SIGNATURE"]
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_CRITICAL = (b"IHDR", b"IDAT", b"IEND", b"PLTE")
+
+
+class PngError(ValueError):
+    """A PNG file that is truncated or corrupt (the message says how)."""
+
+
+def decode_grey_png(data) -> np.ndarray | None:
+    """Decode a grey PNG, or return None when it is a kind this fast path does not handle.
+
+    Parameters
+    ----------
+    data : bytes-like
+        The whole PNG file.
+
+    Returns
+    -------
+    image : ndarray of uint8 or uint16, shape (height, width), or None
+        Native byte order, as ``cv2.imread(..., cv2.IMREAD_UNCHANGED)`` returns it. None for
+        data that is not a PNG or a PNG that is not a non-interlaced 8/16-bit grey image whose
+        rows use only the None, Sub and Up filters (decode those with libpng).
+
+    Raises
+    ------
+    PngError
+        Truncated data, a bad chunk CRC in a critical chunk, a broken zlib stream, image data of
+        the wrong length or an invalid filter type.
+    """
+    from isal import isal_zlib
+    from imagecodecs import delta_decode
+
+    mv = memoryview(data)
+    if len(mv) < 8 or bytes(mv[:8]) != PNG_SIGNATURE:
+        return None
+    pos = 8
+    header = None
+    idat: list = []
+    idat_done = False
+    n = len(mv)
+    while pos < n:
+        # a cut chunk is fatal unless every IDAT chunk before it is complete (the zlib
+        # stream then tells whether the image data is whole)
+        if pos + 12 > n:
+            if not idat:
+                raise PngError("truncated file (ends inside a chunk header)")
+            break
+        length, ctype = struct.unpack_from(">I4s", mv, pos)
+        end = pos + 12 + length
+        if end > n:
+            if not idat or ctype == b"IDAT":
+                raise PngError(f"truncated file (chunk {ctype.decode('latin-1')!r} is cut short)")
+            break
+        if ctype in _CRITICAL:
+            (crc,) = struct.unpack_from(">I", mv, pos + 8 + length)
+            if isal_zlib.crc32(mv[pos + 4:pos + 8 + length]) != crc:
+                raise PngError(f"CRC error in chunk {ctype.decode('latin-1')!r}")
+        if ctype == b"IHDR":
+            if length != 13:
+                raise PngError("malformed IHDR chunk")
+            header = struct.unpack_from(">IIBBBBB", mv, pos + 8)
+        elif ctype == b"IDAT":
+            if idat_done:
+                raise PngError("IDAT chunks are not consecutive")
+            idat.append(mv[pos + 8:pos + 8 + length])
+        else:
+            if idat:
+                idat_done = True
+            if ctype == b"tRNS":
+                return None
+            if ctype == b"IEND":
+                break
+        pos = end
+    if header is None:
+        raise PngError("no IHDR chunk")
+    width, height, bit_depth, colour_type, compression, filter_method, interlace = header
+    if colour_type != 0 or bit_depth not in (8, 16) or interlace != 0:
+        return None
+    if compression != 0 or filter_method != 0 or width == 0 or height == 0:
+        raise PngError("invalid IHDR (compression or filter method, or an empty image)")
+    if not idat:
+        raise PngError("no image data (IDAT)")
+    bpp = bit_depth // 8
+    stride = width * bpp
+    expected = height * (stride + 1)
+    try:
+        raw = isal_zlib.decompress(b"".join(idat), bufsize=expected)
+    except Exception as exc:  # isal raises isal_zlib.error (truncated or corrupt stream)
+        raise PngError(f"corrupt image data ({exc})") from None
+    if len(raw) != expected:
+        raise PngError(f"image data holds {len(raw)} bytes, {expected} expected")
+    rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
+    out = _unfilter(rows, bpp, delta_decode)
+    if out is None:
+        return None
+    if bpp == 2:
+        return out.view(">u2").astype(np.uint16)
+    return out
+
+
+def _unfilter(rows: np.ndarray, bpp: int, delta_decode) -> np.ndarray | None:
+    """Undo PNG row filters None (0), Sub (1) and Up (2); None if Average/Paeth rows occur."""
+    ftype = rows[:, 0]
+    body = rows[:, 1:]
+    height, stride = body.shape
+    kinds = np.bincount(ftype, minlength=5)
+    if kinds.size > 5:
+        bad = int(np.flatnonzero(ftype > 4)[0])
+        raise PngError(f"invalid filter type {int(ftype[bad])} in row {bad}")
+    if kinds[3] or kinds[4]:
+        return None
+
+    def sub(block: np.ndarray) -> np.ndarray:  # running sum along the row, bpp bytes apart
+        if bpp == 1:
+            return delta_decode(block, axis=-1)
+        shaped = np.ascontiguousarray(block).reshape(block.shape[0], stride // bpp, bpp)
+        return delta_decode(shaped, axis=1).reshape(block.shape)
+
+    if kinds[1] == height:  # the common case (OpenCV writes every row with Sub)
+        return sub(body)
+    out = np.empty((height, stride), np.uint8)
+    if kinds[0]:
+        out[ftype == 0] = body[ftype == 0]
+    if kinds[1]:
+        out[ftype == 1] = sub(body[ftype == 1])
+    if kinds[2]:  # runs of Up rows: running sum down the run, seeded by the row above it
+        up = np.flatnonzero(ftype == 2)
+        starts = up[np.r_[True, np.diff(up) > 1]]
+        stops = up[np.r_[np.diff(up) > 1, True]] + 1
+        for s, e in zip(starts, stops):
+            seed = out[s - 1:s] if s > 0 else np.zeros((1, stride), np.uint8)
+            out[s:e] = delta_decode(np.concatenate([seed, body[s:e]]), axis=0)[1:]
+    return out
