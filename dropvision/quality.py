@@ -43,3 +43,50 @@ def frame_gain(samples: np.ndarray, background: np.ndarray) -> float:
     ratio = samples.astype(np.float32) / background
     bright = ratio[ratio > 0.7]
     return float(np.median(bright)) if bright.size >= 10 else float("nan")
+
+
+def wall_windows(rows, left_px, right_px, width: int, *, n: int = 24, half_px: int = 5):
+    """Pixel windows across the nozzle's outer walls for per-frame sharpness and contrast.
+
+    Up to ``n`` rows spread over ``rows`` (the straight wall rows), each with a window of
+    ``2 half_px + 1`` pixels centred on the left and on the right sub-pixel wall edge, ordered
+    from outside (background) to inside (wall).
+
+    Returns
+    -------
+    win_rows, win_cols : ndarray of int, shape (m, 2 half_px + 1)
+        Full-frame indices (``image[win_rows, win_cols]`` gives the profiles); empty when no
+        window fits in the frame.
+    """
+    rows = np.asarray(rows)
+    pick = np.unique(np.round(np.linspace(0, rows.size - 1, min(n, rows.size))).astype(int)) if rows.size else []
+    offs = np.arange(-half_px, half_px + 1)
+    out_r, out_c = [], []
+    for i in pick:
+        for edge, sign in ((left_px[i], 1), (right_px[i], -1)):
+            cols = int(round(edge)) + sign * offs
+            if cols.min() >= 0 and cols.max() < width:
+                out_r.append(np.full(offs.size, rows[i]))
+                out_c.append(cols)
+    if not out_r:
+        return np.empty((0, offs.size), int), np.empty((0, offs.size), int)
+    return np.array(out_r), np.array(out_c)
+
+
+def edge_sharpness(profiles: np.ndarray) -> float:
+    """Median over profiles of the steepest step between neighbouring pixels (transmission/px).
+
+    For a straight edge blurred by a Gaussian of ``sigma`` px (more than ~0.7 px) this is
+    about ``contrast / (sigma sqrt(2 pi))``: a frame's blur relative to a reference frame is
+    ``sigma_ref * sharpness_ref / sharpness``.
+    """
+    if profiles.size == 0:
+        return float("nan")
+    return float(np.median(np.abs(np.diff(profiles, axis=1)).max(axis=1)))
+
+
+def wall_contrast(profiles: np.ndarray) -> float:
+    """1 - the median over profiles of the darkest wall transmission."""
+    if profiles.size == 0:
+        return float("nan")
+    return float(1.0 - np.median(profiles.min(axis=1)))

@@ -152,20 +152,54 @@ def test_measure_cli_writes_rerun_recording(tmp_path):
         assert logged[int(d)] == pytest.approx(v, rel=1e-6)
 
 
-@pytest.mark.parametrize("u1, u2, seed", [
-    (70.0, 25.0, 9000),  # pinch-off exactly at a frame: two blurred ends 4 rows apart, no thread
-    (60.0, 30.0, 9),  # frame 1 us before pinch-off: a thread thinner than the blur still joins the drop
+@pytest.mark.parametrize("u1, u2, seed, every_10_us", [
+    (70.0, 25.0, 9000, False),  # pinch-off exactly at a frame: two blurred ends 4 rows apart, no thread
+    (60.0, 30.0, 9, False),  # frame 1 us before pinch-off: a thread thinner than the blur still joins the drop
+    # the two failures of the 0.02-everywhere rule in a 96-case seed sweep (every 10 us, as there):
+    (80.0, 25.0, 3, True),  # tapered ends darken the gap rows next to them beyond a straight edge's tail
+    (50.0, 30.0, 4, True),  # a thread whose waist sits in the gap row next to the meniscus
 ])
-def test_pinchoff_thread_rule_small_gap(u1, u2, seed, tmp_path):
+def test_pinchoff_thread_rule_small_gap(u1, u2, seed, every_10_us, tmp_path):
     """The first detached frame is pinch-off; blurred ends close together are no thread."""
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     tp = 1050.0 - 14.0 * (u1 - 70.0) + 10.2 * (u2 - 25.0)  # pinch-off law of the synthetic physics
     near = np.arange(10.0 * np.floor(tp / 10.0) - 30.0, 10.0 * np.floor(tp / 10.0) + 31.0, 10.0)
     delays = tuple(float(d) for d in np.concatenate([np.arange(0.0, near[0] - 1.0, 200.0), near]))
+    if every_10_us:
+        delays = tuple(float(d) for d in range(0, int(near[-1]) + 1, 10))
     cfg = SynthConfig(u1_um_per_ms=u1, u2_um=u2, seed=seed, width_px=192, height_px=640, tip_row=40.4,
                       axis_col=95.6, delays_us=delays, noise=0.5)
     seq = write_synthetic_sequence(cfg, tmp_path / "seq", progress=False)
     truth = json.loads((seq / "truth.json").read_text())
     assert truth["pinchoff_us"] in delays and truth["pinchoff_us"] - 10.0 in delays
     assert measure_sequence(seq).summary["pinchoff_us"] == truth["pinchoff_us"]
+
+
+def test_per_frame_blur_and_contrast_flags(tmp_path):
+    """A defocused frame and a washed-out frame are flagged (their numbers NaN); the others not."""
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    delays = tuple(float(d) for d in range(0, 1001, 50))
+    cfg = SynthConfig(width_px=192, height_px=640, tip_row=40.4, axis_col=95.6, delays_us=delays, seed=3)
+    seq = write_synthetic_sequence(cfg, tmp_path / "seq", progress=False)
+    files = [f["file"] for f in json.loads((seq / "sequence.json").read_text())["frames"]]
+    blurred, washed = files[7], files[12]
+    extra_sigma_px = 1.5
+    img = cv2.imread(str(seq / blurred), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(seq / blurred), cv2.GaussianBlur(img, (0, 0), extra_sigma_px))
+    img = cv2.imread(str(seq / washed), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    white = cv2.dilate(img, np.ones((41, 41)))  # local bright level: the backlight
+    cv2.imwrite(str(seq / washed), np.round(img + 0.3 * (white - img)).astype(np.uint8))  # 30 % less contrast
+
+    res = measure_sequence(seq)
+    f = res.frames.set_index("file")
+    sigma = res.summary["calibration"]["edge_blur_sigma_px"]
+    others = f.drop([blurred, washed])
+    assert (others.quality == "ok").all()
+    np.testing.assert_allclose(others.blur_px, sigma, rtol=0.05)
+    # Gaussian blurs add in quadrature
+    assert f.loc[blurred, "blur_px"] == pytest.approx(np.hypot(sigma, extra_sigma_px), rel=0.15)
+    assert "blurred" in f.loc[blurred, "quality"] and np.isnan(f.loc[blurred, "grown_volume_nl"])
+    assert f.loc[washed, "wall_contrast"] == pytest.approx(0.7 * others.wall_contrast.median(), rel=0.05)
+    assert "low contrast" in f.loc[washed, "quality"] and np.isnan(f.loc[washed, "grown_volume_nl"])
