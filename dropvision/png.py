@@ -105,12 +105,19 @@ def decode_grey_png(data) -> np.ndarray | None:
     bpp = bit_depth // 8
     stride = width * bpp
     expected = height * (stride + 1)
-    try:
-        raw = isal_zlib.decompress(b"".join(idat), bufsize=expected)
-    except Exception as exc:  # isal raises isal_zlib.error (truncated or corrupt stream)
+    inflater = isal_zlib.decompressobj()
+    try:  # never inflate more than the header's size (a corrupt size or a zip bomb)
+        raw = inflater.decompress(b"".join(idat), expected)
+    except Exception as exc:  # isal_zlib.error: corrupt stream or checksum
         raise PngError(f"corrupt image data ({exc})") from None
-    if len(raw) != expected:
-        raise PngError(f"image data holds {len(raw)} bytes, {expected} expected")
+    if inflater.unconsumed_tail:
+        raise PngError(f"more image data than the {expected} bytes a {width}x{height} "
+                       f"{bit_depth}-bit image needs (corrupt header or data)")
+    if len(raw) < expected:
+        raise PngError(f"image data holds {len(raw)} of the {expected} bytes a {width}x{height} "
+                       f"{bit_depth}-bit image needs (truncated or corrupt)")
+    if not inflater.eof:
+        raise PngError("image data stream is cut short before its checksum (truncated)")
     rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
     out = _unfilter(rows, bpp, delta_decode)
     if out is None:

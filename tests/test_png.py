@@ -126,6 +126,14 @@ def test_broken_files_raise(images):
              + _chunk(b"IEND", b""))
     with pytest.raises(PngError, match="bytes"):
         decode_grey_png(short)
+    long = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(b"\x00" * 10**6))
+            + _chunk(b"IEND", b""))
+    with pytest.raises(PngError, match="more image data"):  # inflates no more than the header's size
+        decode_grey_png(long)
+    nocheck = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr)
+               + _chunk(b"IDAT", zlib.compress(b"\x00" * 37 * 54)[:-4]) + _chunk(b"IEND", b""))
+    with pytest.raises(PngError, match="checksum"):
+        decode_grey_png(nocheck)
     rows = np.zeros((37, 54), np.uint8)
     rows[5, 0] = 9
     badf = (b"\x89PNG\r\n\x1a\n" + _chunk(b"IHDR", ihdr) + _chunk(b"IDAT", zlib.compress(rows.tobytes()))
