@@ -468,8 +468,6 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
 
 
 def _read_cv2(path: Path) -> np.ndarray:
-    if path.suffix.lower() == ".png":
-        return _read_png(path)
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:  # e.g. a path cv2 cannot open: decode from bytes
         try:
@@ -597,11 +595,12 @@ class Sequence:
             raise SequenceError(f"{path}: image file is missing") from None
         if size == 0:
             raise _Unreadable("zero-byte file")
-        if path.suffix.lower() in _TIFF_SUFFIXES:
+        suffix = path.suffix.lower()
+        if suffix in _TIFF_SUFFIXES:
             img = self._read_tiff(path, ref)
             bgr = False
         else:
-            img = _read_cv2(path)
+            img = _read_png(path) if suffix == ".png" else _read_cv2(path)
             bgr = True
         img = _to_grey(img, _where(ref), bgr, warn)
         if img.dtype not in (np.uint8, np.uint16):

@@ -94,7 +94,6 @@ class MeasureConfig:
     contrast_change_tolerance : float
         A frame whose nozzle-wall contrast is below the calibration frame's by more than this
         fraction (a washed-out strobe, flare) is flagged.
-        Frames blurrier than this are flagged.
     min_contrast : float
         Liquid interior transmission must be below 1 - min_contrast.
     saturation_limit : float

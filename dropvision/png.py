@@ -17,6 +17,8 @@ from __future__ import annotations
 import struct
 
 import numpy as np
+from imagecodecs import delta_decode
+from isal import isal_zlib
 
 __all__ = ["PngError", "decode_grey_png", "PNG_SIGNATURE"]
 
@@ -49,9 +51,6 @@ def decode_grey_png(data) -> np.ndarray | None:
         Truncated data, a bad chunk CRC in a critical chunk, a broken zlib stream, image data of
         the wrong length or an invalid filter type.
     """
-    from isal import isal_zlib
-    from imagecodecs import delta_decode
-
     mv = memoryview(data)
     if len(mv) < 8 or bytes(mv[:8]) != PNG_SIGNATURE:
         return None
@@ -108,7 +107,7 @@ def decode_grey_png(data) -> np.ndarray | None:
     inflater = isal_zlib.decompressobj()
     try:  # never inflate more than the header's size (a corrupt size or a zip bomb)
         raw = inflater.decompress(b"".join(idat), expected)
-    except Exception as exc:  # isal_zlib.error: corrupt stream or checksum
+    except isal_zlib.error as exc:  # corrupt stream or checksum
         raise PngError(f"corrupt image data ({exc})") from None
     if inflater.unconsumed_tail:
         raise PngError(f"more image data than the {expected} bytes a {width}x{height} "
@@ -119,7 +118,7 @@ def decode_grey_png(data) -> np.ndarray | None:
     if not inflater.eof:
         raise PngError("image data stream is cut short before its checksum (truncated)")
     rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
-    out = _unfilter(rows, bpp, delta_decode)
+    out = _unfilter(rows, bpp)
     if out is None:
         return None
     if bpp == 2:
@@ -127,7 +126,7 @@ def decode_grey_png(data) -> np.ndarray | None:
     return out
 
 
-def _unfilter(rows: np.ndarray, bpp: int, delta_decode) -> np.ndarray | None:
+def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray | None:
     """Undo PNG row filters None (0), Sub (1) and Up (2); None if Average/Paeth rows occur."""
     ftype = rows[:, 0]
     body = rows[:, 1:]

@@ -211,8 +211,8 @@ def test_write_sequence_json_atomic_schema_nan(tmp_path):
 def test_open_decodes_only_first_frame(tmp_path, monkeypatch):
     _seq(tmp_path, [f"f{i}.png" for i in range(5)], [0, 1, 2, 3, 4])
     calls = []
-    real = dio._read_cv2
-    monkeypatch.setattr(dio, "_read_cv2", lambda path: calls.append(str(path)) or real(path))
+    real = dio._read_png
+    monkeypatch.setattr(dio, "_read_png", lambda path: calls.append(str(path)) or real(path))
     seq = open_sequence(tmp_path)
     assert len(calls) == 1 and calls[0].endswith("f0.png")
     it = iter(seq)

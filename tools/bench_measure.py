@@ -97,7 +97,7 @@ def main(argv=None) -> int:
         baseline_frame(sk_imread(str(f)))
     base_e2e_sk = n / (time.perf_counter() - t)
     # --- PNG decoding alone: libpng (cv2) vs dropvision's reader (bit-identical, checked)
-    from dropvision.io import _read_cv2
+    from dropvision.io import _read_png
 
     t = time.perf_counter()
     for f in files:
@@ -105,10 +105,10 @@ def main(argv=None) -> int:
     dec_libpng = (time.perf_counter() - t) / n * 1e3
     t = time.perf_counter()
     for f in files:
-        _read_cv2(f)
+        _read_png(f)
     dec_ours = (time.perf_counter() - t) / n * 1e3
     for f in files[:: max(1, n // 20)]:
-        if not np.array_equal(_read_cv2(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
+        if not np.array_equal(_read_png(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
             raise AssertionError(f"{f}: dropvision's PNG decode differs from libpng")
     # --- dropvision end to end, one thread
     t = time.perf_counter()
