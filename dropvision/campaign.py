@@ -43,7 +43,7 @@ import numpy as np
 import pandas as pd
 
 from dropvision import __version__
-from dropvision.atomic import atomic_dir, write_bytes, write_json
+from dropvision.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
 from dropvision.executors import make_executor
 from dropvision.versions import software_versions
 
@@ -80,19 +80,16 @@ class CampaignResult:
 
 
 # ----------------------------------------------------------------------------- discovery
-def find_sequences(root, *, exclude=()) -> list[Path]:
+def find_sequences(root) -> list[Path]:
     """Every folder below ``root`` (including itself) that holds a sequence.json, sorted."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: campaign root is not a folder")
-    excluded = {Path(p).resolve() for p in exclude}
     found = []
     for path in sorted(root.rglob("sequence.json")):
         folder = path.parent
         rel = folder.relative_to(root)
         if any(part.startswith(".") for part in rel.parts):
-            continue
-        if any(folder.resolve() == ex or ex in folder.resolve().parents for ex in excluded):
             continue
         found.append(folder)
     return found
@@ -150,7 +147,8 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
         finally:
             if logger is not None:
                 logger.close()
-        with atomic_dir(shard_dir) as tmp:
+        # shards/ is ours as a whole: an older shard of the same sequence is merged over
+        with atomic_dir(shard_dir, inputs=[seq_dir], overwrite=True, kind="campaign-shard") as tmp:
             write_result(result, tmp, extra_summary={"input_hash": digest})
         info = {
             "waveform": meta.waveform,
@@ -293,22 +291,14 @@ def _parquet_bytes(df: pd.DataFrame) -> bytes:
 
 
 # ----------------------------------------------------------------------------- driver
-def _remove_leftovers(dataset_dir: Path) -> None:
-    """Remove what a killed run may have left: hidden temporary shard folders and files of
-    interrupted atomic writes (``.<name>.<random>.tmp``/``.old``). Finished shards are never
-    touched; one campaign run per dataset folder at a time."""
-    import shutil
-
-    for folder in (dataset_dir, dataset_dir / "shards"):
-        if not folder.is_dir():
-            continue
-        for p in folder.iterdir():
-            if p.name.startswith(".") and p.name.endswith((".tmp", ".old")):
-                if p.is_dir():
-                    shutil.rmtree(p, ignore_errors=True)
-                else:
-                    p.unlink(missing_ok=True)
-
+def _is_campaign_dataset(folder: Path) -> bool:
+    """A dataset folder written by an older dropvision (before ownership markers): it holds
+    our manifest."""
+    try:
+        return _load_manifest(folder / "manifest.json").get("schema") == MANIFEST_SCHEMA and (
+            folder / "manifest.json").exists()
+    except ValueError:
+        return False
 
 
 def run_campaign(
@@ -321,6 +311,7 @@ def run_campaign(
     scheduler: str | None = None,
     progress: bool = True,
     rerun_options=None,
+    overwrite: bool = False,
 ) -> CampaignResult:
     """Measure every sequence below ``root`` into the dataset folder ``dataset_dir``.
 
@@ -339,6 +330,15 @@ def run_campaign(
     rerun_options : dropvision.rerun_log.RerunOptions, optional
         Log every sequence to Rerun: ``FILE.rrd`` becomes ``FILE-<sequence>.rrd`` per
         sequence (or all stream to one live viewer).
+    overwrite : bool
+        Write into an existing ``dataset_dir`` that holds files we did not write (they are
+        kept; ours of the same names are replaced).
+
+    Raises
+    ------
+    dropvision.atomic.OutputError
+        ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
+        we did not write (without ``overwrite``).
     """
     from tqdm import tqdm
 
@@ -349,11 +349,13 @@ def run_campaign(
         # one process per core already: no threads inside a worker (no oversubscription)
         config = dataclasses.replace(config, workers=1)
     root, dataset_dir = Path(root), Path(dataset_dir)
-    folders = find_sequences(root, exclude=[dataset_dir])
+    folders = find_sequences(root)
     if not folders:
         raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) found")
-    dataset_dir.mkdir(parents=True, exist_ok=True)
-    _remove_leftovers(dataset_dir)
+    claim_dir(dataset_dir, inputs=folders, overwrite=overwrite, kind="campaign-dataset",
+              is_ours=_is_campaign_dataset)
+    for folder in (dataset_dir, dataset_dir / "shards"):
+        remove_leftovers(folder)
     manifest_path = dataset_dir / "manifest.json"
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})
@@ -426,20 +428,24 @@ def parse_range(text: str, name: str) -> list[float]:
         raise ValueError(f"{name}: expected start:stop:step (e.g. 50:80:5) or a comma list, got {text!r}") from None
 
 
-def _synth_task(out_dir: str, u1: float, u2: float, seed: int, overrides: dict) -> str:
+def _synth_task(out_dir: str, u1: float, u2: float, seed: int, overrides: dict, overwrite: bool) -> str:
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     config = SynthConfig(u1_um_per_ms=u1, u2_um=u2, seed=seed, **overrides)
-    return str(write_synthetic_sequence(config, out_dir, progress=False))
+    return str(write_synthetic_sequence(config, out_dir, progress=False, overwrite=overwrite))
 
 
 def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, seed: int = 0, workers=None,
-                   progress: bool = True, overrides: dict | None = None) -> list[Path]:
-    """Render a campaign grid (like the paper's Table 1) of synthetic sequences with truth."""
+                   progress: bool = True, overrides: dict | None = None, overwrite: bool = False) -> list[Path]:
+    """Render a campaign grid (like the paper's Table 1) of synthetic sequences with truth.
+
+    ``out`` is created, or must be empty or ours (see `dropvision.atomic.claim_dir`); with
+    ``overwrite`` an existing folder is written into and its same-named sequence folders are
+    replaced as a whole.
+    """
     from tqdm import tqdm
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = claim_dir(out, overwrite=overwrite, kind="synthetic-campaign")
     jobs = []
     for i, (u1, u2) in enumerate((a, b) for a in u1_values for b in u2_values):
         for r in range(repeats_per_point):
@@ -447,7 +453,7 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
             jobs.append((str(out / name), float(u1), float(u2), seed + 1000 * i + r))
     done = []
     with make_executor(workers) as executor:
-        futures = [executor.submit(_synth_task, *job, dict(overrides or {})) for job in jobs]
+        futures = [executor.submit(_synth_task, *job, dict(overrides or {}), overwrite) for job in jobs]
         for future in tqdm(as_completed(futures), total=len(futures), desc="rendering sequences", unit="seq", disable=not progress):
             done.append(Path(future.result()))
     return sorted(done)
@@ -469,7 +475,7 @@ def _run_campaign_cmd(args) -> int:
         res = run_campaign(
             args.root, args.out, workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
             progress=not args.no_progress and sys.stderr.isatty(),
-            rerun_options=options_from_args(args, "dropvision"),
+            rerun_options=options_from_args(args, "dropvision"), overwrite=args.overwrite,
         )
     except (FileNotFoundError, ValueError, RuntimeError) as exc:
         raise UsageError(str(exc)) from exc
@@ -491,7 +497,8 @@ def _run_synth_campaign_cmd(args) -> int:
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
     paths = synth_campaign(args.out, u1, u2, repeats_per_point=args.repeats_per_point, seed=args.seed,
-                           workers=args.workers, progress=not args.no_progress and sys.stderr.isatty())
+                           workers=args.workers, progress=not args.no_progress and sys.stderr.isatty(),
+                           overwrite=args.overwrite)
     print(f"synth-campaign: {len(paths)} sequences in {args.out}")
     return 0
 
@@ -499,7 +506,10 @@ def _run_synth_campaign_cmd(args) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser("campaign", help="measure every sequence below ROOT into a training dataset")
     p.add_argument("root", help="campaign root folder (every folder with a sequence.json is a sequence)")
-    p.add_argument("--out", required=True, help="dataset folder to write (re-running resumes)")
+    p.add_argument("--out", required=True, help="dataset folder to write (re-running resumes); never a sequence "
+                   "folder, inside one or around one")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into an existing --out that holds other files (those are kept)")
     _add_executor_args(p)
     from dropvision.rerun_log import add_rerun_args
 
@@ -514,5 +524,7 @@ def register(subparsers) -> None:
     s.add_argument("--repeats-per-point", type=int, default=1, help="sequences per (u1, u2)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--workers", type=int, default=None)
+    s.add_argument("--overwrite", action="store_true",
+                   help="write into an existing OUT holding other files; same-named sequences are replaced")
     s.add_argument("--no-progress", action="store_true")
     s.set_defaults(func=_run_synth_campaign_cmd)

@@ -45,6 +45,7 @@ def _quiet_opencv() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from dropvision.atomic import OutputError
     from dropvision.io import SequenceError
 
     parser = build_parser()
@@ -52,8 +53,12 @@ def main(argv: list[str] | None = None) -> int:
     _quiet_opencv()
     try:
         return int(args.func(args) or 0)
-    except (SequenceError, UsageError) as exc:
+    except (SequenceError, UsageError, OutputError) as exc:
         print(f"dropvision {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the environment's fault: a folder we cannot write, a full disk
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"dropvision {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
         return 2
 
 

@@ -48,7 +48,8 @@ def measure_samples(out: Path, rerun: bool) -> list[dict]:
             logger = RerunLogger(path=out / f"measure-{seq.name}.rrd", recording_name=seq.name)
         try:
             t0 = time.perf_counter()
-            res = measure_sequence(seq, out / "sample_measurements" / seq.name, MeasureConfig(), logger=logger)
+            res = measure_sequence(seq, out / "sample_measurements" / seq.name, MeasureConfig(), logger=logger,
+                                   overwrite=True)
             dt = time.perf_counter() - t0
         finally:
             if logger is not None:
@@ -155,12 +156,19 @@ def make_plots(out: Path, ds, model, mc, truth_fn, u1: float, u2: float) -> list
     return paths
 
 
+def _is_demo_output(folder: Path) -> bool:
+    """An output folder of the demo of an older version (before ownership markers)."""
+    return (folder / "model.json").is_file() and (folder / "dataset" / "manifest.json").is_file()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m dropvision.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default out/)")
     parser.add_argument("--quick", action="store_true", help="3 x 3 grid instead of 4 x 4")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
     parser.add_argument("--no-rerun", action="store_true", help="skip the Rerun recordings")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into an existing --out that holds other files (those are kept)")
     args = parser.parse_args(argv)
 
     from dropvision.campaign import run_campaign, synth_campaign
@@ -170,8 +178,15 @@ def main(argv: list[str] | None = None) -> int:
     from identify.design import design
     from identify.hybrid import fit_hybrid
 
+    from dropvision.atomic import OutputError, claim_dir
+
     out = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        claim_dir(out, overwrite=args.overwrite, kind="demo", is_ours=_is_demo_output)
+    except OutputError as exc:
+        print(f"dropvision demo: error: {exc}", file=sys.stderr)
+        return 2
+    # Everything below is written inside our own claimed folder: earlier results there are ours.
     t_start = time.perf_counter()
     progress = sys.stderr.isatty()
 
@@ -185,11 +200,12 @@ def main(argv: list[str] | None = None) -> int:
                  "delays_us": tuple(float(d) for d in range(0, 1601, 10)), "noise": 0.5}
     print(f"\n== 2. rendering a {len(u1_grid)} x {len(u2_grid)} synthetic campaign (u1 {u1_grid}, u2 {u2_grid}) ==")
     t0 = time.perf_counter()
-    synth_campaign(out / "campaign", u1_grid, u2_grid, workers=args.workers, progress=progress, overrides=overrides)
+    synth_campaign(out / "campaign", u1_grid, u2_grid, workers=args.workers, progress=progress, overrides=overrides,
+                   overwrite=True)
     print(f"rendered in {time.perf_counter() - t0:.1f} s -> {out / 'campaign'}")
     print("\n== 3. measuring the campaign into a training dataset ==")
     t0 = time.perf_counter()
-    res = run_campaign(out / "campaign", out / "dataset", workers=args.workers, progress=progress)
+    res = run_campaign(out / "campaign", out / "dataset", workers=args.workers, progress=progress, overwrite=True)
     print(f"{len(res.measured)} measured, {len(res.skipped)} unchanged, {len(res.failed)} failed "
           f"in {time.perf_counter() - t0:.1f} s -> {out / 'dataset'}")
     for sid, err in res.failed.items():

@@ -654,7 +654,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
 
 
 def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfig(), *, progress: bool = False,
-                     logger=None, csv: bool = False) -> MeasureResult:
+                     logger=None, csv: bool = False, overwrite: bool = False) -> MeasureResult:
     """Measure a strobe sequence folder.
 
     Parameters
@@ -663,6 +663,9 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Sequence folder (see docs/FORMAT.md).
     out_dir : str or Path, optional
         Write the result there (atomically): frames.parquet, per_delay.parquet, summary.json.
+        It may not be the sequence folder, lie inside it or contain it; an existing folder is
+        replaced only when it holds nothing but an earlier result of ours (see
+        `dropvision.atomic.atomic_dir`). Checked before anything is measured.
     config : MeasureConfig
     progress : bool
         Progress bar on stderr.
@@ -670,6 +673,8 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Rerun logger (``log_calibration``, ``log_frame``, ``log_summary``); None costs nothing.
     csv : bool
         Also write frames.csv.
+    overwrite : bool
+        Write into an existing ``out_dir`` that holds files we did not write (they are kept).
 
     Returns
     -------
@@ -679,10 +684,15 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     ------
     dropvision.io.SequenceError
         Unusable sequence (missing metadata, other frame size, no readable frame, no nozzle).
+    dropvision.atomic.OutputError
+        ``out_dir`` overlaps the input or holds files we did not write.
     """
+    from dropvision.atomic import atomic_dir, check_output_dir
     from dropvision.io import SequenceError, open_sequence
 
     seq = open_sequence(seq_dir)
+    if out_dir is not None:  # before any work: the output may destroy nothing
+        check_output_dir(out_dir, inputs=[seq.meta.path], overwrite=overwrite)
     meta = seq.meta
     n = len(seq)
     if n == 0:
@@ -712,9 +722,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         logger.log_table(frames)
         logger.log_summary(summary)
     if out_dir is not None:
-        from dropvision.atomic import atomic_dir
-
-        with atomic_dir(out_dir) as tmp:
+        with atomic_dir(out_dir, inputs=[meta.path], overwrite=overwrite, kind="measurement") as tmp:
             write_result(result, tmp, csv=csv)
     return result
 
@@ -898,7 +906,8 @@ def _run(args: argparse.Namespace) -> int:
     config = MeasureConfig(workers=args.workers)
     logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
     try:
-        res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv, logger=logger)
+        res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv, logger=logger,
+                               overwrite=args.overwrite)
     finally:
         if logger is not None:
             logger.close()
@@ -913,7 +922,10 @@ def register(subparsers) -> None:
     """Add the ``measure`` sub-command."""
     p = subparsers.add_parser("measure", help="measure drop volumes, pinch-off and velocities of a strobe sequence")
     p.add_argument("seq_dir", help="sequence folder (with sequence.json or delay-named frames)")
-    p.add_argument("--out", required=True, help="output folder (written atomically)")
+    p.add_argument("--out", required=True, help="output folder (written atomically; never the sequence folder, "
+                   "inside it or around it; an existing folder only if it holds an earlier result of ours)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into an existing --out that holds other files (those are kept)")
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
     p.add_argument("--workers", type=int, default=2, help="decoding/measuring threads (default 2)")
     p.add_argument("--progress", action="store_true", help="progress bar on stderr")

@@ -96,6 +96,15 @@ def pd_to_float(values: Any) -> np.ndarray:
     return np.asarray(values, dtype=float)
 
 
+def is_rrd_file(path) -> bool:
+    """True when ``path`` is a Rerun recording file (starts with the .rrd magic bytes)."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(4) in (b"RRF2", b"RRF0", b"RRF1")
+    except OSError:
+        return False
+
+
 # --- segmentation classes --------------------------------------------------------------------
 
 CLASS_BACKGROUND = 0
@@ -218,6 +227,9 @@ class RerunOptions:
             object.__setattr__(self, "path", Path(self.path))
             if self.path.is_dir():
                 raise ValueError(f"--rerun {self.path}: is a directory, expected a .rrd file path")
+            if self.path.exists() and not is_rrd_file(self.path):
+                raise ValueError(f"--rerun {self.path}: exists and is not a Rerun recording; "
+                                 "choose another name (dropvision replaces only its own .rrd files)")
         if not _APP_ID_RE.fullmatch(self.application_id or ""):
             raise ValueError(f"Rerun application id {self.application_id!r}: use only letters, digits, "
                              "'_', '-' and spaces (rerun 0.41 rewrites e.g. '.' or '/' into a hashed id)")

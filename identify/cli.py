@@ -52,10 +52,23 @@ def _print_summary(summary: dict, header: str) -> None:
             print(f"  {k:30s} {s:.4g} {OUTPUT_UNITS.get(k, '')}")
 
 
+def _is_model_file(path) -> bool:
+    """True when ``path`` is a model.json written by identify (replacing it loses nothing)."""
+    from identify.hybrid import SCHEMA
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            return json.loads(fh.read(1 << 20)).get("schema") == SCHEMA
+    except (OSError, ValueError, AttributeError, RecursionError):
+        return False
+
+
 def cmd_fit(args) -> int:
+    from dropvision.atomic import check_output_file
     from identify.dataset import load_dataset
     from identify.hybrid import fit_hybrid
 
+    check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=_is_model_file)
     ds = load_dataset(args.dataset)
     rep = fit_hybrid(ds, folds=args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
                      adjuster_reference=args.adjuster_reference, progress=sys.stderr.isatty())
@@ -185,7 +198,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder")
     f.add_argument("dataset")
-    f.add_argument("--out", required=True, help="model.json to write")
+    f.add_argument("--out", required=True, help="model.json to write (an existing file only if it is a model of ours)")
+    f.add_argument("--overwrite", action="store_true", help="replace an existing --out file that is not a model")
     f.add_argument("--folds", type=int, default=10)
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--no-arx", action="store_true", help="skip the ARX structure selection")
@@ -229,11 +243,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from dropvision.atomic import OutputError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (UsageError, ValueError, OSError) as exc:
+    except (UsageError, OutputError, ValueError, OSError) as exc:
         msg = " ".join(str(exc).split())
         print(f"identify {args.command}: error: {msg}", file=sys.stderr)
         return 2

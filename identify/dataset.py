@@ -160,12 +160,17 @@ class Dataset:
         out.update(self.extra)
         return out
 
-    def save(self, out_dir) -> Path:
-        """Write the three files into ``out_dir`` (atomically, as one folder)."""
+    def save(self, out_dir, *, overwrite: bool = False) -> Path:
+        """Write the three files into ``out_dir`` (atomically, as one folder).
+
+        An existing ``out_dir`` is replaced only when it holds nothing but an earlier result of
+        ours; ``overwrite`` writes into one holding other files (they are kept). See
+        `dropvision.atomic.atomic_dir`.
+        """
         from dropvision.atomic import atomic_dir, write_json
 
         out_dir = Path(out_dir)
-        with atomic_dir(out_dir) as tmp:
+        with atomic_dir(out_dir, overwrite=overwrite, kind="dataset") as tmp:
             self.timeseries.to_parquet(tmp / "timeseries.parquet", index=False)
             self.summary.to_parquet(tmp / "summary.parquet", index=False)
             write_json(tmp / "dataset.json", self.metadata())

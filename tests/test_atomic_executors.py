@@ -32,7 +32,7 @@ def test_atomic_dir_failure_leaves_old_result(tmp_path):
     assert sorted(os.listdir(tmp_path)) == ["out"]
     with atomic_dir(final) as tmp:
         write_text(tmp / "b.txt", "third")
-    assert sorted(os.listdir(final)) == ["b.txt"]
+    assert sorted(os.listdir(final)) == [".dropvision-output.json", "b.txt"]  # ours, replaced as a whole
     assert sorted(os.listdir(tmp_path)) == ["out"]
 
 

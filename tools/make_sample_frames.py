@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     for name in args.only or SAMPLES:
         t0 = time.perf_counter()
-        out = write_synthetic_sequence(SAMPLES[name], args.out / name, progress=False)
+        out = write_synthetic_sequence(SAMPLES[name], args.out / name, progress=False, overwrite=True)
         size = sum(p.stat().st_size for p in out.iterdir()) / 1e6
         print(f"{name}: {len(SAMPLES[name].delays_us)} frames, {size:.1f} MB, "
               f"{time.perf_counter() - t0:.1f} s")

@@ -21,7 +21,10 @@ def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "synth", help="write a physics-driven synthetic strobe sequence with exact ground truth",
         description=__doc__.splitlines()[0])
-    p.add_argument("out", help="output sequence folder (replaced if it holds an earlier synthetic sequence)")
+    p.add_argument("out", help="output sequence folder (replaced only if it holds nothing but an earlier "
+                   "result of ours)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing OUT folder and everything in it")
     p.add_argument("--u1", type=float, default=70.0, help="stroke velocity u1 (µm/ms), default 70")
     p.add_argument("--u2", type=float, default=25.0, help="stroke u2 (µm), default 25")
     p.add_argument("--format", choices=("png", "tiff", "tiff-stack"), default="png")
@@ -62,7 +65,8 @@ def run(args) -> int:
             repeats=args.repeats, satellites=args.satellites, dust=args.dust, blur_px=args.blur_px,
             falloff=args.falloff, noise=args.noise, bit_depth=args.bit_depth, format=args.format)
         t0 = time.perf_counter()
-        out = write_synthetic_sequence(cfg, args.out, progress=False if args.no_progress else None)
+        out = write_synthetic_sequence(cfg, args.out, progress=False if args.no_progress else None,
+                                       overwrite=args.overwrite)
     except ValueError as exc:
         raise UsageError(str(exc)) from None
     n = len(cfg.delays_us) * cfg.repeats

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dropvision.atomic import atomic_dir, write_json, write_text
+from dropvision.atomic import atomic_dir, check_output_dir, write_json, write_text
 from dropvision.io import write_image, write_multipage_tiff, write_sequence_json
 from dropvision.synth.sequence import STACK_FILE, SynthConfig, frames_table, plan, sequence_truth, synthesize
 
@@ -41,17 +41,21 @@ def sequence_metadata(config: SynthConfig, frames) -> dict:
     return meta
 
 
-def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | None = None) -> Path:
+def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | None = None,
+                             overwrite: bool = False) -> Path:
     """Render ``config`` and write the sequence folder with its ground truth.
 
     Parameters
     ----------
     config : SynthConfig
     out_dir : str or Path
-        Target folder. It is created, or replaced if it holds an earlier synthetic sequence
-        (a ``truth.json``); a non-empty folder without one is refused.
+        Target folder. It is created, or replaced if it holds only an earlier result of ours
+        (see `dropvision.atomic.atomic_dir`); any other non-empty folder is refused.
     progress : bool or None
         tqdm progress bar (None: only on a terminal).
+    overwrite : bool
+        Replace an existing folder as a whole even if it holds files we did not write (a
+        sequence must not mix frames of two renders, so nothing is merged).
 
     Returns
     -------
@@ -59,15 +63,10 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
         The sequence folder.
     """
     out = Path(out_dir)
-    if out.exists():
-        if not out.is_dir():
-            raise ValueError(f"{out}: exists and is not a folder")
-        if any(out.iterdir()) and not (out / "truth.json").exists():
-            raise ValueError(f"{out}: folder is not empty and holds no synthetic sequence "
-                             "(truth.json); refusing to replace it")
+    check_output_dir(out, overwrite="replace" if overwrite else False)
     p = plan(config)
     rows = []
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, overwrite="replace" if overwrite else False, kind="synthetic-sequence") as tmp:
         if config.format == "tiff-stack":
             pages = []
             for img, truth in synthesize(config, progress=progress, synth_plan=p):
