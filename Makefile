@@ -20,7 +20,7 @@ $(TEST_STAMP): pyproject.toml | $(BIN)/python
 	touch $@ $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python -m dropvision.demo
+	$(BIN)/python -m dropvision.app.demo
 
 test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -n 2 -q

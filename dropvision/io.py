@@ -31,7 +31,7 @@ import cv2
 import numpy as np
 import tifffile
 
-from dropvision.atomic import write_bytes, write_json
+from identify.atomic import write_bytes, write_json
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
 
 __all__ = [

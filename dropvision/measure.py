@@ -665,7 +665,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Write the result there (atomically): frames.parquet, per_delay.parquet, summary.json.
         It may not be the sequence folder, lie inside it or contain it; an existing folder is
         replaced only when it holds nothing but an earlier result of ours (see
-        `dropvision.atomic.atomic_dir`). Checked before anything is measured.
+        `identify.atomic.atomic_dir`). Checked before anything is measured.
     config : MeasureConfig
     progress : bool
         Progress bar on stderr.
@@ -684,10 +684,10 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     ------
     dropvision.io.SequenceError
         Unusable sequence (missing metadata, other frame size, no readable frame, no nozzle).
-    dropvision.atomic.OutputError
+    identify.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
     """
-    from dropvision.atomic import atomic_dir, check_output_dir
+    from identify.atomic import atomic_dir, check_output_dir
     from dropvision.io import SequenceError, open_sequence
 
     seq = open_sequence(seq_dir)
@@ -730,7 +730,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
 def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta, config: MeasureConfig,
              errors: list[dict]) -> tuple[pd.DataFrame, dict]:
     """Sequence-level analysis of the per-frame records -> (frames table, summary dict)."""
-    from dropvision.versions import software_versions
+    from identify.versions import software_versions
 
     m = len(records)
     delay = np.array([r.delay_us for r in records], float)
@@ -880,7 +880,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
 
 def write_result(result: MeasureResult, out_dir, *, csv: bool = False, extra_summary: dict | None = None) -> None:
     """Write frames.parquet (+ frames.csv), per_delay.parquet and summary.json into ``out_dir``."""
-    from dropvision.atomic import write_json
+    from identify.atomic import write_json
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -892,44 +892,3 @@ def write_result(result: MeasureResult, out_dir, *, csv: bool = False, extra_sum
     if extra_summary:
         summary.update(extra_summary)
     write_json(out / "summary.json", summary)
-
-
-# ----------------------------------------------------------------------------- CLI
-def _run(args: argparse.Namespace) -> int:
-    from dropvision.cli import UsageError
-
-    seq = Path(args.seq_dir)
-    if not seq.exists():
-        raise UsageError(f"{seq}: no such folder")
-    from dropvision.rerun_log import logger_from_args
-
-    config = MeasureConfig(workers=args.workers)
-    logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
-    try:
-        res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv, logger=logger,
-                               overwrite=args.overwrite)
-    finally:
-        if logger is not None:
-            logger.close()
-    s = res.summary
-    print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; pinch-off {s['pinchoff_us']} us, "
-          f"in-flight volume {s['inflight_volume_nl']:.4g} nl, jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
-          + (f"; {len(s['errors'])} frame(s) skipped" if s["errors"] else ""))
-    return 0
-
-
-def register(subparsers) -> None:
-    """Add the ``measure`` sub-command."""
-    p = subparsers.add_parser("measure", help="measure drop volumes, pinch-off and velocities of a strobe sequence")
-    p.add_argument("seq_dir", help="sequence folder (with sequence.json or delay-named frames)")
-    p.add_argument("--out", required=True, help="output folder (written atomically; never the sequence folder, "
-                   "inside it or around it; an existing folder only if it holds an earlier result of ours)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="write into an existing --out that holds other files (those are kept)")
-    p.add_argument("--csv", action="store_true", help="also write frames.csv")
-    p.add_argument("--workers", type=int, default=2, help="decoding/measuring threads (default 2)")
-    p.add_argument("--progress", action="store_true", help="progress bar on stderr")
-    from dropvision.rerun_log import add_rerun_args
-
-    add_rerun_args(p)
-    p.set_defaults(func=_run)

@@ -76,10 +76,10 @@ class DatasetError(ValueError):
 
 
 def default_physics():
-    """The project's default synthetic physics: ``dropvision.synth.physics.SynthPhysics()``,
+    """The project's default synthetic physics: ``identify.physics.SynthPhysics()``,
     the single place holding the numbers of the synthetic printhead (ECM, pinch-off law and
     adjusters)."""
-    from dropvision.synth.physics import SynthPhysics
+    from identify.physics import SynthPhysics
 
     return SynthPhysics()
 
@@ -165,9 +165,9 @@ class Dataset:
 
         An existing ``out_dir`` is replaced only when it holds nothing but an earlier result of
         ours; ``overwrite`` writes into one holding other files (they are kept). See
-        `dropvision.atomic.atomic_dir`.
+        `identify.atomic.atomic_dir`.
         """
-        from dropvision.atomic import atomic_dir, write_json
+        from identify.atomic import atomic_dir, write_json
 
         out_dir = Path(out_dir)
         with atomic_dir(out_dir, overwrite=overwrite, kind="dataset") as tmp:
@@ -455,7 +455,7 @@ def make_synthetic_dataset(
     )
     out_dir = Path(out_dir)
     ds.save(out_dir)
-    from dropvision.atomic import write_json
+    from identify.atomic import write_json
 
     p = physics.ecm_parameters()
     write_json(out_dir / "truth.json", {

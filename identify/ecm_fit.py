@@ -176,8 +176,8 @@ def hydraulics_from_geometry(ink: Any = None, geometry: NozzleGeometry | None = 
 
 
 def default_synthetic_parameters() -> EcmParameters:
-    """The team's default synthetic physics (``dropvision.synth.physics.SynthPhysics``)."""
-    from dropvision.synth.physics import SynthPhysics
+    """The team's default synthetic physics (``identify.physics.SynthPhysics``)."""
+    from identify.physics import SynthPhysics
 
     return SynthPhysics().ecm_parameters()
 
@@ -837,7 +837,7 @@ def fit_ecm(
 
 def synthetic_pinchoff_us(u1_um_per_ms: float, u2_um: float) -> float:
     """The synthetic pinch-off law (``SynthPhysics.pinchoff_instant_us``), µs from the trigger."""
-    from dropvision.synth.physics import SynthPhysics
+    from identify.physics import SynthPhysics
 
     return float(SynthPhysics().pinchoff_instant_us(u1_um_per_ms, u2_um))
 

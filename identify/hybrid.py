@@ -193,7 +193,7 @@ class HybridModel:
 
     def to_json(self, path) -> Path:
         """Write model.json atomically."""
-        from dropvision.atomic import write_json
+        from identify.atomic import write_json
 
         return write_json(path, self.to_dict())
 
@@ -409,7 +409,7 @@ def fit_hybrid(
     sel_q = select_order(u1, u2, vel_target, name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     bar.close()
-    from dropvision.versions import software_versions
+    from identify.versions import software_versions
 
     versions = software_versions()
     import identify

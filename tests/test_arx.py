@@ -23,8 +23,8 @@ DEAD_TIME_SAMPLES = 22  # 220 us / 10 us
 
 
 def _ecm_params():
-    """Default synthetic physics (the one place: dropvision.synth.physics.SynthPhysics)."""
-    from dropvision.synth.physics import SynthPhysics
+    """Default synthetic physics (the one place: identify.physics.SynthPhysics)."""
+    from identify.physics import SynthPhysics
 
     return SynthPhysics().ecm_parameters()
 

@@ -5,9 +5,9 @@ import os
 
 import pytest
 
-from dropvision.atomic import atomic_dir, write_json, write_text
-from dropvision.campaign import parse_range, shard_name
-from dropvision.executors import SerialExecutor, make_executor
+from identify.atomic import atomic_dir, write_json, write_text
+from dropvision.app.campaign import parse_range, shard_name
+from dropvision.app.executors import SerialExecutor, make_executor
 
 
 def _square(x):

@@ -6,8 +6,8 @@ import shutil
 import pandas as pd
 import pytest
 
-from dropvision.campaign import find_sequences, run_campaign, synth_campaign
-from dropvision.cli import main as dropvision_main
+from dropvision.app.campaign import find_sequences, run_campaign, synth_campaign
+from dropvision.app.cli import main as dropvision_main
 from identify.dataset import load_dataset
 
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
@@ -108,7 +108,7 @@ def test_killed_run_loses_no_finished_sequence(campaign_root, tmp_path):
     import time
 
     ds = tmp_path / "ds"
-    cmd = [sys.executable, "-m", "dropvision.cli", "campaign", str(campaign_root), "--out", str(ds),
+    cmd = [sys.executable, "-m", "dropvision.app.cli", "campaign", str(campaign_root), "--out", str(ds),
            "--workers", "1", "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:

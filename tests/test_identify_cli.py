@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from identify.cli import main
+from identify.app.cli import main
 from identify.dataset import make_synthetic_dataset
 
 GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]

@@ -96,7 +96,7 @@ def test_missing_folder_and_file(tmp_path):
 
 def test_synthetic_dataset_truth_is_the_synthesizer_truth(tmp_path):
     """identify's synthetic datasets and dropvision's synthetic images share one physics."""
-    from dropvision.synth.physics import drop_history
+    from identify.physics import drop_history
 
     ph = default_physics()
     make_synthetic_dataset(tmp_path / "ds", grid=[(55.0, 22.5), (72.5, 31.0), (62.5, 35.0)], noise_percent=0.0, seed=0)

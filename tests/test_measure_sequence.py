@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dropvision.cli import main
+from dropvision.app.cli import main
 from dropvision.io import SequenceError
 from dropvision.measure import FRAME_COLUMNS, MeasureResult, measure_sequence
 

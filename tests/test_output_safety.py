@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from dropvision.atomic import (
+from identify.atomic import (
     MARKER,
     OutputError,
     atomic_dir,
@@ -21,8 +21,8 @@ from dropvision.atomic import (
     remove_leftovers,
     write_text,
 )
-from dropvision.campaign import run_campaign, synth_campaign
-from dropvision.cli import main
+from dropvision.app.campaign import run_campaign, synth_campaign
+from dropvision.app.cli import main
 
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
          "delays_us": tuple(float(d) for d in range(0, 1501, 60)), "noise": 0.3}
@@ -173,7 +173,7 @@ def test_campaign_keeps_a_users_tmp_files_and_removes_only_its_own(grid, tmp_pat
 
 
 def test_identify_fit_never_replaces_a_file_that_is_not_a_model(tmp_path, capsys):
-    from identify.cli import main as identify_main
+    from identify.app.cli import main as identify_main
 
     f = tmp_path / "model.json"
     f.write_text('{"my": "data"}')

@@ -22,20 +22,18 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dropvision import rerun_log as drl
-from dropvision.rerun_log import (
+from dropvision.app.rerun_log import (
     CLASS_ATTACHED,
     CLASS_DROP,
     CLASS_NOZZLE,
     CLASS_SATELLITE,
     CLASS_SPECK,
     RerunLogger,
-    RerunOptions,
-    add_rerun_args,
     logger_from_args,
-    options_from_args,
 )
-from identify import rerun_log as irl
+from identify.app import rerun_log as irl
+from identify.app import rerun_stream as rst
+from identify.app.rerun_stream import RerunOptions, add_rerun_args, options_from_args
 
 ROWS, COLS = 48, 64
 DELAYS_US = [0.0, 30.5, 1150.25]
@@ -350,9 +348,9 @@ def test_cli_flags(tmp_path):
     assert opts == RerunOptions(path=tmp_path / "x.rrd", application_id="dv_cli", recording_name="seq")
     assert opts.for_sequence("d 01/a").path == tmp_path / "x-d_01_a.rrd"
     connect = options_from_args(_parser().parse_args(["--rerun-connect"]))
-    assert connect.connect_url == drl.DEFAULT_VIEWER_URL and connect.path is None
+    assert connect.connect_url == rst.DEFAULT_VIEWER_URL and connect.path is None
     assert options_from_args(_parser().parse_args(["--rerun-spawn"])).spawn
-    from dropvision.cli import UsageError
+    from identify.app.errors import UsageError
 
     with pytest.raises(UsageError, match="is a directory"):
         options_from_args(_parser().parse_args(["--rerun", str(tmp_path)]))
@@ -374,8 +372,9 @@ def test_logging_off_creates_no_stream(monkeypatch):
 def test_logging_off_does_not_import_rerun():
     code = textwrap.dedent("""
         import argparse, sys
-        from dropvision.rerun_log import add_rerun_args, logger_from_args
-        from identify.rerun_log import recording_from_args
+        from dropvision.app.rerun_log import logger_from_args
+        from identify.app.rerun_stream import add_rerun_args
+        from identify.app.rerun_log import recording_from_args
         p = argparse.ArgumentParser(); add_rerun_args(p); a = p.parse_args([])
         assert logger_from_args(a, "dv") is None and recording_from_args(a) is None
         assert not [m for m in sys.modules if m == "rerun" or m.startswith(("rerun.", "rerun_"))], "rerun imported"

@@ -106,7 +106,7 @@ def test_repeats_jitter_positions(model):
 
 
 def test_cli_writes_sequence(tmp_path, capsys):
-    from dropvision.cli import main
+    from dropvision.app.cli import main
 
     out = tmp_path / "cli"
     rc = main(["synth", str(out), "--u1", "60", "--u2", "30", "--delays", "0:100:50", "--size", "96x128",

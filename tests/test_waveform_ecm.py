@@ -32,7 +32,7 @@ def test_pipe_elements_eq2():
 
 def _params():
     """Colour-ink-like physics from nozzle geometry and ink (Eq. 2): the synthesizer's default."""
-    from dropvision.synth.physics import SynthPhysics
+    from identify.physics import SynthPhysics
 
     return SynthPhysics().ecm_parameters()
 

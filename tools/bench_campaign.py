@@ -20,7 +20,7 @@ from pathlib import Path
 
 CHILD = r"""
 import json, resource, sys, time
-from dropvision.campaign import run_campaign
+from dropvision.app.campaign import run_campaign
 root, out, workers = sys.argv[1], sys.argv[2], int(sys.argv[3])
 t0 = time.perf_counter()
 res = run_campaign(root, out, workers=workers, progress=False)
@@ -38,7 +38,7 @@ def main(argv=None) -> int:
     ap.add_argument("--size", default="320x1024", help="frame size WxH (default 320x1024)")
     ap.add_argument("--keep", type=Path, default=None, help="keep the rendered campaign here")
     args = ap.parse_args(argv)
-    from dropvision.campaign import synth_campaign
+    from dropvision.app.campaign import synth_campaign
 
     w, h = (int(x) for x in args.size.lower().split("x"))
     work = args.keep or Path(tempfile.mkdtemp(prefix="bench_campaign_"))

@@ -133,7 +133,7 @@ def main(argv=None) -> int:
     # --- CLI wall time on 2 workers, interpreter start-up included
     with tempfile.TemporaryDirectory() as out:
         t = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "dropvision.cli", "measure", str(seq), "--out", str(Path(out) / "o"),
+        subprocess.run([sys.executable, "-m", "dropvision.app.cli", "measure", str(seq), "--out", str(Path(out) / "o"),
                         "--workers", "2"], check=True, capture_output=True, cwd=ROOT)
         cli_wall = time.perf_counter() - t
     # --- memory vs sequence length (the same frames three times, as repeats at each delay)

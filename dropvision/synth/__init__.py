@@ -1,10 +1,11 @@
 """Physics-driven synthetic strobe sequences with exact ground truth (`dropvision synth`).
 
-Modules: :mod:`~dropvision.synth.physics` (waveform -> ECM -> pinch-off and adjusters),
+Modules: :mod:`~identify.physics` (waveform -> ECM -> pinch-off and adjusters; modelling
+layer, no images),
 :mod:`~dropvision.synth.shapes` (axisymmetric bodies, exact volumes, drop formation model),
 :mod:`~dropvision.synth.render` (supersampled silhouettes, optics, sensor),
 :mod:`~dropvision.synth.sequence` (configuration, synthesis, truth),
-:mod:`~dropvision.synth.writer` (sequence folder), :mod:`~dropvision.synth.cli`.
+:mod:`~dropvision.synth.writer` (sequence folder), :mod:`~dropvision.app.synth_cli`.
 """
 
 import importlib
@@ -21,7 +22,8 @@ __all__ = list(_WHERE)
 
 def __getattr__(name):
     if name in _WHERE:
-        return getattr(importlib.import_module(f"dropvision.synth.{_WHERE[name]}"), name)
+        module = "identify.physics" if _WHERE[name] == "physics" else f"dropvision.synth.{_WHERE[name]}"
+        return getattr(importlib.import_module(module), name)
     raise AttributeError(f"module 'dropvision.synth' has no attribute {name!r}")
 
 

@@ -14,7 +14,7 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
-from dropvision.synth.physics import DropHistory, SynthPhysics, drop_history
+from identify.physics import DropHistory, SynthPhysics, drop_history
 from dropvision.synth.render import CameraGeometry, Optics, Renderer
 from dropvision.synth.shapes import DropShapeModel, ShapeParams, ShapeState
 
@@ -387,7 +387,7 @@ def synthesize(config: SynthConfig, *, progress: bool | None = None,
 def sequence_truth(synth_plan: SynthPlan) -> dict:
     """truth.json content (interfaces.md) for a plan."""
 
-    from dropvision.versions import software_versions
+    from identify.versions import software_versions
 
     p = synth_plan
     cfg, h, m = p.config, p.history, p.model

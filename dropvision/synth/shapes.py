@@ -51,7 +51,7 @@ from dataclasses import asdict, dataclass, field, replace
 import numpy as np
 from scipy.optimize import brentq
 
-from dropvision.synth.physics import DropHistory, SynthPhysics
+from identify.physics import DropHistory, SynthPhysics
 
 __all__ = [
     "UM3_PER_NL", "Spheroid", "SphericalSegment", "QuadraticNeck", "Profile", "Body",

@@ -1,7 +1,7 @@
 """Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv.
 
 All files go through the shared writers of :mod:`dropvision.io` (images, multi-page TIFF,
-sequence.json) and :mod:`dropvision.atomic`; the whole folder is built in a temporary sibling
+sequence.json) and :mod:`identify.atomic`; the whole folder is built in a temporary sibling
 and renamed into place at the end, so a failure never leaves a half-written sequence.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from dropvision.atomic import atomic_dir, check_output_dir, write_json, write_text
+from identify.atomic import atomic_dir, check_output_dir, write_json, write_text
 from dropvision.io import write_image, write_multipage_tiff, write_sequence_json
 from dropvision.synth.sequence import STACK_FILE, SynthConfig, frames_table, plan, sequence_truth, synthesize
 
@@ -50,7 +50,7 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
     config : SynthConfig
     out_dir : str or Path
         Target folder. It is created, or replaced if it holds only an earlier result of ours
-        (see `dropvision.atomic.atomic_dir`); any other non-empty folder is refused.
+        (see `identify.atomic.atomic_dir`); any other non-empty folder is refused.
     progress : bool or None
         tqdm progress bar (None: only on a terminal).
     overwrite : bool

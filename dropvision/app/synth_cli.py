@@ -50,7 +50,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from dropvision.cli import UsageError
+    from identify.app.errors import UsageError
     from dropvision.synth.sequence import SynthConfig, parse_delays
     from dropvision.synth.writer import write_synthetic_sequence
 

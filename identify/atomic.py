@@ -178,7 +178,7 @@ def _refusal(final: Path, foreign: list[str]) -> OutputError:
 
 
 def _write_marker(folder: Path, files: Iterable[str], kind: str) -> None:
-    from dropvision import __version__
+    from identify import __version__
 
     write_text(folder / MARKER, json.dumps(
         {"schema": MARKER_SCHEMA, "kind": kind, "written_by": f"dropvision {__version__}",

@@ -43,9 +43,9 @@ import numpy as np
 import pandas as pd
 
 from dropvision import __version__
-from dropvision.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
-from dropvision.executors import make_executor
-from dropvision.versions import software_versions
+from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
+from dropvision.app.executors import make_executor
+from identify.versions import software_versions
 
 MANIFEST_SCHEMA = "dropvision.manifest/1"
 DATASET_SCHEMA = "dropvision.dataset/1"
@@ -139,7 +139,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
         meta = open_sequence(seq_dir).meta
         logger = None
         if rerun_options is not None:
-            from dropvision.rerun_log import RerunLogger
+            from dropvision.app.rerun_log import RerunLogger
 
             logger = RerunLogger(rerun_options)
         try:
@@ -324,10 +324,10 @@ def run_campaign(
     config : MeasureConfig, optional
         Measurement configuration (part of each input hash).
     workers, dask_local, scheduler
-        Where to run: see `dropvision.executors.make_executor`.
+        Where to run: see `dropvision.app.executors.make_executor`.
     progress : bool
         Show a progress bar.
-    rerun_options : dropvision.rerun_log.RerunOptions, optional
+    rerun_options : dropvision.app.rerun_log.RerunOptions, optional
         Log every sequence to Rerun: ``FILE.rrd`` becomes ``FILE-<sequence>.rrd`` per
         sequence (or all stream to one live viewer).
     overwrite : bool
@@ -336,7 +336,7 @@ def run_campaign(
 
     Raises
     ------
-    dropvision.atomic.OutputError
+    identify.atomic.OutputError
         ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
         we did not write (without ``overwrite``).
     """
@@ -439,7 +439,7 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
                    progress: bool = True, overrides: dict | None = None, overwrite: bool = False) -> list[Path]:
     """Render a campaign grid (like the paper's Table 1) of synthetic sequences with truth.
 
-    ``out`` is created, or must be empty or ours (see `dropvision.atomic.claim_dir`); with
+    ``out`` is created, or must be empty or ours (see `identify.atomic.claim_dir`); with
     ``overwrite`` an existing folder is written into and its same-named sequence folders are
     replaced as a whole.
     """
@@ -468,8 +468,8 @@ def _add_executor_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_campaign_cmd(args) -> int:
-    from dropvision.cli import UsageError
-    from dropvision.rerun_log import options_from_args
+    from identify.app.errors import UsageError
+    from identify.app.rerun_stream import options_from_args
 
     try:
         res = run_campaign(
@@ -489,7 +489,7 @@ def _run_campaign_cmd(args) -> int:
 
 
 def _run_synth_campaign_cmd(args) -> int:
-    from dropvision.cli import UsageError
+    from identify.app.errors import UsageError
 
     try:
         u1 = parse_range(args.u1, "--u1")
@@ -511,7 +511,7 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     _add_executor_args(p)
-    from dropvision.rerun_log import add_rerun_args
+    from identify.app.rerun_stream import add_rerun_args
 
     add_rerun_args(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

@@ -7,16 +7,16 @@ import argparse
 import importlib
 import sys
 
+from dropvision.io import SequenceError
+from identify.app.errors import UsageError
+from identify.atomic import OutputError
+
 #: Modules that contribute sub-commands, in the order they appear in --help.
 COMMAND_MODULES = (
-    "dropvision.synth.cli",
-    "dropvision.measure",
-    "dropvision.campaign",
+    "dropvision.app.synth_cli",
+    "dropvision.app.measure_cli",
+    "dropvision.app.campaign",
 )
-
-
-class UsageError(Exception):
-    """Bad input the user can fix: printed as one line, exit status 2."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -45,9 +45,6 @@ def _quiet_opencv() -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from dropvision.atomic import OutputError
-    from dropvision.io import SequenceError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     _quiet_opencv()

@@ -17,7 +17,7 @@ Typical use::
 
 Time axis: the ``delay`` duration timeline in integer nanoseconds after the firing trigger
 (``round(t_us * 1000)``), the same timeline as the measurement recordings of
-:mod:`dropvision.rerun_log`.
+:mod:`dropvision.app.rerun_log`.
 
 Entity paths (``<name>`` = sequence / band name, escaped with ``rr.escape_entity_path_part``)
 -----------------------------------------------------------------------------------------
@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from dropvision.rerun_log import RerunOptions, delay_ns, open_stream, options_from_args
+from identify.app.rerun_stream import RerunOptions, delay_ns, open_stream, options_from_args
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import pandas as pd
@@ -95,7 +95,7 @@ def open_identify_recording(options: RerunOptions) -> rr.RecordingStream:
 
 
 def recording_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID) -> rr.RecordingStream | None:
-    """Recording from the ``dropvision.rerun_log.add_rerun_args`` flags, or None when off."""
+    """Recording from the ``dropvision.app.rerun_log.add_rerun_args`` flags, or None when off."""
     options = options_from_args(args, app_id)
     return None if options is None else open_identify_recording(options)
 

@@ -17,12 +17,12 @@ import sys
 import numpy as np
 import pandas as pd
 
+from identify.app.errors import UsageError
+from identify.app.rerun_stream import add_rerun_args
+from identify.atomic import OutputError, check_output_file
+
 OUTPUT_UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_volume_nl": "nl",
                 "jetting_velocity_m_s": "m/s"}
-
-
-class UsageError(Exception):
-    """Bad input the user can fix: printed as one line, exit status 2."""
 
 
 def _positive(name):
@@ -64,7 +64,6 @@ def _is_model_file(path) -> bool:
 
 
 def cmd_fit(args) -> int:
-    from dropvision.atomic import check_output_file
     from identify.dataset import load_dataset
     from identify.hybrid import fit_hybrid
 
@@ -96,8 +95,8 @@ def cmd_fit(args) -> int:
 
 
 def _with_recording(args, log) -> None:
-    """Run ``log(rec, identify.rerun_log)`` when --rerun/--rerun-spawn/--rerun-connect was given."""
-    from identify import rerun_log
+    """Run ``log(rec, identify.app.rerun_log)`` when --rerun/--rerun-spawn/--rerun-connect was given."""
+    from identify.app import rerun_log
 
     rec = rerun_log.recording_from_args(args)
     if rec is None:
@@ -191,7 +190,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from dropvision.rerun_log import add_rerun_args
 
     p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -243,8 +241,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from dropvision.atomic import OutputError
-
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

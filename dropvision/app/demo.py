@@ -8,7 +8,7 @@
 6. write ``out/``: dataset, model.json, Rerun recordings, PNG plots like Figs. 6 and 7;
 7. print a report: measured and predicted values against the synthetic truth.
 
-Run ``python -m dropvision.demo --help`` for options (``--quick`` for a smaller grid).
+Run ``python -m dropvision.app.demo --help`` for options (``--quick`` for a smaller grid).
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def measure_samples(out: Path, rerun: bool) -> list[dict]:
     for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):
         logger = None
         if rerun:
-            from dropvision.rerun_log import RerunLogger
+            from dropvision.app.rerun_log import RerunLogger
 
             logger = RerunLogger(path=out / f"measure-{seq.name}.rrd", recording_name=seq.name)
         try:
@@ -162,7 +162,7 @@ def _is_demo_output(folder: Path) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m dropvision.demo", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m dropvision.app.demo", description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=Path("out"), help="output folder (default out/)")
     parser.add_argument("--quick", action="store_true", help="3 x 3 grid instead of 4 x 4")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: all cores)")
@@ -171,14 +171,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="write into an existing --out that holds other files (those are kept)")
     args = parser.parse_args(argv)
 
-    from dropvision.campaign import run_campaign, synth_campaign
+    from dropvision.app.campaign import run_campaign, synth_campaign
     from dropvision.synth import SynthPhysics
-    from dropvision.synth.physics import drop_history
+    from identify.physics import drop_history
     from identify.dataset import load_dataset
     from identify.design import design
     from identify.hybrid import fit_hybrid
 
-    from dropvision.atomic import OutputError, claim_dir
+    from identify.atomic import OutputError, claim_dir
 
     out = args.out
     try:
@@ -261,8 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     # 6. plots and the identification recording
     plots = make_plots(out, ds, model, mc, truth_fn, u1, u2)
     if not args.no_rerun:
-        from dropvision.rerun_log import RerunOptions
-        from identify.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
+        from identify.app.rerun_stream import RerunOptions
+        from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
 
         rec = open_identify_recording(RerunOptions(path=out / "identify.rrd", application_id="dropvision-identify"))
         try:
