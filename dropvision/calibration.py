@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from dropvision.segmentation import fill_holes
+from dropvision.segmentation import edge_threshold, fill_holes
 from dropvision.volume import runs, subpixel_edges
 
 
@@ -473,7 +473,7 @@ def calibrate(
     notes: list[str] = []
     # first pass with a 50 % threshold, refined with the measured nozzle level
     nozzle = find_nozzle(t_first, 0.5)
-    thr_n = 0.5 * (1.0 + nozzle.interior_level)
+    thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n)
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
     tip, tip_src = find_tip(t_first, nozzle, thr_n, r_in)
@@ -526,7 +526,7 @@ def calibrate(
         tilt_source=tilt_src,
         liquid_level=liquid,
         nozzle_level=nozzle.interior_level,
-        threshold=0.5 * (1.0 + liquid),
+        threshold=edge_threshold(liquid),
         nozzle_outer_diameter_px=float(d_px),
         nozzle_outer_diameter_um_measured=float(d_um),
         pixel_size_disagreement_percent=disagree,

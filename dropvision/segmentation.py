@@ -9,6 +9,9 @@ contours drawn filled), and labelled; bodies touching the top of the region of i
 the nozzle (with any liquid still joined to it), the others are detached liquid.
 Static specks (opaque dust found during calibration) are removed from the dark mask before
 labelling, so they can never become liquid.
+
+`CLASS_*` are the class ids of the segmentation image shown by the Rerun viewer
+(`dropvision.frame` assigns them, `dropvision.app.rerun_log` colours them).
 """
 
 from __future__ import annotations
@@ -17,6 +20,30 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
+# --- segmentation classes (ids of the per-pixel class image handed to the Rerun logger) -------
+CLASS_BACKGROUND = 0
+CLASS_NOZZLE = 1
+CLASS_ATTACHED = 2
+CLASS_DROP = 3
+CLASS_SATELLITE = 4
+CLASS_SPECK = 5
+
+
+def edge_threshold(interior_level: float) -> float:
+    """Edge (50 %) transmission level half-way between the background (1) and a dark interior.
+
+    Parameters
+    ----------
+    interior_level : float
+        Transmission (background = 1) inside the liquid or the nozzle.
+
+    Returns
+    -------
+    float
+        ``(1 + interior_level) / 2``, in transmission units.
+    """
+    return 0.5 * (1.0 + interior_level)
 
 
 @dataclass(frozen=True)
@@ -53,7 +80,22 @@ class Segmentation:
 
 
 def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarray:
-    """Integer image ``ceil(threshold * background)`` so that ``I < it`` <=> ``I/B < threshold``."""
+    """Integer image ``ceil(threshold * background)`` so that ``I < it`` <=> ``I/B < threshold``.
+
+    Parameters
+    ----------
+    background : ndarray
+        Background (illumination) grey levels.
+    threshold : float
+        Edge level in transmission units (see `edge_threshold`).
+    dtype : numpy dtype
+        Dtype of the frames (integers are clipped to its range).
+
+    Returns
+    -------
+    ndarray of ``dtype``
+        Grey-level threshold per pixel.
+    """
     info = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else None
     t = np.ceil(np.asarray(background, dtype=np.float64) * threshold)
     if info is not None:

@@ -1,18 +1,16 @@
-"""Sequence-level analysis: pinch-off, grown volume and flow velocity, in-flight drop, velocity.
+"""Tracking of the main drop over a sequence: per-frame drop values, in flight, jetting velocity.
 
-Works on the per-frame table (one row per frame, ascending delay) produced by
-`dropvision.measure`:
+Works on the per-frame records (`dropvision.frame.FrameRecord`) once the attached frames are
+known (`dropvision.pinchoff.pinchoff_delay`):
 
-- pinch-off: the first delay at which at least half of the frames show a detached drop;
-  frames before it are ``attached``;
-- grown volume: attached volume minus the initial meniscus (mean attached volume of the frames
-  at the first delay); flow velocity: central differences of the per-delay mean grown volume
-  divided by the nozzle's inner cross-section, NaN from the pinch-off on;
-- in flight: detached frames whose main drop is compact (axial length <= ``compact_ratio``
-  equivalent-sphere diameters: the tail has merged or broken up) and trusted;
+- per frame, the main drop (largest detached body) and its satellites are trusted only when no
+  body leaves the field of view or the measured band, overlaps dust, or lies too close to the
+  attached liquid;
+- in flight: a trusted main drop that is compact (axial length <= ``compact_ratio``
+  equivalent-sphere diameters: the tail has merged or broken up) without a thin tail at its top;
 - jetting velocity: least-squares line of ``drop_z_um`` against ``delay_us`` over in-flight
-  frames (slope in µm/µs = m/s, with its standard error); trajectory angle: slope of
-  ``drop_x_um`` against ``drop_z_um``.
+  frames (slope in µm/µs = m/s, with its standard error); trajectory: line of ``drop_x_um``
+  against ``drop_z_um``.
 """
 
 from __future__ import annotations
@@ -20,19 +18,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pandas as pd
 
-
-def flow_velocity_m_s(flow_nl_per_us, nozzle_inner_diameter_um: float):
-    """`identify.ecm.flow_velocity_m_s` (imported on first use: it pulls in scipy)."""
-    from identify.ecm import flow_velocity_m_s as f
-
-    return f(flow_nl_per_us, nozzle_inner_diameter_um)
+from dropvision import quality as q
+from dropvision.config import MeasureConfig
+from dropvision.frame import FrameRecord
+from dropvision.volume import NL_PER_UM3
 
 
 @dataclass(frozen=True)
 class LineFit:
-    """Least-squares line ``y = intercept + slope x`` with standard errors."""
+    """Least-squares line ``y = intercept + slope x`` with the slope's standard error."""
 
     slope: float
     intercept: float
@@ -41,7 +36,18 @@ class LineFit:
 
 
 def fit_line(x, y) -> LineFit:
-    """Ordinary least squares; NaN when fewer than 3 points (SE NaN below 3)."""
+    """Ordinary least squares over the finite points.
+
+    Parameters
+    ----------
+    x, y : array_like
+        Points (any units; the slope is in y units per x unit).
+
+    Returns
+    -------
+    LineFit
+        NaN below 2 points or when ``x`` is constant; ``slope_se`` NaN below 3 points.
+    """
     x = np.asarray(x, float)
     y = np.asarray(y, float)
     ok = np.isfinite(x) & np.isfinite(y)
@@ -60,57 +66,96 @@ def fit_line(x, y) -> LineFit:
     return LineFit(slope, icpt, se, n)
 
 
-def pinchoff_delay(delay_us: np.ndarray, detached: np.ndarray) -> float:
-    """First delay at which at least half of the frames show a detached drop (NaN if none)."""
-    df = pd.DataFrame({"d": delay_us, "x": detached.astype(float)})
-    frac = df.groupby("d")["x"].mean()
-    hit = frac.index[frac.to_numpy() >= 0.5]
-    return float(hit[0]) if len(hit) else float("nan")
+@dataclass
+class DropTrack:
+    """Per-frame values of the main drop (one entry per frame, NaN where not trusted).
+
+    Attributes
+    ----------
+    drop_volume_nl, detached_volume_nl : ndarray
+        Main drop volume and all detached liquid (nl); detached 0 in attached frames and frames
+        without a drop.
+    z_um, x_um : ndarray
+        Main drop volume centroid along and across the axis from the tip (µm).
+    length_um, diameter_um : ndarray
+        Main drop extent along the rows and widest chord (µm).
+    n_satellites : ndarray
+        Satellites (float, NaN where unknown; 0 in attached frames).
+    inflight : ndarray of bool
+        Main drop compact and trusted.
+    """
+
+    drop_volume_nl: np.ndarray
+    detached_volume_nl: np.ndarray
+    z_um: np.ndarray
+    x_um: np.ndarray
+    length_um: np.ndarray
+    diameter_um: np.ndarray
+    n_satellites: np.ndarray
+    inflight: np.ndarray
 
 
-def grown_and_flow(
-    delay_us: np.ndarray,
-    attached_volume_nl: np.ndarray,
-    attached: np.ndarray,
-    nozzle_inner_diameter_um: float | None,
-) -> tuple[np.ndarray, np.ndarray, float, pd.Series]:
-    """Grown volume per frame, flow velocity per frame, initial meniscus volume, per-delay grown.
+def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: MeasureConfig,
+                    flags: list[list[str]]) -> DropTrack:
+    """The main drop of every frame, in flight or not; appends each frame's reasons to ``flags``.
+
+    Parameters
+    ----------
+    records : list of FrameRecord
+    attached : ndarray of bool
+        Frames before the pinch-off without a detached drop.
+    config : MeasureConfig
+        ``ambiguous_gap_px``, ``compact_ratio``, ``tail_chord_ratio``.
+    flags : list of list of str
+        Per-frame quality flags, extended in place.
 
     Returns
     -------
-    grown_nl : ndarray
-    flow_m_s : ndarray
-        NaN for frames not attached or without a nozzle inner diameter.
-    meniscus_nl : float
-    grown_by_delay : Series
-        Mean grown volume per delay over attached frames (index delay_us).
+    DropTrack
     """
-    delay_us = np.asarray(delay_us, float)
-    v = np.asarray(attached_volume_nl, float)
-    first = delay_us == np.min(delay_us) if delay_us.size else np.zeros(0, bool)
-    base = v[first & np.isfinite(v)]
-    meniscus = float(np.mean(base)) if base.size else float("nan")
-    grown = v - meniscus
-    g = pd.Series(np.where(attached, grown, np.nan)).groupby(delay_us).mean().dropna()
-    flow = np.full(v.shape, np.nan)
-    if nozzle_inner_diameter_um and g.size >= 2:
-        d = g.index.to_numpy(float)
-        rate = np.gradient(g.to_numpy(float), d)  # nl/us
-        vel = pd.Series(flow_velocity_m_s(rate, nozzle_inner_diameter_um), index=d)
-        flow = np.where(attached, vel.reindex(delay_us).to_numpy(float), np.nan)
-    return grown, flow, meniscus, g
-
-
-def flow_velocity_at(
-    grown_by_delay: pd.Series, t_us: float, nozzle_inner_diameter_um: float, n_points: int = 5
-) -> float:
-    """Flow velocity (m/s) at ``t_us`` from a quadratic fit of the grown volume at the
-    ``n_points`` delays nearest to it (NaN outside the attached delays)."""
-    d = grown_by_delay.index.to_numpy(float)
-    v = grown_by_delay.to_numpy(float)
-    if d.size < 3 or not (d.min() <= t_us <= d.max()):
-        return float("nan")
-    sel = np.argsort(np.abs(d - t_us), kind="stable")[:n_points]
-    c = np.polyfit(d[sel] - t_us, v[sel], 2 if sel.size >= 4 else 1)
-    rate = c[-2]  # derivative at t_us, nl/us
-    return float(flow_velocity_m_s(rate, nozzle_inner_diameter_um))
+    m = len(records)
+    drop_vol = np.full(m, np.nan)
+    det_vol = np.full(m, np.nan)
+    drop_z = np.full(m, np.nan)
+    drop_x = np.full(m, np.nan)
+    length = np.full(m, np.nan)
+    diam = np.full(m, np.nan)
+    nsat = np.full(m, np.nan)
+    inflight = np.zeros(m, bool)
+    for k, r in enumerate(records):
+        b = r.bodies[0] if r.bodies else None
+        if attached[k]:
+            det_vol[k] = 0.0
+            nsat[k] = 0
+            if np.isfinite(r.neck_px) and r.neck_px < config.ambiguous_gap_px:
+                flags[k].append(q.AMBIGUOUS)
+            continue
+        if b is None:
+            flags[k].append(q.NO_DROP)
+            det_vol[k] = 0.0
+            continue
+        bad = []
+        if b.leaves:
+            bad.append(q.DROP_LEAVES)
+        if b.out_of_band:
+            bad.append(q.OUT_OF_BAND)
+        if b.on_dust:
+            bad.append(q.DUST_OVERLAP)
+        if np.isfinite(r.attached_bottom_row) and b.top_row - r.attached_bottom_row < config.ambiguous_gap_px + 1:
+            bad.append(q.AMBIGUOUS)
+        flags[k].extend(bad)
+        others = r.bodies[1:]
+        sat_bad = any(o.leaves or o.out_of_band or o.on_dust for o in others)
+        if not bad:
+            drop_vol[k] = b.volume_nl
+            drop_z[k], drop_x[k] = b.z_um, b.x_um
+            length[k], diam[k] = b.length_um, b.diameter_um
+            if not sat_bad:
+                det_vol[k] = sum(o.volume_nl for o in r.bodies)
+                nsat[k] = len(others)
+            d_eq_um = (6.0 * b.volume_nl / NL_PER_UM3 / np.pi) ** (1.0 / 3.0)
+            inflight[k] = (b.length_um <= config.compact_ratio * d_eq_um
+                           and not (b.top_chord_ratio < config.tail_chord_ratio))
+            if not inflight[k]:
+                flags[k].append(q.TAIL)
+    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight)

@@ -12,13 +12,20 @@ row height (exact for a cylinder; for a sphere the relative error is ``1 - cos(t
 resampling along the axis).
 
 Coordinates: pixel centres are integers; a row ``i`` covers ``[i - 0.5, i + 0.5)``.
+
+Also here, the shape measures read off the same edges: `clip_to_tip_plane` (the attached
+liquid starts at the tilted tip plane), `neck_chord_px` and `top_chord_ratio`.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+#: Nanolitres per cubic micrometre.
+NL_PER_UM3 = 1e-6
 
 
 @dataclass
@@ -265,3 +272,91 @@ def integrate(
         float(edges.chord_px[keep].max()),
         int(np.unique(rows).size),
     )
+
+
+# ----------------------------------------------------------------------------- shape from edges
+def clip_to_tip_plane(edges: RowEdges, tip_row: float, axis_col: float, tilt_rad: float) -> None:
+    """Cut the attached liquid's runs at the tip plane (perpendicular to a tilted axis), in place.
+
+    The plane through (tip, axis) is ``y = tip - (x - axis) tan(tilt)``; near the tip of a tilted
+    nozzle one wall ends below the tip row at the axis, and its part of a run is not liquid.
+
+    Parameters
+    ----------
+    edges : RowEdges
+        Run edges of the nozzle body (region coordinates, px); modified in place.
+    tip_row, axis_col : float
+        Tip row and axis column at the tip (region coordinates, px).
+    tilt_rad : float
+        Tilt of the jetting axis from the image columns (rad).
+    """
+    tan = math.tan(tilt_rad)
+    if abs(tan) < 1e-9 or edges.row.size == 0:
+        return
+    near = edges.row < tip_row + abs(tan) * (edges.right_px - edges.left_px) + 1.0
+    if not np.any(near):
+        return
+    bound = axis_col + (tip_row - edges.row) / tan
+    if tan > 0:
+        edges.left_px = np.where(near, np.maximum(edges.left_px, bound), edges.left_px)
+    else:
+        edges.right_px = np.where(near, np.minimum(edges.right_px, bound), edges.right_px)
+    edges.right_px = np.maximum(edges.right_px, edges.left_px)
+
+
+def neck_chord_px(edges: RowEdges, tip_row: float) -> float:
+    """Narrowest chord of the attached liquid between the tip and the widest row of its bulb.
+
+    Parameters
+    ----------
+    edges : RowEdges
+        Run edges of the attached liquid (region coordinates, px).
+    tip_row : float
+        Tip plane row (region coordinates, px); rows within 2 px below it are the meniscus.
+
+    Returns
+    -------
+    float
+        The neck's chord (px); NaN when there is no neck (the narrowest chord is less than 3
+        rows above the widest one, or not narrower than half of it).
+    """
+    below = edges.row > tip_row + 2
+    if not np.any(below):
+        return float("nan")
+    rows = edges.row[below]
+    chord = edges.chord_px[below]
+    widest = rows[np.argmax(chord)]
+    upper = rows <= widest
+    k = np.argmin(np.where(upper, chord, np.inf))
+    if widest - rows[k] >= 3 and chord[k] < 0.5 * chord.max():
+        return float(chord[k])
+    return float("nan")
+
+
+def top_chord_ratio(edges: RowEdges, volume: BodyVolume, at: float = 0.25) -> float:
+    """Chord a quarter of the body's length below its top over its widest chord.
+
+    0.87 for any spheroid (whatever its aspect ratio); much smaller when a thin tail is still
+    joined to the top of the drop.
+
+    Parameters
+    ----------
+    edges : RowEdges
+        Run edges of the body (px).
+    volume : BodyVolume
+        Its integrated volume (`integrate`): top, bottom row and widest chord (px).
+    at : float
+        Where to take the chord, as a fraction of the length from the top.
+
+    Returns
+    -------
+    float
+        Dimensionless ratio; NaN for an empty body or no run at that row.
+    """
+    if volume.max_chord_px <= 0 or not np.isfinite(volume.top_row):
+        return float("nan")
+    y = volume.top_row + at * (volume.bottom_row - volume.top_row)
+    sel = np.abs(edges.row - y) <= 0.5
+    if not np.any(sel):
+        return float("nan")
+    return float(edges.chord_px[sel].max() / volume.max_chord_px)

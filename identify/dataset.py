@@ -30,13 +30,17 @@ the project (ECM + pinch-off and adjuster laws), whose truth is exactly known.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from identify.ecm import flow_velocity_m_s, pipe_inertance, pipe_resistance, simulate
+from identify.atomic import atomic_dir, write_json
+from identify.ecm import flow_velocity_m_s, simulate
+from identify.hydraulics import Hydraulics, hydraulics_from_dimensions
+from identify.montecarlo import ecm_response_at
+from identify.physics import SynthPhysics
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, SAMPLE_INTERVAL_US, U3_PRESET_UM_PER_MS, Waveform
 
 SCHEMA = "identify.dataset/1"
@@ -75,12 +79,10 @@ class DatasetError(ValueError):
 # ---------------------------------------------------------------------------------------
 
 
-def default_physics():
+def default_physics() -> SynthPhysics:
     """The project's default synthetic physics: ``identify.physics.SynthPhysics()``,
     the single place holding the numbers of the synthetic printhead (ECM, pinch-off law and
     adjusters)."""
-    from identify.physics import SynthPhysics
-
     return SynthPhysics()
 
 
@@ -121,27 +123,36 @@ class Dataset:
         """Distinct (u1, u2) pairs, shape (m, 2)."""
         return np.unique(self.summary[["u1_um_per_ms", "u2_um"]].to_numpy(float), axis=0)
 
-    def hydraulics(self) -> dict[str, float] | None:
-        """LN, RN, LR, RR (SI) from the ink and nozzle geometry (Eq. 2), or None if absent."""
+    def hydraulics(self) -> Hydraulics | None:
+        """Known hydraulic elements of Eq. (2) from the ink and nozzle geometry.
+
+        Returns
+        -------
+        Hydraulics or None
+            ``(LN, RN, LR, RR)`` in kg/m^4 and kg/(m^4 s)
+            (:func:`identify.hydraulics.hydraulics_from_dimensions`), or None when
+            ``dataset.json`` has no ``ink`` or ``nozzle`` block.
+
+        Raises
+        ------
+        DatasetError
+            If the ink density/viscosity or a nozzle dimension is missing or not a number.
+        """
         if not self.ink or not self.nozzle:
             return None
         try:
             rho = float(self.ink["density_kg_m3"])
-            mu = float(self.ink["viscosity_mPa_s"]) * 1e-3
-            ln_m = float(self.nozzle["length_mm"]) * 1e-3
-            rr = float(self.nozzle["reservoir_channel_radius_um"]) * 1e-6
-            lr_m = float(self.nozzle["reservoir_channel_length_mm"]) * 1e-3
+            mu_mpa_s = float(self.ink["viscosity_mPa_s"])
+            ln_mm = float(self.nozzle["length_mm"])
+            rr_um = float(self.nozzle["reservoir_channel_radius_um"])
+            lr_mm = float(self.nozzle["reservoir_channel_length_mm"])
         except (KeyError, TypeError, ValueError) as exc:
-            raise DatasetError(f"{self._json_name()}: ink/nozzle geometry incomplete or invalid ({exc})") from None
-        rn = self.nozzle_inner_diameter_um * 0.5e-6
-        return {
-            "LN": pipe_inertance(rho, ln_m, rn),
-            "RN": pipe_resistance(mu, ln_m, rn),
-            "LR": pipe_inertance(rho, lr_m, rr),
-            "RR": pipe_resistance(mu, lr_m, rr),
-        }
+            raise DatasetError(f"{self.json_name}: ink/nozzle geometry incomplete or invalid ({exc})") from None
+        return hydraulics_from_dimensions(rho, mu_mpa_s, self.nozzle_inner_diameter_um, ln_mm, rr_um, lr_mm)
 
-    def _json_name(self) -> str:
+    @property
+    def json_name(self) -> str:
+        """Path of this dataset's ``dataset.json`` as used in error messages."""
         return str(self.path / "dataset.json") if self.path else "dataset.json"
 
     def metadata(self) -> dict:
@@ -167,8 +178,6 @@ class Dataset:
         ours; ``overwrite`` writes into one holding other files (they are kept). See
         `identify.atomic.atomic_dir`.
         """
-        from identify.atomic import atomic_dir, write_json
-
         out_dir = Path(out_dir)
         with atomic_dir(out_dir, overwrite=overwrite, kind="dataset") as tmp:
             self.timeseries.to_parquet(tmp / "timeseries.parquet", index=False)
@@ -363,15 +372,33 @@ def paper_grid(step_u1: float = 5.0, step_u2: float = 1.25) -> list[tuple[float,
     return [(float(a), float(b)) for a in u1 for b in u2]
 
 
-def _ecm_truth(physics, u1: float, u2: float, t_us: np.ndarray, t_p: float):
-    """Exact ECM volume/flow on ``t_us`` and at the pinch-off instant / maximum stroke."""
-    from identify.montecarlo import ecm_response_at
+def ecm_truth(physics: SynthPhysics, u1: float, u2: float, t_us: np.ndarray, t_p: float):
+    """Exact ECM response of a synthetic physics for one waveform.
 
+    Parameters
+    ----------
+    physics : SynthPhysics
+    u1, u2 : float
+        Stroke velocity (µm/ms) and stroke (µm).
+    t_us : ndarray
+        Uniform sample times from the trigger (µs).
+    t_p : float
+        Pinch-off instant from the trigger (µs).
+
+    Returns
+    -------
+    volume_nl, flow_nl_per_us : ndarray
+        Grown volume (nl) and flow (nl/µs) at ``t_us`` (:func:`identify.ecm.simulate`).
+    volume_at_pinchoff_nl : float
+        Grown volume at ``t_p`` (nl), exact (:func:`identify.montecarlo.ecm_response_at`).
+    flow_at_max_stroke_nl_per_us : float
+        Flow at the maximum-stroke instant (nl/µs), exact.
+    """
     coeffs = physics.ecm_parameters().coefficients()
     w = Waveform(u1, u2, physics.u3_um_per_ms, physics.hold_us)
     u = w.displacement_um(t_us - physics.dead_time_us)
     vol, flow = simulate(coeffs, t_us, u)
-    c = np.array([[coeffs.A3, coeffs.A2, coeffs.A1, coeffs.A0, coeffs.B1, coeffs.B0]])
+    c = coeffs.to_array()[None, :]
     v_p, _ = ecm_response_at(c, w, np.array([t_p - physics.dead_time_us]))
     _, q_max = ecm_response_at(c, w, np.array([w.max_stroke_us]))
     return vol, flow, float(v_p[0]), float(q_max[0])
@@ -413,7 +440,7 @@ def make_synthetic_dataset(
         t_p = float(physics.pinchoff_instant_us(u1, u2))
         n = int(np.floor(t_p / h)) + 1 + tail_samples
         t = np.arange(n) * h
-        vol, flow, v_p, q_max = _ecm_truth(physics, u1, u2, t, t_p)
+        vol, flow, v_p, q_max = ecm_truth(physics, u1, u2, t, t_p)
         vel = flow_velocity_m_s(flow, d_um)
         v_max = flow_velocity_m_s(q_max, d_um)
         inflight = v_p + float(physics.volume_adjuster_nl_at(u1, u2))
@@ -455,8 +482,6 @@ def make_synthetic_dataset(
     )
     out_dir = Path(out_dir)
     ds.save(out_dir)
-    from identify.atomic import write_json
-
     p = physics.ecm_parameters()
     write_json(out_dir / "truth.json", {
         "schema": "identify.truth/1",
@@ -467,8 +492,3 @@ def make_synthetic_dataset(
     })
     ds.path = out_dir
     return ds
-
-
-def with_path(ds: Dataset, path) -> Dataset:
-    """Copy of ``ds`` with ``path`` set (used in error messages)."""
-    return replace(ds, path=Path(path))

@@ -52,7 +52,20 @@ class DesignResult:
         }
 
 
-class _Region:
+class Region:
+    """The printable region: convex hull of the training controls (bounding box if degenerate).
+
+    Parameters
+    ----------
+    controls : ndarray, shape (m, 2)
+        Distinct training (u1 µm/ms, u2 µm) pairs.
+
+    Raises
+    ------
+    ValueError
+        If the controls span no area in (u1, u2).
+    """
+
     def __init__(self, controls: np.ndarray):
         c = np.asarray(controls, float)
         self.lo, self.hi = c.min(axis=0), c.max(axis=0)
@@ -65,6 +78,7 @@ class _Region:
             self.tri = None
 
     def inside(self, u1, u2) -> np.ndarray:
+        """Boolean mask: which (u1 µm/ms, u2 µm) points lie in the region (broadcast, flattened)."""
         x = (np.column_stack([np.ravel(u1), np.ravel(u2)]) - self.lo) / self.span
         box = np.all((x >= -1e-9) & (x <= 1 + 1e-9), axis=1)
         if self.tri is None:
@@ -88,7 +102,7 @@ def design(
         raise ValueError(f"--velocity-m-s must be a positive number, got {velocity_m_s!r}")
     if model.controls is None or len(model.controls) < 3:
         raise ValueError("the model has no training region (training_controls) to design in")
-    region = _Region(model.controls)
+    region = Region(model.controls)
     g1 = np.linspace(region.lo[0], region.hi[0], grid_points)
     g2 = np.linspace(region.lo[1], region.hi[1], grid_points)
     U1, U2 = (a.ravel() for a in np.meshgrid(g1, g2, indexing="ij"))

@@ -8,7 +8,14 @@ and the volume leaves in m^3 in the transfer function of Eq. (6):
     Y_vol(s) = -(B1 s + B0) / (A3 s^3 + A2 s^2 + A1 s + A0) U(s)
 
 Simulation helpers take the displacement in µm and time in µs and return the growing
-volume in nl and the flow in nl/µs (1 nl/µs = 1e-6 m^3/s).
+volume in nl and the flow in nl/µs (1 nl/µs = 1e-6 m^3/s): :func:`simulate` (time
+stepping, first-order hold), :func:`simulate_sampled` (the same for many input sequences
+sampled from rest) and :func:`pwl_response` (closed form for piecewise-linear inputs, e.g.
+the waveform of Eq. (1) through :func:`waveform_knots`). The batched simulation of many
+coefficient sets (Monte Carlo) is :func:`identify.montecarlo.simulate_ensemble`.
+
+The hydraulic elements L_N, R_N, L_R, R_R of Eq. (2) are computed in
+:mod:`identify.hydraulics`.
 
 Eq. (5) as printed repeats ``C_N L_a R_N`` in A2; the second term is ``C_N L_a R_R``
 (it follows from Eq. 3). With it the characteristic polynomial factors exactly as
@@ -25,20 +32,30 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from identify.waveform import DEAD_TIME_US, Waveform
+
 #: 1 nl in m^3.
 NL = 1e-12
 #: 1 µm in m.
 UM = 1e-6
+#: Order of the coefficients of Eq. (6) wherever they form a vector (covariances, files).
+COEFF_NAMES = ("A3", "A2", "A1", "A0", "B1", "B0")
 
 
-def pipe_resistance(viscosity_pa_s: float, length_m: float, radius_m: float) -> float:
-    """Hydraulic resistance of a laminar pipe flow, Eq. (2): R = 8 µ l / (π r^4), kg/(m^4 s)."""
-    return 8.0 * viscosity_pa_s * length_m / (np.pi * radius_m**4)
+def nozzle_area_m2(nozzle_inner_diameter_um: float) -> float:
+    """Inner cross-section of the nozzle, π d^2 / 4.
 
+    Parameters
+    ----------
+    nozzle_inner_diameter_um : float
+        Nozzle inner diameter d (µm).
 
-def pipe_inertance(density_kg_m3: float, length_m: float, radius_m: float) -> float:
-    """Hydraulic inertance of a pipe, Eq. (2): L = ρ l / (π r^2), kg/m^4."""
-    return density_kg_m3 * length_m / (np.pi * radius_m**2)
+    Returns
+    -------
+    float
+        Cross-section area (m^2).
+    """
+    return float(np.pi * (nozzle_inner_diameter_um * UM) ** 2 / 4.0)
 
 
 @dataclass(frozen=True)
@@ -73,6 +90,10 @@ class EcmCoefficients:
     def poles(self) -> np.ndarray:
         """Poles of Eq. (6) in rad/s."""
         return np.roots([self.A3, self.A2, self.A1, self.A0])
+
+    def to_array(self) -> np.ndarray:
+        """The coefficients as a vector in :data:`COEFF_NAMES` order (SI units), shape (6,)."""
+        return np.array([getattr(self, k) for k in COEFF_NAMES])
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -120,9 +141,25 @@ class EcmParameters:
         return asdict(self)
 
 
-def _companion(coeffs: EcmCoefficients, time_unit_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Controllable canonical state space of Eq. (6) with time in ``time_unit_s`` seconds,
-    displacement in µm and volume in nl (well conditioned for µs time units)."""
+def companion_form(coeffs: EcmCoefficients, time_unit_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Controllable canonical state space of Eq. (6), dx/dt = A x + B u, volume = C x.
+
+    Parameters
+    ----------
+    coeffs : EcmCoefficients
+        Coefficients of Eq. (6) in SI units.
+    time_unit_s : float
+        Time unit of the state space in seconds (1e-6: µs, well conditioned).
+
+    Returns
+    -------
+    A : ndarray, shape (3, 3)
+        State matrix (1/time unit).
+    B : ndarray, shape (3,)
+        Input vector (displacement in µm).
+    C : ndarray, shape (3,)
+        Output vector (volume in nl).
+    """
     a = np.array([coeffs.A2, coeffs.A1, coeffs.A0]) / coeffs.A3
     b = np.array([coeffs.B1, coeffs.B0]) / coeffs.A3
     tu = time_unit_s
@@ -193,7 +230,7 @@ def simulate(coeffs: EcmCoefficients, t_us, u_um) -> tuple[np.ndarray, np.ndarra
     if h <= 0 or not np.allclose(np.diff(t), h, rtol=1e-6, atol=1e-9):
         raise ValueError("t_us must be uniformly increasing")
     rows = np.atleast_2d(u)
-    A, B, C = _companion(coeffs, 1e-6)
+    A, B, C = companion_form(coeffs, 1e-6)
     n = A.shape[0]
     Phi, G0, G1 = foh_step(A, B, h)
     PhiT = Phi.T
@@ -210,7 +247,134 @@ def simulate(coeffs: EcmCoefficients, t_us, u_um) -> tuple[np.ndarray, np.ndarra
     return volume.reshape(u.shape), flow.reshape(u.shape)
 
 
+def simulate_sampled(coeffs: EcmCoefficients, interval_us: float, u_um) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`simulate` for several input sequences sampled every ``interval_us`` from rest.
+
+    Parameters
+    ----------
+    coeffs : EcmCoefficients
+        One ECM (SI units).
+    interval_us : float
+        Sampling interval (µs); sample k is at k * interval_us.
+    u_um : array_like, shape (n,) or (m, n)
+        Piston displacement (µm), already delayed by any dead time; one sequence per row.
+
+    Returns
+    -------
+    volume_nl, flow_nl_per_us : ndarray, shape (m, n)
+        Growing volume (nl) and flow (nl/µs) of each sequence.
+    """
+    h = float(interval_us)
+    if not h > 0:
+        raise ValueError(f"interval_us must be > 0, got {interval_us!r}")
+    u = np.atleast_2d(np.asarray(u_um, dtype=float))
+    return simulate(coeffs, np.arange(u.shape[1]) * h, u)
+
+
+def pwl_response(ratios, knots_us, slope_jumps_um_per_us, t_us) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form volume and flow of Eq. (6) for a piecewise-linear displacement.
+
+    The displacement is ``u(t) = sum_i c_i (t - t_i)_+`` (ramps starting at the knots
+    ``t_i`` with slope changes ``c_i``); the response is the superposition of the analytic
+    unit-ramp response ``r(τ) = G(0) τ + G'(0) + sum_j R_j exp(p_j τ)`` (partial fractions of
+    ``G(s)/s^2``). Exact at any instant, no time step; vectorised over parameter sets.
+
+    Parameters
+    ----------
+    ratios : array_like, shape (..., 5)
+        θ of Eq. (10) in SI units (A2/A3, A1/A3, A0/A3, B1/A3, B0/A3).
+    knots_us, slope_jumps_um_per_us : array_like, shape (m,) or (..., m)
+        Knot instants (µs) and slope changes (µm/µs).
+    t_us : array_like, shape (k,) or (..., k)
+        Evaluation instants (µs).
+
+    Returns
+    -------
+    volume_nl, flow_nl_per_us : ndarray, shape (..., k)
+
+    Notes
+    -----
+    Requires distinct poles (raises ``ValueError`` when two poles nearly coincide).
+    """
+    th = np.asarray(ratios, dtype=float)
+    tu = 1e-6
+    a = th[..., :3] * np.array([tu, tu**2, tu**3])  # monic denominator in 1/µs units
+    b = th[..., 3:] * np.array([tu**2, tu**3]) * (UM / NL)  # numerator -(b1 σ + b0)
+    comp = np.zeros(th.shape[:-1] + (3, 3))
+    comp[..., 0, :] = -a
+    comp[..., 1, 0] = 1.0
+    comp[..., 2, 1] = 1.0
+    p = np.linalg.eigvals(comp)  # (..., 3) poles in 1/µs
+    scale = np.max(np.abs(p), axis=-1)
+    gaps = np.abs(p[..., [0, 0, 1]] - p[..., [1, 2, 2]])
+    if np.any(gaps < 1e-7 * scale[..., None]):
+        raise ValueError("pwl_response: repeated poles; use simulate instead")
+    num = -(b[..., 0, None] * p + b[..., 1, None])  # N(p_j)
+    others = np.stack(
+        [(p[..., 0] - p[..., 1]) * (p[..., 0] - p[..., 2]),
+         (p[..., 1] - p[..., 0]) * (p[..., 1] - p[..., 2]),
+         (p[..., 2] - p[..., 0]) * (p[..., 2] - p[..., 1])],
+        axis=-1,
+    )
+    R = num / (p**2 * others)  # residues of G/s^2 at the poles
+    a2, a1, a0 = a[..., 0], a[..., 1], a[..., 2]
+    n0, n1 = -b[..., 1], -b[..., 0]  # N(0), N'(0)
+    G0 = n0 / a0
+    G1 = (n1 * a0 - n0 * a1) / a0**2
+    knots = np.asarray(knots_us, dtype=float)
+    jumps = np.asarray(slope_jumps_um_per_us, dtype=float)
+    t = np.asarray(t_us, dtype=float)
+    tau = t[..., None, :] - knots[..., :, None]  # (..., m, k)
+    on = tau > 0
+    tau_c = np.where(on, tau, 0.0)
+    e = np.exp(p[..., :, None, None] * tau_c[..., None, :, :])  # (..., 3, m, k)
+    R_ = R[..., :, None, None]
+    p_ = p[..., :, None, None]
+    ramp = G0[..., None, None] * tau_c + G1[..., None, None] + np.sum(R_ * e, axis=-3).real
+    dramp = G0[..., None, None] + np.sum(R_ * p_ * e, axis=-3).real
+    ramp = np.where(on, ramp, 0.0)
+    dramp = np.where(on, dramp, 0.0)
+    vol = np.sum(jumps[..., :, None] * ramp, axis=-2)
+    flow = np.sum(jumps[..., :, None] * dramp, axis=-2)
+    return vol, flow
+
+
+def waveform_knots(waveform: Waveform, dead_time_us: float = DEAD_TIME_US) -> tuple[np.ndarray, np.ndarray]:
+    """Knots and slope changes of the waveform of Eq. (1), for :func:`pwl_response`.
+
+    Parameters
+    ----------
+    waveform : identify.waveform.Waveform
+        The trapezoidal waveform (u1 µm/ms, u2 µm, u3 µm/ms, hold µs).
+    dead_time_us : float
+        Delay from the trigger to the start of the piston motion (µs).
+
+    Returns
+    -------
+    knots_us : ndarray, shape (4,)
+        Corner instants from the trigger (µs).
+    slope_jumps_um_per_us : ndarray, shape (4,)
+        Slope change of the displacement at each corner (µm/µs).
+    """
+    w = waveform
+    u1, u3 = w.u1_um_per_ms * 1e-3, w.u3_um_per_ms * 1e-3
+    knots = dead_time_us + np.array([0.0, w.rise_us, w.retract_start_us, w.end_us])
+    return knots, np.array([u1, -u1, -u3, u3])
+
+
 def flow_velocity_m_s(flow_nl_per_us, nozzle_inner_diameter_um: float) -> np.ndarray:
-    """Average flow velocity (m/s) in the nozzle: flow / (π d^2 / 4)."""
-    area_m2 = np.pi * (nozzle_inner_diameter_um * UM) ** 2 / 4.0
-    return np.asarray(flow_nl_per_us, dtype=float) * 1e-6 / area_m2
+    """Average flow velocity in the nozzle, flow / (π d^2 / 4).
+
+    Parameters
+    ----------
+    flow_nl_per_us : array_like
+        Volume flow (nl/µs; 1 nl/µs = 1e-6 m^3/s).
+    nozzle_inner_diameter_um : float
+        Nozzle inner diameter d (µm), see :func:`nozzle_area_m2`.
+
+    Returns
+    -------
+    ndarray
+        Average flow velocity (m/s), same shape as ``flow_nl_per_us``.
+    """
+    return np.asarray(flow_nl_per_us, dtype=float) * 1e-6 / nozzle_area_m2(nozzle_inner_diameter_um)

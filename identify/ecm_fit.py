@@ -1,15 +1,15 @@
 """Identification of the ECM physical parameters La, Ra, CN, Kc (Wang & Chiu, Section 4.3).
 
 The hydraulic elements LN, RN (nozzle pipe) and LR, RR (reservoir-side channel) are known
-from Eq. (2) with the nozzle geometry and the ink (:func:`hydraulics_from_geometry`); the
+from Eq. (2) with the nozzle geometry and the ink (:mod:`identify.hydraulics`); the
 remaining four parameters are fitted to measured growing-volume sequences (:class:`EcmData`).
 
 Two estimators, both in :func:`fit_ecm`:
 
 ``method="oe"`` (default)
     Output-error / grey-box fit of the continuous-time model: the exact first-order-hold
-    simulation of Eq. (6) (as :func:`identify.ecm.simulate`, batched over sequences by
-    :func:`simulate_batch`) is fitted to the measured volume of all sequences jointly by
+    simulation of Eq. (6) (:func:`identify.ecm.simulate_sampled`, all sequences at once)
+    is fitted to the measured volume of all sequences jointly by
     nonlinear least squares on log-parameters. ``Kc`` enters the volume linearly and is
     eliminated in closed form (variable projection), so the search runs over
     ``(log Ra, log CN)`` after a coarse grid search. Covariance: ``s^2 (J^T J)^-1`` with
@@ -24,7 +24,7 @@ Two estimators, both in :func:`fit_ecm`:
     ``mean +- t_{0.975,n-1} s / sqrt(n)``); ``param_cov`` is the covariance of the mean.
     The Euler approximation of the derivatives biases the estimates at ``h = 10 us`` even
     without noise, and the third difference of noisy samples makes them very noise
-    sensitive (see :func:`noise_study`).
+    sensitive (see the noise study below).
 
 Identifiability
 ---------------
@@ -45,8 +45,9 @@ on that choice. ``param_cov`` has a zero La row/column. The remaining three comb
 are well identified from volume sequences truncated at pinch-off (~80 samples after the
 dead time, 91 sequences of the campaign grid): see ``EcmFit.identifiability``.
 
-Accuracy (:func:`noise_study`, default physics, 91 waveforms, 10 µs, seed 0, white noise
-of sd = 1 % / 2 % of each sequence's peak volume): ``oe`` max ratio error 0.09 % (0 %, the
+Accuracy (``noise_study`` of ``tests/ecm_study.py``, run by ``tests/test_ecm_fit.py``;
+default physics, 91 waveforms, 10 µs, seed 0, white noise of sd = 1 % / 2 % of each
+sequence's peak volume): ``oe`` max ratio error 0.09 % (0 %, the
 first-order hold of the 10 µs input samples cuts the waveform corners), 0.39 % (1 %),
 0.85 % (2 %), 95 % intervals cover the truth. The standard error of A2/A3 and A0/A3 at 1 %
 noise is ~1.1 % / 0.95 % (log Ra and log CN are 0.998 correlated), so "within 1 %" holds
@@ -62,124 +63,25 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
-from identify.ecm import (
-    NL,
-    UM,
-    EcmCoefficients,
-    EcmParameters,
-    _companion,
-    pipe_inertance,
-    pipe_resistance,
-)
-from identify.ecm import simulate as ecm_simulate
-from identify.waveform import DEAD_TIME_US, SAMPLE_INTERVAL_US, Waveform
+from identify.ecm import NL, UM, EcmCoefficients, EcmParameters, simulate_sampled
+from identify.hydraulics import Hydraulics
+from identify.waveform import DEAD_TIME_US, Waveform
 
 #: La used when the caller does not fix it (kg/m^4): Table 3 of the paper. La is not
 #: identifiable from volume data (see the module docstring).
 LA_DEFAULT = 4.01e-13
 #: Parameter order of ``EcmFit.param_cov`` and of the identifiability report.
 PARAM_NAMES = ("La", "Ra", "CN", "Kc")
-#: Coefficient order of ``EcmFit.coeff_cov``.
-COEFF_NAMES = ("A3", "A2", "A1", "A0", "B1", "B0")
-#: Ratio order of ``EcmFit.ratio_cov`` (θ of Eq. 10).
+#: Ratio order of ``EcmFit.ratio_cov`` (θ of Eq. 10). The coefficient order of
+#: ``EcmFit.coeff_cov`` is :data:`identify.ecm.COEFF_NAMES`.
 RATIO_NAMES = ("A2/A3", "A1/A3", "A0/A3", "B1/A3", "B0/A3")
-#: Default ink of the synthetic physics (colour ink of Table 1).
-DEFAULT_INK = {"name": "colour ink", "density_kg_m3": 993.0, "viscosity_mPa_s": 2.21, "surface_tension_mN_m": 28.72}
 
 _Z95 = stats.norm.ppf(0.975)
-
-
-# --------------------------------------------------------------------------- hydraulics
-
-
-class Hydraulics(NamedTuple):
-    """Known hydraulic elements of Eq. (2) (SI): unpacks as ``LN, RN, LR, RR``."""
-
-    LN: float
-    RN: float
-    LR: float
-    RR: float
-
-
-@dataclass(frozen=True)
-class NozzleGeometry:
-    """Nozzle pipe and reservoir-side channel (defaults: the team's synthetic physics).
-
-    Parameters
-    ----------
-    inner_diameter_um : float
-        Nozzle inner diameter (µm); the pipe radius of LN, RN is half of it.
-    length_mm : float
-        Nozzle pipe length (mm).
-    reservoir_radius_um, reservoir_length_mm : float
-        Radius (µm) and length (mm) of the equivalent reservoir-side channel (LR, RR).
-    """
-
-    inner_diameter_um: float = 200.0
-    length_mm: float = 5.0
-    reservoir_radius_um: float = 94.0
-    reservoir_length_mm: float = 20.0
-
-    def __post_init__(self) -> None:
-        for name in ("inner_diameter_um", "length_mm", "reservoir_radius_um", "reservoir_length_mm"):
-            value = getattr(self, name)
-            if not np.isfinite(value) or value <= 0:
-                raise ValueError(f"nozzle geometry {name} must be a positive number, got {value!r}")
-
-
-def _ink_value(ink: Any, key: str) -> float:
-    value = ink.get(key) if isinstance(ink, Mapping) else getattr(ink, key, None)
-    if value is None:
-        raise ValueError(f"ink: missing {key!r} (need density_kg_m3 and viscosity_mPa_s)")
-    value = float(value)
-    if not np.isfinite(value) or value <= 0:
-        raise ValueError(f"ink: {key} must be a positive number, got {value!r}")
-    return value
-
-
-def hydraulics_from_geometry(ink: Any = None, geometry: NozzleGeometry | None = None) -> Hydraulics:
-    """LN, RN, LR, RR from Eq. (2) for an ink and a nozzle geometry.
-
-    Parameters
-    ----------
-    ink : mapping or object, optional
-        With ``density_kg_m3`` and ``viscosity_mPa_s`` (the ``ink`` block of sequence.json).
-        Default :data:`DEFAULT_INK`.
-    geometry : NozzleGeometry, optional
-        Default ``NozzleGeometry()`` (200 µm x 5 mm nozzle, 94 µm x 20 mm reservoir side).
-
-    Returns
-    -------
-    Hydraulics
-        ``(LN, RN, LR, RR)`` in kg/m^4 and kg/(m^4 s).
-    """
-    ink = DEFAULT_INK if ink is None else ink
-    geometry = NozzleGeometry() if geometry is None else geometry
-    rho = _ink_value(ink, "density_kg_m3")
-    mu = _ink_value(ink, "viscosity_mPa_s") * 1e-3
-    r_n = geometry.inner_diameter_um * UM / 2.0
-    l_n = geometry.length_mm * 1e-3
-    r_r = geometry.reservoir_radius_um * UM
-    l_r = geometry.reservoir_length_mm * 1e-3
-    return Hydraulics(
-        LN=pipe_inertance(rho, l_n, r_n),
-        RN=pipe_resistance(mu, l_n, r_n),
-        LR=pipe_inertance(rho, l_r, r_r),
-        RR=pipe_resistance(mu, l_r, r_r),
-    )
-
-
-def default_synthetic_parameters() -> EcmParameters:
-    """The team's default synthetic physics (``identify.physics.SynthPhysics``)."""
-    from identify.physics import SynthPhysics
-
-    return SynthPhysics().ecm_parameters()
 
 
 def _params_from(la: float, ra: float, cn: float, kc: float, hyd: Hydraulics) -> EcmParameters:
@@ -282,95 +184,6 @@ class EcmData:
             u1_um_per_ms=waveform.u1_um_per_ms,
             u2_um=waveform.u2_um,
         )
-
-
-# --------------------------------------------------------------------------- simulators
-
-
-def simulate_batch(coeffs: EcmCoefficients, interval_us: float, u_um) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`identify.ecm.simulate` for the rows of ``u_um`` (m, n), sampled every
-    ``interval_us`` from rest; returns volume_nl, flow_nl_per_us of shape (m, n)."""
-    h = float(interval_us)
-    if not h > 0:
-        raise ValueError(f"interval_us must be > 0, got {interval_us!r}")
-    u = np.atleast_2d(np.asarray(u_um, dtype=float))
-    return ecm_simulate(coeffs, np.arange(u.shape[1]) * h, u)
-
-
-def pwl_response(ratios, knots_us, slope_jumps_um_per_us, t_us) -> tuple[np.ndarray, np.ndarray]:
-    """Closed-form volume and flow of Eq. (6) for a piecewise-linear displacement.
-
-    The displacement is ``u(t) = sum_i c_i (t - t_i)_+`` (ramps starting at the knots
-    ``t_i`` with slope changes ``c_i``); the response is the superposition of the analytic
-    unit-ramp response ``r(τ) = G(0) τ + G'(0) + sum_j R_j exp(p_j τ)`` (partial fractions of
-    ``G(s)/s^2``). Exact at any instant, no time step; vectorised over parameter sets.
-
-    Parameters
-    ----------
-    ratios : array_like, shape (..., 5)
-        θ of Eq. (10) in SI units (A2/A3, A1/A3, A0/A3, B1/A3, B0/A3).
-    knots_us, slope_jumps_um_per_us : array_like, shape (m,) or (..., m)
-        Knot instants (µs) and slope changes (µm/µs).
-    t_us : array_like, shape (k,) or (..., k)
-        Evaluation instants (µs).
-
-    Returns
-    -------
-    volume_nl, flow_nl_per_us : ndarray, shape (..., k)
-
-    Notes
-    -----
-    Requires distinct poles (raises ``ValueError`` when two poles nearly coincide).
-    """
-    th = np.asarray(ratios, dtype=float)
-    tu = 1e-6
-    a = th[..., :3] * np.array([tu, tu**2, tu**3])  # monic denominator in 1/µs units
-    b = th[..., 3:] * np.array([tu**2, tu**3]) * (UM / NL)  # numerator -(b1 σ + b0)
-    comp = np.zeros(th.shape[:-1] + (3, 3))
-    comp[..., 0, :] = -a
-    comp[..., 1, 0] = 1.0
-    comp[..., 2, 1] = 1.0
-    p = np.linalg.eigvals(comp)  # (..., 3) poles in 1/µs
-    scale = np.max(np.abs(p), axis=-1)
-    gaps = np.abs(p[..., [0, 0, 1]] - p[..., [1, 2, 2]])
-    if np.any(gaps < 1e-7 * scale[..., None]):
-        raise ValueError("pwl_response: repeated poles; use simulate_batch instead")
-    num = -(b[..., 0, None] * p + b[..., 1, None])  # N(p_j)
-    others = np.stack(
-        [(p[..., 0] - p[..., 1]) * (p[..., 0] - p[..., 2]),
-         (p[..., 1] - p[..., 0]) * (p[..., 1] - p[..., 2]),
-         (p[..., 2] - p[..., 0]) * (p[..., 2] - p[..., 1])],
-        axis=-1,
-    )
-    R = num / (p**2 * others)  # residues of G/s^2 at the poles
-    a2, a1, a0 = a[..., 0], a[..., 1], a[..., 2]
-    n0, n1 = -b[..., 1], -b[..., 0]  # N(0), N'(0)
-    G0 = n0 / a0
-    G1 = (n1 * a0 - n0 * a1) / a0**2
-    knots = np.asarray(knots_us, dtype=float)
-    jumps = np.asarray(slope_jumps_um_per_us, dtype=float)
-    t = np.asarray(t_us, dtype=float)
-    tau = t[..., None, :] - knots[..., :, None]  # (..., m, k)
-    on = tau > 0
-    tau_c = np.where(on, tau, 0.0)
-    e = np.exp(p[..., :, None, None] * tau_c[..., None, :, :])  # (..., 3, m, k)
-    R_ = R[..., :, None, None]
-    p_ = p[..., :, None, None]
-    ramp = G0[..., None, None] * tau_c + G1[..., None, None] + np.sum(R_ * e, axis=-3).real
-    dramp = G0[..., None, None] + np.sum(R_ * p_ * e, axis=-3).real
-    ramp = np.where(on, ramp, 0.0)
-    dramp = np.where(on, dramp, 0.0)
-    vol = np.sum(jumps[..., :, None] * ramp, axis=-2)
-    flow = np.sum(jumps[..., :, None] * dramp, axis=-2)
-    return vol, flow
-
-
-def waveform_knots(waveform: Waveform, dead_time_us: float = DEAD_TIME_US) -> tuple[np.ndarray, np.ndarray]:
-    """Knots (µs from the trigger) and slope changes (µm/µs) of Eq. (1) for :func:`pwl_response`."""
-    w = waveform
-    u1, u3 = w.u1_um_per_ms * 1e-3, w.u3_um_per_ms * 1e-3
-    knots = dead_time_us + np.array([0.0, w.rise_us, w.retract_start_us, w.end_us])
-    return knots, np.array([u1, -u1, -u3, u3])
 
 
 # --------------------------------------------------------------------------- result
@@ -518,15 +331,6 @@ def _stack(sequences: Sequence[EcmData]) -> tuple[float, np.ndarray, np.ndarray,
     return h, U, Y, mask
 
 
-def _coeffs_from_q(q, la: float, hyd: Hydraulics) -> EcmCoefficients:
-    """q = (log Ra, log CN, Kc) -> coefficients."""
-    return _params_from(la, float(np.exp(q[0])), float(np.exp(q[1])), float(q[2]), hyd).coefficients()
-
-
-def _coeff_vector(c: EcmCoefficients) -> np.ndarray:
-    return np.array([c.A3, c.A2, c.A1, c.A0, c.B1, c.B0])
-
-
 def _delta_cov(fun, q, cov_q, rel_step: float = 1e-6) -> np.ndarray:
     """Delta-method covariance of fun(q) for a covariance of q."""
     q = np.asarray(q, dtype=float)
@@ -569,7 +373,7 @@ def _fit_oe(sequences, hyd: Hydraulics, la: float, initial: EcmParameters | None
     def shape_response(ra: float, cn: float) -> np.ndarray:
         """Volume for Kc = -1 (the volume is linear in Kc)."""
         c = _params_from(la, ra, cn, -1.0, hyd).coefficients()
-        vol, _ = simulate_batch(c, h, U)
+        vol, _ = simulate_sampled(c, h, U)
         return vol[mask]
 
     def kc_star(v1: np.ndarray) -> float:
@@ -604,7 +408,7 @@ def _fit_oe(sequences, hyd: Hydraulics, la: float, initial: EcmParameters | None
     def sim_q(qf) -> np.ndarray:
         la_, ra_, cn_, kca = np.exp(qf)
         c = _params_from(la_, ra_, cn_, np.sign(kc) * kca, hyd).coefficients()
-        return simulate_batch(c, h, U)[0][mask]
+        return simulate_sampled(c, h, U)[0][mask]
 
     q_full = np.log([la, ra, cn, abs(kc)])
     J = np.empty((n_obs, 4))
@@ -631,7 +435,7 @@ def _fit_oe(sequences, hyd: Hydraulics, la: float, initial: EcmParameters | None
         ci[name] = (float(min(lo, hi)), float(max(lo, hi)))
 
     def coeff_of(q3):
-        return _coeff_vector(_params_from(la, np.exp(q3[0]), np.exp(q3[1]), np.sign(kc) * np.exp(q3[2]), hyd).coefficients())
+        return _params_from(la, np.exp(q3[0]), np.exp(q3[1]), np.sign(kc) * np.exp(q3[2]), hyd).coefficients().to_array()
 
     def ratio_of(q3):
         return _params_from(la, np.exp(q3[0]), np.exp(q3[1]), np.sign(kc) * np.exp(q3[2]), hyd).coefficients().ratios()
@@ -683,15 +487,51 @@ def delta_theta(ratios, h_s: float) -> np.ndarray:
     )
 
 
-def _delta_regressors(s: EcmData) -> tuple[np.ndarray, np.ndarray]:
+def delta_regressors(s: EcmData) -> tuple[np.ndarray, np.ndarray]:
+    """Regressors and target of Eq. (11) for one sequence.
+
+    Parameters
+    ----------
+    s : EcmData
+
+    Returns
+    -------
+    Phi : ndarray, shape (n-3, 5)
+        Rows ``[y(k-1), y(k-2), y(k-3), u(k-2), u(k-3)]`` (nl, nl, nl, µm, µm), k = 3..n-1.
+    target : ndarray, shape (n-3,)
+        ``y(k)`` (nl).
+    """
     y, u = s.volume_nl, s.u_um
     k = np.arange(3, y.size)
     Phi = np.column_stack([y[k - 1], y[k - 2], y[k - 3], u[k - 2], u[k - 3]])
     return Phi, y[k]
 
 
-def _fit_delta_one(s: EcmData, hyd: Hydraulics, la: float, h_s: float, final_value: bool = True):
-    Phi, target = _delta_regressors(s)
+def fit_delta_one(s: EcmData, hyd: Hydraulics, la: float, h_s: float, final_value: bool = True):
+    """The paper's delta-operator least squares (Eqs. 10-13) on one sequence.
+
+    Parameters
+    ----------
+    s : EcmData
+    hyd : Hydraulics
+        Known elements of Eq. (2) (SI).
+    la : float
+        Fixed La (kg/m^4).
+    h_s : float
+        Step of the delta operator (s).
+    final_value : bool
+        Eliminate Kc through Eq. (13) (True) or fit it freely.
+
+    Returns
+    -------
+    params : EcmParameters
+        Estimate (SI units).
+    rmse_1step_nl : float
+        RMS one-step (equation) error of Eq. (11) (nl).
+    success : bool
+        Whether the optimiser converged.
+    """
+    Phi, target = delta_regressors(s)
     y_ss = s.pinchoff_volume_nl * NL
     k_ss = s.pinchoff_displacement_um * UM
 
@@ -724,9 +564,9 @@ def _fit_delta(sequences, hyd: Hydraulics, la: float, h_us: float | None, final_
     h_s = (h_data if h_us is None else float(h_us)) * 1e-6
     rows = []
     for s in sequences:
-        p, rmse1, ok = _fit_delta_one(s, hyd, la, h_s, final_value)
+        p, rmse1, ok = fit_delta_one(s, hyd, la, h_s, final_value)
         c = p.coefficients()
-        vol, _ = simulate_batch(c, s.interval_us, s.u_um[None, :])
+        vol, _ = simulate_sampled(c, s.interval_us, s.u_um[None, :])
         rows.append(
             {
                 "u1_um_per_ms": s.u1_um_per_ms,
@@ -754,10 +594,10 @@ def _fit_delta(sequences, hyd: Hydraulics, la: float, h_us: float | None, final_
     eb = tq * np.sqrt(np.diag(cov_mean))
     ci = {name: (float(m - e), float(m + e)) for name, m, e in zip(PARAM_NAMES, mean, eb)}
     params = _params_from(*mean, hyd)
-    C = np.array([_coeff_vector(_params_from(*row, hyd).coefficients()) for row in P])
+    C = np.array([_params_from(*row, hyd).coefficients().to_array() for row in P])
     R = df[list(RATIO_NAMES)].to_numpy(dtype=float)
     coeffs = EcmCoefficients(*C.mean(axis=0))
-    vol, _ = simulate_batch(coeffs, h_data, U)
+    vol, _ = simulate_sampled(coeffs, h_data, U)
     resid = (vol - Y)[mask]
     return EcmFit(
         method="delta",
@@ -796,7 +636,7 @@ def fit_ecm(
         Measured sequences on a common sampling interval (e.g. 10 µs), each truncated at
         pinch-off.
     hydraulics : Hydraulics or (LN, RN, LR, RR)
-        Known elements of Eq. (2), e.g. from :func:`hydraulics_from_geometry`.
+        Known elements of Eq. (2), e.g. from :func:`identify.hydraulics.hydraulics_from_geometry`.
     method : {"oe", "delta"}
         ``"oe"``: joint output-error fit of the exact continuous-time model (default,
         consistent). ``"delta"``: the paper's per-sequence delta-operator least squares with
@@ -830,107 +670,3 @@ def fit_ecm(
     if method == "delta":
         return _fit_delta(list(sequences), hyd, float(la), h_us, final_value)
     raise ValueError(f"fit_ecm: unknown method {method!r} (use 'oe' or 'delta')")
-
-
-# --------------------------------------------------------------------------- synthetic study
-
-
-def synthetic_pinchoff_us(u1_um_per_ms: float, u2_um: float) -> float:
-    """The synthetic pinch-off law (``SynthPhysics.pinchoff_instant_us``), µs from the trigger."""
-    from identify.physics import SynthPhysics
-
-    return float(SynthPhysics().pinchoff_instant_us(u1_um_per_ms, u2_um))
-
-
-#: Campaign grid of the colour ink (Table 1).
-CAMPAIGN_U1_UM_PER_MS = np.arange(50.0, 80.0 + 1e-9, 5.0)
-CAMPAIGN_U2_UM = np.arange(20.0, 35.0 + 1e-9, 1.25)
-
-
-def synthetic_sequences(
-    params: EcmParameters | None = None,
-    u1_grid=CAMPAIGN_U1_UM_PER_MS,
-    u2_grid=CAMPAIGN_U2_UM,
-    noise_fraction: float = 0.0,
-    seed: int = 0,
-    interval_us: float = SAMPLE_INTERVAL_US,
-    dead_time_us: float = DEAD_TIME_US,
-    noise_model: str = "peak",
-) -> list[EcmData]:
-    """Noisy synthetic sequences over a (u1, u2) grid from the exact (closed-form) response.
-
-    Volumes are sampled every ``interval_us`` from the trigger up to the synthetic
-    pinch-off law; the noise is white Gaussian with standard deviation
-    ``noise_fraction * max(volume)`` of each sequence (``noise_model="peak"``, 1 % -> ~0.18
-    nl at (70, 25)) or ``noise_fraction * |volume(t)|`` (``"relative"``).
-    ``y_ss``/``K_ss`` are the (noisy) last volume and its displacement.
-    """
-    params = default_synthetic_parameters() if params is None else params
-    theta = params.coefficients().ratios()
-    rng = np.random.default_rng(seed)
-    out = []
-    for u1 in np.atleast_1d(u1_grid):
-        for u2 in np.atleast_1d(u2_grid):
-            w = Waveform(float(u1), float(u2))
-            tp = synthetic_pinchoff_us(u1, u2)
-            t = np.arange(0.0, tp + 1e-9, interval_us)
-            knots, jumps = waveform_knots(w, dead_time_us)
-            vol, _ = pwl_response(theta, knots, jumps, t)
-            if noise_model == "peak":
-                sd = noise_fraction * np.max(np.abs(vol))
-            elif noise_model == "relative":
-                sd = noise_fraction * np.abs(vol)
-            else:
-                raise ValueError(f"noise_model must be 'peak' or 'relative', got {noise_model!r}")
-            vol = vol + sd * rng.standard_normal(vol.size)
-            out.append(EcmData.from_waveform(w, t, vol, dead_time_us=dead_time_us))
-    return out
-
-
-def noise_study(
-    noise_fractions=(0.0, 0.01, 0.02),
-    methods=("oe", "delta"),
-    params: EcmParameters | None = None,
-    u1_grid=CAMPAIGN_U1_UM_PER_MS,
-    u2_grid=CAMPAIGN_U2_UM,
-    seed: int = 0,
-    noise_model: str = "peak",
-) -> pd.DataFrame:
-    """Accuracy of the estimators on synthetic data at several output-noise levels.
-
-    The dataset is :func:`synthetic_sequences` (default physics, campaign grid of 91
-    waveforms, noise per ``noise_model``).
-
-    Returns
-    -------
-    DataFrame
-        One row per (method, noise): columns ``method, noise_pct``, the relative errors (%)
-        of the five ratios ``err_A2/A3_pct .. err_B0/A3_pct`` and their maximum
-        ``max_ratio_err_pct``, of ``err_Ra_pct, err_CN_pct, err_Kc_pct`` (La fixed at its
-        true value), ``rmse_nl`` and ``ci_covers_truth`` (oe: all three 95 % intervals
-        contain the truth; delta: the interval of the mean).
-    """
-    params = default_synthetic_parameters() if params is None else params
-    truth = params.coefficients().ratios()
-    hyd = Hydraulics(params.LN, params.RN, params.LR, params.RR)
-    rows = []
-    for noise in noise_fractions:
-        data = synthetic_sequences(params, u1_grid, u2_grid, noise_fraction=noise, seed=seed, noise_model=noise_model)
-        for method in methods:
-            fit = fit_ecm(data, hyd, method=method, la=params.La)
-            err = 100 * (fit.ratios() / truth - 1)
-            row = {"method": method, "noise_pct": 100 * noise}
-            row.update({f"err_{n}_pct": e for n, e in zip(RATIO_NAMES, err)})
-            row["max_ratio_err_pct"] = float(np.max(np.abs(err)))
-            covers = True
-            for n in ("Ra", "CN", "Kc"):
-                est, tru = getattr(fit.parameters, n), getattr(params, n)
-                row[f"err_{n}_pct"] = 100 * (est / tru - 1)
-                lo, hi = fit.param_ci95[n]
-                covers &= bool(lo <= tru <= hi)
-            sd = np.sqrt(np.diag(fit.ratio_cov)) / np.abs(truth)
-            row["max_ratio_z"] = float(np.max(np.abs(err / 100) / sd)) if np.all(sd > 0) else float("inf")
-            row["rmse_nl"] = fit.rmse_nl
-            row["ci_covers_truth"] = covers
-            rows.append(row)
-    return pd.DataFrame(rows)

@@ -23,7 +23,6 @@ columns ``grown_volume_at_pinchoff_nl`` and ``flow_velocity_at_max_stroke_m_s``)
 
 from __future__ import annotations
 
-import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,10 +30,16 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from identify import __version__
+from identify.arx_selection import grid_for_dead_time, select_structure
+from identify.atomic import write_json
 from identify.dataset import Dataset, DatasetError
-from identify.ecm import EcmCoefficients, EcmParameters, flow_velocity_m_s
-from identify.montecarlo import COEFF_NAMES, OUTPUTS, ecm_response_at, modal_form, run_monte_carlo
+from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
+from identify.ecm import simulate as ecm_simulate
+from identify.ecm_fit import EcmData, fit_ecm
+from identify.montecarlo import OUTPUTS, ecm_response_at, ecm_response_at_controls, modal_form, run_monte_carlo
 from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, select_order
+from identify.versions import software_versions
 from identify.waveform import Waveform
 
 SCHEMA = "identify.hybrid-model/1"
@@ -42,10 +47,6 @@ SCHEMA = "identify.hybrid-model/1"
 
 class ModelFileError(ValueError):
     """model.json missing, unreadable or of the wrong schema."""
-
-
-def nozzle_area_m2(d_um: float) -> float:
-    return float(np.pi * (d_um * 1e-6) ** 2 / 4)
 
 
 @dataclass
@@ -95,8 +96,6 @@ class HybridModel:
         Returns the grown volume (nl) and the average flow velocity (m/s) at ``t_us``; the
         waveform is delayed by the dead time. Valid up to the pinch-off instant.
         """
-        from identify.ecm import simulate as ecm_simulate
-
         t = np.asarray(t_us, dtype=float)
         w = self.waveform(u1, u2)
         vol, flow = ecm_simulate(self.ecm_coefficients, t, w.displacement_um(t - self.dead_time_us))
@@ -107,8 +106,6 @@ class HybridModel:
 
         Columns: u1_um_per_ms, u2_um and the keys of :meth:`predict`.
         """
-        from identify.montecarlo import ecm_response_at_controls
-
         u1, u2 = np.broadcast_arrays(np.atleast_1d(np.asarray(u1, float)), np.atleast_1d(np.asarray(u2, float)))
         if np.any(~np.isfinite(u1) | ~np.isfinite(u2) | (u1 <= 0) | (u2 <= 0)):
             raise ValueError("u1 and u2 must be positive numbers")
@@ -131,6 +128,7 @@ class HybridModel:
 
     @property
     def nozzle_area_m2(self) -> float:
+        """Inner cross-section of the nozzle (m^2), :func:`identify.ecm.nozzle_area_m2`."""
         return nozzle_area_m2(self.nozzle_inner_diameter_um)
 
     # ---- serialisation --------------------------------------------------------------
@@ -193,8 +191,6 @@ class HybridModel:
 
     def to_json(self, path) -> Path:
         """Write model.json atomically."""
-        from identify.atomic import write_json
-
         return write_json(path, self.to_dict())
 
     @classmethod
@@ -234,7 +230,7 @@ class FitReport:
 
 
 # ---------------------------------------------------------------------------------------
-# adapters to identify.arx and identify.ecm_fit
+# adapters to identify.arx_selection and identify.ecm_fit
 # ---------------------------------------------------------------------------------------
 
 
@@ -267,22 +263,21 @@ def arx_sequences(ds: Dataset) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def _make_ecm_data(cls, **values):
-    """Build an ``identify.ecm_fit.EcmData`` from our values, matching its field names."""
-    names = [f.name for f in dataclasses.fields(cls)]
-    kw = {}
-    for n in names:
-        if n in values:
-            kw[n] = values[n]
-        elif "pinch" in n and "vol" in n:
-            kw[n] = values["pinchoff_volume_nl"]
-        elif "pinch" in n and ("disp" in n or n.startswith("u")):
-            kw[n] = values["pinchoff_displacement_um"]
-    return cls(**kw)
-
-
 def ecm_sequences(ds: Dataset) -> list[dict]:
-    """Per sequence: t_us (from trigger), u_um (delayed waveform), volume_nl, pinch-off values."""
+    """ECM identification data of a dataset, one dict per sequence.
+
+    Parameters
+    ----------
+    ds : Dataset
+
+    Returns
+    -------
+    list of dict
+        The fields of :class:`identify.ecm_fit.EcmData`: ``t_us`` (attached sample delays
+        from the trigger, µs), ``u_um`` (waveform delayed by the dead time, µm),
+        ``volume_nl`` (grown volume, nl), ``pinchoff_volume_nl`` (nl),
+        ``pinchoff_displacement_um`` (µm), ``u1_um_per_ms``, ``u2_um``.
+    """
     out = []
     for row, g in _sequences(ds):
         w = ds.waveform(row["u1_um_per_ms"], row["u2_um"])
@@ -304,29 +299,24 @@ def _fit_ecm(ds: Dataset, method: str, notes: list):
     hyd = ds.hydraulics()
     if hyd is None:
         raise DatasetError(
-            f"{ds._json_name()}: ink (density_kg_m3, viscosity_mPa_s) and nozzle geometry (length_mm, "
+            f"{ds.json_name}: ink (density_kg_m3, viscosity_mPa_s) and nozzle geometry (length_mm, "
             "reservoir_channel_radius_um, reservoir_channel_length_mm) are needed for Eq. (2)"
         )
-    from identify import ecm_fit as _ef
-
-    seqs = ecm_sequences(ds)
-    data = [_make_ecm_data(_ef.EcmData, **s) for s in seqs]
-    return _ef.fit_ecm(data, _ef.Hydraulics(hyd["LN"], hyd["RN"], hyd["LR"], hyd["RR"]), method=method)
+    data = [EcmData(**s) for s in ecm_sequences(ds)]
+    return fit_ecm(data, hyd, method=method)
 
 
 def _arx_select(ds: Dataset, notes: list, ranges: dict | None, folds: int, progress: bool):
-    from identify import arx as _arx
-
     seqs = arx_sequences(ds)
     if len(seqs) < 2:
         notes.append("ARX structure selection skipped: fewer than 2 sequences start at delay 0")
         return None
-    # The issue's grid (Table 2 and beyond): na 1-7, nb 1-4, nk 0..40 (and past the dead time if
-    # it is longer); the delay is found from the data, not assumed from dataset.json.
+    # identify.arx_selection.DEFAULT_GRID (Table 2 and beyond), its delays extended past the
+    # dead time if that is longer; the delay is found from the data, not assumed from dataset.json.
     nk0 = int(round(ds.dead_time_us / ds.sample_interval_us))
-    r = {"na_range": range(1, 8), "nb_range": range(1, 5), "nk_range": range(0, max(41, nk0 + 10))}
+    r = grid_for_dead_time(nk0)._asdict()
     r.update(ranges or {})
-    return _arx.select_structure(seqs, r["na_range"], r["nb_range"], r["nk_range"], folds=min(folds, len(seqs)), seed=0)
+    return select_structure(seqs, r["na_range"], r["nb_range"], r["nk_range"], folds=min(folds, len(seqs)), seed=0)
 
 
 def _param_dict(fit) -> dict | None:
@@ -373,8 +363,7 @@ def fit_hybrid(
     bar.update(1)
     efit = _fit_ecm(ds, ecm_method, notes)
     bar.update(1)
-    coeffs = efit.coefficients
-    c_arr = np.array([[getattr(coeffs, k) for k in COEFF_NAMES]])
+    c_arr = efit.coefficients.to_array()[None, :]
     modal = modal_form(c_arr)
     su = ds.summary
     u1 = su["u1_um_per_ms"].to_numpy(float)
@@ -409,12 +398,8 @@ def fit_hybrid(
     sel_q = select_order(u1, u2, vel_target, name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     bar.close()
-    from identify.versions import software_versions
-
     versions = software_versions()
-    import identify
-
-    versions["identify"] = identify.__version__
+    versions["identify"] = __version__
     arx_struct = None
     if arx_sel is not None and getattr(arx_sel, "selected", None) is not None:
         na, nb, nk = arx_sel.selected

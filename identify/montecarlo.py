@@ -21,7 +21,7 @@ volume = Re Σ r_i z_i and flow = Re Σ r_i (λ_i z_i + u). Scalar outputs at ar
 instants (pinch-off, maximum stroke) are obtained by stepping exactly through the corners of
 the waveform (:func:`ecm_response_at`, no time loop); the per-time band for plotting uses a
 time loop over (N, 3) complex arrays, compiled with numba when available
-(:func:`simulate_batch`). Samples with (nearly) repeated poles fall back to the companion
+(:func:`simulate_ensemble`). Samples with (nearly) repeated poles fall back to the companion
 form of :mod:`identify.ecm` with a matrix exponential.
 """
 
@@ -32,11 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from identify.ecm import EcmCoefficients, _companion, flow_velocity_m_s, foh_step, simulate
+from identify.ecm import COEFF_NAMES, NL, UM, EcmCoefficients, companion_form, flow_velocity_m_s, foh_step, simulate
+from identify.polynomial import sample_mvn
 from identify.waveform import Waveform
 
-COEFF_NAMES = ("A3", "A2", "A1", "A0", "B1", "B0")
-_UM_PER_NL = 1e-6 / 1e-12  # m^3 per m of displacement -> nl per µm
+_UM_PER_NL = UM / NL  # m^3 per m of displacement -> nl per µm
 _TU = 1e-6  # time unit: µs
 
 try:  # numba is optional: the numpy path gives identical results, only slower
@@ -44,11 +44,25 @@ try:  # numba is optional: the numpy path gives identical results, only slower
 except ImportError:  # pragma: no cover - depends on the installation
     _numba = None
 
+#: Whether numba is installed (:func:`simulate_ensemble` then compiles its time loop).
+HAVE_NUMBA = _numba is not None
+
 
 def coeff_array(coeffs) -> np.ndarray:
-    """(N, 6) array of (A3, A2, A1, A0, B1, B0) from an EcmCoefficients, a dict or an array."""
+    """ECM coefficient rows as an array.
+
+    Parameters
+    ----------
+    coeffs : EcmCoefficients, dict or array_like of shape (6,) or (N, 6)
+        Coefficients of Eq. (6) in SI units, order :data:`identify.ecm.COEFF_NAMES`.
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
+        (A3, A2, A1, A0, B1, B0) per row (SI units).
+    """
     if isinstance(coeffs, EcmCoefficients):
-        return np.array([[getattr(coeffs, k) for k in COEFF_NAMES]])
+        return coeffs.to_array()[None, :]
     if isinstance(coeffs, dict):
         return np.array([[float(coeffs[k]) for k in COEFF_NAMES]])
     c = np.atleast_2d(np.asarray(coeffs, dtype=float))
@@ -62,8 +76,19 @@ def coeff_array(coeffs) -> np.ndarray:
 # ---------------------------------------------------------------------------------------
 
 
-def _cubic_roots(a2, a1, a0) -> np.ndarray:
-    """Roots of s^3 + a2 s^2 + a1 s + a0 (real coefficient arrays of shape (N,)), (N, 3) complex."""
+def cubic_roots(a2, a1, a0) -> np.ndarray:
+    """Roots of the monic cubics s^3 + a2 s^2 + a1 s + a0, closed form polished by Newton steps.
+
+    Parameters
+    ----------
+    a2, a1, a0 : ndarray, shape (N,)
+        Real coefficients (units of 1/time, 1/time^2, 1/time^3; 1/µs here).
+
+    Returns
+    -------
+    ndarray, shape (N, 3), complex
+        The roots (1/time unit), the real root first.
+    """
     scale = np.maximum(np.abs(a0) ** (1 / 3), np.maximum(np.abs(a1) ** 0.5, np.abs(a2)))
     scale = np.where(scale > 0, scale, 1.0)
     b2, b1, b0 = a2 / scale, a1 / scale**2, a0 / scale**3
@@ -138,7 +163,7 @@ def modal_form(coeffs) -> ModalEcm:
         raise ValueError("ECM coefficients must be finite with A3 != 0")
     a2, a1, a0 = c[:, 1] / A3 * _TU, c[:, 2] / A3 * _TU**2, c[:, 3] / A3 * _TU**3
     n1, n0 = -c[:, 4] / A3 * _TU**2 * _UM_PER_NL, -c[:, 5] / A3 * _TU**3 * _UM_PER_NL
-    lam = _cubic_roots(a2, a1, a0)
+    lam = cubic_roots(a2, a1, a0)
     # real cubic: roots are one real root and a conjugate pair, or three real roots; make
     # that exact (the time loop uses it to halve the work)
     lam[:, 0] = lam[:, 0].real
@@ -190,7 +215,7 @@ def _segments(w: Waveform):
 def _companion_response_at(c_row: np.ndarray, w: Waveform, tau: float) -> tuple[float, float]:
     """Reference path (one sample): exact stepping of the companion form through the corners."""
     coeffs = EcmCoefficients(*c_row)
-    A, B, C = _companion(coeffs, _TU)
+    A, B, C = companion_form(coeffs, _TU)
     n = 3
     x = np.zeros(n)
     for a, b, u0, s in _segments(w):
@@ -313,11 +338,28 @@ def _loop_numpy(a, g0, g1, res, rl, u, s, vol, flow):
         flow[:, k + 1] = np.real(np.sum(rl * z, axis=1) + sr * u[k + 1])
 
 
-def simulate_batch(coeffs, t_us, u_um, *, use_numba: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Simulate Eq. (6) from rest for N coefficient rows and one input on a uniform grid.
+def simulate_ensemble(coeffs, t_us, u_um, *, use_numba: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Simulate Eq. (6) from rest for N coefficient rows (an ensemble of ECMs) and one input.
 
     Same semantics as :func:`identify.ecm.simulate` (first-order hold, exact for the
-    trapezoidal waveform), batched: returns ``volume_nl, flow_nl_per_us`` of shape (N, n).
+    trapezoidal waveform), batched over the models; for one model and many inputs see
+    :func:`identify.ecm.simulate_sampled`.
+
+    Parameters
+    ----------
+    coeffs : ModalEcm, EcmCoefficients or array_like of shape (N, 6)
+        ECM coefficient rows (SI units) or their modal form.
+    t_us : array_like, shape (n,)
+        Uniformly spaced times (µs).
+    u_um : array_like, shape (n,)
+        Piston displacement at ``t_us`` (µm), already delayed by any dead time.
+    use_numba : bool, optional
+        Compile the time loop with numba (default: when installed, :data:`HAVE_NUMBA`).
+
+    Returns
+    -------
+    volume_nl, flow_nl_per_us : ndarray, shape (N, n)
+        Growing volume (nl) and flow (nl/µs) of each model.
     """
     modal = coeffs if isinstance(coeffs, ModalEcm) else modal_form(coeffs)
     t = np.asarray(t_us, dtype=float)
@@ -340,8 +382,8 @@ def simulate_batch(coeffs, t_us, u_um, *, use_numba: bool | None = None) -> tupl
     s = np.diff(u) / h
     rl = modal.res * modal.lam
     if use_numba is None:
-        use_numba = _numba is not None
-    if use_numba and _numba is not None:
+        use_numba = HAVE_NUMBA
+    if use_numba and HAVE_NUMBA:
         _loop_numba(a, g0, g1, modal.res, rl, u, s, vol, flow)
     else:
         _loop_numpy(a, g0, g1, modal.res, rl, u, s, vol, flow)
@@ -356,8 +398,6 @@ def sample_ecm_coefficients(nominal, cov, n: int, rng: np.random.Generator) -> n
     ``cov`` is the 6x6 covariance of (A3, A2, A1, A0, B1, B0); it may be singular (the six
     coefficients depend on four identified physical parameters).
     """
-    from identify.polynomial import sample_mvn
-
     c0 = coeff_array(nominal)[0]
     cov = np.asarray(cov, dtype=float)
     if cov.shape != (6, 6) or not np.all(np.isfinite(cov)):
@@ -463,8 +503,8 @@ def run_monte_carlo(
         t = np.arange(0.0, t_end + h, h)
         u = w.displacement_um(t - dead)
         nb = min(band_samples, coeffs.shape[0])
-        vol, flow = simulate_batch(coeffs[:nb], t, u)
-        vnom, fnom = simulate_batch(c_nom, t, u)
+        vol, flow = simulate_ensemble(coeffs[:nb], t, u)
+        vnom, fnom = simulate_ensemble(c_nom, t, u)
         vel = flow_velocity_m_s(flow, d_um)
         lo, hi = (np.percentile(vol, [2.5, 97.5], axis=0)) if nb > 1 else (vol[0], vol[0])
         vlo, vhi = (np.percentile(vel, [2.5, 97.5], axis=0)) if nb > 1 else (vel[0], vel[0])

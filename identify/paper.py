@@ -96,8 +96,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from identify.ecm import EcmCoefficients, EcmParameters, flow_velocity_m_s
-from identify.ecm_fit import Hydraulics, pwl_response, waveform_knots
+from identify.ecm import COEFF_NAMES, EcmCoefficients, EcmParameters, flow_velocity_m_s, pwl_response, waveform_knots
+from identify.hydraulics import Hydraulics
 from identify.waveform import DEAD_TIME_US, SAMPLE_INTERVAL_US, Waveform
 
 
@@ -143,14 +143,14 @@ class PaperModel:
     def coefficient_eb_from_table3(self) -> dict:
         """95 % bounds of A3..B0 propagated linearly from independent Table 3 bounds."""
         p0 = self.parameters()
-        base = np.array(list(p0.coefficients().to_dict().values()))
+        base = p0.coefficients().to_array()
         var = np.zeros(6)
         for name in ("La", "Ra", "CN", "Kc"):
             step = 1e-6 * getattr(p0, name)
             hi = EcmParameters(**{**p0.to_dict(), name: getattr(p0, name) + step})
-            d = (np.array(list(hi.coefficients().to_dict().values())) - base) / step
+            d = (hi.coefficients().to_array() - base) / step
             var += (d * self.table3_eb[name]) ** 2
-        return dict(zip(("A3", "A2", "A1", "A0", "B1", "B0"), np.sqrt(var)))
+        return dict(zip(COEFF_NAMES, np.sqrt(var)))
 
     def pinchoff_instant(self, u1_um_per_ms, u2_um):
         """Unrounded k_p of Eq. (15) (samples from the trigger)."""
@@ -259,8 +259,20 @@ def _stats(x) -> dict:
     return {"mean": float(x.mean()), "std": float(x.std()), "low": float(x.min()), "high": float(x.max())}
 
 
-def _pair_stats(a, b) -> dict:
-    """Statistics of a_i + b_j over all pairs (exact, without forming them)."""
+def pair_stats(a, b) -> dict:
+    """Statistics of a_i + b_j over all pairs (exact, without forming them).
+
+    Parameters
+    ----------
+    a, b : array_like
+        Samples of two independent quantities in the same unit (e.g. nl).
+
+    Returns
+    -------
+    dict
+        ``{"mean", "std", "low", "high"}`` of all sums a_i + b_j (unit of the inputs); std
+        is the population standard deviation.
+    """
     a, b = np.asarray(a, float), np.asarray(b, float)
     return {
         "mean": float(a.mean() + b.mean()),
@@ -344,8 +356,8 @@ def paper_prediction(
         "grown_volume_at_pinchoff_mc_nl": _stats(vol_mc),
         "flow_velocity_at_max_stroke_m_s": float(vel0),
         "flow_velocity_at_max_stroke_mc_m_s": _stats(vel_mc),
-        "inflight_volume_nl": _pair_stats(vol_mc, vadj),
-        "jetting_velocity_m_s": _pair_stats(vel_mc, jadj),
+        "inflight_volume_nl": pair_stats(vol_mc, vadj),
+        "jetting_velocity_m_s": pair_stats(vel_mc, jadj),
         "simulation": simulation,
         "instant_origin": "trigger",
         "samples": int(n**4),

@@ -21,7 +21,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline
 
-from identify.ecm import EcmParameters, flow_velocity_m_s, pipe_inertance, pipe_resistance, simulate
+from identify.ecm import EcmParameters, flow_velocity_m_s, simulate
+from identify.hydraulics import hydraulics_from_dimensions
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
 
 __all__ = ["SynthPhysics", "DropHistory", "drop_history"]
@@ -109,14 +110,19 @@ class SynthPhysics:
         return 0.5 * self.nozzle_outer_diameter_um
 
     def ecm_parameters(self) -> EcmParameters:
-        """ECM parameters (SI) from Eq. (2) and the resonance/piston ratios documented above."""
-        rho, mu = self.density_kg_m3, self.viscosity_mpa_s * 1e-3
-        r_n = self.nozzle_inner_radius_um * 1e-6
-        l_n = self.nozzle_length_mm * 1e-3
-        r_r = self.reservoir_channel_radius_um * 1e-6
-        l_r = self.reservoir_channel_length_mm * 1e-3
-        LN, RN = pipe_inertance(rho, l_n, r_n), pipe_resistance(mu, l_n, r_n)
-        LR, RR = pipe_inertance(rho, l_r, r_r), pipe_resistance(mu, l_r, r_r)
+        """ECM parameters (SI) from Eq. (2) and the resonance/piston ratios documented above.
+
+        Returns
+        -------
+        EcmParameters
+            La, LN, LR in kg/m^4; Ra, RN, RR in kg/(m^4 s); CN in m^4 s^2/kg; Kc in
+            kg/(m^2 s^2). LN, RN, LR, RR from
+            :func:`identify.hydraulics.hydraulics_from_dimensions`.
+        """
+        LN, RN, LR, RR = hydraulics_from_dimensions(
+            self.density_kg_m3, self.viscosity_mpa_s, self.nozzle_inner_diameter_um,
+            self.nozzle_length_mm, self.reservoir_channel_radius_um, self.reservoir_channel_length_mm,
+        )
         CN = 1.0 / ((2 * np.pi * self.meniscus_resonance_hz) ** 2 * (LN + LR))
         La = self.piston_inertance_kg_m4
         return EcmParameters(La=La, Ra=self.piston_loss_ratio_per_s * La, CN=CN,

@@ -30,6 +30,8 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
+from identify.kfold import grouped_kfold
+
 #: Candidate orders of Tables 4-6.
 DEFAULT_ORDERS = ((1, 1), (1, 2), (1, 3), (2, 1), (2, 2), (2, 3))
 
@@ -257,17 +259,6 @@ def fit_polynomial(u1, u2, z, n1: int, n2: int, *, name: str = "z", unit: str = 
     )
 
 
-def kfold_groups(groups: np.ndarray, folds: int, seed: int) -> list[np.ndarray]:
-    """Split sample indices into ``folds`` folds, keeping samples of one group together."""
-    uniq, inv = np.unique(groups, return_inverse=True, axis=0)
-    inv = np.asarray(inv).ravel()
-    k = min(folds, len(uniq))
-    order = np.random.default_rng(seed).permutation(len(uniq))
-    fold_of_group = np.empty(len(uniq), int)
-    fold_of_group[order] = np.arange(len(uniq)) % k
-    return [np.flatnonzero(fold_of_group[inv] == f) for f in range(k)]
-
-
 @dataclass
 class OrderSelection:
     """Result of :func:`select_order`: the CV table (Tables 4-6) and the chosen fit.
@@ -292,9 +283,10 @@ def select_order(
     """10-fold cross-validation over candidate orders, then a fit of the chosen order on all data.
 
     Folds keep repeated measurements of one (u1, u2) together, so validation points are
-    always unseen controls. The chosen order is the one with the fewest terms whose mean
-    validation RMSE is within ``tolerance`` (relative) of the best (the paper's "comparable
-    RMSE with a simpler structure").
+    always unseen controls (:func:`identify.kfold.grouped_kfold`, round-robin layout). The
+    chosen order is the one with the fewest terms whose mean validation RMSE is within
+    ``tolerance`` (relative) of the best (the paper's "comparable RMSE with a simpler
+    structure").
 
     Raises
     ------
@@ -302,7 +294,7 @@ def select_order(
         If no candidate order can be fitted on the data.
     """
     u1, u2, z = _check_inputs(u1, u2, z, name)
-    splits = kfold_groups(np.column_stack([u1, u2]), folds, seed)
+    splits = grouped_kfold(np.column_stack([u1, u2]), folds, seed, layout="round_robin")
     rows = []
     for n1, n2 in orders:
         tr, va = [], []

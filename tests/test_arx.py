@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify.arx import ArxModel, evaluate, fit_arx, fit_percent, rmse, select_structure
-from identify.ecm import _companion, simulate
+from identify.arx import ArxModel, evaluate, fit_arx
+from identify.arx_selection import select_structure
+from identify.ecm import companion_form, simulate
+from identify.metrics import fit_percent, rmse
 from identify.waveform import Waveform
 
 TS_US = 10.0
@@ -271,7 +273,7 @@ def test_noise_free_ecm_is_exact_foh_arx_with_nk_22():
     for u1, u2 in grid:
         assert (1000 * u2 / u1) % TS_US == 0
     seqs, _ = _ecm_sequences(grid, 0.0, 0, fine_us=TS_US)
-    A, B, C = _companion(_ecm_params().coefficients(), 1e-6)
+    A, B, C = companion_form(_ecm_params().coefficients(), 1e-6)
     num, den = signal.ss2tf(*signal.cont2discrete((A, B[:, None], C[None, :], np.zeros((1, 1))), TS_US, method="foh")[:4])
     num = num.ravel()
     m = fit_arx(seqs, 3, 4, DEAD_TIME_SAMPLES)
@@ -306,7 +308,7 @@ def ecm_selection():
 def test_ecm_structure_selection_recovers_third_order_two_terms_and_delay(ecm_selection):
     sel, sigma, elapsed, seqs = ecm_selection
     # expected delay for nb = 2 from the exact FOH numerator (corners off-grid change little)
-    A, B, C = _companion(_ecm_params().coefficients(), 1e-6)
+    A, B, C = companion_form(_ecm_params().coefficients(), 1e-6)
     num, _ = signal.ss2tf(*signal.cont2discrete((A, B[:, None], C[None, :], np.zeros((1, 1))), TS_US, method="foh")[:4])
     nk_expected = DEAD_TIME_SAMPLES + _two_tap_delay(num.ravel())
     assert nk_expected == 23

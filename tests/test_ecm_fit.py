@@ -6,24 +6,10 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify.ecm import EcmParameters, pipe_inertance, pipe_resistance, simulate
-from identify.ecm_fit import (
-    EcmData,
-    EcmFit,
-    Hydraulics,
-    NozzleGeometry,
-    _delta_regressors,
-    _fit_delta_one,
-    default_synthetic_parameters,
-    delta_theta,
-    fit_ecm,
-    hydraulics_from_geometry,
-    noise_study,
-    pwl_response,
-    simulate_batch,
-    synthetic_sequences,
-    waveform_knots,
-)
+from ecm_study import default_synthetic_parameters, noise_study, synthetic_sequences
+from identify.ecm import EcmParameters, pwl_response, simulate, simulate_sampled, waveform_knots
+from identify.ecm_fit import EcmData, EcmFit, delta_regressors, delta_theta, fit_delta_one, fit_ecm
+from identify.hydraulics import Hydraulics, NozzleGeometry, hydraulics_from_geometry, pipe_inertance, pipe_resistance
 from identify.waveform import Waveform
 
 P = default_synthetic_parameters()
@@ -44,11 +30,11 @@ def test_hydraulics_from_geometry_eq2():
         NozzleGeometry(length_mm=-1)
 
 
-def test_simulate_batch_equals_ecm_simulate():
+def test_simulate_sampled_equals_ecm_simulate():
     c = P.coefficients()
     t = np.arange(0.0, 1200.0, 10.0)
     U = np.vstack([Waveform(u1, u2).displacement_um(t - 220.0) for u1, u2 in [(70, 25), (50, 35), (80, 20)]])
-    vol, flow = simulate_batch(c, 10.0, U)
+    vol, flow = simulate_sampled(c, 10.0, U)
     for i in range(3):
         v1, f1 = simulate(c, t, U[i])
         np.testing.assert_allclose(vol[i], v1, atol=1e-10)
@@ -82,7 +68,7 @@ def test_delta_fit_recovers_euler_model_exactly():
     for k in range(3, t.size):
         y[k] = th[:3] @ y[k - 3 : k][::-1] + th[3] * u[k - 2] + th[4] * u[k - 3]
     s = EcmData(t, u, y, c.static_gain_nl_per_um() * u[-1], u[-1])
-    p, rmse, ok = _fit_delta_one(s, HYD, P.La, 10e-6)
+    p, rmse, ok = fit_delta_one(s, HYD, P.La, 10e-6)
     assert ok and rmse < 1e-9
     for name in ("Ra", "CN", "Kc"):
         assert getattr(p, name) == pytest.approx(getattr(P, name), rel=1e-6)
@@ -96,8 +82,8 @@ def test_scaling_invariance_la_not_identifiable():
 
 def test_delta_optimizer_reaches_a_minimum_below_truth():
     s = synthetic_sequences(u1_grid=[70], u2_grid=[25], noise_fraction=0.01, seed=3)[0]
-    p, rmse, _ = _fit_delta_one(s, HYD, P.La, 10e-6)
-    Phi, target = _delta_regressors(s)
+    p, rmse, _ = fit_delta_one(s, HYD, P.La, 10e-6)
+    Phi, target = delta_regressors(s)
     kc13 = -s.pinchoff_volume_nl * 1e-12 * P.Ra / (s.pinchoff_displacement_um * 1e-6 * P.CN * P.RR)
     truth13 = EcmParameters(**{**P.to_dict(), "Kc": kc13})
     r_true = target - Phi @ delta_theta(truth13.coefficients().ratios(), 10e-6)

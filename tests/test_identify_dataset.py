@@ -45,7 +45,7 @@ def test_roundtrip_and_truth(ds_dir):
     assert p.damping_ratio() == pytest.approx(0.2, abs=0.01)
     assert p.natural_frequency_hz() == pytest.approx(800.0)
     hyd = ds.hydraulics()
-    assert hyd["LN"] == pytest.approx(p.LN) and hyd["RR"] == pytest.approx(p.RR)
+    assert hyd.LN == pytest.approx(p.LN) and hyd.RR == pytest.approx(p.RR)
     # attached rows have finite volumes, detached rows NaN
     ts = ds.timeseries
     assert ts.loc[ts.attached, "grown_volume_nl"].notna().all()

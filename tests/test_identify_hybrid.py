@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from identify.dataset import _ecm_truth, default_physics, load_dataset, make_synthetic_dataset
+from identify.dataset import default_physics, ecm_truth, load_dataset, make_synthetic_dataset
 from identify.ecm import flow_velocity_m_s
 from identify.hybrid import HybridModel, ModelFileError, fit_hybrid
 
@@ -28,7 +28,7 @@ def report(dataset):
 def _truth(u1, u2):
     ph = default_physics()
     tp = float(ph.pinchoff_instant_us(u1, u2))
-    _, _, vp, qm = _ecm_truth(ph, u1, u2, np.arange(0.0, 100.0, 10.0), tp)
+    _, _, vp, qm = ecm_truth(ph, u1, u2, np.arange(0.0, 100.0, 10.0), tp)
     return {
         "pinchoff_us": tp,
         "grown_volume_at_pinchoff_nl": vp,

@@ -6,12 +6,12 @@ import pytest
 from identify.dataset import default_physics
 from identify.ecm import EcmCoefficients, simulate
 from identify.montecarlo import (
-    _cubic_roots,
+    cubic_roots,
     coeff_array,
     ecm_response_at,
     modal_form,
     sample_ecm_coefficients,
-    simulate_batch,
+    simulate_ensemble,
 )
 from identify.waveform import Waveform
 
@@ -28,7 +28,7 @@ def test_batch_matches_reference(use_numba):
     w = Waveform(70.0, 25.0)
     t = np.arange(0.0, 2000.0, 10.0)
     u = w.displacement_um(t - 220.0)
-    vol, flow = simulate_batch(C, t, u, use_numba=use_numba)
+    vol, flow = simulate_ensemble(C, t, u, use_numba=use_numba)
     for i in range(C.shape[0]):
         v, f = simulate(EcmCoefficients(*C[i]), t, u)
         np.testing.assert_allclose(vol[i], v, rtol=0, atol=1e-9 * np.abs(v).max())
@@ -78,7 +78,7 @@ def test_repeated_poles_fallback():
     t = np.arange(0.0, 1600.0, 10.0)
     u = w.displacement_um(t - 220.0)
     v, f = simulate(EcmCoefficients(*c[0]), t, u)
-    vb, fb = simulate_batch(c, t, u)
+    vb, fb = simulate_ensemble(c, t, u)
     np.testing.assert_allclose(vb[0], v, atol=1e-9 * np.abs(v).max())
     va, _ = ecm_response_at(c, w, t[100] - 220.0)
     assert va[0] == pytest.approx(v[100], rel=1e-9)
@@ -88,7 +88,7 @@ def test_repeated_poles_fallback():
 def test_cubic_roots_against_numpy():
     rng = np.random.default_rng(5)
     a = rng.uniform(0.1, 3.0, (200, 3))
-    r = _cubic_roots(a[:, 0], a[:, 1], a[:, 2])
+    r = cubic_roots(a[:, 0], a[:, 1], a[:, 2])
     for i in range(200):
         ref = np.roots([1.0, *a[i]])
         dist = np.abs(r[i][:, None] - ref[None, :])
@@ -115,6 +115,6 @@ def test_three_real_poles(use_numba):
     t = np.arange(0.0, 2000.0, 10.0)
     u = w.displacement_um(t - 220.0)
     v, f = simulate(EcmCoefficients(*c[0]), t, u)
-    vb, fb = simulate_batch(c, t, u, use_numba=use_numba)
+    vb, fb = simulate_ensemble(c, t, u, use_numba=use_numba)
     np.testing.assert_allclose(vb[0], v, atol=1e-9 * np.abs(v).max())
     np.testing.assert_allclose(fb[0], f, atol=1e-9 * np.abs(f).max())

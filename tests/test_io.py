@@ -1,4 +1,5 @@
-"""Strobe-sequence reader/writer (dropvision.io): containers, delays, order, orientation, errors."""
+"""Strobe-sequence reading and writing (dropvision.sequence, .readers, .writers): containers,
+delays, order, orientation, errors."""
 
 import json
 import pickle
@@ -9,12 +10,12 @@ import numpy as np
 import pytest
 import tifffile
 
-import dropvision.io as dio
-from dropvision.io import (
+import dropvision.readers.png as png_reader
+from dropvision.sequence import (
     RGBConvertedWarning, SequenceError, canonical_to_original, from_canonical, open_sequence,
-    original_to_canonical, parse_delay_from_name, to_canonical, write_image,
-    write_multipage_tiff, write_sequence_json,
+    original_to_canonical, parse_delay_from_name, to_canonical,
 )
+from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
 
 RNG = np.random.default_rng(12345)
 
@@ -68,7 +69,7 @@ def test_multipage_tiff_delays_from_pages(tmp_path, ome):
         assert m.reordered
         for fr in seq:
             np.testing.assert_array_equal(fr.image, pages[fr.ref.page])
-        assert not seq._tiff_cache  # closed after iteration
+        assert not seq.open_files  # closed after iteration
 
 
 def test_ome_delta_t_units_converted(tmp_path):
@@ -89,10 +90,10 @@ def test_frames_list_pages_use_cached_tiff_and_close(tmp_path):
         {"file": "stack.tif", "page": 0, "delay_us": 7.0}]})
     seq = open_sequence(tmp_path)
     np.testing.assert_array_equal(seq.read(0).image, pages[2])
-    assert "stack.tif" in seq._tiff_cache
+    assert "stack.tif" in seq.open_files
     np.testing.assert_array_equal(seq.read(1).image, pages[0])
     seq.close()
-    assert not seq._tiff_cache
+    assert not seq.open_files
     np.testing.assert_array_equal(seq.read(1).image, pages[0])  # reopens after close
     seq.close()
 
@@ -211,8 +212,8 @@ def test_write_sequence_json_atomic_schema_nan(tmp_path):
 def test_open_decodes_only_first_frame(tmp_path, monkeypatch):
     _seq(tmp_path, [f"f{i}.png" for i in range(5)], [0, 1, 2, 3, 4])
     calls = []
-    real = dio._read_png
-    monkeypatch.setattr(dio, "_read_png", lambda path: calls.append(str(path)) or real(path))
+    real = png_reader.read_png
+    monkeypatch.setattr(png_reader, "read_png", lambda path: calls.append(str(path)) or real(path))
     seq = open_sequence(tmp_path)
     assert len(calls) == 1 and calls[0].endswith("f0.png")
     it = iter(seq)

@@ -11,7 +11,7 @@ from test_measure_draw import cap, cylinder, render, sphere, spheroid, volume_px
 
 
 def _detached_volumes(img, level, bg, sigma, tilt_rad=0.0):
-    thr = 0.5 * (1 + level)
+    thr = sg.edge_threshold(level)
     b_img = np.full(img.shape, bg, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     out = []

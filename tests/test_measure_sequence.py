@@ -10,8 +10,9 @@ import pandas as pd
 import pytest
 
 from dropvision.app.cli import main
-from dropvision.io import SequenceError
-from dropvision.measure import FRAME_COLUMNS, MeasureResult, measure_sequence
+from dropvision.sequence import SequenceError
+from dropvision.measure import MeasureResult, measure_sequence
+from dropvision.summary import FRAME_COLUMNS
 
 # ../shared/ beside the repository (as CI checks it out), else the workplace copy
 _SHARED = [Path(__file__).resolve().parents[2] / "shared", Path("/work/shared")]

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify.ecm import pipe_inertance, pipe_resistance
-from identify.paper import PAPER_COLOUR_INK, _pair_stats, ecm_at_pinchoff, paper_prediction
+from identify.hydraulics import pipe_inertance, pipe_resistance
+from identify.paper import PAPER_COLOUR_INK, ecm_at_pinchoff, pair_stats, paper_prediction
 from identify.waveform import Waveform
 
 M = PAPER_COLOUR_INK
@@ -107,7 +107,7 @@ def test_pair_stats_equal_brute_force():
     rng = np.random.default_rng(1)
     a, b = rng.normal(size=40), rng.uniform(size=30)
     s = (a[:, None] + b[None, :]).ravel()
-    got = _pair_stats(a, b)
+    got = pair_stats(a, b)
     assert got["mean"] == pytest.approx(s.mean())
     assert got["std"] == pytest.approx(s.std())
     assert got["low"] == pytest.approx(s.min()) and got["high"] == pytest.approx(s.max())

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from dropvision.png import PngError, decode_grey_png
+from dropvision.readers.png import PngError, decode_grey_png
 
 
 def _chunk(ctype: bytes, payload: bytes) -> bytes:

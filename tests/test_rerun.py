@@ -48,7 +48,7 @@ from rrdtools import Rrd  # noqa: E402  (reader shared with other tests)
 
 
 @dataclass(frozen=True)
-class FrameRefLike:  # same fields as dropvision.io.FrameRef (interfaces.md)
+class FrameRefLike:  # same fields as dropvision.sequence.FrameRef (interfaces.md)
     index: int
     file: str
     page: int | None

@@ -6,7 +6,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dropvision.io import open_sequence
+from dropvision.sequence import open_sequence
 from dropvision.synth import SynthConfig, SynthPhysics, drop_history, synthesize, write_synthetic_sequence
 from dropvision.synth.render import CameraGeometry, body_coverage
 from dropvision.synth.sequence import TRUTH_COLUMNS

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from identify.ecm import pipe_inertance, pipe_resistance, simulate
+from identify.ecm import simulate
+from identify.hydraulics import pipe_inertance, pipe_resistance
 from identify.waveform import Waveform
 
 

@@ -4,7 +4,7 @@
 
 Renders a default synthetic sequence (640 x 1024, 8-bit PNG), then on ONE core (one thread):
 
-- PNG decoding alone: libpng (cv2.imread) vs dropvision's reader (`dropvision.png`, checked
+- PNG decoding alone: libpng (cv2.imread) vs dropvision's reader (`dropvision.readers.png`, checked
   bit-identical on every 20th frame);
 - baseline: cv2 PNG decode (also skimage.io.imread, the plain choice), Otsu threshold, fill holes, label, regionprops, whole-pixel row
   widths (V = sum pi (w/2)^2) per body;
@@ -54,7 +54,7 @@ def baseline_frame(img: np.ndarray) -> list[float]:
 
 def _peak_rss_mb(seq: Path, workers: int) -> float:
     code = (
-        "import resource, sys; from dropvision.measure import measure_sequence, MeasureConfig;"
+        "import resource, sys; from dropvision.measure import measure_sequence; from dropvision.config import MeasureConfig;"
         f"measure_sequence({str(seq)!r}, config=MeasureConfig(workers={workers}));"
         "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
     )
@@ -72,8 +72,10 @@ def main(argv=None) -> int:
     import cv2
 
     cv2.setNumThreads(1)
-    from dropvision.io import open_sequence
-    from dropvision.measure import MeasureConfig, measure_frame, measure_sequence
+    from dropvision.sequence import open_sequence
+    from dropvision.config import MeasureConfig
+    from dropvision.frame import measure_frame
+    from dropvision.measure import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     tmp = tempfile.TemporaryDirectory()
@@ -97,7 +99,7 @@ def main(argv=None) -> int:
         baseline_frame(sk_imread(str(f)))
     base_e2e_sk = n / (time.perf_counter() - t)
     # --- PNG decoding alone: libpng (cv2) vs dropvision's reader (bit-identical, checked)
-    from dropvision.io import _read_png
+    from dropvision.readers.png import read_png
 
     t = time.perf_counter()
     for f in files:
@@ -105,10 +107,10 @@ def main(argv=None) -> int:
     dec_libpng = (time.perf_counter() - t) / n * 1e3
     t = time.perf_counter()
     for f in files:
-        _read_png(f)
+        read_png(f)
     dec_ours = (time.perf_counter() - t) / n * 1e3
     for f in files[:: max(1, n // 20)]:
-        if not np.array_equal(_read_png(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
+        if not np.array_equal(read_png(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
             raise AssertionError(f"{f}: dropvision's PNG decode differs from libpng")
     # --- dropvision end to end, one thread
     t = time.perf_counter()
@@ -177,8 +179,8 @@ def main(argv=None) -> int:
 
 def _context(seq: Path):
     """The per-frame context `measure_sequence` builds (calibration on the spread frames)."""
-    from dropvision.io import open_sequence
-    from dropvision.measure import calibrate_sequence
+    from dropvision.sequence import open_sequence
+    from dropvision.context import calibrate_sequence
 
     return calibrate_sequence(open_sequence(seq))[2]
 

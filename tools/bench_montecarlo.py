@@ -42,7 +42,7 @@ def main(argv=None) -> int:
 
     from identify.dataset import default_physics
     from identify.ecm import EcmCoefficients, simulate
-    from identify.montecarlo import _numba, coeff_array, ecm_response_at, modal_form, simulate_batch
+    from identify.montecarlo import HAVE_NUMBA, coeff_array, ecm_response_at, modal_form, simulate_ensemble
     from identify.waveform import Waveform
 
     try:
@@ -55,11 +55,11 @@ def main(argv=None) -> int:
     w = Waveform(70.0, 25.0)
     t = np.arange(args.steps) * 10.0
     u = w.displacement_um(t - 220.0)
-    simulate_batch(C[:2], t, u)  # compile numba outside the timing
+    simulate_ensemble(C[:2], t, u)  # compile numba outside the timing
 
     t_modal, modal = _best(lambda: modal_form(C), args.repeat)
-    t_loop, (vol, flow) = _best(lambda: simulate_batch(modal, t, u), args.repeat)
-    t_np, _ = _best(lambda: simulate_batch(modal, t, u, use_numba=False), max(1, args.repeat // 2))
+    t_loop, (vol, flow) = _best(lambda: simulate_ensemble(modal, t, u), args.repeat)
+    t_np, _ = _best(lambda: simulate_ensemble(modal, t, u, use_numba=False), max(1, args.repeat // 2))
     tau = 1050.0 - 220.0 + rng.standard_normal(args.samples)
     t_at, _ = _best(lambda: (ecm_response_at(modal, w, tau), ecm_response_at(modal, w, w.max_stroke_us)), args.repeat)
 
@@ -70,9 +70,9 @@ def main(argv=None) -> int:
     err = max(np.abs(vol[i] - ref[i][0]).max() / np.abs(ref[i][0]).max() for i in range(len(sub)))
 
     n, m = args.samples, args.steps
-    print(f"{n} ECM simulations x {m} samples, one core (numba {'yes' if _numba else 'no'})")
+    print(f"{n} ECM simulations x {m} samples, one core (numba {'yes' if HAVE_NUMBA else 'no'})")
     print(f"  modal form (roots + residues)     {1e3 * t_modal:8.2f} ms")
-    print(f"  time loop ({'numba' if _numba else 'numpy'})               {1e3 * t_loop:8.2f} ms")
+    print(f"  time loop ({'numba' if HAVE_NUMBA else 'numpy'})               {1e3 * t_loop:8.2f} ms")
     print(f"  total batched simulation          {1e3 * (t_modal + t_loop):8.2f} ms   (target <= 20 ms)")
     print(f"  time loop, numpy fallback         {1e3 * t_np:8.2f} ms")
     print(f"  exact outputs at pinch-off + max stroke (no time loop) {1e3 * t_at:8.2f} ms")

@@ -28,7 +28,6 @@ half-written shard. Re-running resumes: a sequence whose shard carries the same 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import hashlib
 import json
@@ -132,8 +131,10 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
     Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
     metadata needed for the dataset, and the summary values.
     """
-    from dropvision.io import open_sequence
-    from dropvision.measure import MeasureConfig, measure_sequence, write_result
+    from dropvision.sequence import open_sequence
+    from dropvision.config import MeasureConfig
+    from dropvision.measure import measure_sequence
+    from dropvision.output import write_result
 
     try:
         meta = open_sequence(seq_dir).meta
@@ -342,7 +343,7 @@ def run_campaign(
     """
     from tqdm import tqdm
 
-    from dropvision.measure import MeasureConfig
+    from dropvision.config import MeasureConfig
 
     config = config or MeasureConfig()
     if workers != 1 or dask_local is not None or scheduler is not None:
@@ -457,74 +458,3 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
         for future in tqdm(as_completed(futures), total=len(futures), desc="rendering sequences", unit="seq", disable=not progress):
             done.append(Path(future.result()))
     return sorted(done)
-
-
-# ----------------------------------------------------------------------------- CLI
-def _add_executor_args(p: argparse.ArgumentParser) -> None:
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores; 1 = serial)")
-    g.add_argument("--dask-local", type=int, default=None, metavar="N", help="start a Dask LocalCluster with N workers")
-    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786", help="use an existing Dask cluster")
-
-
-def _run_campaign_cmd(args) -> int:
-    from identify.app.errors import UsageError
-    from identify.app.rerun_stream import options_from_args
-
-    try:
-        res = run_campaign(
-            args.root, args.out, workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
-            progress=not args.no_progress and sys.stderr.isatty(),
-            rerun_options=options_from_args(args, "dropvision"), overwrite=args.overwrite,
-        )
-    except (FileNotFoundError, ValueError, RuntimeError) as exc:
-        raise UsageError(str(exc)) from exc
-    print(
-        f"campaign: {len(res.measured)} measured, {len(res.skipped)} unchanged (skipped), "
-        f"{len(res.failed)} failed -> {res.dataset_dir}"
-    )
-    for sid, err in sorted(res.failed.items()):
-        print(f"  failed {sid}: {err}")
-    return 0
-
-
-def _run_synth_campaign_cmd(args) -> int:
-    from identify.app.errors import UsageError
-
-    try:
-        u1 = parse_range(args.u1, "--u1")
-        u2 = parse_range(args.u2, "--u2")
-    except ValueError as exc:
-        raise UsageError(str(exc)) from exc
-    paths = synth_campaign(args.out, u1, u2, repeats_per_point=args.repeats_per_point, seed=args.seed,
-                           workers=args.workers, progress=not args.no_progress and sys.stderr.isatty(),
-                           overwrite=args.overwrite)
-    print(f"synth-campaign: {len(paths)} sequences in {args.out}")
-    return 0
-
-
-def register(subparsers) -> None:
-    p = subparsers.add_parser("campaign", help="measure every sequence below ROOT into a training dataset")
-    p.add_argument("root", help="campaign root folder (every folder with a sequence.json is a sequence)")
-    p.add_argument("--out", required=True, help="dataset folder to write (re-running resumes); never a sequence "
-                   "folder, inside one or around one")
-    p.add_argument("--overwrite", action="store_true",
-                   help="write into an existing --out that holds other files (those are kept)")
-    _add_executor_args(p)
-    from identify.app.rerun_stream import add_rerun_args
-
-    add_rerun_args(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_run_campaign_cmd)
-
-    s = subparsers.add_parser("synth-campaign", help="render a synthetic campaign grid with truth")
-    s.add_argument("out", help="output folder (one sequence folder per grid point)")
-    s.add_argument("--u1", default="50:80:5", help="stroke velocities um/ms, start:stop:step or list (default 50:80:5)")
-    s.add_argument("--u2", default="20:35:2.5", help="strokes um, start:stop:step or list (default 20:35:2.5)")
-    s.add_argument("--repeats-per-point", type=int, default=1, help="sequences per (u1, u2)")
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--workers", type=int, default=None)
-    s.add_argument("--overwrite", action="store_true",
-                   help="write into an existing OUT holding other files; same-named sequences are replaced")
-    s.add_argument("--no-progress", action="store_true")
-    s.set_defaults(func=_run_synth_campaign_cmd)

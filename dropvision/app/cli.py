@@ -7,7 +7,6 @@ import argparse
 import importlib
 import sys
 
-from dropvision.io import SequenceError
 from identify.app.errors import UsageError
 from identify.atomic import OutputError
 
@@ -15,7 +14,7 @@ from identify.atomic import OutputError
 COMMAND_MODULES = (
     "dropvision.app.synth_cli",
     "dropvision.app.measure_cli",
-    "dropvision.app.campaign",
+    "dropvision.app.campaign_cli",
 )
 
 
@@ -47,6 +46,8 @@ def _quiet_opencv() -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from dropvision.sequence import SequenceError  # after parsing: --help does not pay for the readers
+
     _quiet_opencv()
     try:
         return int(args.func(args) or 0)

@@ -37,7 +37,8 @@ def _fmt(x, spec=".3f") -> str:
 
 def measure_samples(out: Path, rerun: bool) -> list[dict]:
     """Measure every sample sequence; return rows comparing summary and truth."""
-    from dropvision.measure import MeasureConfig, measure_sequence
+    from dropvision.config import MeasureConfig
+    from dropvision.measure import measure_sequence
 
     rows = []
     for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):

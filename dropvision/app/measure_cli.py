@@ -1,17 +1,23 @@
-"""`dropvision measure SEQ_DIR --out OUT_DIR`: the command over `dropvision.measure.measure_sequence`."""
+"""`dropvision measure SEQ_DIR --out OUT_DIR`: the command over `dropvision.measure.measure_sequence`.
+
+The library is imported when the command runs, so that ``dropvision --help`` stays fast.
+"""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
 
-from dropvision.app.rerun_log import logger_from_args
-from dropvision.measure import MeasureConfig, measure_sequence
 from identify.app.errors import UsageError
 from identify.app.rerun_stream import add_rerun_args
 
 
 def _run(args: argparse.Namespace) -> int:
+    # the measurement (numpy, pandas, OpenCV, numba) is imported when the command runs, not for --help
+    from dropvision.app.rerun_log import logger_from_args
+    from dropvision.config import MeasureConfig
+    from dropvision.measure import measure_sequence
+
     seq = Path(args.seq_dir)
     if not seq.exists():
         raise UsageError(f"{seq}: no such folder")

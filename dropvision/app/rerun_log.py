@@ -98,12 +98,14 @@ def pd_to_float(values: Any) -> np.ndarray:
 
 # --- segmentation classes --------------------------------------------------------------------
 
-CLASS_BACKGROUND = 0
-CLASS_NOZZLE = 1
-CLASS_ATTACHED = 2
-CLASS_DROP = 3
-CLASS_SATELLITE = 4
-CLASS_SPECK = 5
+from dropvision.segmentation import (  # noqa: E402  (one set of class ids, defined with the segmentation)
+    CLASS_ATTACHED,
+    CLASS_BACKGROUND,
+    CLASS_DROP,
+    CLASS_NOZZLE,
+    CLASS_SATELLITE,
+    CLASS_SPECK,
+)
 
 #: class id -> (label, RGBA colour) as logged in the annotation context at ``/frame``.
 CLASSES: dict[int, tuple[str, tuple[int, int, int, int]]] = {

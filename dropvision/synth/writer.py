@@ -1,6 +1,6 @@
 """Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv.
 
-All files go through the shared writers of :mod:`dropvision.io` (images, multi-page TIFF,
+All files go through the shared writers of :mod:`dropvision.writers` (images, multi-page TIFF,
 sequence.json) and :mod:`identify.atomic`; the whole folder is built in a temporary sibling
 and renamed into place at the end, so a failure never leaves a half-written sequence.
 """
@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from identify.atomic import atomic_dir, check_output_dir, write_json, write_text
-from dropvision.io import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
 from dropvision.synth.sequence import STACK_FILE, SynthConfig, frames_table, plan, sequence_truth, synthesize
 
 __all__ = ["write_synthetic_sequence", "sequence_metadata"]

@@ -12,10 +12,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
-import numpy as np
-import pandas as pd
 
 from identify.app.errors import UsageError
 from identify.app.rerun_stream import add_rerun_args
@@ -31,13 +30,15 @@ def _positive(name):
             v = float(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"{name} must be a number, got {text!r}") from None
-        if not np.isfinite(v) or v <= 0:
+        if not math.isfinite(v) or v <= 0:
             raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
         return v
     return conv
 
 
-def _print_table(title: str, df: pd.DataFrame) -> None:
+def _print_table(title: str, df) -> None:
+    import pandas as pd  # the commands import the models; --help stays without pandas
+
     print(f"\n{title}")
     with pd.option_context("display.width", 160, "display.max_columns", 20, "display.float_format", "{:.4g}".format):
         print(df.to_string(index=False))
@@ -136,9 +137,9 @@ def cmd_predict(args) -> int:
         print(json.dumps(summary))
         return 0
     if m.controls is not None:
-        from identify.design import _Region
+        from identify.design import Region
 
-        if not _Region(m.controls).inside(args.u1, args.u2)[0]:
+        if not Region(m.controls).inside(args.u1, args.u2)[0]:
             print("warning: (u1, u2) outside the training region: extrapolation", file=sys.stderr)
     _print_summary(summary, f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
     return 0

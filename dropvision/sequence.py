@@ -1,27 +1,24 @@
-"""Strobe-sequence reader and writer (the format is specified in docs/FORMAT.md).
+"""Strobe sequences: ``sequence.json`` validation, delays, order and orientation
+(the format is specified in docs/FORMAT.md).
 
 A sequence is a folder with a ``sequence.json`` (pixel size, nozzle, waveform, ink, frame list)
-and PNG/TIFF/BMP images. :func:`open_sequence` reads and validates the metadata and decodes the
-first frame only (to learn the image size); :class:`Sequence` then decodes one frame at a time,
-in ascending delay order, returned in the canonical orientation (nozzle at the top, drops
-travelling down the image).
+and images in any format of the reader registry (:mod:`dropvision.readers`: PNG, TIFF, BMP).
+:func:`open_sequence` reads and validates the metadata and decodes the first frame only (to
+learn the image size); :class:`Sequence` then decodes one frame at a time, in ascending delay
+order, returned as 2-D grey in the canonical orientation (nozzle at the top, drops travelling
+down the image).
 
-The writer helpers (:func:`write_sequence_json`, :func:`write_image`,
-:func:`write_multipage_tiff`) write the same format, atomically.
+The writers of the same format are in :mod:`dropvision.writers`.
 """
 
 from __future__ import annotations
 
-import io as _stdio
 import json
 import math
-import os
 import posixpath
 import re
-import struct
 import threading
 import warnings
-import xml.etree.ElementTree as ET
 from collections import Counter, OrderedDict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -29,23 +26,23 @@ from typing import Iterator
 
 import cv2
 import numpy as np
-import tifffile
 
-from identify.atomic import write_bytes, write_json
+from dropvision.readers import (
+    IMAGE_SUFFIXES, ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, reader_for,
+)
+from dropvision.readers.base import is_number
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
 
 __all__ = [
-    "SCHEMA", "IMAGE_SUFFIXES", "ORIENTATIONS", "SequenceError", "RGBConvertedWarning",
+    "SCHEMA", "SEQUENCE_JSON", "ORIENTATIONS", "SequenceError", "RGBConvertedWarning",
     "FrameRef", "SequenceMeta", "Frame", "Sequence", "open_sequence", "parse_delay_from_name",
     "to_canonical", "from_canonical", "original_to_canonical", "canonical_to_original",
-    "write_sequence_json", "write_image", "write_multipage_tiff",
 ]
 
-#: Value of the ``schema`` key written by :func:`write_sequence_json`.
+#: Value of the ``schema`` key of sequence.json (written by ``dropvision.writers``).
 SCHEMA = "dropvision.sequence/1"
-#: Image file types read (lower-case suffixes).
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")
-_TIFF_SUFFIXES = (".tif", ".tiff")
+#: File name of the metadata file in a sequence folder.
+SEQUENCE_JSON = "sequence.json"
 #: Allowed values of ``orientation``: the direction the drops travel in the stored image.
 ORIENTATIONS = ("down", "up", "left", "right")
 #: ``np.rot90`` turns (counter-clockwise quarter turns) taking a stored image to canonical.
@@ -55,15 +52,10 @@ _KNOWN_KEYS = frozenset({
     "schema", "pixel_size_um", "nozzle_inner_diameter_um", "nozzle_outer_diameter_um",
     "nozzle_tip_row", "axis_col", "orientation", "waveform", "ink", "frames", "bit_depth",
 })
-_SEQUENCE_JSON = "sequence.json"
 #: Delay in a file name: the last number immediately followed by "us" (or "µs").
 _DELAY_RE = re.compile(r"(?<![\d.])(\d+(?:\.\d+)?)(?:us|µs|μs)(?![a-z])", re.IGNORECASE)
-#: Seconds-based OME time units -> factor to µs.
-_TIME_UNIT_TO_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "µs": 1.0, "μs": 1.0, "ns": 1e-3,
-                    "min": 6e7, "h": 3.6e9}
-_LENGTH_UNIT_TO_UM = {"m": 1e6, "cm": 1e4, "mm": 1e3, "um": 1.0, "µm": 1.0, "μm": 1.0,
-                      "micron": 1.0, "microns": 1.0, "nm": 1e-3}
-_TIFF_CACHE_SIZE = 4
+#: Open multi-frame files (e.g. TIFF stacks) kept by a Sequence.
+_OPEN_CACHE_SIZE = 4
 
 
 class SequenceError(Exception):
@@ -72,10 +64,6 @@ class SequenceError(Exception):
 
 class RGBConvertedWarning(UserWarning):
     """A colour image was converted to grey (the message names the file)."""
-
-
-class _Unreadable(Exception):
-    """An image file that cannot be decoded (zero-byte, truncated, corrupt)."""
 
 
 @dataclass(frozen=True)
@@ -252,16 +240,12 @@ def _natural_key(name: str):
             for t in re.split(r"(\d+)", name) if t]
 
 
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
-
-
 def _positive(value, what: str, where: str, *, required: bool = False) -> float | None:
     if value is None:
         if required:
             raise SequenceError(f"{where}: {what} is missing (required, a number > 0)")
         return None
-    if not _is_number(value) or not math.isfinite(float(value)) or float(value) <= 0:
+    if not is_number(value) or not math.isfinite(float(value)) or float(value) <= 0:
         raise SequenceError(f"{where}: {what} must be a number > 0, got {value!r}")
     return float(value)
 
@@ -269,7 +253,7 @@ def _positive(value, what: str, where: str, *, required: bool = False) -> float 
 def _finite_or_none(value, what: str, where: str) -> float | None:
     if value is None:
         return None
-    if not _is_number(value) or not math.isfinite(float(value)):
+    if not is_number(value) or not math.isfinite(float(value)):
         raise SequenceError(f"{where}: {what} must be a finite number or null, got {value!r}")
     return float(value)
 
@@ -277,7 +261,7 @@ def _finite_or_none(value, what: str, where: str) -> float | None:
 def _delay_value(value, what: str) -> float:
     """A delay from sequence.json: a finite number, or a string like "1150" or "1150us"."""
     out = None
-    if _is_number(value):
+    if is_number(value):
         out = float(value)
     elif isinstance(value, str):
         text = value.strip()
@@ -304,146 +288,7 @@ def _safe_relpath(file, where: str) -> str:
 
 
 # ----------------------------------------------------------------------------------------
-# TIFF metadata
-# ----------------------------------------------------------------------------------------
-
-def _local(tag: str) -> str:
-    return tag.rsplit("}", 1)[-1]
-
-
-def _ome_pixels(ome_xml: str):
-    """Yield (Pixels element, ifd_start) for each OME Image."""
-    root = ET.fromstring(ome_xml)
-    ifd_start = 0
-    for image in (e for e in root.iter() if _local(e.tag) == "Image"):
-        pixels = next((e for e in image if _local(e.tag) == "Pixels"), None)
-        if pixels is None:
-            continue
-        tiffdata = [e for e in pixels if _local(e.tag) == "TiffData"]
-        if tiffdata and "IFD" in tiffdata[0].attrib:
-            ifd_start = int(tiffdata[0].attrib["IFD"])
-        yield pixels, ifd_start
-        sizes = [int(pixels.attrib.get(k, 1)) for k in ("SizeZ", "SizeC", "SizeT")]
-        ifd_start += sizes[0] * sizes[1] * sizes[2]
-
-
-def _ome_delays_us(ome_xml: str) -> dict[int, float]:
-    """Page index -> delay (µs) from OME ``Plane DeltaT`` (+ ``DeltaTUnit``, default s)."""
-    out: dict[int, float] = {}
-    for pixels, ifd_start in _ome_pixels(ome_xml):
-        order = pixels.attrib.get("DimensionOrder", "XYZCT")[2:]
-        size = {d: int(pixels.attrib.get(f"Size{d}", 1)) for d in "ZCT"}
-        for plane in (e for e in pixels if _local(e.tag) == "Plane"):
-            if "DeltaT" not in plane.attrib:
-                continue
-            unit = plane.attrib.get("DeltaTUnit", "s")
-            if unit not in _TIME_UNIT_TO_US:
-                raise ValueError(f"unknown OME DeltaTUnit {unit!r}")
-            theta = {d: int(plane.attrib.get(f"The{d}", 0)) for d in "ZCT"}
-            linear, stride = 0, 1
-            for d in order:  # first letter varies fastest
-                linear += theta[d] * stride
-                stride *= size[d]
-            out[ifd_start + linear] = float(plane.attrib["DeltaT"]) * _TIME_UNIT_TO_US[unit]
-    return out
-
-
-def _json_description(page) -> dict | None:
-    desc = page.description
-    if not desc or not desc.lstrip().startswith("{"):
-        return None
-    try:
-        obj = json.loads(desc)
-    except ValueError:
-        return None
-    return obj if isinstance(obj, dict) else None
-
-
-def _tiff_page_delays(tif: tifffile.TiffFile) -> dict[int, float]:
-    """Page index -> delay (µs) from OME-XML or per-page JSON descriptions ``{"delay_us": ..}``."""
-    if tif.is_ome and tif.ome_metadata:
-        delays = _ome_delays_us(tif.ome_metadata)
-        if delays:
-            return delays
-    out = {}
-    for i, page in enumerate(tif.pages):
-        obj = _json_description(page)
-        if obj is not None and "delay_us" in obj:
-            out[i] = obj["delay_us"]
-    return out
-
-
-def _tiff_pixel_size(path: Path) -> tuple[float | None, str]:
-    """Pixel size (µm) from OME PhysicalSizeX/Y, ImageJ unit+resolution or a JSON description."""
-    try:
-        with tifffile.TiffFile(path) as tif:
-            if tif.is_ome and tif.ome_metadata:
-                for pixels, _ in _ome_pixels(tif.ome_metadata):
-                    sizes = []
-                    for ax in "XY":
-                        if f"PhysicalSize{ax}" in pixels.attrib:
-                            unit = pixels.attrib.get(f"PhysicalSize{ax}Unit", "µm")
-                            sizes.append(float(pixels.attrib[f"PhysicalSize{ax}"])
-                                         * _LENGTH_UNIT_TO_UM[unit])
-                    if sizes:
-                        if len(sizes) == 2 and not math.isclose(sizes[0], sizes[1], rel_tol=1e-6):
-                            raise SequenceError(f"{path}: OME pixels are not square "
-                                                f"({sizes[0]} x {sizes[1]} µm)")
-                        return sizes[0], "ome"
-            page = tif.pages[0]
-            ij = tif.imagej_metadata
-            if ij and str(ij.get("unit", "")).lower() in _LENGTH_UNIT_TO_UM:
-                num, den = page.tags["XResolution"].value
-                if num > 0:
-                    return den / num * _LENGTH_UNIT_TO_UM[str(ij["unit"]).lower()], "imagej"
-            obj = _json_description(page)
-            if obj is not None and _is_number(obj.get("pixel_size_um")):
-                return float(obj["pixel_size_um"]), "tiff-description"
-    except SequenceError:
-        raise
-    except Exception:  # unreadable TIFF: no pixel size from it
-        return None, ""
-    return None, ""
-
-
-def _tiff_bit_depth_hint(page) -> int | None:
-    """Significant bits of a 16-bit TIFF page from BitsPerSample (9..15) or MaxSampleValue."""
-    bits = int(page.bitspersample)
-    if 8 < bits < 16:
-        return bits
-    tag = page.tags.get(281)  # MaxSampleValue
-    if tag is not None:
-        value = tag.value
-        value = max(value) if isinstance(value, (tuple, list)) else value
-        if int(value) > 0:
-            return int(value).bit_length()
-    return None
-
-
-def _png_significant_bits(path: Path) -> int | None:
-    """Grey significant bits from a PNG ``sBIT`` chunk (None without one)."""
-    try:
-        with open(path, "rb") as fh:
-            if fh.read(8) != b"\x89PNG\r\n\x1a\n":
-                return None
-            for _ in range(64):
-                head = fh.read(8)
-                if len(head) < 8:
-                    return None
-                length, ctype = struct.unpack(">I4s", head)
-                if ctype == b"sBIT":
-                    data = fh.read(length)
-                    return max(data) if data else None
-                if ctype in (b"IDAT", b"IEND"):
-                    return None
-                fh.seek(length + 4, os.SEEK_CUR)
-    except OSError:
-        return None
-    return None
-
-
-# ----------------------------------------------------------------------------------------
-# Decoding
+# Grey conversion
 # ----------------------------------------------------------------------------------------
 
 def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
@@ -467,39 +312,6 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
     return cv2.cvtColor(np.ascontiguousarray(img), code)
 
 
-def _read_cv2(path: Path) -> np.ndarray:
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if img is None:  # e.g. a path cv2 cannot open: decode from bytes
-        try:
-            data = np.fromfile(path, dtype=np.uint8)
-        except OSError as exc:
-            raise _Unreadable(f"cannot read file ({exc.strerror})") from None
-        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise _Unreadable(f"cannot decode {path.suffix.lstrip('.').upper() or 'image'} "
-                          "(truncated or corrupt file)")
-    return img
-
-
-def _read_png(path: Path) -> np.ndarray:
-    """Grey PNGs with the fast decoder (`dropvision.png`), any other PNG with libpng (cv2)."""
-    from dropvision.png import PngError, decode_grey_png
-
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise _Unreadable(f"cannot read file ({exc.strerror})") from None
-    try:
-        img = decode_grey_png(data)
-    except PngError as exc:
-        raise _Unreadable(f"cannot decode PNG ({exc})") from None
-    if img is None:
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
-        if img is None:
-            raise _Unreadable("cannot decode PNG (truncated or corrupt file)")
-    return img
-
-
 # ----------------------------------------------------------------------------------------
 # Sequence
 # ----------------------------------------------------------------------------------------
@@ -520,7 +332,7 @@ class Sequence:
     def _init_cache(self) -> None:
         counts = Counter(f.file for f in self.meta.frames)
         self._shared_files = {f for f, n in counts.items() if n > 1}
-        self._tiff_cache: OrderedDict[str, tifffile.TiffFile] = OrderedDict()
+        self._open_files: OrderedDict[str, OpenImage] = OrderedDict()
         self._lock = threading.Lock()
 
     # -- container protocol --------------------------------------------------------------
@@ -558,12 +370,18 @@ class Sequence:
         except Exception:  # pragma: no cover - interpreter shutdown
             pass
 
-    def close(self) -> None:
-        """Close cached TIFF files (reading again reopens them)."""
+    @property
+    def open_files(self) -> tuple[str, ...]:
+        """Files (relative paths) of several frames each, kept open right now, oldest first."""
         with self._lock:
-            while self._tiff_cache:
-                _, tif = self._tiff_cache.popitem()
-                tif.close()
+            return tuple(self._open_files)
+
+    def close(self) -> None:
+        """Close cached multi-frame files (reading again reopens them)."""
+        with self._lock:
+            while self._open_files:
+                _, handle = self._open_files.popitem()
+                handle.close()
 
     # -- reading ---------------------------------------------------------------------------
     def read(self, index: int) -> Frame:
@@ -576,7 +394,7 @@ class Sequence:
         ref = self.meta.frames[index]
         try:
             img = self._decode(ref, warn=True)
-        except _Unreadable as exc:
+        except UnreadableImage as exc:
             return Frame(ref, None, f"{_where(ref)}: {exc}")
         if img.shape != self.meta.shape:
             raise SequenceError(f"{self.meta.path / ref.file}{_page_txt(ref)}: image size "
@@ -594,59 +412,36 @@ class Sequence:
         except FileNotFoundError:
             raise SequenceError(f"{path}: image file is missing") from None
         if size == 0:
-            raise _Unreadable("zero-byte file")
-        suffix = path.suffix.lower()
-        if suffix in _TIFF_SUFFIXES:
-            img = self._read_tiff(path, ref)
-            bgr = False
-        else:
-            img = _read_png(path) if suffix == ".png" else _read_cv2(path)
-            bgr = True
-        img = _to_grey(img, _where(ref), bgr, warn)
+            raise UnreadableImage("zero-byte file")
+        reader = reader_for(path)
+        try:
+            img = self._decode_native(reader, path, ref)
+        except InvalidImage as exc:
+            raise SequenceError(str(exc)) from None
+        img = _to_grey(img, _where(ref), reader.bgr, warn)
         if img.dtype not in (np.uint8, np.uint16):
             raise SequenceError(f"{path}{_page_txt(ref)}: unsupported pixel type {img.dtype} "
                                 "(8-bit or 16-bit unsigned grey images are read)")
         return to_canonical(img, self.meta.orientation)
 
-    def _read_tiff(self, path: Path, ref: FrameRef) -> np.ndarray:
-        """Decode one TIFF page; files holding several frames stay open in a small LRU cache
-        (guarded by a lock, so a Sequence may be read from several threads)."""
-        try:
-            if ref.file not in self._shared_files:
-                with tifffile.TiffFile(path) as tif:
-                    img = _tiff_page_array(tif, path, ref.page)
-            else:
-                with self._lock:
-                    tif = self._tiff_cache.pop(ref.file, None)
-                    if tif is None:
-                        tif = tifffile.TiffFile(path)
-                    try:
-                        img = _tiff_page_array(tif, path, ref.page)
-                    except BaseException:
-                        tif.close()
-                        raise
-                    self._tiff_cache[ref.file] = tif
-                    while len(self._tiff_cache) > _TIFF_CACHE_SIZE:
-                        self._tiff_cache.popitem(last=False)[1].close()
-        except SequenceError:
-            raise
-        except Exception as exc:  # tifffile raises many types for broken files
-            raise _Unreadable(f"cannot decode TIFF ({type(exc).__name__}: {exc}; "
-                              "truncated or corrupt file)") from None
-        if img.ndim > 2 and img.shape[0] == 1:
-            img = img[0]
+    def _decode_native(self, reader: Reader, path: Path, ref: FrameRef) -> np.ndarray:
+        """Decode one frame with its reader; files holding several frames stay open in a small
+        LRU cache (guarded by a lock, so a Sequence may be read from several threads)."""
+        if ref.file not in self._shared_files:
+            return reader.decode(path, ref.page)
+        with self._lock:
+            handle = self._open_files.pop(ref.file, None)
+            if handle is None:
+                handle = reader.open(path)
+            try:
+                img = handle.decode(ref.page)
+            except BaseException:
+                handle.close()
+                raise
+            self._open_files[ref.file] = handle
+            while len(self._open_files) > _OPEN_CACHE_SIZE:
+                self._open_files.popitem(last=False)[1].close()
         return img
-
-
-def _tiff_page_array(tif: tifffile.TiffFile, path: Path, page: int | None) -> np.ndarray:
-    n_pages = len(tif.pages)
-    if page is None and n_pages > 1:
-        raise SequenceError(f"{path}: multi-page TIFF ({n_pages} pages) needs a 'page' in its "
-                            "sequence.json frames entry")
-    page = 0 if page is None else page
-    if page >= n_pages:
-        raise SequenceError(f"{path}: page {page} does not exist (the TIFF has {n_pages} pages)")
-    return tif.pages[page].asarray()
 
 
 def _page_txt(ref: FrameRef) -> str:
@@ -684,34 +479,34 @@ def _load_json(path: Path) -> dict:
     return obj
 
 
+def _probe(reader: Reader, path: Path) -> ImageInfo:
+    """Pages and stored delays of an image file; an unreadable file counts as one frame
+    without stored delays (it is reported when read)."""
+    try:
+        return reader.probe(path)
+    except Exception:
+        return ImageInfo()
+
+
 def _delays_of_file(folder: Path, rel: str) -> list[tuple[int | None, float]]:
     """(page, delay) pairs of one image file of a folder without a frames list."""
     path = folder / rel
-    if path.suffix.lower() in _TIFF_SUFFIXES and path.stat().st_size > 0:
-        try:
-            with tifffile.TiffFile(path) as tif:
-                n_pages = len(tif.pages)
-                page_delays = _tiff_page_delays(tif)
-        except Exception:  # unreadable TIFF: a single frame, reported when read
-            n_pages, page_delays = 1, {}
-        if n_pages > 1:
-            missing = [i for i in range(n_pages) if i not in page_delays]
-            if missing:
-                raise SequenceError(
-                    f"{path}: multi-page TIFF without a delay for page {missing[0]} (give OME "
-                    "Plane DeltaT, per-page JSON descriptions {\"delay_us\": ...} or a "
-                    "sequence.json frames list)")
-            return [(i, _delay_value(page_delays[i], f"{path} page {i}"))
-                    for i in range(n_pages)]
-        from_name = parse_delay_from_name(rel)
-        if from_name is not None:
-            return [(None, from_name)]
-        if 0 in page_delays:
-            return [(None, _delay_value(page_delays[0], str(path)))]
-    else:
-        from_name = parse_delay_from_name(rel)
-        if from_name is not None:
-            return [(None, from_name)]
+    info = _probe(reader_for(path), path)
+    n_pages, page_delays = info.n_pages, info.page_delays
+    if n_pages > 1:
+        missing = [i for i in range(n_pages) if i not in page_delays]
+        if missing:
+            raise SequenceError(
+                f"{path}: multi-page TIFF without a delay for page {missing[0]} (give OME "
+                "Plane DeltaT, per-page JSON descriptions {\"delay_us\": ...} or a "
+                "sequence.json frames list)")
+        return [(i, _delay_value(page_delays[i], f"{path} page {i}"))
+                for i in range(n_pages)]
+    from_name = parse_delay_from_name(rel)
+    if from_name is not None:
+        return [(None, from_name)]
+    if 0 in page_delays:
+        return [(None, _delay_value(page_delays[0], str(path)))]
     raise SequenceError(f"{path}: no delay in the file name (expected e.g. "
                         "'frame_01150us.png') and no frames list in sequence.json")
 
@@ -731,7 +526,7 @@ def _listed_from_folder(folder: Path) -> list[_Listed]:
 def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
     if not isinstance(frames, list) or not frames:
         raise SequenceError(f"{json_path}: 'frames' must be a non-empty list")
-    out, seen, tiff_delays = [], set(), {}
+    out, seen, stored_delays = [], set(), {}
     for i, entry in enumerate(frames):
         where = f"{json_path} frames[{i}]"
         if not isinstance(entry, dict):
@@ -739,7 +534,8 @@ def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
         rel = _safe_relpath(entry.get("file"), where)
         path = folder / rel
         where = f"{path}"
-        if path.suffix.lower() not in IMAGE_SUFFIXES:
+        reader = reader_for(path)
+        if reader is None:
             raise SequenceError(f"{where}: unsupported image type (use {', '.join(IMAGE_SUFFIXES)})")
         if not path.is_file():
             raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but missing")
@@ -747,7 +543,7 @@ def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
         if page is not None:
             if not isinstance(page, int) or isinstance(page, bool) or page < 0:
                 raise SequenceError(f"{where}: 'page' must be an integer >= 0, got {page!r}")
-            if path.suffix.lower() not in _TIFF_SUFFIXES:
+            if not reader.paged:
                 raise SequenceError(f"{where}: 'page' given but the file is not a TIFF")
         if (rel, page) in seen:
             raise SequenceError(f"{where}{'' if page is None else f' page {page}'}: listed "
@@ -757,14 +553,10 @@ def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
             delay = _delay_value(entry["delay_us"], where)
         else:
             delay = parse_delay_from_name(rel)
-            if delay is None and path.suffix.lower() in _TIFF_SUFFIXES:
-                if rel not in tiff_delays:
-                    try:
-                        with tifffile.TiffFile(path) as tif:
-                            tiff_delays[rel] = _tiff_page_delays(tif)
-                    except Exception:
-                        tiff_delays[rel] = {}
-                d = tiff_delays[rel].get(0 if page is None else page)
+            if delay is None:
+                if rel not in stored_delays:
+                    stored_delays[rel] = _probe(reader, path).page_delays
+                d = stored_delays[rel].get(0 if page is None else page)
                 delay = None if d is None else _delay_value(d, where)
             if delay is None:
                 raise SequenceError(f"{where}: frames[{i}] has no delay_us and none can be "
@@ -783,7 +575,7 @@ def _validate_waveform(value, where: str) -> dict | None:
     out.setdefault("hold_us", HOLD_PRESET_US)
     out.setdefault("dead_time_us", DEAD_TIME_US)
     for key in ("u1_um_per_ms", "u2_um", "u3_um_per_ms", "hold_us", "dead_time_us"):
-        if key not in out or not _is_number(out[key]) or not math.isfinite(float(out[key])):
+        if key not in out or not is_number(out[key]) or not math.isfinite(float(out[key])):
             raise SequenceError(f"{where}: waveform {key} must be a number, got {out.get(key)!r}")
         out[key] = float(out[key])
     try:
@@ -827,7 +619,7 @@ def open_sequence(path) -> Sequence:
         pixel_size_um, unparsable delay, listed file missing, no readable frame.
     """
     folder = Path(path)
-    if folder.name == _SEQUENCE_JSON and folder.is_file():
+    if folder.name == SEQUENCE_JSON and folder.is_file():
         folder = folder.parent
     folder = folder.absolute()
     if not folder.exists():
@@ -835,7 +627,7 @@ def open_sequence(path) -> Sequence:
     if not folder.is_dir():
         raise SequenceError(f"{folder}: not a folder (a sequence is a folder with sequence.json "
                             "and images)")
-    json_path = folder / _SEQUENCE_JSON
+    json_path = folder / SEQUENCE_JSON
     doc = _load_json(json_path) if json_path.is_file() else None
     where = str(json_path)
 
@@ -849,7 +641,7 @@ def open_sequence(path) -> Sequence:
             raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, "
                                 f"got {doc.get('orientation')!r}")
         bit_depth_key = doc.get("bit_depth")
-        if bit_depth_key is not None and (not _is_number(bit_depth_key)
+        if bit_depth_key is not None and (not is_number(bit_depth_key)
                                           or bit_depth_key not in (8, 12, 16)):
             raise SequenceError(f"{where}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
         d_in = _positive(doc.get("nozzle_inner_diameter_um"), "nozzle_inner_diameter_um", where)
@@ -869,22 +661,26 @@ def open_sequence(path) -> Sequence:
     else:
         listed = _listed_from_folder(folder)
 
-    # pixel size: sequence.json, else scientific TIFF metadata of the first listed TIFF
+    # pixel size: sequence.json, else the metadata of the first listed file of a type that
+    # may store it (scientific TIFF)
     pixel_size_um, source = None, "sequence.json"
     if doc is not None and doc.get("pixel_size_um") is not None:
         pixel_size_um = _positive(doc["pixel_size_um"], "pixel_size_um", where)
     else:
-        first_tiff = next((item.file for item in listed
-                           if Path(item.file).suffix.lower() in _TIFF_SUFFIXES), None)
-        if first_tiff is not None:
-            pixel_size_um, source = _tiff_pixel_size(folder / first_tiff)
+        first_sized = next((item.file for item in listed
+                            if reader_for(item.file).stores_pixel_size), None)
+        if first_sized is not None:
+            try:
+                pixel_size_um, source = reader_for(first_sized).pixel_size(folder / first_sized)
+            except InvalidImage as exc:
+                raise SequenceError(str(exc)) from None
         if pixel_size_um is None:
             if doc is None:
                 raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
                                     "the images carry no pixel size")
             raise SequenceError(f"{where}: pixel_size_um is missing (required: pixel size in "
                                 "µm, a number > 0)")
-        pixel_size_um = _positive(pixel_size_um, "pixel size", str(folder / first_tiff))
+        pixel_size_um = _positive(pixel_size_um, "pixel size", str(folder / first_sized))
 
     # processing order: ascending delay, stable (listed order, then page)
     order = sorted(range(len(listed)), key=lambda i: listed[i].delay_us)
@@ -908,7 +704,7 @@ def open_sequence(path) -> Sequence:
                 first_img = probe._decode(ref, warn=False)
                 first_ref = ref
                 break
-            except _Unreadable as exc:
+            except UnreadableImage as exc:
                 first_error = first_error or f"{folder / ref.file}{_page_txt(ref)}: {exc}"
     finally:
         probe.close()
@@ -927,12 +723,7 @@ def open_sequence(path) -> Sequence:
     elif bit_depth_key is not None:
         bit_depth = int(bit_depth_key)
     else:
-        hint = None
-        if first_path.suffix.lower() in _TIFF_SUFFIXES:
-            with tifffile.TiffFile(first_path) as tif:
-                hint = _tiff_bit_depth_hint(tif.pages[first_ref.page or 0])
-        elif first_path.suffix.lower() == ".png":
-            hint = _png_significant_bits(first_path)
+        hint = reader_for(first_path).significant_bits(first_path, first_ref.page)
         bit_depth = hint if hint is not None and 8 < hint <= 16 else 16
         bit_depth = 12 if 8 < bit_depth <= 12 else 16  # report 8, 12 or 16
 
@@ -945,120 +736,3 @@ def open_sequence(path) -> Sequence:
     return Sequence(meta, first_img.dtype)
 
 
-# ----------------------------------------------------------------------------------------
-# Writers
-# ----------------------------------------------------------------------------------------
-
-def write_sequence_json(folder, meta_dict: dict) -> Path:
-    """Write ``folder/sequence.json`` atomically (temporary file, then ``os.replace``).
-
-    ``schema`` is set to :data:`SCHEMA` when absent; numpy scalars/arrays and paths are
-    converted, NaN is written as null (= absent). The folder is created if needed.
-    """
-    if not isinstance(meta_dict, dict):
-        raise TypeError(f"meta_dict must be a dict, got {type(meta_dict).__name__}")
-    doc = {"schema": SCHEMA}
-    doc.update(meta_dict)
-    return write_json(Path(folder) / _SEQUENCE_JSON, doc)
-
-
-def _check_image_array(array, path: Path) -> np.ndarray:
-    arr = np.asarray(array)
-    if arr.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"{path}: image must be uint8 or uint16, got {arr.dtype}")
-    if not (arr.ndim == 2 or (arr.ndim == 3 and arr.shape[2] in (3, 4))):
-        raise ValueError(f"{path}: image must be 2-D grey or (H, W, 3|4) RGB(A), got {arr.shape}")
-    return np.ascontiguousarray(arr)
-
-
-def _tiff_bytes(write) -> bytes:
-    buf = _stdio.BytesIO()
-    write(buf)
-    return buf.getvalue()
-
-
-def write_image(path, array, *, page_description: str | None = None) -> Path:
-    """Write one image atomically; the type follows the suffix (.png, .tif/.tiff, .bmp).
-
-    Parameters
-    ----------
-    path : str or Path
-        Target file (unicode allowed; parent folders are created).
-    array : ndarray
-        uint8 or uint16, 2-D grey or (H, W, 3|4) RGB(A) in RGB order. BMP is 8-bit only.
-    page_description : str, optional
-        TIFF ImageDescription (e.g. ``json.dumps({"delay_us": 30.0})``); TIFF only.
-    """
-    path = Path(path)
-    arr = _check_image_array(array, path)
-    suffix = path.suffix.lower()
-    if page_description is not None and suffix not in _TIFF_SUFFIXES:
-        raise ValueError(f"{path}: page_description is only stored in TIFF files")
-    if suffix in _TIFF_SUFFIXES:
-        photometric = "minisblack" if arr.ndim == 2 else "rgb"
-        data = _tiff_bytes(lambda fh: tifffile.imwrite(
-            fh, arr, photometric=photometric, description=page_description, metadata=None))
-    elif suffix in (".png", ".bmp"):
-        if suffix == ".bmp" and arr.dtype != np.uint8:
-            raise ValueError(f"{path}: BMP stores 8-bit images only, got {arr.dtype}")
-        if arr.ndim == 3:
-            arr = cv2.cvtColor(arr, cv2.COLOR_RGB2BGR if arr.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
-        ok, buf = cv2.imencode(suffix, arr)
-        if not ok:  # pragma: no cover - cv2 encodes every checked array
-            raise ValueError(f"{path}: cv2 could not encode the image")
-        data = buf.tobytes()
-    else:
-        raise ValueError(f"{path}: unsupported image type (use {', '.join(IMAGE_SUFFIXES)})")
-    return write_bytes(path, data)
-
-
-def write_multipage_tiff(path, pages, delays_us, ome: bool = False, *,
-                         pixel_size_um: float | None = None) -> Path:
-    """Write a multi-page grey TIFF whose pages carry their delays, atomically.
-
-    Parameters
-    ----------
-    path : str or Path
-        Target ``.tif``/``.tiff`` file.
-    pages : ndarray (N, H, W) or sequence of 2-D arrays
-        Same shape and dtype (uint8 or uint16).
-    delays_us : sequence of float
-        One delay (µs) per page; repeats allowed.
-    ome : bool
-        False: each page's ImageDescription is ``{"delay_us": ...}`` (JSON). True: OME-TIFF
-        with ``Plane DeltaT`` in µs (``DeltaTUnit="µs"``).
-    pixel_size_um : float, optional
-        Stored as OME ``PhysicalSizeX/Y`` (µm), or as ``"pixel_size_um"`` in each JSON
-        description.
-    """
-    path = Path(path)
-    if path.suffix.lower() not in _TIFF_SUFFIXES:
-        raise ValueError(f"{path}: a multi-page stack must be a .tif/.tiff file")
-    stack = [_check_image_array(p, path) for p in pages]
-    if not stack:
-        raise ValueError(f"{path}: no pages")
-    if any(p.ndim != 2 or p.shape != stack[0].shape or p.dtype != stack[0].dtype for p in stack):
-        raise ValueError(f"{path}: pages must be 2-D grey with equal shape and dtype")
-    delays = [float(d) for d in delays_us]
-    if len(delays) != len(stack) or not all(math.isfinite(d) for d in delays):
-        raise ValueError(f"{path}: need one finite delay per page ({len(stack)} pages, "
-                         f"{len(delays)} delays)")
-    if ome:
-        metadata = {"axes": "TYX",
-                    "Plane": {"DeltaT": delays, "DeltaTUnit": ["µs"] * len(delays)}}
-        if pixel_size_um is not None:
-            metadata.update(PhysicalSizeX=float(pixel_size_um), PhysicalSizeXUnit="µm",
-                            PhysicalSizeY=float(pixel_size_um), PhysicalSizeYUnit="µm")
-        data = _tiff_bytes(lambda fh: tifffile.imwrite(
-            fh, np.stack(stack), ome=True, photometric="minisblack", metadata=metadata))
-    else:
-        def write(fh):
-            with tifffile.TiffWriter(fh) as tw:
-                for page, delay in zip(stack, delays):
-                    desc = {"delay_us": delay}
-                    if pixel_size_um is not None:
-                        desc["pixel_size_um"] = float(pixel_size_um)
-                    tw.write(page, photometric="minisblack", description=json.dumps(desc),
-                             metadata=None)
-        data = _tiff_bytes(write)
-    return write_bytes(path, data)

@@ -1,26 +1,32 @@
-"""Fast decoding of grey PNG strobe frames.
+"""PNG reader, with a fast decoder for grey PNG strobe frames.
 
 Decoding a 640 x 1024 8-bit PNG with libpng (OpenCV, imageio, pyspng alike) costs about 4.4 ms
 here, seven times what measuring the frame costs. Nearly all of it is zlib's inflate and the
-per-row unfiltering. This module decodes the PNGs drop watchers and `dropvision synth` write
-(grey, 8 or 16 bits, not interlaced, rows filtered with None, Sub or Up) with Intel ISA-L's
-inflate (``isal``) and vectorised unfiltering (``imagecodecs.delta_decode``): about 1.1 ms for
-the same frame, bit-identical to libpng.
+per-row unfiltering. :func:`decode_grey_png` decodes the PNGs drop watchers and
+`dropvision synth` write (grey, 8 or 16 bits, not interlaced, rows filtered with None, Sub or Up)
+with Intel ISA-L's inflate (``isal``) and vectorised unfiltering (``imagecodecs.delta_decode``):
+about 1.1 ms for the same frame, bit-identical to libpng.
 
 Every other PNG (colour, palette, 1/2/4-bit, interlaced, a ``tRNS`` chunk, rows using the
-Average or Paeth filters) is left to libpng: :func:`decode_grey_png` returns None and the
-caller decodes it with OpenCV. Broken files raise :class:`PngError`.
+Average or Paeth filters) is left to libpng: :func:`decode_grey_png` returns None and
+:func:`read_png` decodes it with OpenCV. Broken files raise :class:`PngError`.
 """
 
 from __future__ import annotations
 
+import os
 import struct
+from pathlib import Path
 
+import cv2
 import numpy as np
 from imagecodecs import delta_decode
 from isal import isal_zlib
 
-__all__ = ["PngError", "decode_grey_png", "PNG_SIGNATURE"]
+from dropvision.readers.base import Reader, UnreadableImage
+
+__all__ = ["PngReader", "PngError", "decode_grey_png", "read_png", "png_significant_bits",
+           "PNG_SIGNATURE"]
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _CRITICAL = (b"IHDR", b"IDAT", b"IEND", b"PLTE")
@@ -159,3 +165,62 @@ def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray | None:
             seed = out[s - 1:s] if s > 0 else np.zeros((1, stride), np.uint8)
             out[s:e] = delta_decode(np.concatenate([seed, body[s:e]]), axis=0)[1:]
     return out
+
+
+def read_png(path: Path) -> np.ndarray:
+    """Decode a PNG file: grey PNGs with :func:`decode_grey_png`, any other with libpng (cv2).
+
+    Returns the array as ``cv2.imread(..., cv2.IMREAD_UNCHANGED)`` does (colour in BGR(A)
+    order). Raises :class:`~dropvision.readers.base.UnreadableImage` for a file that cannot be
+    read or decoded.
+    """
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise UnreadableImage(f"cannot read file ({exc.strerror})") from None
+    try:
+        img = decode_grey_png(data)
+    except PngError as exc:
+        raise UnreadableImage(f"cannot decode PNG ({exc})") from None
+    if img is None:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+        if img is None:
+            raise UnreadableImage("cannot decode PNG (truncated or corrupt file)")
+    return img
+
+
+def png_significant_bits(path: Path) -> int | None:
+    """Grey significant bits from a PNG ``sBIT`` chunk (None without one, or unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(8) != PNG_SIGNATURE:
+                return None
+            for _ in range(64):
+                head = fh.read(8)
+                if len(head) < 8:
+                    return None
+                length, ctype = struct.unpack(">I4s", head)
+                if ctype == b"sBIT":
+                    data = fh.read(length)
+                    return max(data) if data else None
+                if ctype in (b"IDAT", b"IEND"):
+                    return None
+                fh.seek(length + 4, os.SEEK_CUR)
+    except OSError:
+        return None
+    return None
+
+
+class PngReader(Reader):
+    """PNG files: one frame each; ``sBIT`` gives the significant bits of 16-bit frames."""
+
+    suffixes = (".png",)
+    bgr = True
+
+    def decode(self, path: Path, page: int | None) -> np.ndarray:
+        """Decode the PNG with :func:`read_png` (``page`` is ignored)."""
+        return read_png(path)
+
+    def significant_bits(self, path: Path, page: int | None) -> int | None:
+        """Grey significant bits from the ``sBIT`` chunk (:func:`png_significant_bits`)."""
+        return png_significant_bits(path)

@@ -1,0 +1,80 @@
+"""`dropvision campaign` and `dropvision synth-campaign`: the commands over `dropvision.app.campaign`.
+
+The library is imported when a command runs, not when the parser is built, so that
+``dropvision --help`` stays fast (measured: see README, start-up).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from identify.app.errors import UsageError
+from identify.app.rerun_stream import add_rerun_args, options_from_args
+
+
+def _add_executor_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores; 1 = serial)")
+    g.add_argument("--dask-local", type=int, default=None, metavar="N", help="start a Dask LocalCluster with N workers")
+    g.add_argument("--scheduler", default=None, metavar="tcp://HOST:8786", help="use an existing Dask cluster")
+
+
+def _run_campaign_cmd(args) -> int:
+    from dropvision.app.campaign import run_campaign  # heavy (numpy, pandas): only when run, not for --help
+
+    try:
+        res = run_campaign(
+            args.root, args.out, workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
+            progress=not args.no_progress and sys.stderr.isatty(),
+            rerun_options=options_from_args(args, "dropvision"), overwrite=args.overwrite,
+        )
+    except (FileNotFoundError, ValueError, RuntimeError) as exc:
+        raise UsageError(str(exc)) from exc
+    print(
+        f"campaign: {len(res.measured)} measured, {len(res.skipped)} unchanged (skipped), "
+        f"{len(res.failed)} failed -> {res.dataset_dir}"
+    )
+    for sid, err in sorted(res.failed.items()):
+        print(f"  failed {sid}: {err}")
+    return 0
+
+
+def _run_synth_campaign_cmd(args) -> int:
+    from dropvision.app.campaign import parse_range, synth_campaign
+
+    try:
+        u1 = parse_range(args.u1, "--u1")
+        u2 = parse_range(args.u2, "--u2")
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
+    paths = synth_campaign(args.out, u1, u2, repeats_per_point=args.repeats_per_point, seed=args.seed,
+                           workers=args.workers, progress=not args.no_progress and sys.stderr.isatty(),
+                           overwrite=args.overwrite)
+    print(f"synth-campaign: {len(paths)} sequences in {args.out}")
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("campaign", help="measure every sequence below ROOT into a training dataset")
+    p.add_argument("root", help="campaign root folder (every folder with a sequence.json is a sequence)")
+    p.add_argument("--out", required=True, help="dataset folder to write (re-running resumes); never a sequence "
+                   "folder, inside one or around one")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into an existing --out that holds other files (those are kept)")
+    _add_executor_args(p)
+    add_rerun_args(p)
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_run_campaign_cmd)
+
+    s = subparsers.add_parser("synth-campaign", help="render a synthetic campaign grid with truth")
+    s.add_argument("out", help="output folder (one sequence folder per grid point)")
+    s.add_argument("--u1", default="50:80:5", help="stroke velocities um/ms, start:stop:step or list (default 50:80:5)")
+    s.add_argument("--u2", default="20:35:2.5", help="strokes um, start:stop:step or list (default 20:35:2.5)")
+    s.add_argument("--repeats-per-point", type=int, default=1, help="sequences per (u1, u2)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--workers", type=int, default=None)
+    s.add_argument("--overwrite", action="store_true",
+                   help="write into an existing OUT holding other files; same-named sequences are replaced")
+    s.add_argument("--no-progress", action="store_true")
+    s.set_defaults(func=_run_synth_campaign_cmd)

@@ -1,0 +1,264 @@
+"""The calibration pass of a sequence and what it leaves for the per-frame measurement.
+
+`calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
+(`dropvision.calibration.calibrate`: background, nozzle, axis, tilt, tip plane, liquid level),
+measures the edge blur, the transmission noise and the nozzle walls' reference sharpness and
+contrast, and builds the `FrameContext`: the region of interest (a column band around the axis,
+from just above the tip down) and the arrays every frame is measured with.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dropvision import quality as q
+from dropvision.calibration import Calibration, CalibrationError, calibrate, edge_sigma_px, find_nozzle
+from dropvision.config import MeasureConfig
+from dropvision.sequence import SequenceError
+from dropvision.segmentation import edge_threshold, threshold_image
+from dropvision.volume import NL_PER_UM3
+
+
+@dataclass
+class FrameContext:
+    """Precomputed per-sequence arrays for the per-frame measurement (region of interest).
+
+    ``r0``, ``c0:c1`` place the region of interest in the frame (px); ``*_roi`` positions are
+    in region coordinates, the others in full-frame coordinates (px).  Transmission levels
+    (``threshold``, ``liquid_level``, ``noise_t``) are relative to the background (= 1).
+    """
+
+    r0: int
+    c0: int
+    c1: int
+    height: int
+    width: int
+    inv_background: np.ndarray
+    background: np.ndarray
+    thr_image: np.ndarray
+    allowed: np.ndarray | None
+    opaque: np.ndarray | None
+    threshold: float
+    liquid_level: float
+    tip_roi: float
+    axis_col: float
+    tip_row: float
+    tilt_rad: float
+    sigma_px: float
+    pixel_size_um: float
+    max_value: int
+    sample_rows: np.ndarray
+    sample_cols: np.ndarray
+    min_area_px: int
+    gain_tolerance: float
+    saturation_limit: float
+    noise_t: float = 0.01
+    # per-frame sharpness and contrast from windows across the nozzle walls (full-frame indices)
+    wall_rows: np.ndarray | None = None
+    wall_cols: np.ndarray | None = None
+    wall_inv_background: np.ndarray | None = None
+    blur_ref_px: float = float("nan")
+    sharpness_ref: float = float("nan")
+    max_frame_blur_px: float = float("inf")
+    min_wall_contrast: float = 0.0
+
+    @classmethod
+    def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig) -> "FrameContext":
+        """Region of interest and its arrays from a calibration.
+
+        Parameters
+        ----------
+        cal : Calibration
+        sigma_px : float
+            Calibrated edge blur (Gaussian sigma, px); used only with ``config.blur_correction``.
+        dtype : numpy dtype
+            Dtype of the frames.
+        max_value : int
+            Sensor maximum grey level (saturation).
+        config : MeasureConfig
+        """
+        h, w = cal.shape
+        r0 = max(0, int(math.floor(cal.tip_row)) - 8)
+        half = config.band_half_width * cal.nozzle_outer_diameter_px + abs(math.tan(cal.tilt_rad)) * (h - r0)
+        half = max(half, 48.0)
+        c0 = max(0, int(math.floor(cal.axis_col - half)))
+        c1 = min(w, int(math.ceil(cal.axis_col + half)) + 1)
+        bg = np.ascontiguousarray(cal.background.background[r0:, c0:c1])
+        allowed = opaque = None
+        if cal.background.opaque is not None:
+            op = cal.background.opaque[r0:, c0:c1]
+            if op.any():
+                opaque = cv2.dilate(op.astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+                allowed = np.where(op, 0, 255).astype(np.uint8)
+        hh, ww = bg.shape
+        rows = np.arange(0, hh, 4)
+        sample_rows = np.concatenate([rows, rows, rows, rows])
+        sample_cols = np.concatenate([np.full(rows.size, 1), np.full(rows.size, 3), np.full(rows.size, ww - 2),
+                                      np.full(rows.size, ww - 4)]).clip(0, ww - 1)
+        return cls(
+            r0=r0, c0=c0, c1=c1, height=h, width=w,
+            inv_background=(1.0 / bg).astype(np.float32), background=bg,
+            thr_image=threshold_image(bg, cal.threshold, dtype), allowed=allowed, opaque=opaque,
+            threshold=cal.threshold, liquid_level=cal.liquid_level, tip_roi=cal.tip_row - r0, axis_col=cal.axis_col,
+            tip_row=cal.tip_row, tilt_rad=cal.tilt_rad, sigma_px=sigma_px if config.blur_correction else 0.0,
+            pixel_size_um=cal.pixel_size_um, max_value=max_value,
+            sample_rows=sample_rows, sample_cols=sample_cols, min_area_px=config.min_body_area_px,
+            gain_tolerance=config.gain_tolerance, saturation_limit=config.saturation_limit,
+        )
+
+    @property
+    def nl_per_px3(self) -> float:
+        """Volume of one cubic pixel (nl)."""
+        return self.pixel_size_um**3 * NL_PER_UM3
+
+    @property
+    def axis_roi(self) -> float:
+        """Axis column at the tip in region coordinates (px)."""
+        return self.axis_col - self.c0
+
+    def to_axis_um(self, row_roi: float, col_roi: float) -> tuple[float, float]:
+        """Axis coordinates of a region point.
+
+        Parameters
+        ----------
+        row_roi, col_roi : float
+            Point in region coordinates (px).
+
+        Returns
+        -------
+        z_um, x_um : float
+            Along the axis from the tip plane (down +) and across it (right +), in µm.
+        """
+        dy = row_roi + self.r0 - self.tip_row
+        dx = col_roi + self.c0 - self.axis_col
+        s, c = math.sin(self.tilt_rad), math.cos(self.tilt_rad)
+        return (dx * s + dy * c) * self.pixel_size_um, (dx * c - dy * s) * self.pixel_size_um
+
+
+def calibration_indices(delays_us: np.ndarray, n: int) -> list[int]:
+    """Indices of up to ``n`` frames at distinct delays spread over the sequence (first included).
+
+    Parameters
+    ----------
+    delays_us : ndarray
+        Delay of every frame (µs), in frame order.
+    n : int
+        Most frames to pick.
+
+    Returns
+    -------
+    list of int
+    """
+    if delays_us.size == 0:
+        return []
+    _, first_of = np.unique(delays_us, return_index=True)
+    first_of = np.sort(first_of)
+    pick = np.unique(np.round(np.linspace(0, first_of.size - 1, min(n, first_of.size))).astype(int))
+    return [int(first_of[i]) for i in pick]
+
+
+def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
+                       decoded: dict | None = None) -> tuple[Calibration, float, FrameContext]:
+    """Calibration pass over a few frames spread over an open sequence.
+
+    Parameters
+    ----------
+    seq : dropvision.sequence.Sequence
+        Open sequence (``meta``, ``len``, ``read``).
+    config : MeasureConfig
+    decoded : dict, optional
+        Receives the decoded calibration frames (index -> image) so that the measurement pass
+        does not decode them again.
+
+    Returns
+    -------
+    cal : Calibration
+    sigma_px : float
+        Effective edge blur (Gaussian sigma, px).
+    ctx : FrameContext
+        What `dropvision.frame.measure_frame` needs.
+
+    Raises
+    ------
+    dropvision.sequence.SequenceError
+        No readable frame, or the calibration failed.
+    """
+    meta = seq.meta
+    n = len(seq)
+    cal_frames = {}
+    for i in calibration_indices(meta.delays_us, config.calibration_frames):
+        fr = seq.read(i)
+        if fr.image is not None:
+            cal_frames[i] = fr.image
+    if not cal_frames:  # the spread frames were unreadable: take the first readable one
+        for i in range(n):
+            fr = seq.read(i)
+            if fr.image is not None:
+                cal_frames[i] = fr.image
+                break
+    if not cal_frames:
+        raise SequenceError(f"{meta.path}: no readable frame")
+    if decoded is not None:
+        decoded.update(cal_frames)
+    first_idx = min(cal_frames)
+    images = [cal_frames[i] for i in sorted(cal_frames)]
+    first = cal_frames[first_idx]
+    try:
+        cal = calibrate(
+            first, images, meta.pixel_size_um,
+            nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
+            nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
+            tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col,
+        )
+    except CalibrationError as exc:
+        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}") from exc
+    t_first = np.asarray(first, np.float32) / cal.background.background
+    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level))
+    sigma = edge_sigma_px(t_first, nozzle)
+    max_value = 2 ** int(meta.bit_depth) - 1
+    ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
+    ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
+    _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
+    return cal, sigma, ctx
+
+
+def transmission_noise(transmission: np.ndarray, default: float) -> float:
+    """Robust spread (std) of the transmission noise of bright background pixels.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        Frame over background (region of interest).
+    default : float
+        Returned when fewer than 100 neighbouring bright pairs exist.
+
+    Returns
+    -------
+    float
+        Noise standard deviation, in transmission units (MAD of horizontal differences).
+    """
+    d = np.diff(transmission, axis=1)[(transmission[:, 1:] > 0.9) & (transmission[:, :-1] > 0.9)]
+    if d.size > 100:
+        return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    return default
+
+
+def _set_wall_reference(ctx: FrameContext, cal: Calibration, nozzle, t_first: np.ndarray, sigma: float,
+                        config: MeasureConfig) -> None:
+    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane."""
+    dry = nozzle.rows <= cal.tip_row - 3
+    wr, wc = q.wall_windows(nozzle.rows[dry], nozzle.left_px[dry], nozzle.right_px[dry], t_first.shape[1])
+    if wr.shape[0] >= 4 and np.isfinite(sigma):
+        prof = t_first[wr, wc]
+        sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
+        if sharp > 0 and contrast > 0:
+            ctx.wall_rows, ctx.wall_cols = wr, wc
+            ctx.wall_inv_background = (1.0 / cal.background.background[wr, wc]).astype(np.float32)
+            ctx.blur_ref_px, ctx.sharpness_ref = float(sigma), sharp
+            ctx.max_frame_blur_px = min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma)
+            ctx.min_wall_contrast = contrast * max(1.0 - config.contrast_change_tolerance,
+                                                   config.min_contrast / max(1.0 - cal.liquid_level, 1e-6))

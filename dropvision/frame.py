@@ -1,0 +1,269 @@
+"""The per-frame measurement: one decoded frame -> a small `FrameRecord`.
+
+`measure_frame` runs the stages in order:
+
+1. `measure_photometry`: illumination gain, saturation, the frame's own blur and contrast;
+2. `segment_frame`: dark mask in the region of interest and its labelled bodies;
+3. `dropvision.bodies.measure_attached`: the liquid joined to the nozzle;
+4. `dropvision.pinchoff.thread_joined_labels`: bodies still joined to it by a thin thread;
+5. `dropvision.bodies.measure_body` / `describe_detached`: the detached bodies.
+
+`stream_frames` measures a sequence's frames in order with a few threads, decoding at most
+``2 * workers`` frames at once, so memory does not grow with the sequence length.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dropvision import quality as q
+from dropvision.bodies import (
+    DetachedBody,
+    class_image,
+    describe_detached,
+    find_nozzle_body,
+    measure_attached,
+    measure_body,
+)
+from dropvision.context import FrameContext
+from dropvision.pinchoff import thread_joined_labels
+from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
+from dropvision.volume import RowEdges
+
+
+@dataclass
+class FrameRecord:
+    """Everything kept from one frame (small).
+
+    Volumes in nl, rows in region coordinates (px), ``neck_px`` and ``blur_px`` in px; ``bodies``
+    are the detached bodies, largest first (the first is the main drop).
+    """
+
+    index: int
+    file: str
+    page: int | None
+    delay_us: float
+    repeat: int
+    attached_volume_nl: float = float("nan")
+    attached_bottom_row: float = float("nan")
+    neck_px: float = float("nan")
+    bodies: list[DetachedBody] = field(default_factory=list)
+    flags: list[str] = field(default_factory=list)
+    gain: float = 1.0
+    blur_px: float = float("nan")
+    wall_contrast: float = float("nan")
+    error: str | None = None
+
+
+def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -> FrameRecord:
+    """Measure one decoded frame (canonical orientation) with a sequence's context.
+
+    Parameters
+    ----------
+    image : ndarray
+        The full frame (raw grey levels).
+    ctx : FrameContext
+        From `dropvision.context.calibrate_sequence`.
+    ref : frame reference, optional
+        ``index``, ``file``, ``page``, ``delay_us`` (µs), ``repeat`` copied into the record.
+    logger : object, optional
+        Rerun logger (``log_frame``); None costs nothing.
+
+    Returns
+    -------
+    FrameRecord
+    """
+    rec = FrameRecord(
+        index=getattr(ref, "index", 0), file=getattr(ref, "file", ""), page=getattr(ref, "page", None),
+        delay_us=float(getattr(ref, "delay_us", 0.0)), repeat=getattr(ref, "repeat", 0),
+    )
+    roi = image[ctx.r0:, ctx.c0:ctx.c1]
+    measure_photometry(image, ctx, rec)
+    seg = segment_frame(roi, ctx, rec.gain)
+    edges: list[RowEdges] = []
+    nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    threads: set[int] = set()
+    if nozzle_body is None:
+        rec.flags.append(q.NO_NOZZLE)
+    else:
+        att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
+        edges.append(att.edges)
+        if att.leaves:
+            rec.flags.append(q.ATTACHED_LEAVES)
+        else:
+            rec.attached_volume_nl = att.volume_nl
+        rec.attached_bottom_row = att.bottom_row
+        rec.neck_px = att.neck_px
+        if np.isfinite(rec.attached_bottom_row):
+            threads = thread_joined_labels(roi, ctx, seg, nozzle_body, rec.attached_bottom_row, rec.gain)
+    for b in seg.bodies:
+        if b.nozzle:
+            continue
+        ed, bv = measure_body(roi, ctx, seg, b, rec.gain)
+        edges.append(ed)
+        if bv.volume_px3 <= 0:
+            continue
+        if b.label in threads:  # still joined by a thread thinner than the blur: attached liquid
+            if np.isfinite(rec.attached_volume_nl):
+                rec.attached_volume_nl += bv.volume_px3 * ctx.nl_per_px3
+            rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
+            continue
+        rec.bodies.append(describe_detached(ctx, seg, b, ed, bv))
+    rec.bodies.sort(key=lambda d: -d.volume_nl)
+    if logger is not None:
+        _log_frame(logger, ref, image, ctx, seg, nozzle_body, rec, edges)
+    return rec
+
+
+def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -> None:
+    """Illumination gain, saturation, edge blur and wall contrast of a frame, into ``rec``.
+
+    Sets ``rec.gain`` (frame illumination / background model), ``rec.blur_px`` (Gaussian sigma,
+    px, from the nozzle walls' steepness relative to the calibration frame) and
+    ``rec.wall_contrast`` (1 - the walls' transmission), and appends the flags: illumination
+    unknown or off by more than 10 ``ctx.gain_tolerance``, more than ``ctx.saturation_limit``
+    of the background samples saturated, blur or contrast off the calibration frame's.
+
+    Parameters
+    ----------
+    image : ndarray
+        The full frame (raw grey levels).
+    ctx : FrameContext
+    rec : FrameRecord
+        Updated in place.
+    """
+    samples = image[ctx.r0:, ctx.c0:ctx.c1][ctx.sample_rows, ctx.sample_cols]
+    gain = q.frame_gain(samples, ctx.background[ctx.sample_rows, ctx.sample_cols])
+    if not np.isfinite(gain):
+        gain = 1.0
+        rec.flags.append(q.ILLUMINATION)
+    rec.gain = gain
+    if q.saturation_fraction(samples, ctx.max_value) > ctx.saturation_limit:
+        rec.flags.append(q.SATURATED)
+    if ctx.wall_rows is not None:
+        prof = image[ctx.wall_rows, ctx.wall_cols].astype(np.float32) * ctx.wall_inv_background / gain
+        sharp = q.edge_sharpness(prof)
+        rec.wall_contrast = q.wall_contrast(prof)
+        rec.blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp if sharp > 0 else float("inf")
+        if rec.blur_px > ctx.max_frame_blur_px:
+            rec.flags.append(q.BLURRED)
+        if rec.wall_contrast < ctx.min_wall_contrast:
+            rec.flags.append(q.LOW_CONTRAST)
+    if abs(gain - 1.0) > 10 * ctx.gain_tolerance:
+        rec.flags.append(q.ILLUMINATION)
+
+
+def segment_frame(roi: np.ndarray, ctx: FrameContext, gain: float) -> Segmentation:
+    """Dark bodies of the region of interest (thresholds follow the frame's illumination).
+
+    Parameters
+    ----------
+    roi : ndarray
+        Raw frame, region of interest.
+    ctx : FrameContext
+    gain : float
+        Frame illumination relative to the background model; beyond ``ctx.gain_tolerance`` the
+        threshold image is recomputed for it.
+
+    Returns
+    -------
+    Segmentation
+    """
+    thr_img = ctx.thr_image
+    if abs(gain - 1.0) > ctx.gain_tolerance:
+        thr_img = threshold_image(ctx.background * gain, ctx.threshold, roi.dtype)
+    mask = dark_mask(np.ascontiguousarray(roi), thr_img, ctx.allowed)
+    return segment(mask, ctx.min_area_px)
+
+
+def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: Body | None,
+               rec: FrameRecord, all_edges: list[RowEdges]) -> None:
+    """Hand the frame's stages to a Rerun logger (only called when logging is on)."""
+    labels, boxes = class_image(seg, nozzle_body, rec.bodies[0].bbox if rec.bodies else None, ctx.opaque)
+    t_full = image.astype(np.float32)
+    t_full[ctx.r0:, ctx.c0:ctx.c1] *= ctx.inv_background
+    pts = []
+    for ed in all_edges:
+        pts.append(np.column_stack([ed.left_px, ed.row]))
+        pts.append(np.column_stack([ed.right_px, ed.row]))
+    edges = np.concatenate(pts) if pts else np.zeros((0, 2))
+    t_roi = t_full[ctx.r0:, ctx.c0:ctx.c1]
+    t_full = np.ones_like(t_full)
+    t_full[ctx.r0:, ctx.c0:ctx.c1] = t_roi
+    logger.log_frame(ref, image, t_full, labels, edges, boxes, None, roi_origin_xy=(ctx.c0, ctx.r0))
+
+
+def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, progress: bool = False,
+                  decoded: dict | None = None):
+    """Measure frames of an open sequence, yielding their `FrameRecord` in order.
+
+    At most ``2 * workers`` frames are decoded at once (one thread when logging).
+
+    Parameters
+    ----------
+    seq : dropvision.sequence.Sequence
+        Open sequence (``meta``, ``read``).
+    indices : sequence of int
+        Frames to measure.
+    ctx : FrameContext
+    workers : int
+        Threads (cv2 releases the GIL).
+    logger : object, optional
+        Rerun logger.
+    progress : bool
+        Progress bar on stderr.
+    decoded : dict, optional
+        Images already decoded by the calibration pass (index -> image, a few): used once and
+        dropped instead of being decoded again.
+
+    Yields
+    ------
+    FrameRecord
+        With ``error`` set (and nothing measured) for an unreadable frame.
+    """
+    decoded = {} if decoded is None else decoded
+
+    def work(i):
+        image = decoded.pop(i, None)
+        if image is not None:
+            return measure_frame(image, ctx, seq.meta.frames[i], logger)
+        fr = seq.read(i)
+        if fr.image is None:
+            return FrameRecord(fr.ref.index, fr.ref.file, fr.ref.page, fr.ref.delay_us, fr.ref.repeat, error=fr.error)
+        return measure_frame(fr.image, ctx, fr.ref, logger)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm  # optional progress bar: imported only when asked for
+
+        bar = tqdm(total=len(indices), desc="measure", unit="frame", file=sys.stderr)
+    try:
+        if workers <= 1 or logger is not None:
+            for i in indices:
+                yield work(i)
+                if bar is not None:
+                    bar.update()
+            return
+        with ThreadPoolExecutor(max_workers=workers) as pool:
+            pending: deque = deque()
+            it = iter(indices)
+            for i in it:
+                pending.append(pool.submit(work, i))
+                if len(pending) >= 2 * workers:
+                    break
+            while pending:
+                rec = pending.popleft().result()
+                nxt = next(it, None)
+                if nxt is not None:
+                    pending.append(pool.submit(work, nxt))
+                yield rec
+                if bar is not None:
+                    bar.update()
+    finally:
+        if bar is not None:
+            bar.close()

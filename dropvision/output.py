@@ -1,0 +1,39 @@
+"""Writing a measurement: frames.parquet (+ frames.csv), per_delay.parquet, summary.json."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from dropvision.summary import per_delay
+from identify.atomic import write_json
+
+if TYPE_CHECKING:  # pragma: no cover - typing only
+    from dropvision.measure import MeasureResult
+
+
+def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_summary: dict | None = None) -> None:
+    """Write a measurement's files into a folder.
+
+    Parameters
+    ----------
+    result : MeasureResult
+        Frames table and summary.
+    out_dir : str or Path
+        Created if missing; the files are written in place (wrap in `identify.atomic.atomic_dir`
+        for an atomic result, as `dropvision.measure.measure_sequence` does).
+    csv : bool
+        Also write frames.csv.
+    extra_summary : dict, optional
+        Entries added to (or replacing those of) summary.json.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result.frames.to_parquet(out / "frames.parquet", index=False)
+    if csv:
+        result.frames.to_csv(out / "frames.csv", index=False)
+    per_delay(result.frames).to_parquet(out / "per_delay.parquet", index=False)
+    summary = dict(result.summary)
+    if extra_summary:
+        summary.update(extra_summary)
+    write_json(out / "summary.json", summary)

@@ -1,0 +1,127 @@
+"""The interface every image-format reader implements (see docs/READERS.md).
+
+A reader turns one image file into frames: :meth:`Reader.probe` tells how many frames (pages)
+the file holds and which delays it stores, :meth:`Reader.decode` decodes one of them to a
+numpy array. The sequence layer (:mod:`dropvision.sequence`) picks the reader by file suffix
+from the registry in :mod:`dropvision.readers`, converts colour to grey, checks pixel types and
+rotates frames into the canonical orientation; readers do none of that.
+
+Errors: a file that cannot be decoded (truncated, corrupt) raises :class:`UnreadableImage`
+(the frame is then reported as unreadable and the sequence goes on); a readable file that
+cannot be used as asked (a page that does not exist, contradictory metadata) raises
+:class:`InvalidImage` (the sequence layer turns it into a ``SequenceError``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Reader", "ImageInfo", "OpenImage", "UnreadableImage", "InvalidImage", "is_number"]
+
+
+class UnreadableImage(Exception):
+    """An image file that cannot be decoded (zero-byte, truncated, corrupt); the message says
+    why, without the file name."""
+
+
+class InvalidImage(Exception):
+    """A readable image file that cannot be used as asked; the message names the file."""
+
+
+def is_number(value) -> bool:
+    """True for an int or float (Python or numpy), False for bool and everything else."""
+    return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What :meth:`Reader.probe` learns about a file without decoding pixels.
+
+    Attributes
+    ----------
+    n_pages : int
+        Number of frames (pages) the file holds; 1 for single-image formats.
+    page_delays : dict
+        Page index -> delay stored in the file (µs), as stored: a number, or a string such as
+        ``"1150us"`` (validated by the sequence layer). Empty when the file stores none.
+    """
+
+    n_pages: int = 1
+    page_delays: dict = field(default_factory=dict)
+
+
+class OpenImage:
+    """An image file kept open to decode several of its pages (see :meth:`Reader.open`).
+
+    This default keeps nothing open and decodes the file afresh each time.
+    """
+
+    def __init__(self, reader: "Reader", path: Path):
+        self.reader = reader
+        self.path = Path(path)
+
+    def decode(self, page: int | None) -> np.ndarray:
+        """Decode ``page`` (None: the file's only image), as :meth:`Reader.decode`."""
+        return self.reader.decode(self.path, page)
+
+    def close(self) -> None:
+        """Release the file."""
+
+
+class Reader:
+    """Base class of the image-format readers; subclass it and register an instance.
+
+    Class attributes
+    ----------------
+    suffixes : tuple of str
+        Lower-case file suffixes this reader handles (``(".png",)``).
+    paged : bool
+        True when one file may hold several frames, addressed by ``page`` (TIFF stacks).
+    stores_pixel_size : bool
+        True when files of this type may carry the pixel size (:meth:`pixel_size`).
+    bgr : bool
+        Channel order of colour arrays returned by :meth:`decode`: True for BGR(A) (OpenCV),
+        False for RGB(A).
+    """
+
+    suffixes: tuple[str, ...] = ()
+    paged: bool = False
+    stores_pixel_size: bool = False
+    bgr: bool = True
+
+    def probe(self, path: Path) -> ImageInfo:
+        """Pages and stored delays of ``path`` (no pixel decoding). The default: one page, no
+        delays. May raise on unreadable files (the caller then assumes the default)."""
+        return ImageInfo()
+
+    def decode(self, path: Path, page: int | None) -> np.ndarray:
+        """Decode one frame: ``page`` of a paged file (None: the only or first image).
+
+        Returns the array as stored (2-D grey, or (H, W, C) colour in :attr:`bgr` order;
+        uint8/uint16 for the supported cameras). Raises :class:`UnreadableImage` for a file that
+        cannot be decoded and :class:`InvalidImage` for a page that cannot be used.
+        """
+        raise NotImplementedError
+
+    def open(self, path: Path) -> OpenImage:
+        """Open ``path`` to decode several of its pages cheaply; the caller closes it.
+
+        The default reopens the file for each page; paged readers keep it open. Raises
+        :class:`UnreadableImage` when the file cannot be opened.
+        """
+        return OpenImage(self, path)
+
+    def pixel_size(self, path: Path) -> tuple[float | None, str]:
+        """Pixel size (µm) stored in the file and its source (e.g. ``"ome"``), else
+        ``(None, "")``. Raises :class:`InvalidImage` for contradictory metadata."""
+        return None, ""
+
+    def significant_bits(self, path: Path, page: int | None) -> int | None:
+        """Significant bits of a 16-bit frame as the file declares them, else None."""
+        return None
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({', '.join(self.suffixes)})"

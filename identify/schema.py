@@ -1,0 +1,325 @@
+"""Every table and JSON document dropvision and identify write: one declaration each.
+
+Each declaration names its columns (or keys) with dtype, unit and meaning, and carries one schema
+id with a version (``"dropvision.frames/1"``). Writers take column order and ids from here;
+readers check what they load with :func:`check_table` / :func:`check_document`, which raise
+:class:`SchemaError` naming the file and the mismatch. ``docs/FORMAT.md`` documents the outputs
+from :func:`markdown` (a test keeps the two identical).
+
+This module sits in the modelling layer (it knows nothing of images) so that both the
+measurement layer and the modelling layer import it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = [
+    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "QUALITY_CODES",
+    "check_table", "check_document", "markdown",
+]
+
+
+class SchemaError(ValueError):
+    """A table or document that does not match its declaration (the message names the file)."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One column of a table or one key of a document.
+
+    Attributes
+    ----------
+    name : str
+    dtype : str
+        ``float``, ``int`` (nullable ``Int64`` in tables where ``nullable``), ``bool``, ``str``,
+        ``id`` (int or str), ``object`` (a nested JSON value), ``list``.
+    unit : str
+        Physical unit ("" for none).
+    meaning : str
+    nullable : bool
+        NaN/None allowed.
+    required : bool
+        Must be present (documents); every table column is required.
+    """
+
+    name: str
+    dtype: str
+    unit: str
+    meaning: str
+    nullable: bool = True
+    required: bool = True
+
+
+@dataclass(frozen=True)
+class Table:
+    """A Parquet table: file name, schema id and columns (in order)."""
+
+    name: str
+    file: str
+    schema: str
+    columns: tuple[Field, ...]
+    description: str
+
+    @property
+    def column_names(self) -> list[str]:
+        return [c.name for c in self.columns]
+
+
+@dataclass(frozen=True)
+class Document:
+    """A JSON document: file name, schema id (``schema`` key) and its keys."""
+
+    name: str
+    file: str
+    schema: str
+    keys: tuple[Field, ...]
+    description: str
+    aliases: tuple[str, ...] = ()
+
+    @property
+    def key_names(self) -> list[str]:
+        return [k.name for k in self.keys]
+
+
+F = Field
+
+# ----------------------------------------------------------------------------- per-frame table
+FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
+    F("file", "str", "", "image file (relative to the sequence folder)", nullable=False),
+    F("page", "int", "", "page of a multi-page TIFF (null for single images)"),
+    F("delay_us", "float", "us", "strobe delay after the firing trigger", nullable=False),
+    F("repeat", "int", "", "index among frames at the same delay (0, 1, ...)", nullable=False),
+    F("attached", "bool", "", "the liquid is still joined to the nozzle", nullable=False),
+    F("attached_volume_nl", "float", "nl", "volume of the liquid joined to the nozzle, below the tip plane"),
+    F("grown_volume_nl", "float", "nl", "attached volume minus the initial meniscus (until pinch-off)"),
+    F("drop_volume_nl", "float", "nl", "volume of the main detached drop"),
+    F("detached_volume_nl", "float", "nl", "volume of every detached body (main drop + satellites)"),
+    F("drop_z_um", "float", "um", "main-drop centroid along the jetting axis from the tip plane"),
+    F("drop_x_um", "float", "um", "main-drop centroid across the axis"),
+    F("n_satellites", "int", "", "satellite drops in the frame"),
+    F("flow_velocity_m_s", "float", "m/s", "average flow velocity through the nozzle (growth rate / nozzle area)"),
+    F("quality", "str", "", "'ok' or the quality flags joined by '; '", nullable=False),
+    F("drop_length_um", "float", "um", "extent of the main drop along the axis"),
+    F("drop_diameter_um", "float", "um", "extent of the main drop across the axis"),
+    F("inflight", "bool", "", "the main drop is compact and in flight (used for in-flight volume and velocity)",
+      nullable=False),
+    F("neck_px", "float", "px", "narrowest width of the neck while attached"),
+    F("gain", "float", "", "illumination of the frame relative to the background model"),
+    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls"),
+    F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
+), "One row per frame, in delay order (repeats kept).")
+
+PER_DELAY = Table("per_delay", "per_delay.parquet", "dropvision.per-delay/1", (
+    F("delay_us", "float", "us", "strobe delay", nullable=False),
+    F("n_frames", "int", "", "frames at this delay", nullable=False),
+    *(F(f"{c}_{stat}", "float", unit if stat != "count" else "", f"{stat} of {c} over the frames at this delay")
+      for c, unit in (("attached_volume_nl", "nl"), ("grown_volume_nl", "nl"), ("drop_volume_nl", "nl"),
+                      ("detached_volume_nl", "nl"), ("drop_z_um", "um"), ("drop_x_um", "um"),
+                      ("n_satellites", ""), ("flow_velocity_m_s", "m/s"))
+      for stat in ("mean", "std", "count")),
+    F("attached_fraction", "float", "", "fraction of the frames at this delay still attached"),
+), "Statistics of the frames table over repeated frames at one delay.")
+
+SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
+    F("schema_version", "str", "", "document id"),
+    F("sequence", "str", "", "measured sequence folder"),
+    F("n_frames", "int", "", "frames in the sequence", nullable=False),
+    F("n_measured", "int", "", "frames measured (the others are in errors)", nullable=False),
+    F("pinchoff_us", "float", "us", "first delay at which the drop is separated from the meniscus"),
+    F("grown_volume_at_pinchoff_nl", "float", "nl", "grown volume in the last attached frame before pinch-off"),
+    F("initial_meniscus_volume_nl", "float", "nl", "attached volume at rest (subtracted to give the grown volume)"),
+    F("initial_meniscus_source", "str", "", "which frames gave the initial meniscus"),
+    F("inflight_volume_nl", "float", "nl", "mean main-drop volume over the in-flight frames"),
+    F("inflight_volume_std_nl", "float", "nl", "its standard deviation"),
+    F("inflight_frames", "int", "", "in-flight frames used"),
+    F("jetting_velocity_m_s", "float", "m/s", "slope of the main-drop position over the in-flight frames"),
+    F("jetting_velocity_se_m_s", "float", "m/s", "its standard error"),
+    F("trajectory_angle_mrad", "float", "mrad", "angle of the trajectory to the nozzle axis"),
+    F("satellites", "int", "", "median satellite count over the in-flight frames"),
+    F("max_stroke_us", "float", "us", "instant of maximum stroke (dead time + u2/u1)"),
+    F("flow_velocity_at_max_stroke_m_s", "float", "m/s", "flow velocity at that instant"),
+    F("calibration", "object", "", "tip row, axis column, tilt, pixel size and their checks"),
+    F("errors", "list", "", "frames that could not be read or measured: file, page, delay_us, reason"),
+    F("quality_counts", "object", "", "frames per quality text"),
+    F("software", "object", "", "versions of Python and of every package the result depends on"),
+    F("config", "object", "", "the measurement configuration (MeasureConfig)"),
+), "One per measured sequence; with the versions and the configuration the result is reproducible.")
+
+# ----------------------------------------------------------------------------- campaign dataset
+TIMESERIES = Table("timeseries", "timeseries.parquet", "dropvision.timeseries/1", (
+    F("sequence_id", "id", "", "sequence (its folder relative to the campaign root)", nullable=False),
+    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1", nullable=False),
+    F("u2_um", "float", "um", "stroke u2", nullable=False),
+    F("delay_us", "float", "us", "strobe delay after the trigger", nullable=False),
+    F("grown_volume_nl", "float", "nl", "grown volume (initial meniscus subtracted); NaN only once detached"),
+    F("flow_velocity_m_s", "float", "m/s", "average flow velocity in the nozzle"),
+    F("attached", "bool", "", "every frame at this delay shows the drop joined to the nozzle", nullable=False),
+), "Training time series: one row per sequence and strobe delay.")
+
+DATASET_SUMMARY = Table("dataset_summary", "summary.parquet", "dropvision.dataset-summary/1", (
+    F("sequence_id", "id", "", "sequence", nullable=False),
+    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1", nullable=False),
+    F("u2_um", "float", "um", "stroke u2", nullable=False),
+    F("pinchoff_us", "float", "us", "pinch-off instant after the trigger"),
+    F("grown_volume_at_pinchoff_nl", "float", "nl", "grown volume right before pinch-off"),
+    F("inflight_volume_nl", "float", "nl", "in-flight drop volume"),
+    F("jetting_velocity_m_s", "float", "m/s", "jetting velocity"),
+    F("flow_velocity_at_max_stroke_m_s", "float", "m/s", "flow velocity at maximum stroke"),
+    F("inflight_volume_std_nl", "float", "nl", "scatter of the in-flight volume", required=False),
+    F("jetting_velocity_se_m_s", "float", "m/s", "standard error of the jetting velocity", required=False),
+    F("satellites", "float", "", "satellite count", required=False),
+    F("n_frames", "float", "", "frames measured", required=False),
+    F("n_errors", "float", "", "frames skipped", required=False),
+), "Training summary: one row per sequence.")
+
+DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
+    F("schema", "str", "", "document id"),
+    F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter", nullable=False),
+    F("sample_interval_us", "float", "us", "strobe interval", nullable=False),
+    F("dead_time_us", "float", "us", "trigger-to-piston dead time (default 220)", required=False),
+    F("u3_um_per_ms", "float", "um/ms", "instroke velocity (default 2)", required=False),
+    F("hold_us", "float", "us", "hold time (default 20)", required=False),
+    F("ink", "object", "", "density_kg_m3, viscosity_mPa_s, surface_tension_mN_m", required=False),
+    F("nozzle", "object", "", "length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm",
+      required=False),
+    F("pixel_size_um", "float", "um", "pixel size of the images", required=False),
+    F("sequences", "list", "", "sequence ids measured", required=False),
+    F("failed", "object", "", "sequence id -> why it failed", required=False),
+    F("versions", "object", "", "software versions", required=False),
+), "Campaign dataset metadata (also written by identify's Dataset.save).", aliases=("identify.dataset/1",))
+
+MANIFEST = Document("manifest", "manifest.json", "dropvision.manifest/1", (
+    F("schema", "str", "", "document id"),
+    F("root", "str", "", "campaign root folder"),
+    F("versions", "object", "", "software versions"),
+    F("sequences", "object", "", "sequence id -> path, input_hash, shard, status, error, meta"),
+), "Campaign progress: what was measured from which inputs (resumable).")
+
+MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
+    F("schema", "str", "", "document id"),
+    F("ecm", "object", "", "ECM coefficients A3..B0 (SI), their covariance and physical parameters"),
+    F("pinchoff", "object", "", "pinch-off polynomial in (u1, u2), us"),
+    F("volume_adjuster", "object", "", "volume adjuster polynomial, nl"),
+    F("velocity_adjuster", "object", "", "velocity adjuster polynomial, m/s"),
+    F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter"),
+    F("versions", "object", "", "software versions", required=False),
+), "Identified hybrid model (Eq. 8).")
+
+OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision.output-marker/1", (
+    F("schema", "str", "", "document id"),
+    F("kind", "str", "", "what the folder holds"),
+    F("written_by", "str", "", "dropvision version"),
+    F("files", "list", "", "files we wrote there (a folder is replaced only if it holds nothing else)"),
+), "Ownership marker of every folder we write.")
+
+TABLES = {t.name: t for t in (FRAMES, PER_DELAY, TIMESERIES, DATASET_SUMMARY)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER)}
+
+#: Quality flags of the frames table (``quality`` column): code -> explanation.
+QUALITY_CODES: dict[str, str] = {
+    "ok": "every value of the frame is trusted",
+    "saturated background": "too many background pixels at the sensor maximum: volumes not trusted",
+    "illumination differs from the background model": "strobe intensity changed: segmentation not trusted",
+    "low contrast": "liquid too bright against the background for sub-pixel edges",
+    "blurred": "edges blurred beyond the limit (focus or motion)",
+    "nozzle not found": "the nozzle could not be located in the frame",
+    "attached liquid leaves the field of view": "attached volume incomplete",
+    "drop leaves the field of view": "main-drop volume incomplete",
+    "drop crosses the measurement band": "main drop partly outside the measured column band",
+    "drop overlaps a static speck": "dust in the drop's silhouette",
+    "ambiguous separation": "attached/detached cannot be decided",
+    "no drop in the field of view": "no detached drop to measure",
+    "tail still joined to the drop": "drop not yet compact: not used for in-flight values",
+    "no frame shows the meniscus at rest (first delay after the dead time): grown volume unknown":
+        "no frame before the piston moves: grown volume and flow cannot be referenced",
+}
+
+
+# ----------------------------------------------------------------------------- checks
+_KINDS = {
+    "float": lambda k: k in "fiu",
+    "int": lambda k: k in "iu" or k == "f",  # Int64 with nulls reads back as float in some paths
+    "bool": lambda k: k == "b",
+    "str": lambda k: k in "OUS",
+    "id": lambda k: k in "iuOUS",
+    "object": lambda k: True,
+    "list": lambda k: True,
+}
+
+
+def check_table(df, table: Table | str, source) -> None:
+    """Check that ``df`` (read from ``source``) has every required column of ``table`` with the
+    declared kind, and NaN only where allowed.
+
+    Raises
+    ------
+    SchemaError
+        Naming ``source``, the column and the problem.
+    """
+    import numpy as np
+    import pandas as pd
+
+    table = TABLES[table] if isinstance(table, str) else table
+    for col in table.columns:
+        if col.name not in df.columns:
+            if col.required:
+                raise SchemaError(f"{source}: missing column {col.name!r} ({col.meaning}); "
+                                  f"expected a {table.schema} table")
+            continue
+        series = df[col.name]
+        kind = series.dtype.kind if not isinstance(series.dtype, pd.CategoricalDtype) else "O"
+        if isinstance(series.dtype, pd.BooleanDtype):
+            kind = "b"
+        elif pd.api.types.is_integer_dtype(series.dtype):
+            kind = "i"
+        if not _KINDS[col.dtype](kind):
+            raise SchemaError(f"{source}: column {col.name!r} has dtype {series.dtype}, expected {col.dtype}"
+                              + (f" ({col.unit})" if col.unit else ""))
+        if not col.nullable and series.isna().any():
+            raise SchemaError(f"{source}: column {col.name!r} has missing values in "
+                              f"{int(series.isna().sum())} row(s)")
+        if col.dtype == "float" and kind in "fiu":
+            values = series.to_numpy(dtype=float, na_value=np.nan)
+            if np.isinf(values).any():
+                raise SchemaError(f"{source}: column {col.name!r} holds infinite values")
+
+
+def check_document(doc, document: Document | str, source) -> dict:
+    """Check the ``schema`` id (when the document carries one) and the required keys.
+
+    Returns the document. Raises :class:`SchemaError` naming ``source`` and the mismatch.
+    """
+    document = DOCUMENTS[document] if isinstance(document, str) else document
+    if not isinstance(doc, dict):
+        raise SchemaError(f"{source}: expected a JSON object ({document.schema}), got {type(doc).__name__}")
+    key = "schema_version" if "schema_version" in document.key_names else "schema"
+    found = doc.get(key)
+    if found is not None and found != document.schema and found not in document.aliases:
+        raise SchemaError(f"{source}: schema {found!r} is not {document.schema!r}; it was written by another "
+                          "program or another major version")
+    missing = [k.name for k in document.keys if k.required and k.name not in ("schema", "schema_version")
+               and k.name not in doc]
+    if missing:
+        raise SchemaError(f"{source}: missing key(s) {', '.join(missing)} ({document.schema})")
+    return doc
+
+
+def markdown() -> str:
+    """The outputs part of docs/FORMAT.md, generated from the declarations."""
+    lines = ["<!-- generated from identify/schema.py by identify.schema.markdown(); do not edit by hand -->", ""]
+    for t in TABLES.values():
+        lines += [f"### `{t.file}` ({t.schema})", "", t.description, "",
+                  "| column | dtype | unit | meaning |", "|---|---|---|---|"]
+        lines += [f"| `{c.name}` | {c.dtype}{'' if c.nullable else ', not null'}"
+                  f"{'' if c.required else ', optional'} | {c.unit} | {c.meaning} |" for c in t.columns]
+        lines.append("")
+    for d in DOCUMENTS.values():
+        lines += [f"### `{d.file}` ({d.schema})", "", d.description, "",
+                  "| key | type | unit | meaning |", "|---|---|---|---|"]
+        lines += [f"| `{k.name}` | {k.dtype}{'' if k.required else ', optional'} | {k.unit} | {k.meaning} |"
+                  for k in d.keys]
+        lines.append("")
+    lines += ["### Quality flags (`quality` column)", "", "| flag | meaning |", "|---|---|"]
+    lines += [f"| `{code}` | {text} |" for code, text in QUALITY_CODES.items()]
+    return "\n".join(lines) + "\n"
