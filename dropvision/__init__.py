@@ -1,3 +1,45 @@
-"""dropvision: stroboscopic measurement of drop-on-demand drop formation."""
+"""dropvision: stroboscopic measurement of drop-on-demand drop formation.
+
+The public API (loaded on first use, so ``import dropvision`` stays cheap)::
+
+    import dropvision
+    res = dropvision.measure("sample_frames/colour_ink_u70_u25")    # a sequence folder
+    res.frames, res.summary                                          # DataFrame, dict
+    res = dropvision.measure(stack, delays_us=d, pixel_size_um=4.73) # frames in memory
+    seq = dropvision.open_sequence(folder)                           # validate, read lazily
+    dropvision.synthesize(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
+    dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset
+
+Layers: `identify` (models, no images) < `dropvision` (measurement) < `dropvision.app` /
+`identify.app` (command lines, campaigns, demo, Rerun views); see tests/test_layers.py.
+"""
+
+import importlib
 
 __version__ = "0.1.0"
+
+# public name -> module that defines it
+_WHERE = {
+    "measure": ("dropvision.api", "measure"),
+    "MeasureConfig": ("dropvision.config", "MeasureConfig"),
+    "MeasureResult": ("dropvision.measurement", "MeasureResult"),
+    "measure_sequence": ("dropvision.measurement", "measure_sequence"),
+    "open_sequence": ("dropvision.sequence", "open_sequence"),
+    "sequence_from_arrays": ("dropvision.sequence", "sequence_from_arrays"),
+    "SequenceError": ("dropvision.sequence", "SequenceError"),
+    "SynthConfig": ("dropvision.synth.sequence", "SynthConfig"),
+    "synthesize": ("dropvision.synth.writer", "write_synthetic_sequence"),
+    "run_campaign": ("dropvision.app.campaign", "run_campaign"),
+}
+__all__ = ["__version__", *_WHERE]
+
+
+def __getattr__(name):
+    if name in _WHERE:
+        module, attr = _WHERE[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'dropvision' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + list(_WHERE))

@@ -1,4 +1,4 @@
-"""Measurement configuration: the knobs of `dropvision.measure.measure_sequence`."""
+"""Measurement configuration: the knobs of `dropvision.measurement.measure_sequence`."""
 
 from __future__ import annotations
 

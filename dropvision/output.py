@@ -9,7 +9,7 @@ from dropvision.summary import per_delay
 from identify.atomic import write_json
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
-    from dropvision.measure import MeasureResult
+    from dropvision.measurement import MeasureResult
 
 
 def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_summary: dict | None = None) -> None:
@@ -21,7 +21,7 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
         Frames table and summary.
     out_dir : str or Path
         Created if missing; the files are written in place (wrap in `identify.atomic.atomic_dir`
-        for an atomic result, as `dropvision.measure.measure_sequence` does).
+        for an atomic result, as `dropvision.measurement.measure_sequence` does).
     csv : bool
         Also write frames.csv.
     extra_summary : dict, optional

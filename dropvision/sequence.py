@@ -736,3 +736,101 @@ def open_sequence(path) -> Sequence:
     return Sequence(meta, first_img.dtype)
 
 
+
+
+class ArraySequence(Sequence):
+    """A sequence whose frames are arrays in memory (see :func:`sequence_from_arrays`)."""
+
+    def __init__(self, meta: SequenceMeta, images: list[np.ndarray]):
+        super().__init__(meta, images[0].dtype)
+        self._images = images  # canonical orientation, processing (delay) order
+
+    def __getstate__(self):
+        return {"meta": self.meta, "_dtype": self._dtype, "_images": self._images}
+
+    def __setstate__(self, state) -> None:
+        super().__setstate__(state)
+        self._images = state["_images"]
+
+    def read(self, index: int) -> Frame:
+        return Frame(self.meta.frames[index], self._images[index], None)
+
+
+def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation: str = "down",
+                         nozzle_inner_diameter_um: float | None = None,
+                         nozzle_outer_diameter_um: float | None = None,
+                         nozzle_tip_row: float | None = None, axis_col: float | None = None,
+                         waveform: dict | None = None, ink: dict | None = None, bit_depth: int | None = None,
+                         name: str = "in-memory") -> ArraySequence:
+    """A sequence from frames already in memory (a camera SDK, a video decoded elsewhere).
+
+    Parameters
+    ----------
+    images : array_like, shape (n, rows, cols) or (n, rows, cols, 3), or a list of such frames
+        8- or 16-bit unsigned frames, as recorded (``orientation`` says where the drops fly);
+        colour frames (RGB order) become grey by luminance.
+    delays_us : array_like of float, shape (n,)
+        Strobe delay of each frame after the firing trigger (µs); any order, repeats allowed.
+    pixel_size_um : float
+        Pixel size in µm (> 0).
+    orientation, nozzle_inner_diameter_um, nozzle_outer_diameter_um, nozzle_tip_row, axis_col, waveform, ink
+        As the keys of sequence.json (docs/FORMAT.md); row/column in the frames as given.
+    bit_depth : int, optional
+        8, 12 or 16 (default: 8 for uint8 frames, 16 for uint16).
+    name : str
+        Shown as the sequence in results and messages.
+
+    Raises
+    ------
+    SequenceError
+        Frames of different sizes or types, a delay count that does not match, bad metadata.
+    """
+    where = f"<{name}>"
+    if isinstance(images, np.ndarray):
+        frames = [images[i] for i in range(images.shape[0])] if images.ndim >= 3 else [images]
+    else:
+        frames = [np.asarray(f) for f in images]
+    delays = np.atleast_1d(np.asarray(delays_us, dtype=float))
+    if not frames:
+        raise SequenceError(f"{where}: no frames")
+    if delays.shape != (len(frames),):
+        raise SequenceError(f"{where}: {len(frames)} frame(s) but {delays.size} delay(s)")
+    if not np.all(np.isfinite(delays)):
+        raise SequenceError(f"{where}: delays_us must be finite numbers")
+    pixel_size_um = _positive(pixel_size_um, "pixel_size_um", where, required=True)
+    orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
+    if orientation not in ORIENTATIONS:
+        raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, got {orientation!r}")
+    grey = []
+    for i, img in enumerate(frames):
+        img = _to_grey(np.asarray(img), f"{where} frame {i}", False, False)
+        if img.ndim != 2 or img.dtype not in (np.uint8, np.uint16):
+            raise SequenceError(f"{where} frame {i}: expected a 2-D uint8/uint16 frame (or RGB), "
+                                f"got shape {img.shape} {img.dtype}")
+        grey.append(img)
+    if len({(g.shape, g.dtype) for g in grey}) != 1:
+        raise SequenceError(f"{where}: frames differ in size or pixel type "
+                            f"({sorted({(g.shape, str(g.dtype)) for g in grey})})")
+    if bit_depth is None:
+        bit_depth = 8 if grey[0].dtype == np.uint8 else 16
+    if bit_depth not in ((8,) if grey[0].dtype == np.uint8 else (12, 16)):
+        raise SequenceError(f"{where}: bit_depth {bit_depth!r} does not fit {grey[0].dtype} frames")
+    order = sorted(range(len(grey)), key=lambda i: delays[i])
+    repeats: Counter = Counter()
+    refs, canonical = [], []
+    for index, i in enumerate(order):
+        key = round(float(delays[i]), 6)
+        refs.append(FrameRef(index, f"frame_{i:05d}", None, float(delays[i]), repeats[key], i))
+        repeats[key] += 1
+        canonical.append(np.ascontiguousarray(to_canonical(grey[i], orientation)))
+    tip_c, axis_c = original_to_canonical(
+        _finite_or_none(nozzle_tip_row, "nozzle_tip_row", where),
+        _finite_or_none(axis_col, "axis_col", where), orientation, grey[0].shape)
+    meta = SequenceMeta(Path(where), pixel_size_um,
+                        _positive(nozzle_inner_diameter_um, "nozzle_inner_diameter_um", where),
+                        _positive(nozzle_outer_diameter_um, "nozzle_outer_diameter_um", where),
+                        None if tip_c is None else float(tip_c), None if axis_c is None else float(axis_c),
+                        orientation, _validate_waveform(waveform, where), _validate_ink(ink, where),
+                        tuple(refs), tuple(int(n) for n in canonical[0].shape), int(bit_depth),
+                        order != list(range(len(grey))), {}, "arguments")
+    return ArraySequence(meta, canonical)

@@ -29,21 +29,14 @@ from dropvision.flow import flow_velocity_at, grown_and_flow
 from dropvision.frame import FrameRecord
 from dropvision.pinchoff import pinchoff_delay
 from dropvision.tracking import fit_line, track_main_drop
+from identify import schema
 from identify.versions import software_versions
 from identify.waveform import Waveform
 
-SCHEMA_VERSION = "dropvision.measure/1"
-
-FRAME_COLUMNS = [
-    "file", "page", "delay_us", "repeat", "attached", "attached_volume_nl", "grown_volume_nl",
-    "drop_volume_nl", "detached_volume_nl", "drop_z_um", "drop_x_um", "n_satellites",
-    "flow_velocity_m_s", "quality", "drop_length_um", "drop_diameter_um", "inflight", "neck_px", "gain",
-    "blur_px", "wall_contrast",
-]
-PER_DELAY_COLUMNS = [
-    "attached_volume_nl", "grown_volume_nl", "drop_volume_nl", "detached_volume_nl", "drop_z_um",
-    "drop_x_um", "n_satellites", "flow_velocity_m_s",
-]
+SCHEMA_VERSION = schema.SUMMARY.schema
+#: Columns of frames.parquet, in order (declared with dtype, unit and meaning in `identify.schema.FRAMES`).
+FRAME_COLUMNS = schema.FRAMES.column_names
+PER_DELAY_COLUMNS = [name for name, _ in schema.PER_DELAY_SOURCES]
 #: Flags of a frame whose intensities are not trusted: no number from it.
 UNTRUSTED_INTENSITY_FLAGS = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION)
 #: Flags that only keep a frame out of the in-flight set (not shown in ``quality``).

@@ -34,9 +34,11 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
+from identify import __version__, schema
+
 #: Marker file of every folder dropvision writes.
-MARKER = ".dropvision-output.json"
-MARKER_SCHEMA = "dropvision.output-marker/1"
+MARKER = schema.OUTPUT_MARKER.file
+MARKER_SCHEMA = schema.OUTPUT_MARKER.schema
 #: Prefix of every temporary file or folder we create (see `remove_leftovers`).
 TMP_PREFIX = ".dvtmp."
 _LEFTOVER = re.compile(r"^\.dvtmp\..+\.(tmp|old)$")
@@ -178,8 +180,6 @@ def _refusal(final: Path, foreign: list[str]) -> OutputError:
 
 
 def _write_marker(folder: Path, files: Iterable[str], kind: str) -> None:
-    from identify import __version__
-
     write_text(folder / MARKER, json.dumps(
         {"schema": MARKER_SCHEMA, "kind": kind, "written_by": f"dropvision {__version__}",
          "files": sorted(set(files))}, indent=1) + "\n")

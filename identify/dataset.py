@@ -37,35 +37,21 @@ import numpy as np
 import pandas as pd
 
 from identify.atomic import atomic_dir, write_json
+from identify import schema
 from identify.ecm import flow_velocity_m_s, simulate
 from identify.hydraulics import Hydraulics, hydraulics_from_dimensions
 from identify.montecarlo import ecm_response_at
 from identify.physics import SynthPhysics
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, SAMPLE_INTERVAL_US, U3_PRESET_UM_PER_MS, Waveform
 
-SCHEMA = "identify.dataset/1"
+SCHEMA = schema.DATASET.schema
 
-#: Columns of timeseries.parquet and their kinds ("f" float, "b" bool, "id").
-TIMESERIES_COLUMNS = {
-    "sequence_id": "id",
-    "u1_um_per_ms": "f",
-    "u2_um": "f",
-    "delay_us": "f",
-    "grown_volume_nl": "f",
-    "flow_velocity_m_s": "f",
-    "attached": "b",
-}
-#: Columns of summary.parquet.
-SUMMARY_COLUMNS = {
-    "sequence_id": "id",
-    "u1_um_per_ms": "f",
-    "u2_um": "f",
-    "pinchoff_us": "f",
-    "grown_volume_at_pinchoff_nl": "f",
-    "inflight_volume_nl": "f",
-    "jetting_velocity_m_s": "f",
-    "flow_velocity_at_max_stroke_m_s": "f",
-}
+_KIND = {"id": "id", "float": "f", "bool": "b"}
+#: Required columns of timeseries.parquet and their kinds ("f" float, "b" bool, "id"), from
+#: `identify.schema.TIMESERIES`.
+TIMESERIES_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.TIMESERIES.columns if c.required}
+#: Required columns of summary.parquet, from `identify.schema.DATASET_SUMMARY`.
+SUMMARY_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.DATASET_SUMMARY.columns if c.required}
 #: Summary columns that may hold NaN.
 _SUMMARY_NAN_OK = {"flow_velocity_at_max_stroke_m_s"}
 
@@ -322,8 +308,10 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
         meta = json.loads(files["dataset.json"].read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise DatasetError(f"{files['dataset.json']}: invalid JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise DatasetError(f"{files['dataset.json']}: must hold a JSON object")
+    try:
+        schema.check_document(meta, schema.DATASET, files["dataset.json"])
+    except schema.SchemaError as exc:
+        raise DatasetError(str(exc)) from None
     frames = {}
     for n in ("timeseries.parquet", "summary.parquet"):
         try:

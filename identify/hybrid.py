@@ -30,10 +30,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from identify import __version__
+from identify import __version__, schema
 from identify.arx_selection import grid_for_dead_time, select_structure
 from identify.atomic import write_json
 from identify.dataset import Dataset, DatasetError
+from identify.design import DesignResult, design
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
 from identify.ecm_fit import EcmData, fit_ecm
@@ -42,7 +43,7 @@ from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, s
 from identify.versions import software_versions
 from identify.waveform import Waveform
 
-SCHEMA = "identify.hybrid-model/1"
+SCHEMA = schema.MODEL.schema
 
 
 class ModelFileError(ValueError):
@@ -189,9 +190,14 @@ class HybridModel:
         except (KeyError, TypeError, ValueError) as exc:
             raise ModelFileError(f"{source}: invalid model file ({type(exc).__name__}: {exc})") from None
 
-    def to_json(self, path) -> Path:
-        """Write model.json atomically."""
+    def save(self, path) -> Path:
+        """Write model.json atomically (read it back with `identify.load_model`)."""
         return write_json(path, self.to_dict())
+
+    def design(self, volume_nl: float, velocity_m_s: float | None = None, **options) -> DesignResult:
+        """(u1, u2) inside the training region for a target in-flight volume (nl) and, optionally,
+        jetting velocity (m/s); see `identify.design.design` for ``options``."""
+        return design(self, volume_nl, velocity_m_s, **options)
 
     @classmethod
     def from_json(cls, path) -> "HybridModel":

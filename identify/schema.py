@@ -110,14 +110,16 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
 ), "One row per frame, in delay order (repeats kept).")
 
+#: Frames-table columns summarised per delay in per_delay.parquet, with their units.
+PER_DELAY_SOURCES = (("attached_volume_nl", "nl"), ("grown_volume_nl", "nl"), ("drop_volume_nl", "nl"),
+                     ("detached_volume_nl", "nl"), ("drop_z_um", "um"), ("drop_x_um", "um"),
+                     ("n_satellites", ""), ("flow_velocity_m_s", "m/s"))
+
 PER_DELAY = Table("per_delay", "per_delay.parquet", "dropvision.per-delay/1", (
     F("delay_us", "float", "us", "strobe delay", nullable=False),
     F("n_frames", "int", "", "frames at this delay", nullable=False),
     *(F(f"{c}_{stat}", "float", unit if stat != "count" else "", f"{stat} of {c} over the frames at this delay")
-      for c, unit in (("attached_volume_nl", "nl"), ("grown_volume_nl", "nl"), ("drop_volume_nl", "nl"),
-                      ("detached_volume_nl", "nl"), ("drop_z_um", "um"), ("drop_x_um", "um"),
-                      ("n_satellites", ""), ("flow_velocity_m_s", "m/s"))
-      for stat in ("mean", "std", "count")),
+      for c, unit in PER_DELAY_SOURCES for stat in ("mean", "std", "count")),
     F("attached_fraction", "float", "", "fraction of the frames at this delay still attached"),
 ), "Statistics of the frames table over repeated frames at one delay.")
 
@@ -301,7 +303,8 @@ def check_document(doc, document: Document | str, source) -> dict:
     missing = [k.name for k in document.keys if k.required and k.name not in ("schema", "schema_version")
                and k.name not in doc]
     if missing:
-        raise SchemaError(f"{source}: missing key(s) {', '.join(missing)} ({document.schema})")
+        raise SchemaError(f"{source}: missing key {missing[0]} (required by {document.schema}"
+                          + (f"; also missing: {', '.join(missing[1:])})" if missing[1:] else ")"))
     return doc
 
 

@@ -73,7 +73,7 @@ def test_tables_and_json_roundtrip(report, tmp_path):
         assert list(tabs[k].columns) == ["n1", "n2", "n_terms", "train_rmse", "val_rmse", "selected"]
     assert tabs["pinchoff"].loc[tabs["pinchoff"].selected, ["n1", "n2"]].values.tolist() == [[1, 1]]
     m = report.model
-    path = m.to_json(tmp_path / "model.json")
+    path = m.save(tmp_path / "model.json")
     d = json.loads(path.read_text())
     assert set(d["ecm"]["coefficients"]) == {"A3", "A2", "A1", "A0", "B1", "B0"}
     assert np.asarray(d["ecm"]["coefficient_covariance"]).shape == (6, 6)

@@ -11,7 +11,7 @@ import pytest
 
 from dropvision.app.cli import main
 from dropvision.sequence import SequenceError
-from dropvision.measure import MeasureResult, measure_sequence
+from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.summary import FRAME_COLUMNS
 
 # ../shared/ beside the repository (as CI checks it out), else the workplace copy

@@ -256,8 +256,8 @@ class BodyLike:  # like dropvision.segmentation.Body plus a class (half-open box
 
 def test_roi_coordinates_and_keyword_constructor(tmp_path):
     path = tmp_path / "roi.rrd"
-    with pytest.raises(ValueError, match="application id 'dropvision.measure'"):
-        RerunLogger(path=path, app_id="dropvision.measure")  # rerun would rename it "dropvision-measureea52"
+    with pytest.raises(ValueError, match="application id 'dropvision.measurement'"):
+        RerunLogger(path=path, app_id="dropvision.measurement")  # rerun would rename it "dropvision-measureea52"
     logger = RerunLogger(path=path, app_id="dropvision-measure")
     roi = np.zeros((10, 20), np.uint16)
     roi[2:5, 3:6] = CLASS_DROP

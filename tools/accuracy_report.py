@@ -103,7 +103,7 @@ def compare(result, seq_dir) -> dict:
 def run_case(kw: dict, workdir) -> dict:
     """Render one case into ``workdir`` and return its metrics (+ timings)."""
     from dropvision.config import MeasureConfig
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     seq = Path(workdir) / "seq"

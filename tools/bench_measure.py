@@ -54,7 +54,7 @@ def baseline_frame(img: np.ndarray) -> list[float]:
 
 def _peak_rss_mb(seq: Path, workers: int) -> float:
     code = (
-        "import resource, sys; from dropvision.measure import measure_sequence; from dropvision.config import MeasureConfig;"
+        "import resource, sys; from dropvision.measurement import measure_sequence; from dropvision.config import MeasureConfig;"
         f"measure_sequence({str(seq)!r}, config=MeasureConfig(workers={workers}));"
         "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)"
     )
@@ -75,7 +75,7 @@ def main(argv=None) -> int:
     from dropvision.sequence import open_sequence
     from dropvision.config import MeasureConfig
     from dropvision.frame import measure_frame
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     tmp = tempfile.TemporaryDirectory()

@@ -31,7 +31,7 @@ SMALL = dict(width_px=192, height_px=640, tip_row=40.4, axis_col=95.6)
 def run_case(seed: int, u1: float, u2: float, size: str, noise: float, folder: Path) -> dict:
     """Render one case, measure it, return the truth and the measured pinch-off."""
     from dropvision.config import MeasureConfig
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     kw = dict(SMALL) if size == "small" else {}

@@ -44,19 +44,14 @@ import pandas as pd
 from dropvision import __version__
 from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
 from dropvision.app.executors import make_executor
+from identify import schema
 from identify.versions import software_versions
 
-MANIFEST_SCHEMA = "dropvision.manifest/1"
-DATASET_SCHEMA = "dropvision.dataset/1"
+MANIFEST_SCHEMA = schema.MANIFEST.schema
+DATASET_SCHEMA = schema.DATASET.schema
 
-TIMESERIES_COLUMNS = [
-    "sequence_id", "u1_um_per_ms", "u2_um", "delay_us", "grown_volume_nl", "flow_velocity_m_s", "attached",
-]
-SUMMARY_COLUMNS = [
-    "sequence_id", "u1_um_per_ms", "u2_um", "pinchoff_us", "grown_volume_at_pinchoff_nl",
-    "inflight_volume_nl", "jetting_velocity_m_s", "flow_velocity_at_max_stroke_m_s",
-    "inflight_volume_std_nl", "jetting_velocity_se_m_s", "satellites", "n_frames", "n_errors",
-]
+TIMESERIES_COLUMNS = schema.TIMESERIES.column_names
+SUMMARY_COLUMNS = schema.DATASET_SUMMARY.column_names
 _IGNORED_PREFIXES = (".", "truth")
 
 
@@ -133,7 +128,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
     """
     from dropvision.sequence import open_sequence
     from dropvision.config import MeasureConfig
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
     from dropvision.output import write_result
 
     try:
@@ -171,8 +166,9 @@ def _load_manifest(path: Path) -> dict:
         manifest = json.loads(path.read_text())
     except (OSError, json.JSONDecodeError) as exc:
         raise ValueError(f"{path}: unreadable manifest ({exc}); remove it to start afresh") from exc
-    if manifest.get("schema") != MANIFEST_SCHEMA:
-        raise ValueError(f"{path}: not a dropvision campaign manifest (schema {manifest.get('schema')!r})")
+    if not isinstance(manifest, dict) or manifest.get("schema") != MANIFEST_SCHEMA:
+        raise ValueError(f"{path}: not a dropvision campaign manifest (schema "
+                         f"{manifest.get('schema') if isinstance(manifest, dict) else None!r})")
     return manifest
 
 
@@ -231,7 +227,9 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
             continue
         shard = dataset_dir / "shards" / entry["shard"]
         frames = pd.read_parquet(shard / "frames.parquet")
-        summary = json.loads((shard / "summary.json").read_text())
+        schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
+        summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
+                                        shard / "summary.json")
         u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
         ts_parts.append(_timeseries_rows(seq_id, u1, u2, frames))
         jv = summary.get("jetting_velocity_m_s")

@@ -38,7 +38,7 @@ def _fmt(x, spec=".3f") -> str:
 def measure_samples(out: Path, rerun: bool) -> list[dict]:
     """Measure every sample sequence; return rows comparing summary and truth."""
     from dropvision.config import MeasureConfig
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
 
     rows = []
     for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):
@@ -217,7 +217,7 @@ def main(argv: list[str] | None = None) -> int:
     ds = load_dataset(out / "dataset")
     rep = fit_hybrid(ds, folds=min(10, len(ds.summary)), progress=progress)
     model = rep.model
-    model.to_json(out / "model.json")
+    model.save(out / "model.json")
     if rep.arx_selection is not None:
         na, nb, nk = rep.arx_selection.selected
         print(f"ARX structure selected (na, nb, nk): ({na}, {nb}, {nk}); nk in MATLAB's convention, = {nk - 1} "

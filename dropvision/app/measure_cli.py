@@ -1,4 +1,4 @@
-"""`dropvision measure SEQ_DIR --out OUT_DIR`: the command over `dropvision.measure.measure_sequence`.
+"""`dropvision measure SEQ_DIR --out OUT_DIR`: the command over `dropvision.measurement.measure_sequence`.
 
 The library is imported when the command runs, so that ``dropvision --help`` stays fast.
 """
@@ -16,7 +16,7 @@ def _run(args: argparse.Namespace) -> int:
     # the measurement (numpy, pandas, OpenCV, numba) is imported when the command runs, not for --help
     from dropvision.app.rerun_log import logger_from_args
     from dropvision.config import MeasureConfig
-    from dropvision.measure import measure_sequence
+    from dropvision.measurement import measure_sequence
 
     seq = Path(args.seq_dir)
     if not seq.exists():

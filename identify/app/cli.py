@@ -89,7 +89,7 @@ def cmd_fit(args) -> int:
         _print_table(f"{name}: coefficients with 95 % intervals", sel.fit.to_pandas())
     for n in rep.notes:
         print(f"note: {n}")
-    m.to_json(args.out)
+    m.save(args.out)
     print(f"\nwrote {args.out}")
     _with_recording(args, lambda rec, lg: lg.log_model_fit(rec, ds, m, rep.arx_selection))
     return 0

@@ -29,7 +29,7 @@ from dropvision import quality as q
 from dropvision.config import MeasureConfig
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, stream_frames
-from dropvision.sequence import SequenceError, open_sequence
+from dropvision.sequence import Sequence, SequenceError, open_sequence
 from dropvision.output import write_result
 from dropvision.summary import assemble, per_delay
 from identify.atomic import atomic_dir, check_output_dir
@@ -53,12 +53,13 @@ class MeasureResult:
 
 def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfig(), *, progress: bool = False,
                      logger=None, csv: bool = False, overwrite: bool = False) -> MeasureResult:
-    """Measure a strobe sequence folder.
+    """Measure a strobe sequence.
 
     Parameters
     ----------
-    seq_dir : str or Path
-        Sequence folder (see docs/FORMAT.md).
+    seq_dir : str or Path or Sequence
+        Sequence folder (see docs/FORMAT.md), or an open `dropvision.sequence.Sequence` (e.g.
+        frames in memory from `dropvision.sequence.sequence_from_arrays`).
     out_dir : str or Path, optional
         Write the result there (atomically): frames.parquet, per_delay.parquet, summary.json.
         It may not be the sequence folder, lie inside it or contain it; an existing folder is
@@ -86,9 +87,10 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     identify.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
     """
-    seq = open_sequence(seq_dir)
+    seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir)
+    inputs = [] if seq.meta.pixel_size_source == "arguments" else [seq.meta.path]  # in memory: no folder
     if out_dir is not None:  # before any work: the output may destroy nothing
-        check_output_dir(out_dir, inputs=[seq.meta.path], overwrite=overwrite)
+        check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
     meta = seq.meta
     n = len(seq)
     if n == 0:
@@ -117,6 +119,6 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         logger.log_table(frames)
         logger.log_summary(summary)
     if out_dir is not None:
-        with atomic_dir(out_dir, inputs=[meta.path], overwrite=overwrite, kind="measurement") as tmp:
+        with atomic_dir(out_dir, inputs=inputs, overwrite=overwrite, kind="measurement") as tmp:
             write_result(result, tmp, csv=csv)
     return result
