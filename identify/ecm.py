@@ -317,7 +317,7 @@ def pwl_response(ratios, knots_us, slope_jumps_um_per_us, t_us) -> tuple[np.ndar
         axis=-1,
     )
     R = num / (p**2 * others)  # residues of G/s^2 at the poles
-    a2, a1, a0 = a[..., 0], a[..., 1], a[..., 2]
+    a1, a0 = a[..., 1], a[..., 2]
     n0, n1 = -b[..., 1], -b[..., 0]  # N(0), N'(0)
     G0 = n0 / a0
     G1 = (n1 * a0 - n0 * a1) / a0**2

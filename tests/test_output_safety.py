@@ -21,7 +21,7 @@ from identify.atomic import (
     remove_leftovers,
     write_text,
 )
-from dropvision.app.campaign import run_campaign, synth_campaign
+from dropvision.app.campaign import synth_campaign
 from dropvision.app.cli import main
 
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,

@@ -30,21 +30,29 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import math
 import re
-import sys
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from tqdm import tqdm
 
 from dropvision import __version__
-from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
 from dropvision.app.executors import make_executor
+from dropvision.app.rerun_log import RerunLogger
+from dropvision.config import MeasureConfig
+from dropvision.measurement import measure_sequence
+from dropvision.output import write_result
+from dropvision.sequence import open_sequence
+from dropvision.synth.sequence import SynthConfig
+from dropvision.synth.writer import write_synthetic_sequence
 from identify import schema
+from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
 from identify.versions import software_versions
 
 MANIFEST_SCHEMA = schema.MANIFEST.schema
@@ -126,17 +134,11 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
     Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
     metadata needed for the dataset, and the summary values.
     """
-    from dropvision.sequence import open_sequence
-    from dropvision.config import MeasureConfig
-    from dropvision.measurement import measure_sequence
-    from dropvision.output import write_result
 
     try:
         meta = open_sequence(seq_dir).meta
         logger = None
         if rerun_options is not None:
-            from dropvision.app.rerun_log import RerunLogger
-
             logger = RerunLogger(rerun_options)
         try:
             result = measure_sequence(seq_dir, config=config or MeasureConfig(), logger=logger)
@@ -282,8 +284,6 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
 
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:
-    import io
-
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)
     return buf.getvalue()
@@ -339,10 +339,6 @@ def run_campaign(
         ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
         we did not write (without ``overwrite``).
     """
-    from tqdm import tqdm
-
-    from dropvision.config import MeasureConfig
-
     config = config or MeasureConfig()
     if workers != 1 or dask_local is not None or scheduler is not None:
         # one process per core already: no threads inside a worker (no oversubscription)
@@ -428,8 +424,6 @@ def parse_range(text: str, name: str) -> list[float]:
 
 
 def _synth_task(out_dir: str, u1: float, u2: float, seed: int, overrides: dict, overwrite: bool) -> str:
-    from dropvision.synth import SynthConfig, write_synthetic_sequence
-
     config = SynthConfig(u1_um_per_ms=u1, u2_um=u2, seed=seed, **overrides)
     return str(write_synthetic_sequence(config, out_dir, progress=False, overwrite=overwrite))
 
@@ -442,8 +436,6 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
     ``overwrite`` an existing folder is written into and its same-named sequence folders are
     replaced as a whole.
     """
-    from tqdm import tqdm
-
     out = claim_dir(out, overwrite=overwrite, kind="synthetic-campaign")
     jobs = []
     for i, (u1, u2) in enumerate((a, b) for a in u1_values for b in u2_values):

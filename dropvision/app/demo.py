@@ -19,7 +19,23 @@ import sys
 import time
 from pathlib import Path
 
+import matplotlib
 import numpy as np
+
+from dropvision.app.campaign import run_campaign, synth_campaign
+from dropvision.app.rerun_log import RerunLogger
+from dropvision.config import MeasureConfig
+from dropvision.measurement import measure_sequence
+from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
+from identify.app.rerun_stream import RerunOptions
+from identify.atomic import OutputError, claim_dir
+from identify.dataset import load_dataset
+from identify.design import design
+from identify.hybrid import fit_hybrid
+from identify.physics import SynthPhysics, drop_history
+
+matplotlib.use("Agg")  # files only, no display
+import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 
 REPO = Path(__file__).resolve().parent.parent
 SAMPLE_FRAMES = REPO / "sample_frames"
@@ -37,15 +53,10 @@ def _fmt(x, spec=".3f") -> str:
 
 def measure_samples(out: Path, rerun: bool) -> list[dict]:
     """Measure every sample sequence; return rows comparing summary and truth."""
-    from dropvision.config import MeasureConfig
-    from dropvision.measurement import measure_sequence
-
     rows = []
     for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):
         logger = None
         if rerun:
-            from dropvision.app.rerun_log import RerunLogger
-
             logger = RerunLogger(path=out / f"measure-{seq.name}.rrd", recording_name=seq.name)
         try:
             t0 = time.perf_counter()
@@ -84,11 +95,6 @@ def print_sample_report(rows: list[dict]) -> None:
 
 def make_plots(out: Path, ds, model, mc, truth_fn, u1: float, u2: float) -> list[Path]:
     """Figs. 6 and 7 of the paper, from our dataset and model."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     ts, su = ds.timeseries, ds.summary
     paths = []
     # Fig. 6: volumes and flow velocities at fixed u1 (varying u2) and fixed u2 (varying u1).
@@ -172,15 +178,6 @@ def main(argv: list[str] | None = None) -> int:
                         help="write into an existing --out that holds other files (those are kept)")
     args = parser.parse_args(argv)
 
-    from dropvision.app.campaign import run_campaign, synth_campaign
-    from dropvision.synth import SynthPhysics
-    from identify.physics import drop_history
-    from identify.dataset import load_dataset
-    from identify.design import design
-    from identify.hybrid import fit_hybrid
-
-    from identify.atomic import OutputError, claim_dir
-
     out = args.out
     try:
         claim_dir(out, overwrite=args.overwrite, kind="demo", is_ours=_is_demo_output)
@@ -262,9 +259,6 @@ def main(argv: list[str] | None = None) -> int:
     # 6. plots and the identification recording
     plots = make_plots(out, ds, model, mc, truth_fn, u1, u2)
     if not args.no_rerun:
-        from identify.app.rerun_stream import RerunOptions
-        from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
-
         rec = open_identify_recording(RerunOptions(path=out / "identify.rrd", application_id="dropvision-identify"))
         try:
             log_model_fit(rec, ds, model, rep.arx_selection)

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from identify.app.errors import UsageError
+
 __all__ = ["register", "run"]
 
 
@@ -50,7 +52,6 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from identify.app.errors import UsageError
     from dropvision.synth.sequence import SynthConfig, parse_delays
     from dropvision.synth.writer import write_synthetic_sequence
 

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dropvision.synth.shapes import Body
+from dropvision.synth.shapes import Body, Profile, QuadraticNeck
 
 __all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer"]
 
@@ -259,7 +259,6 @@ class Renderer:
             raise ValueError(f"bit_depth must be 8, 12 or 16, got {optics.bit_depth!r}")
         self.geom, self.optics = geom, optics
         H, W = geom.shape
-        from dropvision.synth.shapes import Profile, QuadraticNeck
         reach = (H + W) * geom.pixel_size_um * 2
         nozzle = Body("nozzle", Profile((QuadraticNeck(-reach, 0.0, nozzle_outer_radius_um,
                                                        nozzle_outer_radius_um),)), 0.0, 0.0)

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from identify.physics import DropHistory, SynthPhysics, drop_history
+from identify.versions import software_versions
 from dropvision.synth.render import CameraGeometry, Optics, Renderer
 from dropvision.synth.shapes import DropShapeModel, ShapeParams, ShapeState
 
@@ -387,7 +388,6 @@ def synthesize(config: SynthConfig, *, progress: bool | None = None,
 def sequence_truth(synth_plan: SynthPlan) -> dict:
     """truth.json content (interfaces.md) for a plan."""
 
-    from identify.versions import software_versions
 
     p = synth_plan
     cfg, h, m = p.config, p.history, p.model
