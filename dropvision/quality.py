@@ -1,27 +1,31 @@
 """Quality flags: why a value is not trusted (it is then NaN, never a silent wrong number).
 
-Flags are short, fixed phrases (constants below) so they can be grouped; a frame's
-``quality`` column is ``"ok"`` or its flags joined by ``"; "``.
+Flags are short stable codes (`identify.schema.Quality`, explained in
+`identify.schema.QUALITY_CODES` and docs/FORMAT.md); a frame's ``quality`` column is ``"ok"``
+or its codes joined by ``"; "``.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-OK = "ok"
-SATURATED = "saturated background"
-ILLUMINATION = "illumination differs from the background model"
-LOW_CONTRAST = "low contrast"
-BLURRED = "blurred"
-NO_NOZZLE = "nozzle not found"
-ATTACHED_LEAVES = "attached liquid leaves the field of view"
-DROP_LEAVES = "drop leaves the field of view"
-OUT_OF_BAND = "drop crosses the measurement band"
-DUST_OVERLAP = "drop overlaps a static speck"
-AMBIGUOUS = "ambiguous separation"
-NO_DROP = "no drop in the field of view"
-TAIL = "tail still joined to the drop"
-NO_REST_MENISCUS = "no frame shows the meniscus at rest (first delay after the dead time): grown volume unknown"
+from identify.schema import Quality
+
+# The codes and their explanations are declared once, in the schema of our outputs.
+OK = Quality.OK
+SATURATED = Quality.SATURATED
+ILLUMINATION = Quality.ILLUMINATION
+LOW_CONTRAST = Quality.LOW_CONTRAST
+BLURRED = Quality.BLURRED
+NO_NOZZLE = Quality.NO_NOZZLE
+ATTACHED_LEAVES = Quality.ATTACHED_LEAVES
+DROP_LEAVES = Quality.DROP_LEAVES
+OUT_OF_BAND = Quality.OUT_OF_BAND
+DUST_OVERLAP = Quality.DUST_OVERLAP
+AMBIGUOUS = Quality.AMBIGUOUS
+NO_DROP = Quality.NO_DROP
+TAIL = Quality.TAIL
+NO_REST_MENISCUS = Quality.NO_REST_MENISCUS
 
 
 def join(flags) -> str:

@@ -162,7 +162,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "grown_volume_at_pinchoff_nl": g_pinch,
         "initial_meniscus_volume_nl": meniscus,
         "initial_meniscus_source": (f"attached volume of the first frame(s), delay {float(np.min(delay)):g} us <= dead time "
-                                    f"{dead_time:g} us" if meniscus_at_rest else q.NO_REST_MENISCUS),
+                                    f"{dead_time:g} us" if meniscus_at_rest else schema.QUALITY_CODES[q.NO_REST_MENISCUS]),
         "inflight_volume_nl": float(np.mean(inf_vol)) if inf_vol.size else float("nan"),
         "inflight_volume_std_nl": float(np.std(inf_vol, ddof=1)) if inf_vol.size >= 2 else float("nan"),
         "inflight_frames": int(inf_vol.size),

@@ -15,7 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
-    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "QUALITY_CODES",
+    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "Quality", "QUALITY_CODES",
     "check_table", "check_document", "markdown",
 ]
 
@@ -99,7 +99,7 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("drop_x_um", "float", "um", "main-drop centroid across the axis"),
     F("n_satellites", "int", "", "satellite drops in the frame"),
     F("flow_velocity_m_s", "float", "m/s", "average flow velocity through the nozzle (growth rate / nozzle area)"),
-    F("quality", "str", "", "'ok' or the quality flags joined by '; '", nullable=False),
+    F("quality", "str", "", "'ok' or the quality codes joined by '; ' (table below)", nullable=False),
     F("drop_length_um", "float", "um", "extent of the main drop along the axis"),
     F("drop_diameter_um", "float", "um", "extent of the main drop across the axis"),
     F("inflight", "bool", "", "the main drop is compact and in flight (used for in-flight volume and velocity)",
@@ -218,23 +218,44 @@ OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision
 TABLES = {t.name: t for t in (FRAMES, PER_DELAY, TIMESERIES, DATASET_SUMMARY)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER)}
 
-#: Quality flags of the frames table (``quality`` column): code -> explanation.
+class Quality:
+    """Quality codes of the frames table (``quality`` column: ``"ok"`` or codes joined by
+    ``"; "``). Short and stable: scripts may group and filter on them; their meaning is in
+    :data:`QUALITY_CODES`."""
+
+    OK = "ok"
+    SATURATED = "saturated"
+    ILLUMINATION = "illumination_changed"
+    LOW_CONTRAST = "low_contrast"
+    BLURRED = "blurred"
+    NO_NOZZLE = "no_nozzle"
+    ATTACHED_LEAVES = "attached_leaves_view"
+    DROP_LEAVES = "drop_leaves_view"
+    OUT_OF_BAND = "drop_off_band"
+    DUST_OVERLAP = "dust_overlap"
+    AMBIGUOUS = "ambiguous_separation"
+    NO_DROP = "no_drop"
+    TAIL = "tail_joined"
+    NO_REST_MENISCUS = "no_rest_meniscus"
+
+
+#: Quality code -> explanation (docs/FORMAT.md lists them).
 QUALITY_CODES: dict[str, str] = {
-    "ok": "every value of the frame is trusted",
-    "saturated background": "too many background pixels at the sensor maximum: volumes not trusted",
-    "illumination differs from the background model": "strobe intensity changed: segmentation not trusted",
-    "low contrast": "liquid too bright against the background for sub-pixel edges",
-    "blurred": "edges blurred beyond the limit (focus or motion)",
-    "nozzle not found": "the nozzle could not be located in the frame",
-    "attached liquid leaves the field of view": "attached volume incomplete",
-    "drop leaves the field of view": "main-drop volume incomplete",
-    "drop crosses the measurement band": "main drop partly outside the measured column band",
-    "drop overlaps a static speck": "dust in the drop's silhouette",
-    "ambiguous separation": "attached/detached cannot be decided",
-    "no drop in the field of view": "no detached drop to measure",
-    "tail still joined to the drop": "drop not yet compact: not used for in-flight values",
-    "no frame shows the meniscus at rest (first delay after the dead time): grown volume unknown":
-        "no frame before the piston moves: grown volume and flow cannot be referenced",
+    Quality.OK: "every value of the frame is trusted",
+    Quality.SATURATED: "too many background pixels at the sensor maximum: volumes not trusted",
+    Quality.ILLUMINATION: "the strobe intensity differs from the background model: segmentation not trusted",
+    Quality.LOW_CONTRAST: "liquid too bright against the background for sub-pixel edges",
+    Quality.BLURRED: "edges blurred beyond the limit (focus or motion)",
+    Quality.NO_NOZZLE: "the nozzle could not be located in the frame",
+    Quality.ATTACHED_LEAVES: "the attached liquid leaves the field of view: attached volume incomplete",
+    Quality.DROP_LEAVES: "the main drop leaves the field of view: its volume is incomplete",
+    Quality.OUT_OF_BAND: "the main drop crosses the edge of the measured column band",
+    Quality.DUST_OVERLAP: "the drop overlaps a static speck (dust)",
+    Quality.AMBIGUOUS: "attached or detached cannot be decided",
+    Quality.NO_DROP: "no detached drop in the field of view",
+    Quality.TAIL: "the drop's tail is still joined to it: not used for in-flight values",
+    Quality.NO_REST_MENISCUS: "no frame shows the meniscus at rest (first delay after the dead time): "
+                              "grown volume and flow unknown",
 }
 
 
@@ -323,6 +344,7 @@ def markdown() -> str:
         lines += [f"| `{k.name}` | {k.dtype}{'' if k.required else ', optional'} | {k.unit} | {k.meaning} |"
                   for k in d.keys]
         lines.append("")
-    lines += ["### Quality flags (`quality` column)", "", "| flag | meaning |", "|---|---|"]
+    lines += ["### Quality codes (`quality` column)", "", "`ok`, or the codes of a frame joined by `; `.", "",
+              "| code | meaning |", "|---|---|"]
     lines += [f"| `{code}` | {text} |" for code, text in QUALITY_CODES.items()]
     return "\n".join(lines) + "\n"

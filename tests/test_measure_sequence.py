@@ -126,7 +126,7 @@ def test_no_frame_at_rest_gives_no_grown_volume():
     truth = json.loads((seq / "truth.json").read_text())
     att = res.frames[res.frames.attached]
     assert att.grown_volume_nl.isna().all() and att.flow_velocity_m_s.isna().all()
-    assert att.quality.str.contains("meniscus at rest").all()
+    assert att.quality.str.contains("no_rest_meniscus").all()
     s = res.summary
     assert s["grown_volume_at_pinchoff_nl"] != s["grown_volume_at_pinchoff_nl"]  # NaN
     assert s["pinchoff_us"] == truth["pinchoff_us"] and s["satellites"] == truth["satellites"]
@@ -203,4 +203,4 @@ def test_per_frame_blur_and_contrast_flags(tmp_path):
     assert f.loc[blurred, "blur_px"] == pytest.approx(np.hypot(sigma, extra_sigma_px), rel=0.15)
     assert "blurred" in f.loc[blurred, "quality"] and np.isnan(f.loc[blurred, "grown_volume_nl"])
     assert f.loc[washed, "wall_contrast"] == pytest.approx(0.7 * others.wall_contrast.median(), rel=0.05)
-    assert "low contrast" in f.loc[washed, "quality"] and np.isnan(f.loc[washed, "grown_volume_nl"])
+    assert "low_contrast" in f.loc[washed, "quality"] and np.isnan(f.loc[washed, "grown_volume_nl"])

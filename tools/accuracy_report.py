@@ -32,6 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from dropvision import quality as q  # noqa: E402  (after the path set-up)
+
 #: The sweep: name -> SynthConfig keyword arguments (frame size added by `cases`).
 SWEEP = {
     "u70_u25_8bit": dict(u1_um_per_ms=70, u2_um=25, seed=11),
@@ -95,8 +97,7 @@ def compare(result, seq_dir) -> dict:
         "tilt_err_deg": s["calibration"]["tilt_deg"] - truth["calibration"]["tilt_deg"],
         "not_ok_frames": int((f["quality"] != "ok").sum()),
         # flags other than the drop leaving / having left the field of view
-        "unexpected_flags": int((~f["quality"].isin(["ok", "drop leaves the field of view",
-                                                     "no drop in the field of view"])).sum()),
+        "unexpected_flags": int((~f["quality"].isin([q.OK, q.DROP_LEAVES, q.NO_DROP])).sum()),
     }
 
 
