@@ -37,7 +37,7 @@ from identify.physics import SynthPhysics, drop_history
 matplotlib.use("Agg")  # files only, no display
 import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> repository root
 SAMPLE_FRAMES = REPO / "sample_frames"
 
 
@@ -53,8 +53,11 @@ def _fmt(x, spec=".3f") -> str:
 
 def measure_samples(out: Path, rerun: bool) -> list[dict]:
     """Measure every sample sequence; return rows comparing summary and truth."""
+    folders = sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json"))
+    if not folders:
+        raise FileNotFoundError(f"{SAMPLE_FRAMES}: no sample sequences (folders with sequence.json)")
     rows = []
-    for seq in sorted(p.parent for p in SAMPLE_FRAMES.glob("*/sequence.json")):
+    for seq in folders:
         logger = None
         if rerun:
             logger = RerunLogger(path=out / f"measure-{seq.name}.rrd", recording_name=seq.name)
