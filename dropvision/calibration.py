@@ -409,6 +409,10 @@ class Calibration:
     pixel_size_disagreement_percent: float
     background: BackgroundModel
     notes: list[str] = field(default_factory=list)
+    #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it).
+    pixel_size_ratio: float = float("nan")
+    #: Standard uncertainty of that ratio from the measured outer diameter (see `outer_diameter_uncertainty_px`).
+    pixel_size_ratio_uncertainty: float = float("nan")
 
     @property
     def tilt_deg(self) -> float:
@@ -431,6 +435,8 @@ class Calibration:
             "nozzle_outer_diameter_px": self.nozzle_outer_diameter_px,
             "nozzle_outer_diameter_um_measured": self.nozzle_outer_diameter_um_measured,
             "pixel_size_disagreement_percent": self.pixel_size_disagreement_percent,
+            "pixel_size_ratio": self.pixel_size_ratio,
+            "pixel_size_ratio_uncertainty": self.pixel_size_ratio_uncertainty,
             "background": {
                 "method": "robust degree-4 polynomial fit to pixels away from dark bodies"
                 + (", static dust attenuation folded in" if self.background.n_frames >= 3 else ""),
@@ -452,6 +458,7 @@ def calibrate(
     tip_row: float | None = None,
     axis_col: float | None = None,
     pixel_size_tolerance: float = 0.02,
+    edge_position_floor_px: float = 0.05,
 ) -> Calibration:
     """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
 
@@ -467,6 +474,11 @@ def calibrate(
         Nozzle dimensions (cross-check of the pixel size; annulus columns).
     tip_row, axis_col : float, optional
         User-given values override the detection.
+    pixel_size_tolerance : float
+        Relative disagreement of the pixel size with the outer diameter beyond which a
+        calibration note (and a `CalibrationWarning`) is given.
+    edge_position_floor_px : float
+        Systematic uncertainty of one wall edge (px), see `outer_diameter_uncertainty_px`.
     """
     bg = estimate_background(spread)
     t_first = np.asarray(first, np.float32) / bg.background
@@ -488,9 +500,12 @@ def calibrate(
         axis, axis_src = float(axis_col), "user (sequence.json axis_col)"
     d_px = nozzle.outer_diameter_px
     d_um = d_px * pixel_size_um
-    disagree = float("nan")
+    disagree = ratio = ratio_u = float("nan")
     if nozzle_outer_diameter_um:
         disagree = 100.0 * (d_um / nozzle_outer_diameter_um - 1.0)
+        # implied pixel size (outer diameter / measured px) over the given one
+        ratio = float(nozzle_outer_diameter_um / d_um)
+        ratio_u = float(ratio * outer_diameter_uncertainty_px(nozzle, edge_position_floor_px) / d_px)
         if abs(disagree) > 100 * pixel_size_tolerance:
             msg = (
                 f"pixel size {pixel_size_um} um disagrees by {disagree:+.1f} % with the nozzle's outer "
@@ -532,7 +547,35 @@ def calibrate(
         pixel_size_disagreement_percent=disagree,
         background=bg,
         notes=notes,
+        pixel_size_ratio=ratio,
+        pixel_size_ratio_uncertainty=ratio_u,
     )
+
+
+def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float) -> float:
+    """Standard uncertainty (px) of the nozzle's measured outer diameter.
+
+    Two parts in quadrature: the statistical error of the mean width (standard deviation of
+    the per-row widths over the straight rows / sqrt(rows)), and a systematic floor of
+    ``edge_position_floor_px`` on each of the two walls (threshold and blur model bias, which
+    does not average out over rows).
+
+    Parameters
+    ----------
+    nozzle : Nozzle
+        Fitted outer walls.
+    edge_position_floor_px : float
+        Systematic uncertainty of one edge (px).
+
+    Returns
+    -------
+    float
+        Uncertainty of ``nozzle.outer_diameter_px`` (px).
+    """
+    w = np.asarray(nozzle.right_px, float) - np.asarray(nozzle.left_px, float)
+    w = w[np.isfinite(w)]
+    stat = float(np.std(w, ddof=1) / np.sqrt(w.size)) if w.size >= 2 else float("nan")
+    return float(np.hypot(stat, np.sqrt(2.0) * edge_position_floor_px) * np.cos(nozzle.tilt_rad))
 
 
 def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int = 8) -> float:

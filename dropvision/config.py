@@ -49,6 +49,40 @@ class MeasureConfig:
     dead_time_us : float
         Default firing-trigger-to-piston delay (µs) when the waveform does not give one
         (`identify.waveform.DEAD_TIME_US`).
+
+    Plausibility of the input (a lie in the metadata is flagged and noted, never silent):
+
+    pixel_size_tolerance_fraction : float
+        Beyond this relative difference between the given pixel size and the one implied by
+        ``nozzle_outer_diameter_um`` every frame is flagged ``pixel_size_mismatch`` and the
+        length-dependent summary values are NaN (0.02 = 2 %).
+    pixel_size_note_sigmas : float
+        Below that tolerance a note is still written when the ratio differs from 1 by more than
+        this many standard uncertainties of the measured outer diameter (edge-fit scatter and
+        a sub-pixel edge-position floor).
+    edge_position_floor_px : float
+        Systematic uncertainty of one sub-pixel wall edge (px) added in quadrature to the fit
+        scatter (threshold and blur model; synthetic sequences show < 0.05 px).
+    min_pinchoff_frames : int
+        Fewer measured frames never define a pinch-off.
+    max_jetting_velocity_m_s, min_jetting_velocity_m_s : float
+        Drop-on-demand jetting velocities outside this range (m/s) are implausible: delays in
+        another unit or mislabelled.
+    min_growth_at_max_stroke_fraction : float
+        The grown volume at the waveform's maximum stroke must reach at least this fraction of
+        the grown volume at pinch-off (the piston has pushed its stroke by then); less means
+        the delays are stretched (e.g. given x10).
+    track_outlier_sigmas : float
+        A frame whose main-drop position (or attached volume) lies further than this many
+        robust scatters from its neighbours' prediction is inconsistent.
+    track_outlier_floor_um : float
+        Smallest position residual (µm) ever called inconsistent (pixel quantisation).
+    volume_outlier_floor_fraction : float
+        Smallest volume residual ever called inconsistent, as a fraction of the sequence's
+        largest attached volume (attached frames) or of the median drop volume (in flight).
+    max_drop_to_nozzle_volumes : float
+        A drop larger than this many nozzle volumes (pi r_in^2 x d_in: the nozzle bore one inner
+        diameter long, the length scale of the meniscus) is implausible for the nozzle.
     """
 
     calibration_frames: int = 8
@@ -66,3 +100,14 @@ class MeasureConfig:
     ambiguous_gap_px: float = 1.5
     workers: int = 2
     dead_time_us: float = DEAD_TIME_US
+    pixel_size_tolerance_fraction: float = 0.02
+    pixel_size_note_sigmas: float = 4.0
+    edge_position_floor_px: float = 0.05
+    min_pinchoff_frames: int = 5
+    max_jetting_velocity_m_s: float = 20.0
+    min_jetting_velocity_m_s: float = 0.0
+    min_growth_at_max_stroke_fraction: float = 0.1
+    track_outlier_sigmas: float = 8.0
+    track_outlier_floor_um: float = 10.0
+    volume_outlier_floor_fraction: float = 0.03
+    max_drop_to_nozzle_volumes: float = 1000.0

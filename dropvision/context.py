@@ -213,6 +213,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
             nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
             tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col,
+            pixel_size_tolerance=config.pixel_size_tolerance_fraction,
+            edge_position_floor_px=config.edge_position_floor_px,
         )
     except CalibrationError as exc:
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}") from exc

@@ -177,3 +177,72 @@ def pinchoff_delay(delay_us: np.ndarray, detached: np.ndarray) -> float:
     frac = df.groupby("d")["x"].mean()
     hit = frac.index[frac.to_numpy() >= 0.5]
     return float(hit[0]) if len(hit) else float("nan")
+
+
+def isolated_detached(delay_us: np.ndarray, detached: np.ndarray) -> np.ndarray:
+    """Frames at a delay whose majority shows a detached drop while the neighbouring delays do not.
+
+    The drop separates once: a detached delay between attached ones (or a first delay detached
+    with the next attached) is a frame from another sequence or a mislabelled delay.  The last
+    delay is never isolated (a sequence may end at the pinch-off).
+
+    Parameters
+    ----------
+    delay_us : ndarray
+        Delay of every frame (µs).
+    detached : ndarray of bool
+        The frame shows a detached body.
+
+    Returns
+    -------
+    ndarray of bool
+        Per frame.
+    """
+    delay_us = np.asarray(delay_us, float)
+    if delay_us.size == 0:
+        return np.zeros(0, bool)
+    frac = pd.Series(np.asarray(detached, float)).groupby(delay_us).mean()
+    maj = frac.to_numpy() >= 0.5
+    iso = np.zeros(maj.size, bool)
+    for i in range(maj.size - 1):
+        if maj[i] and not maj[i + 1] and (i == 0 or not maj[i - 1]):
+            iso[i] = True
+    bad = set(frac.index[iso].to_numpy(float))
+    return np.array([d in bad for d in delay_us], bool)
+
+
+def pinchoff_bracket_problem(delay_us: np.ndarray, pinch_us: float, min_frames: int) -> str | None:
+    """Why a pinch-off delay is not defined by the sequence, or None when it is.
+
+    The pinch-off lies between the last attached and the first detached delay; it is defined
+    only when these are consecutive delays at the sequence's own step (the smallest difference
+    between its delays) and the sequence has at least ``min_frames`` frames.
+
+    Parameters
+    ----------
+    delay_us : ndarray
+        Delay of every frame used (µs).
+    pinch_us : float
+        First delay at which the drop is detached (`pinchoff_delay`).
+    min_frames : int
+        Fewest frames.
+
+    Returns
+    -------
+    str or None
+        A short sentence.
+    """
+    d = np.unique(np.asarray(delay_us, float))
+    if not np.isfinite(pinch_us):
+        return None
+    if np.asarray(delay_us).size < min_frames:
+        return f"pinch-off undefined: {np.asarray(delay_us).size} frames (fewer than {min_frames})"
+    before = d[d < pinch_us]
+    if before.size == 0:
+        return f"pinch-off undefined: the first delay ({pinch_us:g} us) already shows a detached drop"
+    step = float(np.min(np.diff(d)))
+    gap = pinch_us - float(before.max())
+    if gap > step * (1.0 + 1e-6):
+        return (f"pinch-off undefined: {gap:g} us between the last attached ({before.max():g} us) and the first "
+                f"detached delay, more than the sequence's step {step:g} us")
+    return None

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import posixpath
 import re
 import threading
@@ -56,6 +57,27 @@ _KNOWN_KEYS = frozenset({
 _DELAY_RE = re.compile(r"(?<![\d.])(\d+(?:\.\d+)?)(?:us|µs|μs)(?![a-z])", re.IGNORECASE)
 #: Open multi-frame files (e.g. TIFF stacks) kept by a Sequence.
 _OPEN_CACHE_SIZE = 4
+
+#: Accepted physical ranges (inclusive) of the numbers of sequence.json (docs/FORMAT.md):
+#: key -> (low, high, unit). Generous for real rigs; a value outside is a SequenceError
+#: naming the key, the value and the range. Diameters: also outer > inner when both given.
+RANGES = {
+    "pixel_size_um": (0.01, 1000.0, "µm"),
+    "nozzle_diameter_um": (1.0, 10000.0, "µm"),
+    "delay_us": (-1e6, 1e7, "µs"),
+    "u1_um_per_ms": (1e-6, 1e4, "µm/ms"),
+    "u2_um": (1e-6, 1e4, "µm"),
+    "u3_um_per_ms": (1e-6, 1e4, "µm/ms"),
+    "hold_us": (0.0, 1e6, "µs"),
+    "dead_time_us": (0.0, 1e6, "µs"),
+    "density_kg_m3": (10.0, 1e5, "kg/m³"),
+    "viscosity_mPa_s": (1e-3, 1e7, "mPa·s"),
+    "surface_tension_mN_m": (0.1, 1e4, "mN/m"),
+}
+#: Largest sequence.json read (bytes), deepest nesting of its JSON, longest integer literal.
+MAX_JSON_BYTES = 64 * 1024 ** 2
+MAX_JSON_DEPTH = 64
+MAX_JSON_INT_DIGITS = 100
 
 
 class SequenceError(Exception):
@@ -240,22 +262,47 @@ def _natural_key(name: str):
             for t in re.split(r"(\d+)", name) if t]
 
 
-def _positive(value, what: str, where: str, *, required: bool = False) -> float | None:
-    if value is None:
-        if required:
-            raise SequenceError(f"{where}: {what} is missing (required, a number > 0)")
-        return None
-    if not is_number(value) or not math.isfinite(float(value)) or float(value) <= 0:
-        raise SequenceError(f"{where}: {what} must be a number > 0, got {value!r}")
-    return float(value)
-
-
 def _finite_or_none(value, what: str, where: str) -> float | None:
     if value is None:
         return None
-    if not is_number(value) or not math.isfinite(float(value)):
+    try:
+        ok = is_number(value) and math.isfinite(float(value))
+    except OverflowError:
+        ok = False
+    if not ok:
         raise SequenceError(f"{where}: {what} must be a finite number or null, got {value!r}")
     return float(value)
+
+
+def _ranged(value, key: str, what: str, where: str, *, positive: bool = True) -> float | None:
+    """A number of sequence.json within ``RANGES[key]`` (None stays None)."""
+    if value is None:
+        return None
+    if not is_number(value):
+        raise SequenceError(f"{where}: {what} must be a number"
+                            f"{' > 0' if positive else ''}, got {value!r}")
+    try:
+        v = float(value)
+    except OverflowError:
+        v = math.inf if value > 0 else -math.inf
+    if positive and not v > 0:
+        raise SequenceError(f"{where}: {what} must be a number > 0, got {value!r}")
+    lo, hi, unit = RANGES[key]
+    if not (math.isfinite(v) and lo <= v <= hi):
+        shown = f"{v:g}" if math.isfinite(v) else "a number too large to use"
+        raise SequenceError(f"{where}: {what} {shown} is outside the accepted range "
+                            f"{lo:g}..{hi:g} {unit}")
+    return v
+
+
+def _check_in_image(tip_row, axis_col, original_shape, where: str) -> None:
+    """nozzle_tip_row / axis_col (stored image) must lie on the stored image."""
+    h, w = int(original_shape[0]), int(original_shape[1])
+    for key, value, n, axis in (("nozzle_tip_row", tip_row, h, "rows"),
+                                ("axis_col", axis_col, w, "columns")):
+        if value is not None and not -0.5 <= value <= n - 0.5:
+            raise SequenceError(f"{where}: {key} {value:g} is outside the stored image "
+                                f"({axis} -0.5..{n - 0.5:g} of a {w}x{h} (WxH) image)")
 
 
 def _delay_value(value, what: str) -> float:
@@ -272,6 +319,10 @@ def _delay_value(value, what: str) -> float:
             out = float(m.group(1)) if m else None
     if out is None or not math.isfinite(out):
         raise SequenceError(f"{what}: unparsable delay_us {value!r} (expected a number of µs)")
+    lo, hi, unit = RANGES["delay_us"]
+    if not lo <= out <= hi:
+        raise SequenceError(f"{what}: delay_us {out:g} is outside the accepted range "
+                            f"{lo:g}..{hi:g} {unit}")
     return out
 
 
@@ -279,6 +330,8 @@ def _safe_relpath(file, where: str) -> str:
     """Normalise a frames ``file`` entry; reject absolute paths and escapes from the folder."""
     if not isinstance(file, str) or not file.strip():
         raise SequenceError(f"{where}: 'file' must be a non-empty string, got {file!r}")
+    if "\x00" in file:
+        raise SequenceError(f"{where}: file {file!r} contains a NUL character")
     rel = file.strip().replace("\\", "/")
     norm = posixpath.normpath(rel)
     if (rel.startswith("/") or re.match(r"^[A-Za-z]:", rel) or norm == ".."
@@ -324,9 +377,11 @@ class Sequence:
     multi-page TIFF files.
     """
 
-    def __init__(self, meta: SequenceMeta, dtype: np.dtype):
+    def __init__(self, meta: SequenceMeta, dtype: np.dtype, refused: dict | None = None):
         self.meta = meta
         self._dtype = np.dtype(dtype)
+        #: file -> why it is not read (a symbolic link resolving outside the folder)
+        self._refused = dict(refused or {})
         self._init_cache()
 
     def _init_cache(self) -> None:
@@ -357,11 +412,12 @@ class Sequence:
                 f"shape={self.meta.shape}, bit_depth={self.meta.bit_depth})")
 
     def __getstate__(self):  # picklable for process pools: open files are not carried over
-        return {"meta": self.meta, "_dtype": self._dtype}
+        return {"meta": self.meta, "_dtype": self._dtype, "_refused": self._refused}
 
     def __setstate__(self, state) -> None:
         self.meta = state["meta"]
         self._dtype = state["_dtype"]
+        self._refused = state.get("_refused", {})
         self._init_cache()
 
     def __del__(self):
@@ -407,10 +463,15 @@ class Sequence:
 
     def _decode(self, ref: FrameRef, *, warn: bool) -> np.ndarray:
         path = self.meta.path / ref.file
+        if ref.file in self._refused:
+            raise UnreadableImage(self._refused[ref.file])
         try:
             size = path.stat().st_size
         except FileNotFoundError:
             raise SequenceError(f"{path}: image file is missing") from None
+        except (OSError, ValueError) as exc:
+            raise UnreadableImage(f"cannot access file ({getattr(exc, 'strerror', None) or exc})"
+                                  ) from None
         if size == 0:
             raise UnreadableImage("zero-byte file")
         reader = reader_for(path)
@@ -463,20 +524,88 @@ class _Listed:
     delay_us: float
 
 
+class _JsonRefused(ValueError):
+    """A JSON literal sequence.json may not hold (NaN, Infinity, a huge number)."""
+
+
+def _json_constant(name: str):
+    raise _JsonRefused(f"{name} is not a JSON number (write null for a missing value)")
+
+
+def _json_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_JSON_INT_DIGITS:
+        raise _JsonRefused(f"integer of {digits} digits (at most {MAX_JSON_INT_DIGITS})")
+    return int(text)
+
+
+def _json_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _JsonRefused(f"number {text[:40]} is too large to represent")
+    return value
+
+
+def _json_depth_ok(obj) -> bool:
+    """True when no container of ``obj`` is nested deeper than :data:`MAX_JSON_DEPTH`."""
+    stack = [(obj, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, (dict, list)):
+            if depth > MAX_JSON_DEPTH:
+                return False
+            values = item.values() if isinstance(item, dict) else item
+            stack.extend((v, depth + 1) for v in values if isinstance(v, (dict, list)))
+    return True
+
+
 def _load_json(path: Path) -> dict:
+    """Read sequence.json: at most MAX_JSON_BYTES, UTF-8 (a BOM is skipped), no NaN/Infinity,
+    no integer of more than MAX_JSON_INT_DIGITS digits, nesting at most MAX_JSON_DEPTH."""
     try:
-        text = path.read_text(encoding="utf-8")
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_JSON_BYTES + 1)
     except OSError as exc:
-        raise SequenceError(f"{path}: cannot read ({exc.strerror})") from None
+        raise SequenceError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if len(raw) > MAX_JSON_BYTES:
+        raise SequenceError(f"{path}: larger than {MAX_JSON_BYTES} bytes "
+                            "(dropvision.sequence.MAX_JSON_BYTES)")
+    try:
+        text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
         raise SequenceError(f"{path}: not UTF-8 text") from None
     try:
-        obj = json.loads(text)
+        obj = json.loads(text, parse_constant=_json_constant, parse_int=_json_int,
+                         parse_float=_json_float)
+    except _JsonRefused as exc:
+        raise SequenceError(f"{path}: invalid JSON ({exc})") from None
+    except RecursionError:
+        obj = None
     except ValueError as exc:
         raise SequenceError(f"{path}: invalid JSON ({exc})") from None
+    if obj is None or not _json_depth_ok(obj):
+        raise SequenceError(f"{path}: invalid JSON (nested more than {MAX_JSON_DEPTH} levels "
+                            "deep)")
     if not isinstance(obj, dict):
         raise SequenceError(f"{path}: must hold a JSON object, got {type(obj).__name__}")
     return obj
+
+
+def _outside(folder_real: str, path: Path) -> str | None:
+    """Where ``path`` resolves (symbolic links followed) when that is outside the folder
+    ``folder_real`` (already resolved), else None."""
+    try:
+        real = os.path.realpath(path)
+    except (OSError, ValueError):
+        return None  # reported when the file is accessed
+    if real == folder_real or real.startswith(folder_real.rstrip(os.sep) + os.sep):
+        return None
+    return real
+
+
+def _refusal(target: str) -> str:
+    return (f"symbolic link resolves outside the sequence folder (to {target}); refused "
+            "(open_sequence(..., allow_outside_links=True) allows it)")
 
 
 def _probe(reader: Reader, path: Path) -> ImageInfo:
@@ -488,42 +617,73 @@ def _probe(reader: Reader, path: Path) -> ImageInfo:
         return ImageInfo()
 
 
-def _delays_of_file(folder: Path, rel: str) -> list[tuple[int | None, float]]:
+def _delays_of_file(folder: Path, rel: str, refused: dict) -> list[tuple[int | None, float]]:
     """(page, delay) pairs of one image file of a folder without a frames list."""
     path = folder / rel
+    if rel in refused:  # a link outside the folder: never opened, listed to be reported
+        from_name = parse_delay_from_name(rel)
+        if from_name is None:
+            raise SequenceError(f"{path}: {refused[rel]}")
+        return [(None, from_name)]
     info = _probe(reader_for(path), path)
     n_pages, page_delays = info.n_pages, info.page_delays
-    if n_pages > 1:
-        missing = [i for i in range(n_pages) if i not in page_delays]
+    cut = "" if info.complete else " (the file is cut short or corrupt)"
+    # a cut page chain: pages whose delays the file's metadata (OME) lists are still listed,
+    # and reported as unreadable when read
+    n_total = n_pages if info.complete else max(n_pages, max(
+        (k + 1 for k in page_delays if isinstance(k, int)), default=0))
+    if n_total > 1:
+        missing = [i for i in range(n_total) if i not in page_delays]
         if missing:
             raise SequenceError(
-                f"{path}: multi-page TIFF without a delay for page {missing[0]} (give OME "
+                f"{path}: multi-page TIFF without a delay for page {missing[0]}{cut} (give OME "
                 "Plane DeltaT, per-page JSON descriptions {\"delay_us\": ...} or a "
                 "sequence.json frames list)")
         return [(i, _delay_value(page_delays[i], f"{path} page {i}"))
-                for i in range(n_pages)]
+                for i in range(n_total)]
     from_name = parse_delay_from_name(rel)
     if from_name is not None:
         return [(None, from_name)]
     if 0 in page_delays:
         return [(None, _delay_value(page_delays[0], str(path)))]
     raise SequenceError(f"{path}: no delay in the file name (expected e.g. "
-                        "'frame_01150us.png') and no frames list in sequence.json")
+                        f"'frame_01150us.png'){cut} and no frames list in sequence.json")
 
 
-def _listed_from_folder(folder: Path) -> list[_Listed]:
-    names = sorted((p.name for p in folder.iterdir()
-                    if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")
-                    and not p.name.lower().startswith("truth") and p.is_file()),
-                   key=_natural_key)
+def _is_file(path: Path) -> bool:
+    try:
+        return path.is_file()
+    except (OSError, ValueError):
+        return True  # listed; the problem is reported when the frame is read
+
+
+def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
+                        allow_outside: bool) -> list[_Listed]:
+    try:
+        entries = list(folder.iterdir())
+    except OSError as exc:
+        raise SequenceError(f"{folder}: cannot list the folder ({exc.strerror or exc})") from None
+    names = []
+    for p in entries:
+        if (p.suffix.lower() not in IMAGE_SUFFIXES or p.name.startswith(".")
+                or p.name.lower().startswith("truth")):
+            continue
+        target = None if allow_outside else _outside(folder_real, p)
+        if target is not None:
+            refused[p.name] = _refusal(target)
+        elif not _is_file(p):
+            continue
+        names.append(p.name)
+    names.sort(key=_natural_key)
     if not names:
         raise SequenceError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}) "
                             "and no frames list")
     return [_Listed(name, page, delay) for name in names
-            for page, delay in _delays_of_file(folder, name)]
+            for page, delay in _delays_of_file(folder, name, refused)]
 
 
-def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
+def _listed_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
+                        refused: dict, allow_outside: bool) -> list[_Listed]:
     if not isinstance(frames, list) or not frames:
         raise SequenceError(f"{json_path}: 'frames' must be a non-empty list")
     out, seen, stored_delays = [], set(), {}
@@ -537,8 +697,18 @@ def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
         reader = reader_for(path)
         if reader is None:
             raise SequenceError(f"{where}: unsupported image type (use {', '.join(IMAGE_SUFFIXES)})")
-        if not path.is_file():
-            raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but missing")
+        target = None if allow_outside else _outside(folder_real, path)
+        if target is not None:
+            refused[rel] = _refusal(target)
+        else:
+            try:
+                present = path.is_file()
+            except (OSError, ValueError) as exc:
+                raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but cannot "
+                                    f"be accessed ({getattr(exc, 'strerror', None) or exc})"
+                                    ) from None
+            if not present:
+                raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but missing")
         page = entry.get("page")
         if page is not None:
             if not isinstance(page, int) or isinstance(page, bool) or page < 0:
@@ -553,6 +723,8 @@ def _listed_from_frames(folder: Path, frames, json_path: Path) -> list[_Listed]:
             delay = _delay_value(entry["delay_us"], where)
         else:
             delay = parse_delay_from_name(rel)
+            if delay is None and rel in refused:
+                raise SequenceError(f"{where}: {refused[rel]}; frames[{i}] needs a delay_us")
             if delay is None:
                 if rel not in stored_delays:
                     stored_delays[rel] = _probe(reader, path).page_delays
@@ -575,9 +747,12 @@ def _validate_waveform(value, where: str) -> dict | None:
     out.setdefault("hold_us", HOLD_PRESET_US)
     out.setdefault("dead_time_us", DEAD_TIME_US)
     for key in ("u1_um_per_ms", "u2_um", "u3_um_per_ms", "hold_us", "dead_time_us"):
-        if key not in out or not is_number(out[key]) or not math.isfinite(float(out[key])):
+        if key not in out or not is_number(out[key]):
             raise SequenceError(f"{where}: waveform {key} must be a number, got {out.get(key)!r}")
-        out[key] = float(out[key])
+        if key in ("hold_us", "dead_time_us") and out[key] < 0:
+            raise SequenceError(f"{where}: waveform {key} must be >= 0, got {out[key]!r}")
+        out[key] = _ranged(out[key], key, f"waveform {key}", where,
+                           positive=key not in ("hold_us", "dead_time_us"))
     try:
         Waveform(out["u1_um_per_ms"], out["u2_um"], out["u3_um_per_ms"], out["hold_us"])
     except ValueError as exc:
@@ -595,17 +770,30 @@ def _validate_ink(value, where: str) -> dict | None:
     out = dict(value)
     for key in ("density_kg_m3", "viscosity_mPa_s", "surface_tension_mN_m"):
         if key in out:
-            out[key] = _positive(out[key], f"ink {key}", where)
+            out[key] = _ranged(out[key], key, f"ink {key}", where)
     return out
 
 
-def open_sequence(path) -> Sequence:
+def _diameters(d_in, d_out, where: str) -> tuple[float | None, float | None]:
+    d_in = _ranged(d_in, "nozzle_diameter_um", "nozzle_inner_diameter_um", where)
+    d_out = _ranged(d_out, "nozzle_diameter_um", "nozzle_outer_diameter_um", where)
+    if d_in is not None and d_out is not None and not d_out > d_in:
+        raise SequenceError(f"{where}: nozzle_outer_diameter_um {d_out:g} must be larger than "
+                            f"nozzle_inner_diameter_um {d_in:g}")
+    return d_in, d_out
+
+
+def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
     ----------
     path : str or Path
         The sequence folder (or its ``sequence.json``).
+    allow_outside_links : bool
+        Read frames and a sequence.json that are symbolic links (or lie under linked folders)
+        resolving outside the sequence folder. By default such a frame is skipped and reported
+        (``Frame.error``) and such a sequence.json is a :class:`SequenceError`.
 
     Returns
     -------
@@ -616,7 +804,8 @@ def open_sequence(path) -> Sequence:
     ------
     SequenceError
         Folder missing or without images, invalid sequence.json, missing/invalid
-        pixel_size_um, unparsable delay, listed file missing, no readable frame.
+        pixel_size_um, a number outside its accepted range (``RANGES``), unparsable delay,
+        listed file missing, sequence.json linked outside the folder, no readable frame.
     """
     folder = Path(path)
     if folder.name == SEQUENCE_JSON and folder.is_file():
@@ -628,14 +817,23 @@ def open_sequence(path) -> Sequence:
         raise SequenceError(f"{folder}: not a folder (a sequence is a folder with sequence.json "
                             "and images)")
     json_path = folder / SEQUENCE_JSON
-    doc = _load_json(json_path) if json_path.is_file() else None
+    folder_real = os.path.realpath(folder)
+    refused: dict[str, str] = {}
     where = str(json_path)
+    json_exists = _is_file(json_path)
+    if json_exists and not allow_outside_links:
+        target = _outside(folder_real, json_path)
+        if target is not None:
+            raise SequenceError(f"{where}: {_refusal(target)}")
+    doc = _load_json(json_path) if json_exists else None
 
     if doc is not None:
-        schema = doc.get("schema", SCHEMA)
+        schema = doc.get("schema")
+        schema = SCHEMA if schema is None else schema  # null means absent
         if schema != SCHEMA:
             raise SequenceError(f"{where}: unsupported schema {schema!r} (expected {SCHEMA!r})")
-        orientation = doc.get("orientation", "down")
+        orientation = doc.get("orientation")
+        orientation = "down" if orientation is None else orientation  # null means absent
         orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
         if orientation not in ORIENTATIONS:
             raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, "
@@ -644,8 +842,8 @@ def open_sequence(path) -> Sequence:
         if bit_depth_key is not None and (not is_number(bit_depth_key)
                                           or bit_depth_key not in (8, 12, 16)):
             raise SequenceError(f"{where}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
-        d_in = _positive(doc.get("nozzle_inner_diameter_um"), "nozzle_inner_diameter_um", where)
-        d_out = _positive(doc.get("nozzle_outer_diameter_um"), "nozzle_outer_diameter_um", where)
+        d_in, d_out = _diameters(doc.get("nozzle_inner_diameter_um"),
+                                 doc.get("nozzle_outer_diameter_um"), where)
         tip_row = _finite_or_none(doc.get("nozzle_tip_row"), "nozzle_tip_row", where)
         axis_col = _finite_or_none(doc.get("axis_col"), "axis_col", where)
         waveform = _validate_waveform(doc.get("waveform"), where)
@@ -657,18 +855,19 @@ def open_sequence(path) -> Sequence:
         extra = {}
 
     if doc is not None and doc.get("frames") is not None:
-        listed = _listed_from_frames(folder, doc["frames"], json_path)
+        listed = _listed_from_frames(folder, doc["frames"], json_path, folder_real, refused,
+                                     allow_outside_links)
     else:
-        listed = _listed_from_folder(folder)
+        listed = _listed_from_folder(folder, folder_real, refused, allow_outside_links)
 
     # pixel size: sequence.json, else the metadata of the first listed file of a type that
     # may store it (scientific TIFF)
     pixel_size_um, source = None, "sequence.json"
     if doc is not None and doc.get("pixel_size_um") is not None:
-        pixel_size_um = _positive(doc["pixel_size_um"], "pixel_size_um", where)
+        pixel_size_um = _ranged(doc["pixel_size_um"], "pixel_size_um", "pixel_size_um", where)
     else:
-        first_sized = next((item.file for item in listed
-                            if reader_for(item.file).stores_pixel_size), None)
+        first_sized = next((item.file for item in listed if item.file not in refused
+                            and reader_for(item.file).stores_pixel_size), None)
         if first_sized is not None:
             try:
                 pixel_size_um, source = reader_for(first_sized).pixel_size(folder / first_sized)
@@ -680,7 +879,9 @@ def open_sequence(path) -> Sequence:
                                     "the images carry no pixel size")
             raise SequenceError(f"{where}: pixel_size_um is missing (required: pixel size in "
                                 "µm, a number > 0)")
-        pixel_size_um = _positive(pixel_size_um, "pixel size", str(folder / first_sized))
+        pixel_size_um = _ranged(pixel_size_um, "pixel_size_um",
+                                f"pixel size from the {source} metadata",
+                                str(folder / first_sized))
 
     # processing order: ascending delay, stable (listed order, then page)
     order = sorted(range(len(listed)), key=lambda i: listed[i].delay_us)
@@ -696,7 +897,7 @@ def open_sequence(path) -> Sequence:
     # probe: first readable frame (processing order) gives shape, type, bit depth
     probe_meta = SequenceMeta(folder, pixel_size_um, d_in, d_out, None, None, orientation,
                               waveform, ink, tuple(refs), (0, 0), 0, reordered, extra, source)
-    probe = Sequence(probe_meta, np.uint8)
+    probe = Sequence(probe_meta, np.uint8, refused)
     first_img, first_ref, first_error = None, None, None
     try:
         for ref in refs:
@@ -727,13 +928,14 @@ def open_sequence(path) -> Sequence:
         bit_depth = hint if hint is not None and 8 < hint <= 16 else 16
         bit_depth = 12 if 8 < bit_depth <= 12 else 16  # report 8, 12 or 16
 
+    _check_in_image(tip_row, axis_col, original_shape, where)
     tip_c, axis_c = original_to_canonical(tip_row, axis_col, orientation, original_shape)
     meta = SequenceMeta(folder, pixel_size_um, d_in, d_out,
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
                         orientation, waveform, ink, tuple(refs), canonical_shape, bit_depth,
                         reordered, extra, source)
-    return Sequence(meta, first_img.dtype)
+    return Sequence(meta, first_img.dtype, refused)
 
 
 
@@ -746,7 +948,8 @@ class ArraySequence(Sequence):
         self._images = images  # canonical orientation, processing (delay) order
 
     def __getstate__(self):
-        return {"meta": self.meta, "_dtype": self._dtype, "_images": self._images}
+        return {"meta": self.meta, "_dtype": self._dtype, "_refused": {},
+                "_images": self._images}
 
     def __setstate__(self, state) -> None:
         super().__setstate__(state)
@@ -797,7 +1000,13 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
         raise SequenceError(f"{where}: {len(frames)} frame(s) but {delays.size} delay(s)")
     if not np.all(np.isfinite(delays)):
         raise SequenceError(f"{where}: delays_us must be finite numbers")
-    pixel_size_um = _positive(pixel_size_um, "pixel_size_um", where, required=True)
+    lo, hi, unit = RANGES["delay_us"]
+    if delays.size and not (lo <= delays.min() and delays.max() <= hi):
+        raise SequenceError(f"{where}: delays_us must lie in the accepted range "
+                            f"{lo:g}..{hi:g} {unit}")
+    if pixel_size_um is None:
+        raise SequenceError(f"{where}: pixel_size_um is missing (required, a number > 0)")
+    pixel_size_um = _ranged(pixel_size_um, "pixel_size_um", "pixel_size_um", where)
     orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
     if orientation not in ORIENTATIONS:
         raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, got {orientation!r}")
@@ -823,12 +1032,12 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
         refs.append(FrameRef(index, f"frame_{i:05d}", None, float(delays[i]), repeats[key], i))
         repeats[key] += 1
         canonical.append(np.ascontiguousarray(to_canonical(grey[i], orientation)))
-    tip_c, axis_c = original_to_canonical(
-        _finite_or_none(nozzle_tip_row, "nozzle_tip_row", where),
-        _finite_or_none(axis_col, "axis_col", where), orientation, grey[0].shape)
-    meta = SequenceMeta(Path(where), pixel_size_um,
-                        _positive(nozzle_inner_diameter_um, "nozzle_inner_diameter_um", where),
-                        _positive(nozzle_outer_diameter_um, "nozzle_outer_diameter_um", where),
+    tip_row = _finite_or_none(nozzle_tip_row, "nozzle_tip_row", where)
+    axis_col = _finite_or_none(axis_col, "axis_col", where)
+    _check_in_image(tip_row, axis_col, grey[0].shape, where)
+    tip_c, axis_c = original_to_canonical(tip_row, axis_col, orientation, grey[0].shape)
+    d_in, d_out = _diameters(nozzle_inner_diameter_um, nozzle_outer_diameter_um, where)
+    meta = SequenceMeta(Path(where), pixel_size_um, d_in, d_out,
                         None if tip_c is None else float(tip_c), None if axis_c is None else float(axis_c),
                         orientation, _validate_waveform(waveform, where), _validate_ink(ink, where),
                         tuple(refs), tuple(int(n) for n in canonical[0].shape), int(bit_depth),

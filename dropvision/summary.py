@@ -27,8 +27,9 @@ from dropvision.calibration import Calibration
 from dropvision.config import MeasureConfig
 from dropvision.flow import flow_velocity_at, grown_and_flow
 from dropvision.frame import FrameRecord
-from dropvision.pinchoff import pinchoff_delay
-from dropvision.tracking import fit_line, track_main_drop
+from dropvision.pinchoff import isolated_detached, pinchoff_bracket_problem, pinchoff_delay
+from dropvision.tracking import fit_line, neighbour_outliers, track_main_drop
+from dropvision.volume import NL_PER_UM3
 from identify import schema
 from identify.versions import software_versions
 from identify.waveform import Waveform
@@ -86,14 +87,57 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     m = len(records)
     delay = np.array([r.delay_us for r in records], float)
     flags = [list(r.flags) for r in records]
+    notes: list[str] = []
     att_vol = np.array([r.attached_volume_nl for r in records], float)
     has_det = np.array([bool(r.bodies) for r in records], bool)
-    pinch = pinchoff_delay(delay, has_det) if m else float("nan")
+    dead_time = dead_time_us(meta, config)
+    # --- plausibility of the pixel size (issue "hostile and lying input", lie 1) ----------
+    length_lie = _check_pixel_size(cal, meta, config, flags, notes)
+    # --- pinch-off: an isolated detached delay is a foreign frame, not the pinch-off -----
+    isolated = isolated_detached(delay, has_det)
+    for k in np.nonzero(isolated)[0]:
+        flags[k].append(q.NEIGHBOURS)
+    if isolated.any():
+        notes.append(f"{int(isolated.sum())} frame(s) show a detached drop between attached delays "
+                     f"({_delays_text(delay[isolated])} us): inconsistent with their neighbours, left out")
+    pinch = pinchoff_delay(delay[~isolated], has_det[~isolated]) if (~isolated).any() else float("nan")
+    delay_lie = False
+    if np.isfinite(pinch) and pinch < dead_time:
+        # the piston has not moved before the dead time: no drop can have separated
+        delay_lie = True
+        for fl in flags:  # every delay is wrong
+            fl.append(q.DELAY_INCONSISTENT)
+        notes.append(f"pinch-off at {pinch:g} us is before the waveform's dead time {dead_time:g} us: delays "
+                     "shifted or in another unit; pinch-off and velocities not given")
+        pinch = float("nan")
+    problem = pinchoff_bracket_problem(delay[~isolated], pinch, config.min_pinchoff_frames)
+    if problem is not None:
+        d_u = np.unique(delay[~isolated])
+        before = d_u[d_u < pinch]
+        involved = (delay == pinch) | ((delay == before.max()) if before.size else False)
+        if m < config.min_pinchoff_frames:
+            involved = np.ones(m, bool)
+        for k in np.nonzero(involved & ~isolated)[0]:
+            flags[k].append(q.PINCHOFF_UNDEFINED)
+        notes.append(problem)
+        pinch = float("nan")
     attached = ~has_det & ((delay < pinch) if np.isfinite(pinch) else True)
-    grown, flow, meniscus, grown_by_delay = grown_and_flow(delay, att_vol, attached, meta.nozzle_inner_diameter_um)
+    # --- attached volumes that disagree with their neighbours (frames of another sequence) ---
+    vol_used = att_vol.copy()
+    att_ok = attached & np.isfinite(att_vol)
+    if att_ok.sum() >= 4:
+        scale = float(np.nanmax(np.abs(att_vol[att_ok])))
+        out = neighbour_outliers(np.where(att_ok, delay, np.nan), att_vol, config.track_outlier_sigmas,
+                                 config.volume_outlier_floor_fraction * scale)
+        if out.any():
+            for k in np.nonzero(out)[0]:
+                flags[k].append(q.NEIGHBOURS)
+            vol_used[out] = np.nan
+            notes.append(f"{int(out.sum())} attached frame(s) ({_delays_text(delay[out])} us) disagree with the "
+                         "neighbouring delays' volume far beyond the sequence's scatter: left out")
+    grown, flow, meniscus, grown_by_delay = grown_and_flow(delay, vol_used, attached, meta.nozzle_inner_diameter_um)
     # The grown volume is relative to the initial meniscus (Section 4.1.1): that needs a frame
     # taken before the piston moves (delay <= dead time). Without one, no grown volume or flow.
-    dead_time = dead_time_us(meta, config)
     meniscus_at_rest = bool(m) and float(np.min(delay)) <= dead_time
     if not meniscus_at_rest:
         grown[:] = np.nan
@@ -104,6 +148,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
             if attached[k]:
                 flags[k].append(q.NO_REST_MENISCUS)
     drop = track_main_drop(records, attached, config, flags)
+    drop.inflight[isolated] = False
     for k in range(m):
         if any(f in UNTRUSTED_INTENSITY_FLAGS for f in flags[k]):
             # untrusted intensities: no number from this frame
@@ -111,6 +156,55 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
             drop.z_um[k] = drop.x_um[k] = np.nan
             flow[k] = np.nan
             drop.inflight[k] = False
+    # --- main-drop track: position and volume consistent with the neighbouring delays -------
+    _check_track(delay, drop, config, flags, notes)
+    # --- the stroke must grow the meniscus by the maximum stroke (delays stretched?) ------
+    max_stroke_us = max_stroke_instant_us(meta, config)
+    if np.isfinite(pinch) and np.isfinite(max_stroke_us) and not delay_lie and pinch < max_stroke_us:
+        # a squeeze-mode drop separates after the piston has stopped pushing (the paper's
+        # campaign: 1.7-2.8 stroke durations after the stroke's end); before it, the delays are
+        # compressed (e.g. halved) or the waveform in sequence.json is not the one fired
+        delay_lie = True
+        for fl in flags:
+            fl.append(q.DELAY_INCONSISTENT)
+        notes.append(f"pinch-off at {pinch:g} us is before the end of the stroke ({max_stroke_us:.0f} us after the "
+                     "trigger): delays compressed or the waveform is not the one fired; pinch-off and velocities "
+                     "not given")
+        pinch = float("nan")
+    if meniscus_at_rest and np.isfinite(pinch) and np.isfinite(max_stroke_us) and not delay_lie:
+        g_at_pinch = _grown_before(grown, delay, attached, pinch)
+        d_g = grown_by_delay.index.to_numpy(float)
+        if np.isfinite(g_at_pinch) and g_at_pinch > 0 and d_g.size >= 2 and d_g.min() <= max_stroke_us <= d_g.max():
+            g_ms = float(np.interp(max_stroke_us, d_g, grown_by_delay.to_numpy(float)))
+            if g_ms < config.min_growth_at_max_stroke_fraction * g_at_pinch:
+                delay_lie = True
+                for fl in flags:  # every delay is wrong
+                    fl.append(q.DELAY_INCONSISTENT)
+                notes.append(f"grown volume at the maximum stroke ({max_stroke_us:.0f} us) is {g_ms:.3g} nl, under "
+                             f"{config.min_growth_at_max_stroke_fraction:g} of the {g_at_pinch:.3g} nl grown by the "
+                             "pinch-off: delays stretched or in another unit; pinch-off and velocities not given")
+                pinch = float("nan")
+    if delay_lie:
+        flow[:] = np.nan
+    # --- flow needs a plausible inner diameter -------------------------------------------
+    inner_lie = _check_nozzle(meta, drop, config, flags, notes)
+    if inner_lie:
+        flow[:] = np.nan
+        for k in np.nonzero(attached)[0]:
+            if q.IMPLAUSIBLE not in flags[k]:
+                flags[k].append(q.IMPLAUSIBLE)
+    inflight = drop.inflight
+    line = fit_line(delay[inflight], drop.z_um[inflight])
+    velocity, velocity_se = line.slope, line.slope_se
+    if np.isfinite(velocity) and not (config.min_jetting_velocity_m_s <= velocity <= config.max_jetting_velocity_m_s):
+        for k in np.nonzero(inflight)[0]:
+            flags[k].append(q.IMPLAUSIBLE)
+        notes.append(f"jetting velocity {velocity:.3g} m/s outside {config.min_jetting_velocity_m_s:g}.."
+                     f"{config.max_jetting_velocity_m_s:g} m/s, implausible for drop-on-demand (delays in another "
+                     "unit, or a second moving body): not given")
+        velocity = velocity_se = float("nan")
+    if delay_lie:
+        velocity = velocity_se = float("nan")
     frames = pd.DataFrame({
         "file": [r.file for r in records],
         "page": pd.array([r.page for r in records], dtype="Int64"),
@@ -143,12 +237,10 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         g_pinch = float(np.mean(at_last)) if at_last.size else float("nan")
     inflight = drop.inflight
     inf_vol = drop.drop_volume_nl[inflight]
-    line = fit_line(delay[inflight], drop.z_um[inflight])
     traj = fit_line(drop.z_um[inflight], drop.x_um[inflight])
     sats = drop.n_satellites[inflight & np.isfinite(drop.n_satellites)]
-    max_stroke_us = max_stroke_instant_us(meta, config)
     flow_at_max_stroke_m_s = float("nan")
-    if np.isfinite(max_stroke_us) and meta.nozzle_inner_diameter_um:
+    if np.isfinite(max_stroke_us) and meta.nozzle_inner_diameter_um and not (delay_lie or inner_lie):
         flow_at_max_stroke_m_s = flow_velocity_at(grown_by_delay, max_stroke_us, meta.nozzle_inner_diameter_um)
     calib = cal.to_dict()
     calib["edge_blur_sigma_px"] = sigma_px
@@ -166,8 +258,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "inflight_volume_nl": float(np.mean(inf_vol)) if inf_vol.size else float("nan"),
         "inflight_volume_std_nl": float(np.std(inf_vol, ddof=1)) if inf_vol.size >= 2 else float("nan"),
         "inflight_frames": int(inf_vol.size),
-        "jetting_velocity_m_s": line.slope,
-        "jetting_velocity_se_m_s": line.slope_se,
+        "jetting_velocity_m_s": velocity,
+        "jetting_velocity_se_m_s": velocity_se,
         "trajectory_angle_mrad": float(1000.0 * np.arctan(traj.slope)) if np.isfinite(traj.slope) else float("nan"),
         "satellites": int(np.median(sats)) if sats.size else None,
         "max_stroke_us": max_stroke_us,
@@ -177,8 +269,115 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "quality_counts": frames["quality"].value_counts().to_dict(),
         "software": software_versions(),
         "config": asdict(config),
+        "notes": notes,
     }
+    if length_lie:
+        for key in ("grown_volume_at_pinchoff_nl", "initial_meniscus_volume_nl", "inflight_volume_nl",
+                    "inflight_volume_std_nl", "jetting_velocity_m_s", "jetting_velocity_se_m_s",
+                    "flow_velocity_at_max_stroke_m_s"):
+            summary[key] = float("nan")
     return frames, summary
+
+
+def _delays_text(delays) -> str:
+    """Distinct delays, comma separated (at most 8)."""
+    d = np.unique(np.asarray(delays, float))
+    text = ", ".join(f"{v:g}" for v in d[:8])
+    return text + (", ..." if d.size > 8 else "")
+
+
+def _grown_before(grown, delay, attached, pinch) -> float:
+    """Mean grown volume at the last attached delay before the pinch-off (nl)."""
+    last = delay[attached & (delay < pinch) & np.isfinite(grown)]
+    if not last.size:
+        return float("nan")
+    return float(np.mean(grown[attached & (delay == last.max()) & np.isfinite(grown)]))
+
+
+def _check_pixel_size(cal: Calibration, meta, config: MeasureConfig, flags, notes) -> bool:
+    """Compare the given pixel size with the one implied by the nozzle's outer diameter.
+
+    Beyond ``config.pixel_size_tolerance_fraction`` every frame is flagged and True is returned
+    (the length-dependent summary values are then not given).  Inside it a note is written when
+    the ratio differs from 1 by more than ``config.pixel_size_note_sigmas`` standard
+    uncertainties of the measured outer diameter: the edge fit locates the outer diameter to
+    about 0.1 % on a 76 px nozzle, so a 1.5 % lie (+4.6 % volume) is far outside what the
+    measurement itself can explain, while honest sequences stay within ~1 uncertainty.
+    """
+    ratio, u = cal.pixel_size_ratio, cal.pixel_size_ratio_uncertainty
+    if not getattr(meta, "nozzle_outer_diameter_um", None):
+        notes.append("pixel size unchecked (no nozzle_outer_diameter_um)")
+        return False
+    if not np.isfinite(ratio):
+        return False
+    if abs(ratio - 1.0) > config.pixel_size_tolerance_fraction:
+        for fl in flags:
+            fl.append(q.PIXEL_SIZE_MISMATCH)
+        notes.append(f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one (beyond "
+                     f"{100 * config.pixel_size_tolerance_fraction:g} %): volumes and velocities not given")
+        return True
+    if np.isfinite(u) and abs(ratio - 1.0) > config.pixel_size_note_sigmas * u:
+        notes.append(f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one "
+                     f"(+-{u:.4f}): within the tolerance but beyond the edge fit's uncertainty; volumes scale "
+                     "with its cube")
+    return False
+
+
+def _check_track(delay, drop, config: MeasureConfig, flags, notes) -> None:
+    """Flag in-flight frames whose main drop disagrees with the neighbouring delays.
+
+    A position far off the track with the track's volume is the same drop at a wrong delay
+    (``delay_inconsistent``); a volume far off (or both) is another body or another sequence
+    (``inconsistent_with_neighbours``).  Either is left out of the in-flight values.
+    """
+    inf = drop.inflight.copy()
+    if inf.sum() < 4:
+        return
+    x = np.where(inf, delay, np.nan)
+    vols = drop.drop_volume_nl
+    med = float(np.nanmedian(vols[inf]))
+    vol_out = neighbour_outliers(x, vols, config.track_outlier_sigmas, config.volume_outlier_floor_fraction * med)
+    z_out = neighbour_outliers(x, drop.z_um, config.track_outlier_sigmas, config.track_outlier_floor_um)
+    wrong_delay = z_out & ~vol_out
+    other = vol_out
+    for k in np.nonzero(wrong_delay)[0]:
+        flags[k].append(q.DELAY_INCONSISTENT)
+    for k in np.nonzero(other)[0]:
+        flags[k].append(q.NEIGHBOURS)
+    if wrong_delay.any():
+        notes.append(f"the drop's position at {_delays_text(delay[wrong_delay])} us does not follow its motion "
+                     "at the neighbouring delays (drop going back up: delays mislabelled): left out")
+    if other.any():
+        notes.append(f"the main drop at {_delays_text(delay[other])} us differs in volume from its neighbours far "
+                     "beyond the sequence's scatter (another body or sequence): left out")
+    drop.inflight[wrong_delay | other] = False
+
+
+def _check_nozzle(meta, drop, config: MeasureConfig, flags, notes) -> bool:
+    """Drop volume against the nozzle and inner >= outer diameter; True when the inner diameter is a lie.
+
+    The nozzle volume is pi r_in^2 x d_in: the bore one inner diameter long, the length scale of
+    the meniscus and of the liquid pushed out per stroke.  A drop larger than
+    ``config.max_drop_to_nozzle_volumes`` of these cannot come from this nozzle.
+    """
+    d_in = meta.nozzle_inner_diameter_um
+    d_out = getattr(meta, "nozzle_outer_diameter_um", None)
+    lie = False
+    if d_in and d_out and d_in >= d_out:
+        notes.append(f"nozzle inner diameter {d_in:g} um >= outer {d_out:g} um: impossible, flow velocities "
+                     "not given")
+        lie = True
+    if d_in:
+        nozzle_nl = np.pi * (0.5 * d_in) ** 2 * d_in * NL_PER_UM3
+        big = np.isfinite(drop.drop_volume_nl) & (drop.drop_volume_nl > config.max_drop_to_nozzle_volumes * nozzle_nl)
+        if big.any():
+            for k in np.nonzero(big)[0]:
+                flags[k].append(q.IMPLAUSIBLE)
+            notes.append(f"drop volume up to {np.nanmax(drop.drop_volume_nl[big]):.3g} nl is more than "
+                         f"{config.max_drop_to_nozzle_volumes:g} nozzle volumes ({nozzle_nl:.3g} nl for "
+                         f"{d_in:g} um): nozzle_inner_diameter_um wrong? flow velocities not given")
+            lie = True
+    return lie
 
 
 def per_delay(frames: pd.DataFrame) -> pd.DataFrame:

@@ -159,3 +159,65 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             if not inflight[k]:
                 flags[k].append(q.TAIL)
     return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight)
+
+
+def neighbour_outliers(x, y, sigmas: float, floor: float) -> np.ndarray:
+    """Points that disagree with their neighbours in ``x`` far beyond the series' own scatter.
+
+    Every point is predicted from the means of the nearest distinct ``x`` on each side (linear
+    interpolation; one-sided linear extrapolation from the two nearest at the ends).  The
+    scatter is the robust spread (1.4826 MAD) of these residuals; a point whose residual
+    exceeds ``max(sigmas * scatter, floor)`` is an outlier.  The worst outlier is removed and the
+    residuals recomputed until none is left, so that one outlier does not make its neighbours
+    look wrong.
+
+    Parameters
+    ----------
+    x, y : array_like
+        Points (e.g. delay in µs and drop position in µm); non-finite ones are ignored.
+    sigmas : float
+        Threshold in robust scatters.
+    floor : float
+        Smallest residual called an outlier (y units).
+
+    Returns
+    -------
+    ndarray of bool
+        Outliers, per point.
+    """
+    x = np.asarray(x, float)
+    y = np.asarray(y, float)
+    use = np.isfinite(x) & np.isfinite(y)
+    out = np.zeros(x.size, bool)
+    while True:
+        idx = np.nonzero(use & ~out)[0]
+        ux = np.unique(x[idx])
+        if ux.size < 4:
+            return out
+        means = np.array([y[idx][x[idx] == u].mean() for u in ux])
+        res = np.full(x.size, np.nan)
+        for k in idx:
+            i = int(np.searchsorted(ux, x[k]))
+            lo = [j for j in (i - 1, i - 2) if j >= 0]
+            hi = [j for j in (i + 1, i + 2) if j < ux.size]
+            if lo and hi:
+                a, b = lo[0], hi[0]
+            elif len(hi) == 2:
+                a, b = hi
+            elif len(lo) == 2:
+                a, b = lo[1], lo[0]
+            else:
+                continue
+            pred = means[a] + (means[b] - means[a]) * (x[k] - ux[a]) / (ux[b] - ux[a])
+            res[k] = y[k] - pred
+        r = res[np.isfinite(res)]
+        if r.size < 4:
+            return out
+        # lower quartile of |r| (0.3186 sigma for Gaussian residuals): an outlier also spoils its
+        # neighbours' predictions, so up to ~3/4 of the residuals may be off
+        scatter = float(np.quantile(np.abs(r), 0.25)) / 0.3186
+        limit = max(sigmas * scatter, floor)
+        worst = int(np.nanargmax(np.abs(res)))
+        if not abs(res[worst]) > limit:
+            return out
+        out[worst] = True

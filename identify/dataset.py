@@ -284,7 +284,73 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
             f"{f_su}: only {n_ctrl} distinct (u1_um_per_ms, u2_um) pair(s); the polynomial models "
             f"need at least {min_controls}"
         )
+    _check_plausible(ds, f_ts, f_su, f_js)
     return ds
+
+
+#: Plausible range of (grown volume at pinch-off) / (nozzle cross-section x stroke u2): the
+#: piston displaces the liquid that grows the drop, and its area is larger than the nozzle's
+#: (the synthetic printhead: ~20; a 50 µm nozzle with the paper's ~18 nl drops at 25 µm: ~370).
+#: Generous bounds, a factor 100 beyond either: volumes in pl labelled nl come out 1000 x too
+#: large, in µl 1000 x too small.
+VOLUME_PER_STROKE_RANGE = (1e-2, 1e4)
+
+
+def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
+    """Refuse data that pass the format checks but cannot be what the columns say.
+
+    - constant outputs: every sequence with the same in-flight volume, grown volume at
+      pinch-off or jetting velocity (an export that filled a column with one value): the
+      adjusters would be fitted to nothing;
+    - swapped u1/u2 columns: the piston reaches its maximum stroke at dead time +
+      1000 u2/u1 µs; the drop cannot pinch off while the piston is still pushing it out, so
+      pinch-off before the maximum stroke in most sequences means u1 (µm/ms) and u2 (µm) are
+      swapped (on the paper's grid u1 50-80, u2 20-35: pinch-off 1.7-2.8 stroke durations
+      after the dead time; swapped: 0.2-0.9);
+    - volume units: the grown volume at pinch-off against the nozzle cross-section x stroke
+      (:data:`VOLUME_PER_STROKE_RANGE`), e.g. pl labelled nl.
+    """
+    su = ds.summary
+    for col in ("inflight_volume_nl", "grown_volume_at_pinchoff_nl", "jetting_velocity_m_s"):
+        v = su[col].to_numpy(float)
+        if v.size >= 2 and np.all(v == v[0]):
+            raise DatasetError(
+                f"{f_su}: column {col} is constant ({v[0]:.6g} in all {v.size} sequences): nothing to "
+                "identify; an export that filled the column with one value?")
+    u1 = su["u1_um_per_ms"].to_numpy(float)
+    u2 = su["u2_um"].to_numpy(float)
+    stroke_us = 1000.0 * u2 / u1
+    early = (su["pinchoff_us"].to_numpy(float) - ds.dead_time_us) < stroke_us
+    if early.sum() > 0.5 * early.size:
+        raise DatasetError(
+            f"{f_su}: columns u1_um_per_ms and u2_um look swapped: in {int(early.sum())} of {early.size} "
+            f"sequences pinch-off comes before the maximum stroke (dead time + 1000 u2/u1 us: median "
+            f"{ds.dead_time_us + float(np.median(stroke_us)):.4g} us, pinch-off median "
+            f"{float(np.median(su['pinchoff_us'])):.4g} us); u1 (um/ms) median {float(np.median(u1)):.4g}, "
+            f"u2 (um) median {float(np.median(u2)):.4g}")
+    area_um2 = np.pi / 4.0 * ds.nozzle_inner_diameter_um**2
+    per_stroke_nl = area_um2 * u2 * 1e-6  # um^3 -> nl
+    lo, hi = VOLUME_PER_STROKE_RANGE
+    for fname, col, values in (
+        (f_su, "grown_volume_at_pinchoff_nl", su["grown_volume_at_pinchoff_nl"].to_numpy(float)),
+        (f_su, "inflight_volume_nl", su["inflight_volume_nl"].to_numpy(float)),
+    ):
+        ratio = float(np.median(values / per_stroke_nl))
+        if not lo <= ratio <= hi:
+            unit = "pl labelled nl" if ratio > hi else "ul or m^3 labelled nl"
+            raise DatasetError(
+                f"{fname}: column {col} (median {float(np.median(values)):.4g} nl) is {ratio:.3g} x the "
+                f"nozzle cross-section x stroke (nozzle_inner_diameter_um {ds.nozzle_inner_diameter_um:g} "
+                f"of {f_js}), outside the plausible {lo:g}-{hi:g}: volumes in {unit}, or a wrong nozzle "
+                "diameter?")
+    gv = ds.timeseries["grown_volume_nl"].to_numpy(float)
+    att = ds.timeseries["attached"].to_numpy(bool)
+    top = float(np.nanmax(gv[att])) if att.any() else 0.0
+    top_ref = float(np.max(per_stroke_nl))
+    if top > hi * top_ref:
+        raise DatasetError(
+            f"{f_ts}: column grown_volume_nl (max {top:.4g} nl) is {top / top_ref:.3g} x the nozzle "
+            f"cross-section x largest stroke, above the plausible {hi:g}: volumes in pl labelled nl?")
 
 
 def load_dataset(path, *, min_controls: int = 3) -> Dataset:

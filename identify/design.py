@@ -100,6 +100,10 @@ def design(
         raise ValueError(f"--volume-nl must be a positive number, got {volume_nl!r}")
     if velocity_m_s is not None and (not np.isfinite(velocity_m_s) or velocity_m_s <= 0):
         raise ValueError(f"--velocity-m-s must be a positive number, got {velocity_m_s!r}")
+    if samples and samples > 1:  # 0 or 1: no spread; more: bounded by memory, checked before the search
+        from identify.montecarlo import check_samples
+
+        check_samples(samples)
     if model.controls is None or len(model.controls) < 3:
         raise ValueError("the model has no training region (training_controls) to design in")
     region = Region(model.controls)

@@ -164,8 +164,12 @@ class HybridModel:
 
     @classmethod
     def from_dict(cls, d: dict, *, source: str = "model.json") -> "HybridModel":
+        """A model from its :meth:`to_dict` form; every value is checked (type, shape, finiteness)
+        first, so that a malformed or hand-edited model.json raises :class:`ModelFileError`
+        naming ``source`` and the key, never a traceback later during prediction."""
         if not isinstance(d, dict) or d.get("schema") != SCHEMA:
             raise ModelFileError(f"{source}: not a hybrid model file (schema {SCHEMA!r} expected)")
+        _check_model_dict(d, source)
         try:
             e = d["ecm"]
             cov = e.get("coefficient_covariance")
@@ -187,7 +191,7 @@ class HybridModel:
                 versions=d.get("versions", {}),
                 extra=d.get("extra", {}),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ModelFileError(f"{source}: invalid model file ({type(exc).__name__}: {exc})") from None
 
     def save(self, path) -> Path:
@@ -205,10 +209,191 @@ class HybridModel:
         if not path.is_file():
             raise ModelFileError(f"{path}: model file not found")
         try:
-            d = json.loads(path.read_text())
+            d = json.loads(path.read_text(encoding="utf-8"))
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise ModelFileError(f"{path}: invalid JSON ({exc})") from None
+        except RecursionError:
+            raise ModelFileError(f"{path}: invalid JSON (nested too deeply)") from None
         return cls.from_dict(d, source=str(path))
+
+
+def _model_error(source, key: str, problem: str) -> ModelFileError:
+    return ModelFileError(f"{source}: invalid model file: {key} {problem}")
+
+
+def _number(value, source, key: str, *, positive: bool = False, nonnegative: bool = False,
+            at_most: float | None = None) -> float:
+    """A finite JSON number (not a bool, not a string), within the given bounds, or
+    :class:`ModelFileError`."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise _model_error(source, key, f"must be a number, got {type(value).__name__} {_short(value)}")
+    try:
+        v = float(value)
+    except OverflowError:
+        raise _model_error(source, key, "is out of range") from None
+    if not np.isfinite(v):
+        raise _model_error(source, key, f"must be finite, got {v}")
+    if positive and v <= 0:
+        raise _model_error(source, key, f"must be > 0, got {v}")
+    if nonnegative and v < 0:
+        raise _model_error(source, key, f"must be >= 0, got {v}")
+    if at_most is not None and v > at_most:
+        raise _model_error(source, key, f"must be at most {at_most:g}, got {v:g}")
+    return v
+
+
+#: Physical ranges of a model's scalars (the same generous ranges sequence.json is read with).
+MODEL_RANGES = {"nozzle_inner_diameter_um": 1e4, "dead_time_us": 1e6, "sample_interval_us": 1e4,
+                "waveform.u3_um_per_ms": 1e4, "waveform.hold_us": 1e6}
+
+
+def _check_ecm_stable(c: dict, source) -> None:
+    """The identified ECM (Eq. 6) must be a stable third-order system (Routh-Hurwitz):
+    A3..A0 of one sign and A2 A1 > A3 A0. A hand-edited or corrupted coefficient is caught here
+    instead of predicting nonsense."""
+    a3, a2, a1, a0 = (float(c[k]) for k in ("A3", "A2", "A1", "A0"))
+    sign = np.sign(a3)
+    with np.errstate(over="ignore"):
+        stable = sign != 0 and all(np.sign(a) == sign for a in (a2, a1, a0)) and a2 * a1 > a3 * a0 and \
+            np.isfinite(a2 * a1) and np.isfinite(a3 * a0)
+    if not stable:
+        raise _model_error(source, "ecm.coefficients", "describe no stable third-order system "
+                           f"(A3..A0 = {a3:.4g}, {a2:.4g}, {a1:.4g}, {a0:.4g}): the file is corrupt or edited")
+
+
+def _optional_numbers(value, source, key: str) -> None:
+    """An object of numbers or nulls, nested (confidence intervals, physical parameters)."""
+    if value is None:
+        return
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _optional_numbers(v, source, f"{key}.{k}")
+    elif not (isinstance(value, (int, float)) and not isinstance(value, bool)) and not isinstance(value, str) \
+            or (isinstance(value, str) and key.rsplit(".", 1)[-1] not in ("unit", "units", "note", "source")):
+        if isinstance(value, list):
+            for i, v in enumerate(value):
+                _optional_numbers(v, source, f"{key}[{i}]")
+            return
+        raise _model_error(source, key, f"must be a number or null, got {_short(value)}")
+    elif isinstance(value, float) and not np.isfinite(value):
+        raise _model_error(source, key, f"must be finite, got {value}")
+
+
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _array(value, source, key: str, shape: tuple) -> np.ndarray:
+    """A finite numeric array of ``shape`` (``None`` entries: any size)."""
+    def numeric(v, depth=0):
+        if isinstance(v, list):
+            return depth < len(shape) and all(numeric(x, depth + 1) for x in v)
+        return depth == len(shape) and isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if not numeric(value):
+        raise _model_error(source, key, f"must be a {len(shape)}-D list of numbers, got {_short(value)}")
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (ValueError, OverflowError):
+        raise _model_error(source, key, "is not a regular array of numbers") from None
+    if arr.ndim != len(shape) or any(n is not None and n != m for n, m in zip(shape, arr.shape)):
+        want = " x ".join("n" if n is None else str(n) for n in shape)
+        raise _model_error(source, key, f"must have shape {want}, got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise _model_error(source, key, "holds NaN or infinite values")
+    return arr
+
+
+def _check_polynomial(p, source, key: str) -> None:
+    if not isinstance(p, dict):
+        raise _model_error(source, key, f"must be an object, got {type(p).__name__}")
+    missing = [k for k in ("n1", "n2", "terms", "coefficients", "covariance", "ci95", "centre", "scale",
+                           "scaled_coefficients", "scaled_covariance", "residual_std", "dof", "n_samples",
+                           "train_rmse") if k not in p]
+    if missing:
+        raise _model_error(source, key, f"misses {', '.join(missing)}")
+    for k in ("n1", "n2", "dof", "n_samples"):
+        v = _number(p[k], source, f"{key}.{k}", nonnegative=True)
+        if v != int(v):
+            raise _model_error(source, f"{key}.{k}", f"must be an integer, got {v}")
+    terms = _array(p["terms"], source, f"{key}.terms", (None, 2))
+    if np.any(terms < 0) or np.any(terms != np.round(terms)) or np.any(terms > 64):
+        raise _model_error(source, f"{key}.terms", "must be pairs of small non-negative integer powers")
+    n = len(terms)
+    if n == 0:
+        raise _model_error(source, f"{key}.terms", "is empty")
+    for k in ("coefficients", "ci95", "scaled_coefficients"):
+        _array(p[k], source, f"{key}.{k}", (n,))
+    for k in ("covariance", "scaled_covariance"):
+        _array(p[k], source, f"{key}.{k}", (n, n))
+    _array(p["centre"], source, f"{key}.centre", (2,))
+    scale = _array(p["scale"], source, f"{key}.scale", (2,))
+    if np.any(scale == 0):
+        raise _model_error(source, f"{key}.scale", "must be non-zero")
+    for k in ("residual_std", "train_rmse"):
+        _number(p[k], source, f"{key}.{k}", nonnegative=True)
+    for k in ("name", "unit"):
+        if k in p and not isinstance(p[k], str):
+            raise _model_error(source, f"{key}.{k}", f"must be a string, got {type(p[k]).__name__}")
+
+
+def _check_model_dict(d: dict, source) -> None:
+    """Types, shapes and finiteness of every value of a model document (see
+    `identify.schema.MODEL` for its required keys)."""
+    try:
+        schema.check_document(d, schema.MODEL, source)
+    except schema.SchemaError as exc:
+        raise ModelFileError(f"{exc}") from None
+    missing = [k for k in ("dead_time_us", "sample_interval_us", "waveform") if k not in d]
+    if missing:
+        raise ModelFileError(f"{source}: invalid model file: missing key {', '.join(missing)}")
+    for f in schema.MODEL.keys:  # the declared types first
+        if f.name in d and f.dtype == "object" and not (d[f.name] is None and not f.required) \
+                and not isinstance(d[f.name], dict):
+            raise _model_error(source, f.name, f"must be an object, got {type(d[f.name]).__name__}")
+    d_um = _number(d["nozzle_inner_diameter_um"], source, "nozzle_inner_diameter_um", positive=True,
+                   at_most=MODEL_RANGES["nozzle_inner_diameter_um"])
+    _number(d["dead_time_us"], source, "dead_time_us", nonnegative=True, at_most=MODEL_RANGES["dead_time_us"])
+    _number(d["sample_interval_us"], source, "sample_interval_us", positive=True,
+            at_most=MODEL_RANGES["sample_interval_us"])
+    if d.get("nozzle_area_m2") is not None:  # derived: must agree with the diameter
+        area = _number(d["nozzle_area_m2"], source, "nozzle_area_m2", positive=True)
+        if not np.isclose(area, nozzle_area_m2(d_um), rtol=1e-6):
+            raise _model_error(source, "nozzle_area_m2", f"{area:.6g} m^2 disagrees with nozzle_inner_diameter_um "
+                               f"{d_um:g} (area {nozzle_area_m2(d_um):.6g} m^2)")
+    w = d["waveform"]
+    if not isinstance(w, dict) or "u3_um_per_ms" not in w or "hold_us" not in w:
+        raise _model_error(source, "waveform", "must be an object with u3_um_per_ms and hold_us")
+    _number(w["u3_um_per_ms"], source, "waveform.u3_um_per_ms", positive=True,
+            at_most=MODEL_RANGES["waveform.u3_um_per_ms"])
+    _number(w["hold_us"], source, "waveform.hold_us", nonnegative=True, at_most=MODEL_RANGES["waveform.hold_us"])
+    e = d["ecm"]
+    c = e.get("coefficients")
+    if not isinstance(c, dict):
+        raise _model_error(source, "ecm.coefficients", f"must be an object, got {type(c).__name__}")
+    for k in COEFF_NAMES:
+        if k not in c:
+            raise _model_error(source, "ecm.coefficients", f"misses {k}")
+        _number(c[k], source, f"ecm.coefficients.{k}")
+    _check_ecm_stable(c, source)
+    _optional_numbers(e.get("coefficients_ci95"), source, "ecm.coefficients_ci95")
+    if e.get("coefficient_covariance") is not None:
+        _array(e["coefficient_covariance"], source, "ecm.coefficient_covariance", (6, 6))
+    if e.get("parameters") is not None and not isinstance(e["parameters"], dict):
+        raise _model_error(source, "ecm.parameters", "must be an object or null")
+    _optional_numbers(e.get("parameters"), source, "ecm.parameters")
+    for k in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
+        _check_polynomial(d[k], source, k)
+    if d.get("training_controls") is not None:
+        _array(d["training_controls"], source, "training_controls", (None, 2))
+    if d.get("adjuster_reference", "ecm") not in ("ecm", "measured"):
+        raise _model_error(source, "adjuster_reference", f"must be 'ecm' or 'measured', got {_short(d['adjuster_reference'])}")
+    if d.get("arx_structure") is not None and not isinstance(d["arx_structure"], dict):
+        raise _model_error(source, "arx_structure", "must be an object or null")
+    for k in ("versions", "extra"):
+        if d.get(k) is not None and not isinstance(d[k], dict):
+            raise _model_error(source, k, "must be an object")
 
 
 @dataclass

@@ -27,14 +27,40 @@ form of :mod:`identify.ecm` with a matrix exponential.
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 
-import numpy as np
-import pandas as pd
+
+def _default_numba_cache_dir() -> str:
+    """``$XDG_CACHE_HOME/dropvision/numba`` (``~/.cache/...``), or a per-user temporary folder
+    when the home cache cannot be created: never next to the installed sources."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    for folder in (os.path.join(base, "dropvision", "numba"),
+                   os.path.join(tempfile.gettempdir(), f"dropvision-numba-{os.getuid() if hasattr(os, 'getuid') else 0}")):
+        try:
+            os.makedirs(folder, exist_ok=True)
+        except OSError:
+            continue
+        if os.access(folder, os.W_OK):
+            return folder
+    return ""
+
+
+# numba's cache (``@njit(cache=True)`` below) goes to a user cache folder, not next to the
+# installed source: set before numba is imported, unless the user chose NUMBA_CACHE_DIR.
+if not os.environ.get("NUMBA_CACHE_DIR"):
+    _cache_dir = _default_numba_cache_dir()
+    if _cache_dir:
+        os.environ["NUMBA_CACHE_DIR"] = _cache_dir
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
 
 from identify.ecm import COEFF_NAMES, NL, UM, EcmCoefficients, companion_form, flow_velocity_m_s, foh_step, simulate
-from identify.polynomial import sample_mvn
-from identify.waveform import Waveform
+from identify.polynomial import sample_mvn  # noqa: E402
+from identify.waveform import Waveform  # noqa: E402
 
 _UM_PER_NL = UM / NL  # m^3 per m of displacement -> nl per µm
 _TU = 1e-6  # time unit: µs
@@ -43,6 +69,66 @@ try:  # numba is optional: the numpy path gives identical results, only slower
     import numba as _numba
 except ImportError:  # pragma: no cover - depends on the installation
     _numba = None
+else:
+    if os.environ.get("NUMBA_CACHE_DIR") and not getattr(_numba.config, "CACHE_DIR", ""):
+        # numba was imported (and read its configuration) before this module
+        _numba.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]
+
+#: Peak memory of one Monte Carlo sample (bytes), measured with tracemalloc on
+#: :func:`run_monte_carlo` and `identify.design.design` (~650 B: the (N, 6) coefficient draws,
+#: the three polynomial draws, the modal form with its (N, 3) complex poles and residues, the
+#: corner stepping) rounded up to 1 KiB for a margin.
+BYTES_PER_SAMPLE = 1024
+#: Most memory a Monte Carlo may use: min(available RAM / 4, this).
+MEMORY_CAP_BYTES = 4 << 30
+
+
+class SampleCountError(ValueError):
+    """A Monte Carlo sample count below 1 or above what fits in memory (:func:`max_samples`)."""
+
+
+def available_memory_bytes() -> int | None:
+    """Memory available to a new allocation (``MemAvailable`` of /proc/meminfo), or None."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (AttributeError, ValueError, OSError):  # pragma: no cover - not on POSIX
+        return None
+
+
+def memory_budget_bytes() -> int:
+    """min(available RAM / 4, :data:`MEMORY_CAP_BYTES`)."""
+    avail = available_memory_bytes()
+    return MEMORY_CAP_BYTES if avail is None else max(0, min(avail // 4, MEMORY_CAP_BYTES))
+
+
+def max_samples() -> int:
+    """Largest Monte Carlo sample count that fits in :func:`memory_budget_bytes`."""
+    return max(1, memory_budget_bytes() // BYTES_PER_SAMPLE)
+
+
+def check_samples(samples, what: str = "samples") -> int:
+    """``samples`` as an int in [1, :func:`max_samples`], or :class:`SampleCountError` stating
+    the maximum (``what`` names the option in the message, e.g. ``"--samples"``)."""
+    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)):
+        raise SampleCountError(f"{what} must be an integer, got {samples!r}")
+    n = int(samples)
+    if n < 1:
+        raise SampleCountError(f"{what} must be >= 1, got {n}")
+    top = max_samples()
+    if n > top:
+        need = n * BYTES_PER_SAMPLE / 2**30
+        raise SampleCountError(
+            f"{what} {n}: the Monte Carlo would need about {need:.3g} GiB; at most {top} samples fit in "
+            f"the memory budget of {memory_budget_bytes() / 2**30:.3g} GiB (min(available RAM / 4, "
+            f"{MEMORY_CAP_BYTES >> 30} GiB) at ~{BYTES_PER_SAMPLE} bytes per sample)")
+    return n
 
 #: Whether numba is installed (:func:`simulate_ensemble` then compiles its time loop).
 HAVE_NUMBA = _numba is not None
@@ -470,8 +556,7 @@ def run_monte_carlo(
         Also compute the per-time band of grown volume and flow velocity (from the first
         ``band_samples`` draws, on the sampling grid up to the latest pinch-off).
     """
-    if samples < 1:
-        raise ValueError(f"samples must be >= 1, got {samples}")
+    samples = check_samples(samples)
     rng = np.random.default_rng(seed)
     w = model.waveform(u1, u2)
     dead = model.dead_time_us

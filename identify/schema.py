@@ -146,6 +146,8 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("quality_counts", "object", "", "frames per quality text"),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
+    F("notes", "list", "", "plausibility notes, short sentences: what in the input looks like a lie and what "
+      "was done about it (empty when nothing)", required=False),
 ), "One per measured sequence; with the versions and the configuration the result is reproducible.")
 
 # ----------------------------------------------------------------------------- campaign dataset
@@ -237,6 +239,11 @@ class Quality:
     NO_DROP = "no_drop"
     TAIL = "tail_joined"
     NO_REST_MENISCUS = "no_rest_meniscus"
+    PIXEL_SIZE_MISMATCH = "pixel_size_mismatch"
+    DELAY_INCONSISTENT = "delay_inconsistent"
+    PINCHOFF_UNDEFINED = "pinchoff_undefined"
+    NEIGHBOURS = "inconsistent_with_neighbours"
+    IMPLAUSIBLE = "implausible_physics"
 
 
 #: Quality code -> explanation (docs/FORMAT.md lists them).
@@ -256,6 +263,17 @@ QUALITY_CODES: dict[str, str] = {
     Quality.TAIL: "the drop's tail is still joined to it: not used for in-flight values",
     Quality.NO_REST_MENISCUS: "no frame shows the meniscus at rest (first delay after the dead time): "
                               "grown volume and flow unknown",
+    Quality.PIXEL_SIZE_MISMATCH: "the given pixel size disagrees with the nozzle's outer diameter beyond the "
+                                 "tolerance: every length and volume is suspect (ratio in summary calibration)",
+    Quality.DELAY_INCONSISTENT: "the frame's delay contradicts the motion (pinch-off before the dead time, no "
+                                "growth during the stroke, drop going back up, implausible velocity): delays "
+                                "mislabelled or in the wrong unit",
+    Quality.PINCHOFF_UNDEFINED: "the delays do not bracket the pinch-off at the sequence's own step (or too few "
+                                "frames): pinch-off unknown",
+    Quality.NEIGHBOURS: "volume or drop position disagrees with the neighbouring delays far beyond the "
+                        "sequence's own scatter (a frame from another sequence?): left out of the summary",
+    Quality.IMPLAUSIBLE: "implausible for the nozzle (drop volume over the limit in nozzle volumes, inner "
+                         "diameter >= outer): nozzle dimensions wrong",
 }
 
 

@@ -21,7 +21,7 @@ writes the dataset:
 - ``manifest.json``: each sequence's path, input hash, status and error.
 
 Every file is written atomically and the manifest is rewritten after every finished
-sequence, so a run killed at any moment loses no finished sequence and never leaves a
+sequence (in every executor mode, the serial one included), so a run killed at any moment loses no finished sequence and never leaves a
 half-written shard. Re-running resumes: a sequence whose shard carries the same input hash
 (content of its files, the measurement configuration and the dropvision version) is skipped.
 """
@@ -43,7 +43,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from dropvision import __version__
-from dropvision.app.executors import make_executor
+from dropvision.app.executors import check_executor_args, make_executor
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
@@ -54,6 +54,7 @@ from dropvision.synth.writer import write_synthetic_sequence
 from identify import schema
 from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
 from identify.versions import software_versions
+from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
 MANIFEST_SCHEMA = schema.MANIFEST.schema
 DATASET_SCHEMA = schema.DATASET.schema
@@ -269,9 +270,9 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
         "nozzle": _common([m.get("nozzle") for m, _ in metas], "nozzle geometry"),
         "pixel_size_um": _common([m.get("pixel_size_um") for m, _ in metas], "pixel_size_um", tol=1e-6),
         "sample_interval_us": float(np.median(steps)) if steps.size else None,
-        "dead_time_us": _common([w.get("dead_time_us", 220.0) for _, w in metas], "waveform dead_time_us"),
-        "u3_um_per_ms": _common([w.get("u3_um_per_ms", 2.0) for _, w in metas], "waveform u3_um_per_ms"),
-        "hold_us": _common([w.get("hold_us", 20.0) for _, w in metas], "waveform hold_us"),
+        "dead_time_us": _common([w.get("dead_time_us", DEAD_TIME_US) for _, w in metas], "waveform dead_time_us"),
+        "u3_um_per_ms": _common([w.get("u3_um_per_ms", U3_PRESET_UM_PER_MS) for _, w in metas], "waveform u3_um_per_ms"),
+        "hold_us": _common([w.get("hold_us", HOLD_PRESET_US) for _, w in metas], "waveform hold_us"),
         "n_sequences": len(rows),
         "sequences": [r["sequence_id"] for r in rows],
         "failed": {k: e.get("error") for k, e in entries.items() if e.get("status") != "ok"},
@@ -339,6 +340,7 @@ def run_campaign(
         ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
         we did not write (without ``overwrite``).
     """
+    check_executor_args(workers, dask_local=dask_local, scheduler=scheduler)  # before touching dataset_dir
     config = config or MeasureConfig()
     if workers != 1 or dask_local is not None or scheduler is not None:
         # one process per core already: no threads inside a worker (no oversubscription)
@@ -374,23 +376,15 @@ def run_campaign(
     manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
     write_json(manifest_path, manifest)
     if rerun_options is not None:
-        rerun_options = rerun_options.start_viewer()
+        rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
+        if not rerun_options.enabled:
+            rerun_options = None
     if todo:
         with make_executor(workers, dask_local=dask_local, scheduler=scheduler) as executor:
-            futures = {
-                executor.submit(
-                    measure_to_shard,
-                    str(folder),
-                    str(dataset_dir / "shards" / shard),
-                    digest,
-                    config,
-                    None if rerun_options is None else rerun_options.for_sequence(sid),
-                ): sid
-                for sid, folder, digest, shard in todo
-            }
-            bar = tqdm(total=len(futures), desc="measuring sequences", unit="seq", disable=not progress)
-            for future in as_completed(futures):
-                sid = futures[future]
+            bar = tqdm(total=len(todo), desc="measuring sequences", unit="seq", disable=not progress)
+
+            def record(future, sid: str) -> None:
+                """One finished sequence: into the manifest at once (a kill loses nothing)."""
                 try:
                     out = future.result()
                 except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
@@ -402,6 +396,23 @@ def run_campaign(
                     result.failed[sid] = out["error"]
                 write_json(manifest_path, manifest)
                 bar.update(1)
+
+            pending = {}
+            for sid, folder, digest, shard in todo:
+                future = executor.submit(
+                    measure_to_shard,
+                    str(folder),
+                    str(dataset_dir / "shards" / shard),
+                    digest,
+                    config,
+                    None if rerun_options is None else rerun_options.for_sequence(sid),
+                )
+                if future.done():  # the serial executor finishes inside submit
+                    record(future, sid)
+                else:
+                    pending[future] = sid
+            for future in as_completed(pending):
+                record(future, pending[future])
             bar.close()
     assemble_dataset(dataset_dir, entries)
     write_json(manifest_path, manifest)
@@ -436,6 +447,7 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
     ``overwrite`` an existing folder is written into and its same-named sequence folders are
     replaced as a whole.
     """
+    check_executor_args(workers)  # before the output folder is touched
     out = claim_dir(out, overwrite=overwrite, kind="synthetic-campaign")
     jobs = []
     for i, (u1, u2) in enumerate((a, b) for a in u1_values for b in u2_values):

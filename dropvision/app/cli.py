@@ -7,7 +7,7 @@ import argparse
 import importlib
 import sys
 
-from identify.app.errors import UsageError
+from identify.app.errors import run_command
 from identify.atomic import OutputError
 
 #: Modules that contribute sub-commands, in the order they appear in --help.
@@ -49,15 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     from dropvision.sequence import SequenceError  # after parsing: --help does not pay for the readers
 
     _quiet_opencv()
-    try:
-        return int(args.func(args) or 0)
-    except (SequenceError, UsageError, OutputError) as exc:
-        print(f"dropvision {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # the environment's fault: a folder we cannot write, a full disk
-        where = f"{exc.filename}: " if exc.filename else ""
-        print(f"dropvision {args.command}: error: {where}{exc.strerror or exc}", file=sys.stderr)
-        return 2
+    # one error boundary: input/environment failures exit 2 with one line, bugs exit 1
+    return run_command("dropvision", args, expected=(SequenceError, OutputError))
 
 
 if __name__ == "__main__":

@@ -1,8 +1,10 @@
 """One code path for local and cluster runs: everything is a `concurrent.futures.Executor`.
 
 - ``workers=1``: an in-process serial executor (no pickling, easiest to debug);
-- ``workers=N``: a local process pool (the default uses every core);
-- ``dask_local=N``: a Dask ``LocalCluster`` with N single-threaded worker processes;
+- ``workers=N``: a local process pool (the default uses every core); its workers die with the
+  main process (:func:`_exit_with_parent`), a ``kill -9`` of a campaign leaves none behind;
+- ``dask_local=N``: a Dask ``LocalCluster`` with N single-threaded worker processes (their
+  nannies end them when the main process dies);
 - ``scheduler="tcp://host:8786"``: an existing Dask cluster, through ``Client.get_executor()``.
 
 Dask is an optional extra (``pip install dropvision[dask]``); asking for it without it
@@ -13,6 +15,9 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
+import threading
+import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from typing import Iterator
 
@@ -27,6 +32,49 @@ class SerialExecutor(Executor):
         except BaseException as exc:  # noqa: BLE001 - delivered through the future
             future.set_exception(exc)
         return future
+
+
+def _exit_with_parent(parent_pid: int, poll_s: float = 0.25) -> None:
+    """Initializer of every pool worker: it dies with the process that started it.
+
+    A worker must never outlive a killed campaign (``kill -9`` of the main process leaves the
+    pool's workers orphaned, still measuring and writing shards). On Linux the kernel sends
+    SIGKILL to the worker when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a
+    daemon watchdog thread also exits the worker as soon as ``os.getppid()`` changes (the
+    worker was re-parented). Dask ``LocalCluster`` workers need neither: their nannies already
+    end them with the client process.
+    """
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+            import signal
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
+        except (OSError, AttributeError):  # pragma: no cover - no usable libc
+            pass
+    if os.getppid() != parent_pid:  # the parent died before the line above
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def check_executor_args(workers: int | None = None, *, dask_local: int | None = None,
+                        scheduler: str | None = None) -> None:
+    """Raise ValueError for executor arguments :func:`make_executor` would refuse, before
+    anything (an output folder, a manifest) is touched."""
+    if dask_local is not None and scheduler is not None:
+        raise ValueError("choose either a local Dask cluster (--dask-local) or a scheduler address, not both")
+    if dask_local is not None and int(dask_local) < 1:
+        raise ValueError(f"--dask-local needs at least one worker, got {dask_local}")
+    if scheduler is None and dask_local is None and workers is not None and int(workers) < 1:
+        raise ValueError(f"--workers must be >= 1, got {workers}")
 
 
 def default_workers() -> int:
@@ -74,5 +122,5 @@ def make_executor(
     if n == 1:
         yield SerialExecutor()
         return
-    with ProcessPoolExecutor(max_workers=n) as pool:
+    with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
         yield pool

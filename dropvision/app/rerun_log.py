@@ -60,6 +60,7 @@ import numpy as np
 from identify.app.rerun_stream import (
     DEFAULT_APPLICATION_ID,
     RerunOptions,
+    close_stream,
     delay_ns,
     open_stream,
     options_from_args,
@@ -638,8 +639,7 @@ class RerunLogger:
         if self._closed:
             return
         self._closed = True
-        self.stream.flush()
-        self.stream.disconnect()
+        close_stream(self.stream)  # never blocks on an unreachable viewer
 
     def _check_open(self) -> None:
         if self._closed:
@@ -656,4 +656,6 @@ def logger_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION
     When None is returned nothing from rerun has been imported or initialised.
     """
     options = options_from_args(args, app_id, recording_name=recording_name)
-    return None if options is None else RerunLogger(options)
+    if options is not None:
+        options = options.start_viewer()  # a viewer that cannot start: warned, work goes on
+    return None if options is None or not options.enabled else RerunLogger(options)

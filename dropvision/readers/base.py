@@ -19,7 +19,18 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Reader", "ImageInfo", "OpenImage", "UnreadableImage", "InvalidImage", "is_number"]
+__all__ = ["Reader", "ImageInfo", "OpenImage", "UnreadableImage", "InvalidImage", "is_number",
+           "MAX_PIXELS", "MAX_FILE_BYTES", "check_pixels", "check_file_size"]
+
+#: Largest frame decoded, in pixels (width x height, any number of channels): 100 megapixels.
+#: Checked from the file header BEFORE decoding; a larger frame is an :class:`UnreadableImage`
+#: (skipped and reported). Readers look the value up at each call, so assigning
+#: ``dropvision.readers.base.MAX_PIXELS`` changes it for every reader.
+MAX_PIXELS = 100_000_000
+#: Largest image file read whole into memory (PNG, BMP): 2 GiB. Checked from the file size
+#: before reading; a larger file is an :class:`UnreadableImage`. TIFF files are read page by
+#: page (any file size); each page's stored data must fit this limit.
+MAX_FILE_BYTES = 2 * 1024 ** 3
 
 
 class UnreadableImage(Exception):
@@ -36,6 +47,29 @@ def is_number(value) -> bool:
     return isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
 
 
+def check_pixels(width: int, height: int, kind: str, depth: int = 1) -> None:
+    """Raise :class:`UnreadableImage` when a header claims more than :data:`MAX_PIXELS`
+    pixels (or an empty image)."""
+    width, height, depth = int(width), int(height), int(depth)
+    if width <= 0 or height <= 0 or depth <= 0:
+        raise UnreadableImage(f"cannot decode {kind} (header claims an empty "
+                              f"{width}x{height} image; corrupt file)")
+    n = width * height * depth
+    if n > MAX_PIXELS:
+        raise UnreadableImage(f"{kind} header claims {width}x{height}"
+                              f"{'' if depth == 1 else f'x{depth}'} pixels ({n / 1e6:.0f} "
+                              f"megapixels), over the limit of {MAX_PIXELS / 1e6:g} megapixels "
+                              "per frame (dropvision.readers.base.MAX_PIXELS)")
+
+
+def check_file_size(size: int, kind: str) -> None:
+    """Raise :class:`UnreadableImage` for a file over :data:`MAX_FILE_BYTES`."""
+    if size > MAX_FILE_BYTES:
+        raise UnreadableImage(f"{kind} file of {size} bytes is over the limit of "
+                              f"{MAX_FILE_BYTES} bytes ({MAX_FILE_BYTES / 1024 ** 3:g} GiB, "
+                              "dropvision.readers.base.MAX_FILE_BYTES)")
+
+
 @dataclass(frozen=True)
 class ImageInfo:
     """What :meth:`Reader.probe` learns about a file without decoding pixels.
@@ -47,10 +81,14 @@ class ImageInfo:
     page_delays : dict
         Page index -> delay stored in the file (µs), as stored: a number, or a string such as
         ``"1150us"`` (validated by the sequence layer). Empty when the file stores none.
+    complete : bool
+        False when the file is cut short or corrupt so that pages past ``n_pages`` may exist
+        but cannot be found (a TIFF whose page chain points beyond the end of the file).
     """
 
     n_pages: int = 1
     page_delays: dict = field(default_factory=dict)
+    complete: bool = True
 
 
 class OpenImage:

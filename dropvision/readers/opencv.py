@@ -1,15 +1,34 @@
-"""Generic OpenCV reader: formats decoded with ``cv2.imread`` (BMP)."""
+"""Generic OpenCV reader: formats decoded with ``cv2.imread`` (BMP).
+
+Before decoding, the file size is checked against
+:data:`dropvision.readers.base.MAX_FILE_BYTES` and the BMP header's width x height against
+:data:`~dropvision.readers.base.MAX_PIXELS`.
+"""
 
 from __future__ import annotations
 
+import os
+import struct
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from dropvision.readers.base import Reader, UnreadableImage
+from dropvision.readers.base import Reader, UnreadableImage, check_file_size, check_pixels
 
 __all__ = ["OpenCVReader"]
+
+
+def _check_bmp_header(head: bytes) -> None:
+    """Refuse a BMP whose header claims an empty image or more than MAX_PIXELS pixels."""
+    if len(head) < 26 or head[:2] != b"BM":
+        return  # not a BMP header: left to OpenCV (which then reports it undecodable)
+    (dib_size,) = struct.unpack_from("<I", head, 14)
+    if dib_size == 12:  # BITMAPCOREHEADER: 16-bit unsigned width and height
+        width, height = struct.unpack_from("<HH", head, 18)
+    else:  # BITMAPINFOHEADER and later: 32-bit signed (negative height: top-down rows)
+        width, height = struct.unpack_from("<ii", head, 18)
+    check_pixels(abs(width), abs(height), "BMP")
 
 
 class OpenCVReader(Reader):
@@ -21,14 +40,26 @@ class OpenCVReader(Reader):
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode the file with ``cv2.imread`` (from its bytes when cv2 cannot open the path,
         e.g. a non-ASCII name on Windows); ``page`` is ignored."""
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:  # e.g. a path cv2 cannot open: decode from bytes
-            try:
-                data = np.fromfile(path, dtype=np.uint8)
-            except OSError as exc:
-                raise UnreadableImage(f"cannot read file ({exc.strerror})") from None
-            img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        kind = Path(path).suffix.lstrip(".").upper() or "image"
+        try:
+            with open(path, "rb") as fh:
+                check_file_size(os.fstat(fh.fileno()).st_size, kind)
+                head = fh.read(26)
+        except OSError as exc:
+            raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
+        if kind == "BMP":
+            _check_bmp_header(head)
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if img is None:  # e.g. a path cv2 cannot open: decode from bytes
+                try:
+                    data = np.fromfile(path, dtype=np.uint8)
+                except OSError as exc:
+                    raise UnreadableImage(f"cannot read file ({exc.strerror})") from None
+                img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        except (cv2.error, MemoryError) as exc:
+            raise UnreadableImage(f"cannot decode {kind} ({type(exc).__name__}; truncated, "
+                                  "corrupt or too large)") from None
         if img is None:
-            kind = Path(path).suffix.lstrip(".").upper() or "image"
             raise UnreadableImage(f"cannot decode {kind} (truncated or corrupt file)")
         return img

@@ -4,21 +4,34 @@ Delays of the pages come from OME ``Plane DeltaT`` (+ ``DeltaTUnit``, default s)
 per-page JSON ImageDescriptions ``{"delay_us": ...}``; the pixel size from OME
 ``PhysicalSizeX/Y``, ImageJ unit + resolution, or ``"pixel_size_um"`` in a JSON description;
 the significant bits of 16-bit pages from ``BitsPerSample`` (9..15) or ``MaxSampleValue``.
-Pixels are decoded with tifffile (``TiffFile(...).pages[i].asarray()``).
+Pixels are decoded with tifffile (``TiffFile(...).pages[i].asarray()``), after the page's
+width x height (from its tags, no pixel data read) is checked against
+:data:`dropvision.readers.base.MAX_PIXELS` and its stored byte count against
+:data:`~dropvision.readers.base.MAX_FILE_BYTES`.
+
+A truncated stack: pages whose data is cut are :class:`UnreadableImage` (skipped and reported);
+pages listed in sequence.json (or in OME metadata) that lie past a page chain cut by the end of
+the file are :class:`UnreadableImage` too, while a page beyond the last page of an intact file
+is an :class:`InvalidImage`. tifffile's own log warnings about broken files are silenced (its
+logger is set to ERROR unless the application configured a level): the reader reports those
+files itself.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
+import struct
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
 import tifffile
 
+from dropvision.readers import base
 from dropvision.readers.base import (
-    ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, is_number,
+    ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, check_pixels, is_number,
 )
 
 __all__ = ["TiffReader", "OpenTiff"]
@@ -26,6 +39,10 @@ __all__ = ["TiffReader", "OpenTiff"]
 #: Seconds-based OME time units -> factor to µs.
 _TIME_UNIT_TO_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "µs": 1.0, "μs": 1.0, "ns": 1e-3,
                     "min": 6e7, "h": 3.6e9}
+_TIFFFILE_LOG = logging.getLogger("tifffile")
+if _TIFFFILE_LOG.level == logging.NOTSET:
+    _TIFFFILE_LOG.setLevel(logging.ERROR)
+
 _LENGTH_UNIT_TO_UM = {"m": 1e6, "cm": 1e4, "mm": 1e3, "um": 1.0, "µm": 1.0, "μm": 1.0,
                       "micron": 1.0, "microns": 1.0, "nm": 1e-3}
 
@@ -77,7 +94,7 @@ def _json_description(page) -> dict | None:
         return None
     try:
         obj = json.loads(desc)
-    except ValueError:
+    except (ValueError, RecursionError):
         return None
     return obj if isinstance(obj, dict) else None
 
@@ -110,6 +127,36 @@ def _bit_depth_hint(page) -> int | None:
     return None
 
 
+def _chain_cut(tif: tifffile.TiffFile) -> bool:
+    """True when the last page found points to a next page that cannot be read (the file is
+    cut short or corrupt), False for an intact page chain ending with a zero offset."""
+    pages = tif.pages
+    n_pages = len(pages)
+    if n_pages == 0:
+        return True
+    header = tif.tiff
+    fh = tif.filehandle
+    with fh.lock:
+        pos = fh.tell()
+        try:
+            offset = pages[n_pages - 1].offset
+            fh.seek(offset)
+            raw = fh.read(header.tagnosize)
+            if len(raw) < header.tagnosize:
+                return True
+            (tagno,) = struct.unpack(header.tagnoformat, raw)
+            fh.seek(offset + header.tagnosize + tagno * header.tagsize)
+            raw = fh.read(header.offsetsize)
+            if len(raw) < header.offsetsize:
+                return True
+            (nxt,) = struct.unpack(header.offsetformat, raw)
+            return nxt != 0
+        except Exception:
+            return True
+        finally:
+            fh.seek(pos)
+
+
 def _page_array(tif: tifffile.TiffFile, path: Path, page: int | None) -> np.ndarray:
     n_pages = len(tif.pages)
     if page is None and n_pages > 1:
@@ -117,8 +164,20 @@ def _page_array(tif: tifffile.TiffFile, path: Path, page: int | None) -> np.ndar
                            "sequence.json frames entry")
     page = 0 if page is None else page
     if page >= n_pages:
+        if _chain_cut(tif):
+            raise UnreadableImage(f"cannot decode TIFF (page {page} cannot be found: the page "
+                                  f"chain is cut after page {n_pages - 1}; truncated or "
+                                  "corrupt file)")
         raise InvalidImage(f"{path}: page {page} does not exist (the TIFF has {n_pages} pages)")
-    return tif.pages[page].asarray()
+    pg = tif.pages[page]
+    key = getattr(pg, "keyframe", None) or pg
+    check_pixels(key.imagewidth, key.imagelength, "TIFF", getattr(key, "imagedepth", 1) or 1)
+    stored = sum(int(n) for n in (pg.databytecounts or ()))
+    if stored > base.MAX_FILE_BYTES:
+        raise UnreadableImage(f"TIFF page of {stored} stored bytes is over the limit of "
+                              f"{base.MAX_FILE_BYTES} bytes (dropvision.readers.base."
+                              "MAX_FILE_BYTES)")
+    return pg.asarray()
 
 
 def _unreadable(exc: Exception) -> UnreadableImage:
@@ -144,7 +203,7 @@ class OpenTiff(OpenImage):
         """Decode ``page`` of the open file, as :meth:`TiffReader.decode`."""
         try:
             img = _page_array(self.tif, self.path, page)
-        except InvalidImage:
+        except (InvalidImage, UnreadableImage):
             raise
         except Exception as exc:
             raise _unreadable(exc) from None
@@ -164,9 +223,11 @@ class TiffReader(Reader):
     bgr = False
 
     def probe(self, path: Path) -> ImageInfo:
-        """Number of pages and the delays stored in OME-XML or per-page JSON descriptions."""
+        """Number of pages and the delays stored in OME-XML or per-page JSON descriptions;
+        ``complete`` is False when the page chain is cut (truncated or corrupt file)."""
         with tifffile.TiffFile(path) as tif:
-            return ImageInfo(len(tif.pages), _page_delays(tif))
+            n_pages = len(tif.pages)
+            return ImageInfo(n_pages, _page_delays(tif), complete=not _chain_cut(tif))
 
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode ``page`` (None: the file must hold a single page); a leading axis of length 1
@@ -174,7 +235,7 @@ class TiffReader(Reader):
         try:
             with tifffile.TiffFile(path) as tif:
                 img = _page_array(tif, path, page)
-        except InvalidImage:
+        except (InvalidImage, UnreadableImage):
             raise
         except Exception as exc:  # tifffile raises many types for broken files
             raise _unreadable(exc) from None

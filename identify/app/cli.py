@@ -16,7 +16,7 @@ import math
 import sys
 
 
-from identify.app.errors import UsageError
+from identify.app.errors import UsageError, run_command
 from identify.app.rerun_stream import add_rerun_args
 from identify.atomic import OutputError, check_output_file
 
@@ -114,10 +114,28 @@ def _load_model(path):
     return HybridModel.from_json(path)
 
 
+def _check_samples(n: int) -> None:
+    """--samples in [1, what fits in memory] (`identify.montecarlo.check_samples`)."""
+    from identify.montecarlo import SampleCountError, check_samples
+
+    try:
+        check_samples(n, "--samples")
+    except SampleCountError as exc:
+        raise UsageError(str(exc)) from None
+
+
+def _check_finite(summary: dict, path) -> None:
+    """A model whose values pass the checks but predict NaN/inf is refused, not printed."""
+    for k, v in summary.items():
+        values = v.values() if isinstance(v, dict) else (v,)
+        if not all(math.isfinite(x) for x in values):
+            raise UsageError(f"{path}: the model predicts a non-finite {k} at these (u1, u2): "
+                             "a corrupt or hand-edited model file?")
+
+
 def cmd_predict(args) -> int:
+    _check_samples(args.samples)
     m = _load_model(args.model)
-    if args.samples < 1:
-        raise UsageError(f"--samples must be >= 1, got {args.samples}")
     want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
     res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
     _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res))
@@ -133,6 +151,7 @@ def cmd_predict(args) -> int:
         "pinchoff_us_mc": mc["pinchoff_us"],
         "grown_volume_at_pinchoff_mc_nl": mc["grown_volume_at_pinchoff_nl"],
     }
+    _check_finite(summary, args.model)
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -148,6 +167,7 @@ def cmd_predict(args) -> int:
 def cmd_design(args) -> int:
     from identify.design import design
 
+    _check_samples(args.samples)
     m = _load_model(args.model)
     r = design(m, args.volume_nl, args.velocity_m_s, tolerance_percent=args.tolerance_percent,
                samples=args.samples, seed=args.seed)
@@ -163,6 +183,7 @@ def cmd_design(args) -> int:
 def cmd_paper(args) -> int:
     from identify.paper import paper_prediction
 
+    _check_samples(args.samples)
     out = paper_prediction(args.u1, args.u2, samples=args.samples, seed=args.seed, simulation=args.simulation)
     summary = {k: out[k] for k in OUTPUT_UNITS if k in out}
     if args.json:
@@ -244,13 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    try:
-        return int(args.func(args) or 0)
-    except (UsageError, OutputError, ValueError, OSError) as exc:
-        msg = " ".join(str(exc).split())
-        print(f"identify {args.command}: error: {msg}", file=sys.stderr)
-        return 2
-
+    # one error boundary: input/environment failures exit 2 with one line, bugs exit 1
+    return run_command("identify", args, expected=(OutputError,))
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from identify.app.rerun_stream import RerunOptions, delay_ns, open_stream, options_from_args
+from identify.app.rerun_stream import RerunOptions, close_stream, delay_ns, open_stream, options_from_args
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import pandas as pd
@@ -97,13 +97,15 @@ def open_identify_recording(options: RerunOptions) -> rr.RecordingStream:
 def recording_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID) -> rr.RecordingStream | None:
     """Recording from the ``dropvision.app.rerun_log.add_rerun_args`` flags, or None when off."""
     options = options_from_args(args, app_id)
-    return None if options is None else open_identify_recording(options)
+    if options is not None:
+        options = options.start_viewer()  # a viewer that cannot start: warned, work goes on
+    return None if options is None or not options.enabled else open_identify_recording(options)
 
 
 def close_recording(rec: rr.RecordingStream) -> None:
-    """Flush and finalise the sinks (writes the .rrd footer)."""
-    rec.flush()
-    rec.disconnect()
+    """Flush and finalise the sinks (writes the .rrd footer); never blocks on an unreachable
+    viewer (:func:`identify.app.rerun_stream.close_stream`)."""
+    close_stream(rec)
 
 
 # --- helpers ---------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import sys
 import uuid
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -125,10 +126,53 @@ class RerunOptions:
         """
         if not self.spawn:
             return self
-        import rerun as rr
-
-        rr.spawn(port=port, connect=False)
+        if not spawn_viewer(port=port):
+            return replace(self, spawn=False)  # warned; the other sinks (a file) are kept
         return replace(self, spawn=False, connect_url=f"rerun+http://127.0.0.1:{port}/proxy")
+
+
+#: Seconds the final flush waits for a viewer (a gRPC sink) before giving up with a warning.
+FLUSH_TIMEOUT_S = 20.0
+
+
+def warn(message: str) -> None:
+    """One ``warning: ...`` line on stderr."""
+    print(f"warning: {' '.join(message.split())}", file=sys.stderr, flush=True)
+
+
+def spawn_viewer(port: int = 9876) -> bool:
+    """Start a local Rerun viewer listening on ``port``; on failure (no ``rerun`` executable,
+    it cannot start) print one warning line and return False: the work goes on without it.
+
+    ``rr.spawn`` without a global recording is silently ignored by rerun 0.41, so a throw-away
+    stream does the spawning.
+    """
+    import rerun as rr
+
+    try:
+        rr.RecordingStream(DEFAULT_APPLICATION_ID, recording_id=uuid.uuid4()).spawn(port=port, connect=False)
+    except (RuntimeError, OSError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        warn(f"--rerun-spawn: cannot start a Rerun viewer ({first}); continuing without it")
+        return False
+    return True
+
+
+_STREAM_URLS: dict[int, str] = {}
+
+
+def close_stream(rec: rr.RecordingStream) -> None:
+    """Flush and finalise the sinks (the .rrd footer is written) without ever blocking forever:
+    a stream to a viewer is flushed with a :data:`FLUSH_TIMEOUT_S` timeout, and an unreachable
+    viewer gives the warning "no Rerun viewer reached at URL; results were written"."""
+    url = _STREAM_URLS.pop(id(rec), None)
+    try:
+        rec.flush(timeout_sec=FLUSH_TIMEOUT_S if url is not None else math.inf)
+    except RuntimeError:
+        if url is None:
+            raise
+        warn(f"no Rerun viewer reached at {url}; results were written")
+    rec.disconnect()
 
 
 def open_stream(options: RerunOptions, blueprint: rrb.BlueprintLike | None = None) -> rr.RecordingStream:
@@ -146,9 +190,15 @@ def open_stream(options: RerunOptions, blueprint: rrb.BlueprintLike | None = Non
         raise ValueError("RerunOptions: no sink requested (give path, spawn or connect_url)")
     import rerun as rr
 
+    url = options.connect_url
+    if options.spawn:
+        if spawn_viewer():
+            url = url or DEFAULT_VIEWER_URL
     rec = rr.RecordingStream(
         options.application_id,
         recording_id=options.recording_id or uuid.uuid4(),
+        # nothing left to write to (a viewer could not be spawned): a disabled, no-op stream
+        default_enabled=options.path is not None or url is not None,
     )
     # Timelines are only `delay` and `frame`: the wall-clock log_time would only clutter the
     # timeline menu and make files differ between identical runs.
@@ -157,13 +207,11 @@ def open_stream(options: RerunOptions, blueprint: rrb.BlueprintLike | None = Non
     if options.path is not None:
         options.path.parent.mkdir(parents=True, exist_ok=True)
         sinks.append(rr.FileSink(options.path))
-    url = options.connect_url
-    if options.spawn:
-        rr.spawn(connect=False)
-        url = url or DEFAULT_VIEWER_URL
     if url is not None:
         sinks.append(rr.GrpcSink(url))
-    rec.set_sinks(*sinks, default_blueprint=blueprint)
+        _STREAM_URLS[id(rec)] = url
+    if sinks:
+        rec.set_sinks(*sinks, default_blueprint=blueprint)
     if options.recording_name:
         rec.send_recording_name(options.recording_name)
     return rec
