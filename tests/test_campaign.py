@@ -142,3 +142,26 @@ def test_killed_run_loses_no_finished_sequence(campaign_root, tmp_path):
     assert not fresh.failed
     for name in ("timeseries.parquet", "summary.parquet"):
         pd.testing.assert_frame_equal(pd.read_parquet(ds / name), pd.read_parquet(tmp_path / "fresh" / name))
+
+
+def test_linked_sequence_folders_are_followed_but_links_out_of_a_sequence_are_not_read(campaign_root, tmp_path):
+    from dropvision.app.campaign import input_hash, sequence_id
+
+    real = sorted(p for p in campaign_root.iterdir() if p.is_dir())
+    root = tmp_path / "assembled"
+    root.mkdir()
+    (root / "rig_a").symlink_to(real[0], target_is_directory=True)  # a campaign assembled from links
+    (root / "loop").symlink_to(root, target_is_directory=True)      # and a link loop
+    found = find_sequences(root)
+    assert found == [root / "rig_a"] and sequence_id(root, found[0]) == "rig_a"
+    res = run_campaign(root, tmp_path / "ds", workers=1, progress=False)
+    assert res.measured == ["rig_a"] and not res.failed
+    # a frame linked out of a sequence folder is neither measured nor read for the input hash
+    seq = tmp_path / "seq"
+    shutil.copytree(real[1], seq)
+    outside = tmp_path / "outside.bin"
+    outside.write_bytes(b"secret 1")
+    (seq / "extra.png").symlink_to(outside)
+    h1 = input_hash(seq)
+    outside.write_bytes(b"secret 2")
+    assert input_hash(seq) == h1

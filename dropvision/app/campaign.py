@@ -33,6 +33,7 @@ import hashlib
 import io
 import json
 import math
+import os
 import re
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
@@ -84,23 +85,31 @@ class CampaignResult:
 
 # ----------------------------------------------------------------------------- discovery
 def find_sequences(root) -> list[Path]:
-    """Every folder below ``root`` (including itself) that holds a sequence.json, sorted."""
+    """Every folder below ``root`` (including itself) that holds a sequence.json, sorted.
+
+    Linked folders are followed (campaigns are often assembled from links to the rigs' folders),
+    each real folder once; hidden folders are skipped. The paths returned are below ``root`` as
+    written (the links are not resolved), so sequence ids name the campaign's own layout.
+    """
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: campaign root is not a folder")
-    found = []
-    for path in sorted(root.rglob("sequence.json")):
-        folder = path.parent
-        rel = folder.relative_to(root)
-        if any(part.startswith(".") for part in rel.parts):
+    found, seen = [], set()
+    for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
+        real = os.path.realpath(dirpath)
+        if real in seen:  # a link loop, or two links to one folder
+            dirnames[:] = []
             continue
-        found.append(folder)
-    return found
+        seen.add(real)
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        if "sequence.json" in filenames:
+            found.append(Path(dirpath))
+    return sorted(found)
 
 
 def sequence_id(root, folder) -> str:
     """Sequence id: the folder's path relative to the campaign root, with '/' separators."""
-    rel = Path(folder).resolve().relative_to(Path(root).resolve())
+    rel = Path(os.path.abspath(folder)).relative_to(os.path.abspath(root))
     return rel.as_posix() if rel.parts else Path(root).resolve().name
 
 
@@ -112,15 +121,24 @@ def shard_name(seq_id: str) -> str:
 
 def input_hash(folder, config_repr: str = "") -> str:
     """SHA-256 over the sequence's files (sequence.json and images, not truth files), the
-    measurement configuration and the dropvision version."""
+    measurement configuration and the dropvision version.
+
+    Only what the measurement may read is read: a link resolving outside the sequence folder
+    counts by its name and target, never by the content it points at.
+    """
     h = hashlib.sha256()
     h.update(f"dropvision {__version__}\n{config_repr}\n".encode())
     folder = Path(folder)
+    real_folder = folder.resolve()
     for path in sorted(p for p in folder.rglob("*") if p.is_file()):
         rel = path.relative_to(folder)
         if any(part.startswith(_IGNORED_PREFIXES) for part in rel.parts):
             continue
         h.update(rel.as_posix().encode() + b"\0")
+        target = path.resolve()
+        if target != real_folder and real_folder not in target.parents:
+            h.update(b"link outside -> " + str(target).encode() + b"\0")
+            continue
         with open(path, "rb") as fh:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 h.update(block)
