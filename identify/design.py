@@ -21,6 +21,8 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial import Delaunay, QhullError
 
+from identify.montecarlo import check_samples
+
 
 @dataclass
 class DesignResult:
@@ -101,8 +103,6 @@ def design(
     if velocity_m_s is not None and (not np.isfinite(velocity_m_s) or velocity_m_s <= 0):
         raise ValueError(f"--velocity-m-s must be a positive number, got {velocity_m_s!r}")
     if samples and samples > 1:  # 0 or 1: no spread; more: bounded by memory, checked before the search
-        from identify.montecarlo import check_samples
-
         check_samples(samples)
     if model.controls is None or len(model.controls) < 3:
         raise ValueError("the model has no training region (training_controls) to design in")
