@@ -2,7 +2,10 @@
 (the format is specified in docs/FORMAT.md).
 
 A sequence is a folder with a ``sequence.json`` (pixel size, nozzle, waveform, ink, frame list)
-and images in any format of the reader registry (:mod:`dropvision.readers`: PNG, TIFF, BMP).
+and images in any format of the reader registry (:mod:`dropvision.readers`: PNG, TIFF, BMP,
+PNM, JPEG, video). Delays come from the frames list, the file names or TIFF metadata, or, for
+high-speed recordings (a video, a numbered image stack, a multi-page TIFF), from
+``frame_rate_hz``.
 :func:`open_sequence` reads and validates the metadata and decodes the first frame only (to
 learn the image size); :class:`Sequence` then decodes one frame at a time, in ascending delay
 order, returned as 2-D grey in the canonical orientation (nozzle at the top, drops travelling
@@ -22,14 +25,15 @@ import threading
 import warnings
 from collections import Counter, OrderedDict
 from dataclasses import asdict, dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Iterator
 
 import cv2
 import numpy as np
 
 from dropvision.readers import (
-    IMAGE_SUFFIXES, ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, reader_for,
+    IMAGE_SUFFIXES, VIDEO_SUFFIXES, ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage,
+    reader_for,
 )
 from dropvision.readers.base import is_number
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
@@ -52,6 +56,7 @@ _ROT90_K = {"down": 0, "up": 2, "left": 1, "right": 3}
 _KNOWN_KEYS = frozenset({
     "schema", "pixel_size_um", "nozzle_inner_diameter_um", "nozzle_outer_diameter_um",
     "nozzle_tip_row", "axis_col", "orientation", "waveform", "ink", "frames", "bit_depth",
+    "video", "frame_rate_hz", "first_frame_delay_us", "trigger_frame",
 })
 #: Delay in a file name: the last number immediately followed by "us" (or "µs").
 _DELAY_RE = re.compile(r"(?<![\d.])(\d+(?:\.\d+)?)(?:us|µs|μs)(?![a-z])", re.IGNORECASE)
@@ -65,6 +70,7 @@ RANGES = {
     "pixel_size_um": (0.01, 1000.0, "µm"),
     "nozzle_diameter_um": (1.0, 10000.0, "µm"),
     "delay_us": (-1e6, 1e7, "µs"),
+    "frame_rate_hz": (1.0, 1e7, "Hz"),
     "u1_um_per_ms": (1e-6, 1e4, "µm/ms"),
     "u2_um": (1e-6, 1e4, "µm"),
     "u3_um_per_ms": (1e-6, 1e4, "µm/ms"),
@@ -85,7 +91,8 @@ class SequenceError(Exception):
 
 
 class RGBConvertedWarning(UserWarning):
-    """A colour image was converted to grey (the message names the file)."""
+    """Colour images were converted to grey by ITU-R BT.601 luminance; issued once per
+    :class:`Sequence`, at the first colour frame read (the message names that file)."""
 
 
 @dataclass(frozen=True)
@@ -345,7 +352,10 @@ def _safe_relpath(file, where: str) -> str:
 # ----------------------------------------------------------------------------------------
 
 def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
-    """Collapse a colour image to grey (ITU-R BT.601 weights, as cv2.cvtColor)."""
+    """Collapse a colour image to grey: the ONE rule for every format (docs/FORMAT.md).
+
+    ITU-R BT.601 luminance ``Y = 0.299 R + 0.587 G + 0.114 B`` (cv2.cvtColor's fixed-point
+    weights, rounded); alpha is dropped; grey + alpha keeps the grey channel."""
     if img.ndim == 2:
         return img
     if img.ndim == 3 and img.shape[2] == 1:
@@ -354,8 +364,9 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
         raise SequenceError(f"{name}: not a 2-D grey or RGB image (array shape {img.shape})")
     channels = img.shape[2]
     if warn:
-        warnings.warn(f"{name}: {channels}-channel image converted to grey",
-                      RGBConvertedWarning, stacklevel=4)
+        warnings.warn(f"{name}: {channels}-channel image converted to grey (ITU-R BT.601 "
+                      "luminance; noted once per sequence, further colour frames are converted "
+                      "alike)", RGBConvertedWarning, stacklevel=4)
     if channels == 2:  # grey + alpha
         return np.ascontiguousarray(img[:, :, 0])
     if channels == 3:
@@ -389,6 +400,8 @@ class Sequence:
         self._shared_files = {f for f, n in counts.items() if n > 1}
         self._open_files: OrderedDict[str, OpenImage] = OrderedDict()
         self._lock = threading.Lock()
+        #: True once the colour -> grey note (RGBConvertedWarning) was given for this sequence
+        self._colour_noted = False
 
     # -- container protocol --------------------------------------------------------------
     def __len__(self) -> int:
@@ -479,6 +492,11 @@ class Sequence:
             img = self._decode_native(reader, path, ref)
         except InvalidImage as exc:
             raise SequenceError(str(exc)) from None
+        if warn and img.ndim == 3 and img.shape[2] > 1:
+            with self._lock:  # one note per sequence, however many colour frames follow
+                warn, self._colour_noted = not self._colour_noted, True
+        else:
+            warn = False
         img = _to_grey(img, _where(ref), reader.bgr, warn)
         if img.dtype not in (np.uint8, np.uint16):
             raise SequenceError(f"{path}{_page_txt(ref)}: unsupported pixel type {img.dtype} "
@@ -636,9 +654,9 @@ def _delays_of_file(folder: Path, rel: str, refused: dict) -> list[tuple[int | N
         missing = [i for i in range(n_total) if i not in page_delays]
         if missing:
             raise SequenceError(
-                f"{path}: multi-page TIFF without a delay for page {missing[0]}{cut} (give OME "
-                "Plane DeltaT, per-page JSON descriptions {\"delay_us\": ...} or a "
-                "sequence.json frames list)")
+                f"{path}: multi-frame file without a delay for page {missing[0]}{cut} (give "
+                "frame_rate_hz in sequence.json, OME Plane DeltaT, per-page JSON descriptions "
+                "{\"delay_us\": ...} or a sequence.json frames list)")
         return [(i, _delay_value(page_delays[i], f"{path} page {i}"))
                 for i in range(n_total)]
     from_name = parse_delay_from_name(rel)
@@ -657,8 +675,37 @@ def _is_file(path: Path) -> bool:
         return True  # listed; the problem is reported when the frame is read
 
 
-def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
-                        allow_outside: bool) -> list[_Listed]:
+def _frame_rate(doc: dict, where: str) -> tuple[float, float, int] | None:
+    """(frame_rate_hz, first_frame_delay_us, trigger_frame) of a high-speed recording, or None
+    when sequence.json gives no ``frame_rate_hz``."""
+    fps = doc.get("frame_rate_hz")
+    if fps is None:
+        for key in ("video", "first_frame_delay_us", "trigger_frame"):
+            if doc.get(key) is not None:
+                raise SequenceError(f"{where}: {key} given without frame_rate_hz (the frame "
+                                    "rate of the recording in Hz gives the frames' delays)")
+        return None
+    if doc.get("frames") is not None:
+        raise SequenceError(f"{where}: give either frame_rate_hz (delays from the frame rate) "
+                            "or a frames list (delays per frame), not both")
+    fps = _ranged(fps, "frame_rate_hz", "frame_rate_hz", where)
+    first = doc.get("first_frame_delay_us")
+    first = 0.0 if first is None else _finite_or_none(first, "first_frame_delay_us", where)
+    lo, hi, unit = RANGES["delay_us"]
+    if not lo <= first <= hi:
+        raise SequenceError(f"{where}: first_frame_delay_us {first:g} is outside the accepted "
+                            f"range {lo:g}..{hi:g} {unit}")
+    trigger = doc.get("trigger_frame")
+    trigger = 0 if trigger is None else trigger
+    if not isinstance(trigger, int) or isinstance(trigger, bool) or abs(trigger) > 10 ** 9:
+        raise SequenceError(f"{where}: trigger_frame must be an integer frame index "
+                            f"(-1e9..1e9), got {doc.get('trigger_frame')!r}")
+    return fps, first, trigger
+
+
+def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: bool
+                 ) -> list[str]:
+    """Image files of a folder (natural order), links outside the folder noted in refused."""
     try:
         entries = list(folder.iterdir())
     except OSError as exc:
@@ -678,8 +725,69 @@ def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
     if not names:
         raise SequenceError(f"{folder}: no image files ({', '.join(IMAGE_SUFFIXES)}) "
                             "and no frames list")
+    return names
+
+
+def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
+                        allow_outside: bool) -> list[_Listed]:
+    names = _scan_folder(folder, folder_real, refused, allow_outside)
     return [_Listed(name, page, delay) for name in names
             for page, delay in _delays_of_file(folder, name, refused)]
+
+
+def _listed_from_rate(folder: Path, video, rate: tuple[float, float, int], json_path: Path,
+                      folder_real: str, refused: dict, allow_outside: bool) -> list[_Listed]:
+    """Frames of a high-speed recording: the ``video`` file, else every image file of the
+    folder in natural name order (each page of a multi-page file in turn); frame i (0-based,
+    in that order) gets delay ``first_frame_delay_us + (i - trigger_frame) * 1e6 /
+    frame_rate_hz``."""
+    fps, first, trigger = rate
+    where = str(json_path)
+    if video is not None:
+        rel = _safe_relpath(video, f"{where} video")
+        path = folder / rel
+        if reader_for(path) is None:
+            raise SequenceError(f"{path}: unsupported image type (use "
+                                f"{', '.join(IMAGE_SUFFIXES)})")
+        target = None if allow_outside else _outside(folder_real, path)
+        if target is not None:
+            raise SequenceError(f"{path}: {_refusal(target)}")
+        if not _is_file(path):
+            raise SequenceError(f"{path}: named by 'video' in sequence.json but missing")
+        names = [rel]
+    else:
+        names = _scan_folder(folder, folder_real, refused, allow_outside)
+        videos = [n for n in names if PurePath(n).suffix.lower() in VIDEO_SUFFIXES]
+        if videos and len(names) > 1:
+            raise SequenceError(f"{folder}: {len(names)} files ({', '.join(names[:4])}"
+                                f"{', ...' if len(names) > 4 else ''}) besides a video: name "
+                                "the recording with \"video\" in sequence.json")
+    pages: list[tuple[str, int | None]] = []
+    for rel in names:
+        path = folder / rel
+        if rel in refused:
+            pages.append((rel, None))
+            continue
+        reader = reader_for(path)
+        try:
+            n_pages = reader.probe(path).n_pages
+        except Exception as exc:
+            if PurePath(rel).suffix.lower() in VIDEO_SUFFIXES:
+                raise SequenceError(f"{path}: {exc}") from None
+            n_pages = 1  # reported as unreadable when read
+        pages.extend((rel, i if n_pages > 1 else None)
+                     for i in range(n_pages))
+    lo, hi, unit = RANGES["delay_us"]
+    out = []
+    for i, (rel, page) in enumerate(pages):
+        delay = first + (i - trigger) * 1e6 / fps
+        if not lo <= delay <= hi:
+            raise SequenceError(f"{where}: frame {i} ({rel}{'' if page is None else f' page {page}'}) "
+                                f"gets delay {delay:g} µs from frame_rate_hz {fps:g}, "
+                                f"first_frame_delay_us {first:g} and trigger_frame {trigger}, "
+                                f"outside the accepted range {lo:g}..{hi:g} {unit}")
+        out.append(_Listed(rel, page, delay))
+    return out
 
 
 def _listed_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
@@ -714,7 +822,8 @@ def _listed_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
             if not isinstance(page, int) or isinstance(page, bool) or page < 0:
                 raise SequenceError(f"{where}: 'page' must be an integer >= 0, got {page!r}")
             if not reader.paged:
-                raise SequenceError(f"{where}: 'page' given but the file is not a TIFF")
+                raise SequenceError(f"{where}: 'page' given but the file is not a TIFF or "
+                                    "video (a file of several frames)")
         if (rel, page) in seen:
             raise SequenceError(f"{where}{'' if page is None else f' page {page}'}: listed "
                                 "twice in sequence.json frames")
@@ -854,7 +963,11 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
         tip_row = axis_col = waveform = ink = None
         extra = {}
 
-    if doc is not None and doc.get("frames") is not None:
+    rate = _frame_rate(doc, where) if doc is not None else None
+    if rate is not None:
+        listed = _listed_from_rate(folder, doc.get("video"), rate, json_path, folder_real,
+                                   refused, allow_outside_links)
+    elif doc is not None and doc.get("frames") is not None:
         listed = _listed_from_frames(folder, doc["frames"], json_path, folder_real, refused,
                                      allow_outside_links)
     else:

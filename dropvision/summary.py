@@ -187,7 +187,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     if delay_lie:
         flow[:] = np.nan
     # --- flow needs a plausible inner diameter -------------------------------------------
-    inner_lie = _check_nozzle(meta, drop, config, flags, notes)
+    inner_lie = check_nozzle(meta, drop, config, flags, notes)
     if inner_lie:
         flow[:] = np.nan
         for k in np.nonzero(attached)[0]:
@@ -353,7 +353,7 @@ def _check_track(delay, drop, config: MeasureConfig, flags, notes) -> None:
     drop.inflight[wrong_delay | other] = False
 
 
-def _check_nozzle(meta, drop, config: MeasureConfig, flags, notes) -> bool:
+def check_nozzle(meta, drop, config: MeasureConfig, flags, notes) -> bool:
     """Drop volume against the nozzle and inner >= outer diameter; True when the inner diameter is a lie.
 
     The nozzle volume is pi r_in^2 x d_in: the bore one inner diameter long, the length scale of

@@ -39,11 +39,16 @@ from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle
 from identify.ecm import simulate as ecm_simulate
 from identify.ecm_fit import EcmData, fit_ecm
 from identify.montecarlo import OUTPUTS, ecm_response_at, ecm_response_at_controls, modal_form, run_monte_carlo
-from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, select_order
+from identify.kfold import grouped_kfold
+from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, PolynomialRankError, \
+    design_matrix, fit_polynomial, select_order
 from identify.versions import software_versions
 from identify.waveform import Waveform
 
 SCHEMA = schema.MODEL.schema
+
+#: Outputs with a confidence and a prediction interval (measured per drop in the training data).
+INTERVAL_OUTPUTS = ("pinchoff_us", "inflight_volume_nl", "jetting_velocity_m_s")
 
 
 class ModelFileError(ValueError):
@@ -70,6 +75,7 @@ class HybridModel:
     adjuster_reference: str = "ecm"
     versions: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    intervals: dict | None = None  # scatter of drops about the model, see `interval_prediction`
 
     # ---- prediction ----------------------------------------------------------------
     def waveform(self, u1: float, u2: float) -> Waveform:
@@ -127,6 +133,61 @@ class HybridModel:
         """Monte Carlo of Section 5.1 (see :func:`identify.montecarlo.run_monte_carlo`)."""
         return run_monte_carlo(self, u1, u2, samples=samples, seed=seed, **kw)
 
+    def interval_prediction(self, u1: float, u2: float, samples: int = 10_000, seed: int | None = 0,
+                            level: float = 0.95, mc=None) -> dict:
+        """Confidence and prediction intervals of each output at (u1, u2).
+
+        Per output of :data:`INTERVAL_OUTPUTS` a dict with ``mean`` (Monte Carlo mean: the point
+        prediction), ``nominal``, ``level`` and
+
+        * ``confidence_low/high``: interval of the *mean* drop (parameter uncertainty): the
+          spread of the parameter Monte Carlo (ECM coefficient covariance, pinch-off and both
+          adjuster polynomials, pinch-off and volume adjuster drawn jointly) plus, where the
+          cross-validation found it, the model-discrepancy scatter ``model_std``;
+          ``confidence_std`` is its standard deviation;
+        * ``prediction_low/high``: interval of an *individual drop*: the confidence variance
+          plus the drop-to-drop scatter ``drop_std`` estimated from the training data (repeats
+          where present, else the residuals of the fit), Student-t with the scatter's degrees
+          of freedom; ``prediction_std``.
+
+        A model without ``intervals`` (fitted before they existed) gives the prediction
+        interval equal to the confidence interval and ``prediction_available`` False.
+        ``mc``: an already computed :class:`identify.montecarlo.MonteCarloResult`.
+        """
+        from scipy import stats
+
+        if not 0 < level < 1:
+            raise ValueError(f"level must be in (0, 1), got {level!r}")
+        res = mc if mc is not None else self.monte_carlo(u1, u2, samples=samples, seed=seed)
+        nominal = res.nominal
+        scatter = (self.intervals or {}).get("scatter") or {}
+        z = float(stats.norm.ppf(0.5 + level / 2))
+        out = {}
+        for k in INTERVAL_OUTPUTS:
+            x = np.asarray(res.samples[k], float)
+            mean = float(np.mean(x))
+            s_mc = float(np.std(x, ddof=1)) if x.size > 1 else 0.0
+            sc = scatter.get(k) or {}
+            s_model = float(sc.get("model_std") or 0.0)
+            s_drop = sc.get("drop_std")
+            s_conf = float(np.hypot(s_mc, s_model))
+            entry = {"mean": mean, "nominal": float(nominal[k]), "level": float(level),
+                     "parameter_std": s_mc, "model_std": s_model,
+                     "confidence_std": s_conf,
+                     "confidence_low": mean - z * s_conf, "confidence_high": mean + z * s_conf}
+            if s_drop is not None:
+                dof = sc.get("dof")
+                q = float(stats.t.ppf(0.5 + level / 2, dof)) if dof else z
+                s_pred = float(np.sqrt(s_conf**2 + float(s_drop) ** 2))
+                entry.update({"drop_std": float(s_drop), "prediction_std": s_pred,
+                              "prediction_low": mean - q * s_pred, "prediction_high": mean + q * s_pred,
+                              "prediction_available": True})
+            else:
+                entry.update({"drop_std": None, "prediction_std": s_conf, "prediction_low": entry["confidence_low"],
+                              "prediction_high": entry["confidence_high"], "prediction_available": False})
+            out[k] = entry
+        return out
+
     @property
     def nozzle_area_m2(self) -> float:
         """Inner cross-section of the nozzle (m^2), :func:`identify.ecm.nozzle_area_m2`."""
@@ -160,6 +221,7 @@ class HybridModel:
             "training_controls": None if self.controls is None else np.asarray(self.controls).tolist(),
             "versions": self.versions,
             "extra": self.extra,
+            **({} if self.intervals is None else {"intervals": self.intervals}),
         }
 
     @classmethod
@@ -190,6 +252,7 @@ class HybridModel:
                 adjuster_reference=d.get("adjuster_reference", "ecm"),
                 versions=d.get("versions", {}),
                 extra=d.get("extra", {}),
+                intervals=d.get("intervals"),
             )
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ModelFileError(f"{source}: invalid model file ({type(exc).__name__}: {exc})") from None
@@ -394,6 +457,34 @@ def _check_model_dict(d: dict, source) -> None:
     for k in ("versions", "extra"):
         if d.get(k) is not None and not isinstance(d[k], dict):
             raise _model_error(source, k, "must be an object")
+    _check_intervals(d, source)
+
+
+def _check_intervals(d: dict, source) -> None:
+    """The optional ``intervals`` object (`fit_hybrid`): scatter per output, cross-covariance."""
+    iv = d.get("intervals")
+    if iv is None:
+        return
+    if not isinstance(iv, dict):
+        raise _model_error(source, "intervals", f"must be an object, got {type(iv).__name__}")
+    sc = iv.get("scatter")
+    if sc is not None:
+        if not isinstance(sc, dict):
+            raise _model_error(source, "intervals.scatter", "must be an object")
+        for k, v in sc.items():
+            if not isinstance(v, dict):
+                raise _model_error(source, f"intervals.scatter.{k}", "must be an object")
+            for name in ("drop_std", "model_std", "cv_rmse", "in_sample_rmse"):
+                if v.get(name) is not None:
+                    _number(v[name], source, f"intervals.scatter.{k}.{name}", nonnegative=True)
+            if v.get("dof") is not None:
+                dof = _number(v["dof"], source, f"intervals.scatter.{k}.dof", positive=True)
+                if dof != int(dof):
+                    raise _model_error(source, f"intervals.scatter.{k}.dof", f"must be an integer, got {dof}")
+    c = iv.get("pinchoff_volume_cross_covariance")
+    if c is not None:
+        shape = (len(d["pinchoff"]["terms"]), len(d["volume_adjuster"]["terms"]))
+        _array(c, source, "intervals.pinchoff_volume_cross_covariance", shape)
 
 
 @dataclass
@@ -533,6 +624,95 @@ def _param_dict(fit) -> dict | None:
 # ---------------------------------------------------------------------------------------
 
 
+def _cross_covariance(a: PolynomialFit, b: PolynomialFit, u1, u2, ra, rb) -> np.ndarray:
+    """Covariance of the scaled coefficients of two least-squares polynomials fitted on the same
+    (u1, u2) with correlated residuals ``ra``, ``rb`` (per point, one common correlation)."""
+    Xa = design_matrix(*a.normalised(u1, u2), a.terms)
+    Xb = design_matrix(*b.normalised(u1, u2), b.terms)
+    dof = max(1, len(u1) - max(len(a.terms), len(b.terms)))
+    s_ab = float(ra @ rb) / dof
+    return s_ab * (np.linalg.pinv(Xa) @ np.linalg.pinv(Xb).T)
+
+
+def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
+                   seed: int, notes: list, mc_samples: int = 400) -> dict:
+    """Scatter of individual drops about the model, for `HybridModel.interval_prediction`.
+
+    Per output (:data:`INTERVAL_OUTPUTS`):
+
+    * ``drop_std``: drop-to-drop scatter: pooled standard deviation of repeated measurements
+      of one (u1, u2) when the data have repeats, else the residual standard deviation of the
+      whole hybrid chain at the training points (residual sum of squares / (n - p), p the
+      coefficients of the output's own polynomial); ``dof`` its degrees of freedom;
+    * ``cv_rmse``: RMS error of the whole chain predicting held-out measured drops in grouped
+      K-fold cross-validation (polynomials refitted per fold, ECM kept);
+    * ``model_std``: model discrepancy: sqrt(max(0, cv_rmse^2 - drop_std^2 - mean parameter
+      variance at the training controls)): what cross-validation sees beyond the noise and
+      the parameter uncertainty (e.g. a bias of the ECM that no polynomial absorbs).
+
+    Also ``pinchoff_volume_cross_covariance`` (see
+    :func:`identify.montecarlo.pinchoff_volume_cross_covariance`).
+    """
+    from dataclasses import replace
+
+    fits = {"pinchoff_us": model.pinchoff, "inflight_volume_nl": model.volume_adjuster,
+            "jetting_velocity_m_s": model.velocity_adjuster}
+    n = len(u1)
+    pred = model.predict_grid(u1, u2)
+    r_p = measured["pinchoff_us"] - model.pinchoff.predict(u1, u2)
+    r_v = vol_target - model.volume_adjuster.predict(u1, u2)
+    cross = _cross_covariance(model.pinchoff, model.volume_adjuster, u1, u2, r_p, r_v) \
+        if model.adjuster_reference == "ecm" else np.zeros((len(model.pinchoff.terms), len(model.volume_adjuster.terms)))
+    out = {"method": "confidence: parameter Monte Carlo + model_std; prediction: confidence + drop_std",
+           "pinchoff_volume_cross_covariance": cross.tolist(), "scatter": {}}
+    model.intervals = {"pinchoff_volume_cross_covariance": out["pinchoff_volume_cross_covariance"]}
+    # grouped K-fold CV of the whole chain
+    groups = np.column_stack([u1, u2])
+    cv_err = {k: np.full(n, np.nan) for k in INTERVAL_OUTPUTS}
+    targets = {"pinchoff": measured["pinchoff_us"], "volume_adjuster": vol_target, "velocity_adjuster": vel_target}
+    for idx in grouped_kfold(groups, folds, seed, layout="round_robin"):
+        train = np.setdiff1d(np.arange(n), idx)
+        try:
+            polys = {k: fit_polynomial(u1[train], u2[train], targets[k][train], getattr(model, k).n1,
+                                       getattr(model, k).n2, name=k) for k in targets}
+        except PolynomialRankError:
+            continue
+        g = replace(model, **polys).predict_grid(u1[idx], u2[idx])
+        for k in INTERVAL_OUTPUTS:
+            cv_err[k][idx] = g[k].to_numpy() - measured[k][idx]
+    # parameter variance at the training controls
+    ctrl = np.unique(groups, axis=0)
+    var_mc = {k: [] for k in INTERVAL_OUTPUTS}
+    for a, b in ctrl:
+        res = model.monte_carlo(a, b, samples=mc_samples, seed=seed)
+        for k in INTERVAL_OUTPUTS:
+            var_mc[k].append(np.var(res.samples[k], ddof=1))
+    # repeats
+    _, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
+    inv = np.asarray(inv).ravel()
+    rep_dof = int(np.sum(counts - 1))
+    for k in INTERVAL_OUTPUTS:
+        y = np.asarray(measured[k], float)
+        resid = y - pred[k].to_numpy()
+        p = len(fits[k].terms)
+        if rep_dof >= 2:
+            means = np.bincount(inv, weights=y) / counts
+            drop_var, dof, source = float(np.sum((y - means[inv]) ** 2) / rep_dof), rep_dof, "repeats"
+        else:
+            dof = max(1, n - p)
+            drop_var, source = float(resid @ resid) / dof, "residuals"
+        e = cv_err[k][np.isfinite(cv_err[k])]
+        cv_mse = float(np.mean(e**2)) if e.size else float("nan")
+        model_var = max(0.0, cv_mse - drop_var - float(np.mean(var_mc[k]))) if e.size else 0.0
+        out["scatter"][k] = {"drop_std": float(np.sqrt(drop_var)), "dof": int(dof), "source": source,
+                             "model_std": float(np.sqrt(model_var)),
+                             "cv_rmse": float(np.sqrt(cv_mse)) if e.size else None,
+                             "in_sample_rmse": float(np.sqrt(np.mean(resid**2)))}
+        if not e.size:
+            notes.append(f"{k}: no cross-validation fold could be fitted; model_std set to 0")
+    return out
+
+
 def fit_hybrid(
     ds: Dataset, *, orders=DEFAULT_ORDERS, folds: int = 10, seed: int = 0, ecm_method: str = "oe",
     adjuster_reference: str = "ecm", arx: bool = True, arx_ranges: dict | None = None,
@@ -606,6 +786,9 @@ def fit_hybrid(
         adjuster_reference=adjuster_reference, versions=versions,
         extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
     )
+    model.intervals = _fit_intervals(model, u1, u2, {"pinchoff_us": tp, "inflight_volume_nl": inflight,
+                                                     "jetting_velocity_m_s": jet}, vol_target, vel_target,
+                                     folds=folds, seed=seed, notes=notes)
     training = pd.DataFrame({
         "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,
         "ecm_grown_volume_at_pinchoff_nl": v_ecm, "ecm_flow_velocity_at_max_stroke_m_s": vel_ecm,

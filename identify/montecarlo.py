@@ -59,6 +59,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from identify.ecm import COEFF_NAMES, NL, UM, EcmCoefficients, companion_form, flow_velocity_m_s, foh_step, simulate
+from identify.polynomial import design_matrix  # noqa: E402
 from identify.polynomial import sample_mvn  # noqa: E402
 from identify.waveform import Waveform  # noqa: E402
 
@@ -492,6 +493,45 @@ def sample_ecm_coefficients(nominal, cov, n: int, rng: np.random.Generator) -> n
     return c0 * (1.0 + sample_mvn(np.zeros(6), rel, n, rng))
 
 
+def pinchoff_volume_cross_covariance(model) -> np.ndarray | None:
+    """Covariance between the pinch-off and volume-adjuster coefficients (scaled bases), or None.
+
+    With ``adjuster_reference="ecm"`` the volume adjuster is trained on the measured in-flight
+    volume minus the ECM volume at the *measured* pinch-off instant, so pinch-off jitter enters
+    both polynomials with opposite signs and cancels in the in-flight volume. Sampling the two
+    independently would count it twice; `identify.hybrid.fit_hybrid` stores their
+    cross-covariance in ``model.intervals["pinchoff_volume_cross_covariance"]``.
+    """
+    iv = getattr(model, "intervals", None)
+    if not isinstance(iv, dict) or iv.get("pinchoff_volume_cross_covariance") is None:
+        return None
+    c = np.asarray(iv["pinchoff_volume_cross_covariance"], dtype=float)
+    if c.shape != (len(model.pinchoff.terms), len(model.volume_adjuster.terms)):
+        return None
+    return c
+
+
+def sample_pinchoff_volume(pinchoff, volume_adjuster, cross, n: int, u1: float, u2: float, rng):
+    """Pinch-off instants and volume adjustments at (u1, u2) for ``n`` joint coefficient draws.
+
+    The pinch-off coefficients are drawn exactly as :meth:`PolynomialFit.sample` does; the
+    volume-adjuster coefficients from their normal distribution conditional on those
+    (regression on the pinch-off draw plus an independent residual draw). With a zero
+    ``cross`` the draws equal the independent ones, random number for random number.
+    """
+    mp, Cp = pinchoff.scaled_coefficients, pinchoff.scaled_covariance
+    mv, Cv = volume_adjuster.scaled_coefficients, volume_adjuster.scaled_covariance
+    qp = sample_mvn(mp, Cp, n, rng)
+    K = np.linalg.lstsq(0.5 * (Cp + Cp.T), cross, rcond=1e-12)[0].T  # Cvp Cp^+ , shape (pv, pp)
+    cond = Cv - K @ cross
+    qv = sample_mvn(np.zeros(mv.size), cond, n, rng) + mv
+    if np.any(K != 0):
+        qv = qv + (qp - mp) @ K.T
+    x1p, x2p = pinchoff.normalised(u1, u2)
+    x1v, x2v = volume_adjuster.normalised(u1, u2)
+    return qp @ design_matrix(x1p, x2p, pinchoff.terms), qv @ design_matrix(x1v, x2v, volume_adjuster.terms)
+
+
 # ---------------------------------------------------------------------------------------
 # Monte Carlo of the hybrid model
 # ---------------------------------------------------------------------------------------
@@ -569,8 +609,12 @@ def run_monte_carlo(
     else:
         cov = model.ecm_coeff_cov
         coeffs = sample_ecm_coefficients(c_nom, cov, samples, rng) if cov is not None else np.repeat(c_nom, samples, 0)
-        t_p = model.pinchoff.sample(samples, u1, u2, rng)
-        adj_v = model.volume_adjuster.sample(samples, u1, u2, rng)
+        cross = pinchoff_volume_cross_covariance(model)
+        if cross is None:
+            t_p = model.pinchoff.sample(samples, u1, u2, rng)
+            adj_v = model.volume_adjuster.sample(samples, u1, u2, rng)
+        else:  # pinch-off and volume adjuster coefficients drawn jointly (see the function)
+            t_p, adj_v = sample_pinchoff_volume(model.pinchoff, model.volume_adjuster, cross, samples, u1, u2, rng)
         adj_q = model.velocity_adjuster.sample(samples, u1, u2, rng)
         modal = modal_form(coeffs)
         vol_p, _ = ecm_response_at(modal, w, t_p - dead)

@@ -70,6 +70,11 @@ def _design(x1, x2, terms) -> np.ndarray:
     return x1**i * x2**j
 
 
+def design_matrix(x1, x2, terms) -> np.ndarray:
+    """Design matrix of Eq. (7) (one column per term of ``terms``) at (normalised) inputs."""
+    return _design(x1, x2, terms)
+
+
 def _scaled_to_raw(terms, centre, scale) -> np.ndarray:
     """Matrix T with raw = T @ scaled for the coefficient vectors."""
     index = {t: k for k, t in enumerate(terms)}
@@ -128,6 +133,10 @@ class PolynomialFit:
 
     def _xs(self, u1, u2):
         return (np.asarray(u1, float) - self.centre[0]) / self.scale[0], (np.asarray(u2, float) - self.centre[1]) / self.scale[1]
+
+    def normalised(self, u1, u2):
+        """Inputs in the internal normalisation (u - centre) / scale (see :func:`design_matrix`)."""
+        return self._xs(u1, u2)
 
     def predict(self, u1, u2) -> np.ndarray:
         """Polynomial value at (u1, u2) (broadcasting)."""

@@ -208,6 +208,9 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
     F("velocity_adjuster", "object", "", "velocity adjuster polynomial, m/s"),
     F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter"),
     F("versions", "object", "", "software versions", required=False),
+    F("intervals", "object", "", "drop scatter for the prediction interval: per output (pinchoff_us, "
+      "inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source (repeats|residuals), model_std, cv_rmse, "
+      "in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); absent in older models", required=False),
 ), "Identified hybrid model (Eq. 8).")
 
 OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision.output-marker/1", (

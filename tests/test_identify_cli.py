@@ -32,9 +32,19 @@ def test_fit_predict_design(fitted, capsys):
     assert isinstance(res["pinchoff_us"], float) and isinstance(res["grown_volume_at_pinchoff_nl"], float)
     for k in ("inflight_volume_nl", "jetting_velocity_m_s", "pinchoff_us_mc", "grown_volume_at_pinchoff_mc_nl"):
         v = res[k]
-        assert set(v) == {"mean", "std", "low", "high"} and v["low"] <= v["mean"] <= v["high"]
+        assert {"mean", "std", "low", "high"} <= set(v) and v["low"] <= v["mean"] <= v["high"]
     assert res["pinchoff_us_mc"]["low"] <= res["pinchoff_us"] <= res["pinchoff_us_mc"]["high"]
     assert 15 < res["inflight_volume_nl"]["mean"] < 23
+    # issue 13: two intervals, named, with their level; prediction wider than confidence, none degenerate
+    assert res["level"] == 0.95 and "prediction" in res["interval_note"]
+    for k in ("inflight_volume_nl", "jetting_velocity_m_s", "pinchoff_us_intervals"):
+        v = res[k]
+        assert v["prediction_available"] and v["level"] == 0.95
+        assert v["prediction_low"] < v["confidence_low"] < v["mean"] < v["confidence_high"] < v["prediction_high"]
+        assert v["confidence_high"] - v["confidence_low"] > 1e-4 * abs(v["mean"])
+    assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500"]) == 0
+    text = capsys.readouterr().out
+    assert "confidence 95 % (mean drop)" in text and "prediction 95 % (one drop)" in text
     assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500"]) == 0
     assert "inflight_volume_nl" in capsys.readouterr().out
     assert main(["design", str(model), "--volume-nl", str(res["inflight_volume_nl"]["mean"]), "--samples", "200", "--json"]) == 0
@@ -75,13 +85,18 @@ def test_paper_command(capsys):
     pytest.importorskip("identify.paper")
     assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert set(res) == KEYS
+    assert set(res) == KEYS | {"estimate"} and res["estimate"] == "expectation"
+    assert main(["paper", "--u1", "70", "--u2", "25", "--scheme-draw", "--samples", "2000", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["estimate"] == "scheme_draw"
 
 
 def test_paper_command_text_output(capsys):
     assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000"]) == 0
     out = capsys.readouterr().out
     assert "pinchoff_us" in out and "inflight_volume_nl" in out and "note:" in out
+    assert "estimate: EXPECTATION" in out
+    assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000", "--scheme-draw"]) == 0
+    assert "estimate: ONE draw of the paper's Monte Carlo scheme" in capsys.readouterr().out
 
 
 def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):

@@ -102,3 +102,41 @@ def test_monte_carlo(report):
     assert np.all(b["volume_low_nl"] <= b["volume_high_nl"] + 1e-12)
     one = m.monte_carlo(70.0, 25.0, samples=1)
     assert one.summary()["inflight_volume_nl"]["std"] == 0.0
+
+
+def test_intervals_stored_and_used(report, tmp_path):
+    """Issue 13: model.json keeps the drop scatter (repeats here) and the pinch-off / volume
+    cross-covariance; predict gives a confidence and a wider prediction interval; a model
+    without ``intervals`` (older file) still loads and predicts."""
+    import json
+
+    from identify.hybrid import HybridModel, ModelFileError
+
+    m = report.model
+    sc = m.intervals["scatter"]
+    for k in ("pinchoff_us", "inflight_volume_nl", "jetting_velocity_m_s"):
+        assert sc[k]["source"] == "repeats" and sc[k]["drop_std"] > 0 and sc[k]["dof"] >= 2
+    # 1 % noise on ~19 nl and ~1.4 m/s drops
+    assert 0.1 < sc["inflight_volume_nl"]["drop_std"] < 0.35
+    assert 0.007 < sc["jetting_velocity_m_s"]["drop_std"] < 0.025
+    path = m.save(tmp_path / "model.json")
+    m2 = HybridModel.from_json(path)
+    assert m2.intervals == json.loads(json.dumps(m.intervals))
+    iv = m2.interval_prediction(70.0, 25.0, samples=2000, seed=0)
+    for k in ("inflight_volume_nl", "jetting_velocity_m_s"):
+        e = iv[k]
+        assert e["prediction_low"] < e["confidence_low"] < e["mean"] < e["confidence_high"] < e["prediction_high"]
+        assert e["confidence_std"] > 0
+    d = json.loads(path.read_text())
+    d.pop("intervals")
+    old = HybridModel.from_dict(d)
+    e = old.interval_prediction(70.0, 25.0, samples=2000, seed=0)["inflight_volume_nl"]
+    assert not e["prediction_available"] and e["prediction_low"] == e["confidence_low"]
+    bad = json.loads(path.read_text())
+    bad["intervals"]["scatter"]["inflight_volume_nl"]["drop_std"] = -1
+    with pytest.raises(ModelFileError, match="drop_std"):
+        HybridModel.from_dict(bad)
+    bad = json.loads(path.read_text())
+    bad["intervals"]["pinchoff_volume_cross_covariance"] = [[1.0]]
+    with pytest.raises(ModelFileError, match="cross_covariance"):
+        HybridModel.from_dict(bad)

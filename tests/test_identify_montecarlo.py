@@ -118,3 +118,25 @@ def test_three_real_poles(use_numba):
     vb, fb = simulate_ensemble(c, t, u, use_numba=use_numba)
     np.testing.assert_allclose(vb[0], v, atol=1e-9 * np.abs(v).max())
     np.testing.assert_allclose(fb[0], f, atol=1e-9 * np.abs(f).max())
+
+
+def test_joint_pinchoff_volume_sampling():
+    """Issue 13: pinch-off and volume adjuster drawn jointly; a zero cross-covariance gives the
+    independent draws exactly, a negative one the variance of the sum it implies."""
+    from identify.montecarlo import sample_pinchoff_volume
+    from identify.polynomial import fit_polynomial
+
+    rng = np.random.default_rng(0)
+    u1, u2 = np.repeat(np.linspace(50, 80, 4), 4), np.tile(np.linspace(20, 35, 4), 4)
+    p = fit_polynomial(u1, u2, 900 + rng.normal(0, 10, 16), 1, 1)
+    v = fit_polynomial(u1, u2, 1 + rng.normal(0, 0.3, 16), 1, 1)
+    zero = np.zeros((3, 3))
+    tp, adj = sample_pinchoff_volume(p, v, zero, 500, 65.0, 27.0, np.random.default_rng(5))
+    r = np.random.default_rng(5)
+    assert np.array_equal(tp, p.sample(500, 65.0, 27.0, r))
+    assert np.allclose(adj, v.sample(500, 65.0, 27.0, r), rtol=0, atol=1e-12)
+    # fully anti-correlated (cross = -sqrt(Cp Cv) for equal designs): p / sd_p + v / sd_v ~ 0
+    sp, sv = np.sqrt(p.scaled_covariance[0, 0]), np.sqrt(v.scaled_covariance[0, 0])
+    cross = -(sv / sp) * p.scaled_covariance
+    tp, adj = sample_pinchoff_volume(p, v, cross, 4000, 65.0, 27.0, np.random.default_rng(1))
+    assert np.corrcoef(tp, adj)[0, 1] < -0.99

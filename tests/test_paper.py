@@ -5,7 +5,7 @@ import pytest
 from scipy import signal
 
 from identify.hydraulics import pipe_inertance, pipe_resistance
-from identify.paper import PAPER_COLOUR_INK, ecm_at_pinchoff, pair_stats, paper_prediction
+from identify.paper import PAPER_COLOUR_INK, ecm_at_pinchoff, pair_stats, paper_expectation, paper_prediction
 from identify.waveform import Waveform
 
 M = PAPER_COLOUR_INK
@@ -121,3 +121,30 @@ def test_pinchoff_and_adjusters_eqs_15_17():
     eb = M.coefficient_eb_from_table3()
     assert eb["A1"] == pytest.approx(M.coefficient_eb["A1"], rel=0.01)  # consistent with La
     assert eb["A3"] / M.coefficients.A3 > 100 * M.coefficient_eb["A3"] / M.coefficients.A3  # misprint
+
+
+def test_cli_default_is_the_converged_expectation(capsys):
+    """Issue 13 item 3: `identify paper --u1 70 --u2 25` prints 17.6-17.8 nl (paper 17.74), and
+    the figure moves by at most 0.05 nl between seeds (one scheme draw moves by ~0.4 nl)."""
+    import json
+
+    from identify.app.cli import main
+
+    means = []
+    for seed in (0, 1, 2):
+        assert main(["paper", "--u1", "70", "--u2", "25", "--seed", str(seed), "--json"]) == 0
+        res = json.loads(capsys.readouterr().out)
+        assert res["estimate"] == "expectation"
+        means.append(res["inflight_volume_nl"]["mean"])
+    assert all(17.6 <= m <= 17.8 for m in means), means
+    assert max(means) - min(means) <= 0.05, means
+    # the expectation's adjuster part is exactly the nominal Eq. (16); the exact model agrees
+    e = paper_expectation(70, 25, samples=5000, seed=3, simulation="exact")
+    assert e["inflight_volume_nl"]["mean"] - e["grown_volume_at_pinchoff_mc_nl"]["mean"] == pytest.approx(1.2325)
+    assert 17.55 <= e["inflight_volume_nl"]["mean"] <= 17.8
+    # the scheme draw stays available and is the paper_prediction of that seed
+    assert main(["paper", "--u1", "70", "--u2", "25", "--scheme-draw", "--json"]) == 0
+    draw = json.loads(capsys.readouterr().out)
+    ref = paper_prediction(70, 25, samples=10000, seed=0, simulation="sampled")
+    assert draw["estimate"] == "scheme_draw"
+    assert draw["inflight_volume_nl"]["mean"] == pytest.approx(ref["inflight_volume_nl"]["mean"])

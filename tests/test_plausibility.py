@@ -195,16 +195,16 @@ def test_drop_too_large_for_the_nozzle(honest, tmp_path):
     assert any("nozzle volumes" in n for n in s["notes"])
 
 
-def test_jetting_velocity_limits():
+def test_inner_diameter_not_smaller_than_outer_is_noted():
     from types import SimpleNamespace
 
     from dropvision.config import MeasureConfig
-    from dropvision.summary import _check_nozzle
+    from dropvision.summary import check_nozzle
 
     notes, flags = [], [[]]
     drop = SimpleNamespace(drop_volume_nl=np.array([1.0]))
     meta = SimpleNamespace(nozzle_inner_diameter_um=400.0, nozzle_outer_diameter_um=360.0)
-    assert _check_nozzle(meta, drop, MeasureConfig(), flags, notes)
+    assert check_nozzle(meta, drop, MeasureConfig(), flags, notes)
     assert "inner diameter 400 um >= outer 360 um" in notes[0]
     with warnings.catch_warnings():
         warnings.simplefilter("error")

@@ -77,10 +77,55 @@ def test_cv2_written_png_matches_libpng(images, bits, tmp_path):
     np.testing.assert_array_equal(decode_grey_png(buf.tobytes()), img)
 
 
+FILTER_MIXES = [[3], [4], [1, 4, 2], [4, 4, 2, 2, 3, 0, 1], [2, 3], [3, 2, 2, 4, 4, 4, 1],
+                [0, 1, 2, 3, 4], [2, 2, 2, 2, 2, 2, 4], [4, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 2]]
+
+
 @pytest.mark.parametrize("bits", [8, 16])
-def test_average_and_paeth_rows_are_left_to_libpng(images, bits):
-    for filters in ([3], [4], [1, 4, 2]):
-        assert decode_grey_png(encode_png(images[bits], filters)) is None
+@pytest.mark.parametrize("filters", FILTER_MIXES)
+def test_average_and_paeth_rows_decode_exactly(images, bits, filters):
+    img = images[bits]
+    data = encode_png(img, filters)
+    out = decode_grey_png(data)
+    assert out is not None and out.dtype == img.dtype and out.shape == img.shape
+    np.testing.assert_array_equal(out, img)
+    np.testing.assert_array_equal(out, _libpng(data))
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("seed", range(6))
+def test_random_filter_per_row_decodes_exactly(bits, seed):
+    """Every row a random filter (many short Average/Paeth runs, past the one-libpng-call
+    limit too), odd sizes down to one row or one column, extreme values (wrap-around)."""
+    rng = np.random.default_rng(seed)
+    h, w = [(37, 53), (1, 9), (9, 1), (64, 3), (200, 17), (2, 2)][seed]
+    hi = 255 if bits == 8 else 65535
+    img = rng.integers(0, hi + 1, (h, w)).astype(np.uint8 if bits == 8 else np.uint16)
+    extreme = rng.random((h, w)) < 0.4
+    img[extreme] = rng.choice(np.array([0, 1, hi - 1, hi]), int(extreme.sum()))
+    filters = rng.integers(0, 5, h)
+    data = encode_png(img, filters)
+    out = decode_grey_png(data)
+    np.testing.assert_array_equal(out, img)
+    np.testing.assert_array_equal(out, _libpng(data))
+
+
+@pytest.mark.parametrize("bits", [8, 16])
+def test_many_average_paeth_runs_take_one_libpng_call(images, bits, monkeypatch):
+    from dropvision.readers import png
+
+    calls = []
+    real = png._libpng_unfilter
+    monkeypatch.setattr(png, "_libpng_unfilter", lambda *a: calls.append(a[1].shape[0]) or real(*a))
+    img = images[bits]
+    data = encode_png(img, [1, 4, 2])  # 12 Paeth runs in 37 rows
+    monkeypatch.setattr(png, "_MAX_LIBPNG_RUNS", 4)
+    np.testing.assert_array_equal(decode_grey_png(data), img)
+    assert calls == [37 - 1]  # from the first Paeth row (row 1) to the end
+    calls.clear()
+    monkeypatch.setattr(png, "_MAX_LIBPNG_RUNS", 24)
+    np.testing.assert_array_equal(decode_grey_png(data), img)
+    assert calls == [1] * 12
 
 
 def test_other_png_kinds_are_left_to_libpng(images):
@@ -147,10 +192,20 @@ def test_trailing_chunks_cut_after_the_image_data_still_decode(images):
     np.testing.assert_array_equal(decode_grey_png(data[:-6]), images[8])
 
 
-def test_pil_written_png_decodes_or_defers(images):
+@pytest.mark.parametrize("bits", [8, 16])
+@pytest.mark.parametrize("noise", [0.0, 3.0])
+def test_pil_written_png_decodes_exactly(images, bits, noise, tmp_path):
+    """Pillow's adaptive filtering (Sub, Up, Average and Paeth rows mixed), through read_png."""
     pil = pytest.importorskip("PIL.Image")
-    buf = io.BytesIO()
-    pil.fromarray(images[8]).save(buf, format="PNG")
-    out = decode_grey_png(buf.getvalue())
-    if out is not None:  # PIL's adaptive filtering may or may not use Average/Paeth rows
-        np.testing.assert_array_equal(out, images[8])
+    from dropvision.readers.png import read_png
+
+    img = images[bits]
+    big = np.tile(img, (6, 6)).astype(float)
+    big += np.random.default_rng(3).normal(0, noise * (1 if bits == 8 else 256), big.shape)
+    big = np.clip(big, 0, 255 if bits == 8 else 65535).astype(img.dtype)
+    path = tmp_path / "pil.png"
+    pil.fromarray(big).save(path, format="PNG")
+    out = decode_grey_png(path.read_bytes())
+    assert out is not None
+    np.testing.assert_array_equal(out, big)
+    np.testing.assert_array_equal(read_png(path), _libpng(path.read_bytes()))

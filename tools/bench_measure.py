@@ -1,19 +1,24 @@
-"""Speed and memory of `dropvision measure` against a plain scikit-image baseline.
+"""Speed and memory of `dropvision measure` against a plain scikit-image baseline, per file kind.
 
-    python tools/bench_measure.py [--frames 181] [--keep DIR]
+    python tools/bench_measure.py [--frames 181] [--rounds 3] [--keep DIR] [--kinds pillow,opencv,jpeg,tiff16]
 
-Renders a default synthetic sequence (640 x 1024, 8-bit PNG), then on ONE core (one thread):
+Renders a default synthetic sequence (640 x 1024) and writes it as (a) Pillow-written PNGs
+(adaptive filtering: Sub, Up, Paeth rows), (b) OpenCV-written PNGs (every row Sub), (c) JPEG
+quality 90 (skipped, and marked so, while no JPEG reader is registered in
+``dropvision.readers``), (d) one 16-bit TIFF stack (uncompressed pages). For each kind, on ONE
+core (one thread), in one process, ``--rounds`` rounds alternating baseline and ours (medians):
 
-- PNG decoding alone: libpng (cv2.imread) vs dropvision's reader (`dropvision.readers.png`, checked
+- the file's own properties (size per frame, bit depth, compression, PNG filter types used);
+- decoding alone, ms/frame: the library default (cv2.imread = libpng / libjpeg-turbo;
+  tifffile for TIFF pages) vs dropvision's reader (``reader_for(path).decode``, checked
   bit-identical on every 20th frame);
-- baseline: cv2 PNG decode (also skimage.io.imread, the plain choice), Otsu threshold, fill holes, label, regionprops, whole-pixel row
-  widths (V = sum pi (w/2)^2) per body;
-- dropvision, end to end (`measure_sequence`, calibration pass and PNG decode included);
-- both with the frames already in memory (dropvision: `measure_frame`);
+- baseline end to end: skimage.io.imread (tifffile for a stack), Otsu threshold, fill holes,
+  label, regionprops, whole-pixel row widths (V = sum pi (w/2)^2) per body;
+- dropvision end to end (`measure_sequence`, calibration pass and decoding included);
 
-then the wall time of the command line on 2 workers including interpreter start-up, and the
-peak resident memory of a run on N and on 3N frames (the same files listed three times) to
-show that memory does not grow with the sequence length.
+then the peak resident memory of a run on N and on 3N frames (every frame listed three times)
+in a fresh process, and for (a) the wall time of the command line on 2 workers including
+interpreter start-up.
 """
 
 from __future__ import annotations
@@ -21,6 +26,8 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -64,125 +71,217 @@ def _peak_rss_mb(seq: Path, workers: int) -> float:
     return int(out.stdout.strip().splitlines()[-1]) / 1024.0
 
 
+def _png_filters(path: Path) -> np.ndarray:
+    """Rows per PNG filter type (None, Sub, Up, Average, Paeth) of one file."""
+    import struct
+    import zlib
+
+    data = path.read_bytes()
+    pos, idat, width, depth = 8, [], 0, 8
+    while pos < len(data):
+        length, ctype = struct.unpack_from(">I4s", data, pos)
+        if ctype == b"IHDR":
+            width, _, depth = struct.unpack_from(">IIB", data, pos + 8)
+        elif ctype == b"IDAT":
+            idat.append(data[pos + 8:pos + 8 + length])
+        pos += 12 + length
+    raw = np.frombuffer(zlib.decompress(b"".join(idat)), np.uint8)
+    return np.bincount(raw.reshape(-1, width * depth // 8 + 1)[:, 0], minlength=5)
+
+
+def _write_variants(seq: Path, work: Path, kinds: list[str]) -> dict:
+    """The rendered (OpenCV-written) sequence rewritten as each file kind: {kind: folder or None}."""
+    import cv2
+
+    from dropvision.readers import IMAGE_SUFFIXES
+
+    meta = json.loads((seq / "sequence.json").read_text())
+    frames = meta["frames"]
+    out = {}
+    for kind in kinds:
+        if kind == "opencv":
+            out[kind] = seq
+            continue
+        if kind == "jpeg" and ".jpg" not in IMAGE_SUFFIXES:
+            out[kind] = None  # SKIPPED: no JPEG reader registered in dropvision.readers
+            continue
+        folder = work / kind
+        if (folder / "sequence.json").exists():
+            out[kind] = folder
+            continue
+        folder.mkdir(parents=True, exist_ok=True)
+        m = dict(meta)
+        if kind == "pillow":
+            from PIL import Image
+
+            for fr in frames:
+                Image.fromarray(cv2.imread(str(seq / fr["file"]), cv2.IMREAD_UNCHANGED)).save(folder / fr["file"])
+        elif kind == "jpeg":
+            listed = []
+            for fr in frames:
+                name = Path(fr["file"]).with_suffix(".jpg").name
+                cv2.imwrite(str(folder / name), cv2.imread(str(seq / fr["file"]), cv2.IMREAD_UNCHANGED),
+                            [cv2.IMWRITE_JPEG_QUALITY, 90])
+                listed.append({**fr, "file": name})
+            m["frames"] = listed
+        elif kind == "tiff16":
+            import tifffile
+
+            with tifffile.TiffWriter(folder / "stack.tif") as tw:
+                for fr in frames:
+                    img = cv2.imread(str(seq / fr["file"]), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257
+                    tw.write(img, contiguous=False, compression=None)
+            m["frames"] = [{**fr, "file": "stack.tif", "page": i} for i, fr in enumerate(frames)]
+            m["bit_depth"] = 16
+        else:
+            raise SystemExit(f"unknown kind {kind!r}")
+        (folder / "sequence.json").write_text(json.dumps(m))
+        out[kind] = folder
+    return out
+
+
+def _tripled(seq: Path, dest: Path) -> Path:
+    """The same sequence with every frame listed three times (repeats at each delay), as
+    hard links (copies where links fail) named r0_, r1_, r2_ + the file's name."""
+    meta = json.loads((seq / "sequence.json").read_text())
+    dest.mkdir(parents=True, exist_ok=True)
+    listed = []
+    for k in range(3):
+        for fr in meta["frames"]:
+            name = f"r{k}_{fr['file']}"
+            if not (dest / name).exists():
+                try:
+                    os.link(seq / fr["file"], dest / name)
+                except OSError:
+                    shutil.copyfile(seq / fr["file"], dest / name)
+            listed.append({**fr, "file": name})
+    meta["frames"] = listed
+    (dest / "sequence.json").write_text(json.dumps(meta))
+    return dest
+
+
+def _properties(seq: Path, frames: list[dict]) -> str:
+    files = sorted({seq / fr["file"] for fr in frames})
+    size_kb = sum(f.stat().st_size for f in files) / len(frames) / 1024
+    suffix = files[0].suffix.lower()
+    if suffix == ".png":
+        kinds = sum(_png_filters(f) for f in files[:: max(1, len(files) // 20)])
+        names = ("None", "Sub", "Up", "Average", "Paeth")
+        used = ", ".join(f"{n} {100 * k / kinds.sum():.1f}%" for n, k in zip(names, kinds) if k)
+        return f"PNG deflate, {size_kb:.0f} KiB/frame, rows: {used}"
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        with tifffile.TiffFile(files[0]) as tf:
+            page = tf.pages[0]
+            return (f"TIFF {page.bitspersample}-bit, {len(tf.pages)} pages, compression "
+                    f"{page.compression.name}, {size_kb:.0f} KiB/frame")
+    return f"{suffix[1:].upper()}, {size_kb:.0f} KiB/frame"
+
+
+def bench_kind(kind: str, seq: Path, rounds: int, work: Path) -> dict:
+    """Decode and end-to-end figures for one sequence folder (medians of alternated rounds)."""
+    import cv2
+    import tifffile
+    from skimage.io import imread as sk_imread
+
+    from dropvision.config import MeasureConfig
+    from dropvision.measurement import measure_sequence
+    from dropvision.readers import reader_for
+
+    frames = json.loads((seq / "sequence.json").read_text())["frames"]
+    n = len(frames)
+    items = [(seq / fr["file"], fr.get("page")) for fr in frames]
+    reader = reader_for(items[0][0])
+
+    if items[0][1] is None:
+        def lib_decode(path, page):
+            return cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+
+        def base_decode(path, page):
+            return sk_imread(str(path))
+    else:
+        def lib_decode(path, page):
+            return tifffile.imread(path, key=page)
+
+        base_decode = lib_decode
+
+    def timed(fn) -> float:
+        t = time.perf_counter()
+        fn()
+        return time.perf_counter() - t
+
+    dec_lib, dec_ours, base, ours = [], [], [], []
+    for _ in range(rounds):  # alternated: a load change hits both sides alike
+        dec_lib.append(timed(lambda: [lib_decode(p, k) for p, k in items]) / n * 1e3)
+        dec_ours.append(timed(lambda: [reader.decode(p, k) for p, k in items]) / n * 1e3)
+        base.append(n / timed(lambda: [baseline_frame(base_decode(p, k)) for p, k in items]))
+        ours.append(n / timed(lambda: measure_sequence(seq, config=MeasureConfig(workers=1))))
+    for p, k in items[:: max(1, n // 20)]:
+        if not np.array_equal(reader.decode(p, k), lib_decode(p, k)):
+            raise AssertionError(f"{p}: dropvision's decode differs from {kind}'s library decoder")
+    med = statistics.median
+    return {
+        "kind": kind, "frames": n, "properties": _properties(seq, frames),
+        "decode_ms_library": med(dec_lib), "decode_ms_dropvision": med(dec_ours),
+        "baseline_fps": med(base), "dropvision_fps": med(ours), "speedup": med(ours) / med(base),
+        "speedup_range": (min(ours) / max(base), max(ours) / min(base)),
+        "peak_rss_mb_n": _peak_rss_mb(seq, 2),
+        "peak_rss_mb_3n": _peak_rss_mb(_tripled(seq, work / f"{kind}_x3"), 2),
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=181, help="number of delays (10 us apart)")
+    ap.add_argument("--rounds", type=int, default=3, help="alternated rounds (medians reported; >= 3)")
+    ap.add_argument("--kinds", default="pillow,opencv,jpeg,tiff16", help="file kinds to run (comma-separated)")
     ap.add_argument("--keep", help="render into this folder (reused if it exists)")
     args = ap.parse_args(argv)
     import cv2
 
     cv2.setNumThreads(1)
-    from dropvision.sequence import open_sequence
-    from dropvision.config import MeasureConfig
-    from dropvision.frame import measure_frame
-    from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     tmp = tempfile.TemporaryDirectory()
-    seq = Path(args.keep) if args.keep else Path(tmp.name) / "seq"
+    work = Path(args.keep) if args.keep else Path(tmp.name)
+    seq = work / "opencv_png"
     if not (seq / "sequence.json").exists():
         cfg = SynthConfig(delays_us=tuple(float(10 * i) for i in range(args.frames)))
         write_synthetic_sequence(cfg, seq, progress=False)
-    files = sorted(seq.glob("*.png"))
-    n = len(files)
-    report = {"frames": n, "shape": None}
-
-    # --- baseline, end to end (decode + measure), one thread
-    t = time.perf_counter()
-    for f in files:
-        baseline_frame(cv2.imread(str(f), cv2.IMREAD_UNCHANGED))
-    base_e2e = n / (time.perf_counter() - t)
-    from skimage.io import imread as sk_imread
-
-    t = time.perf_counter()
-    for f in files:
-        baseline_frame(sk_imread(str(f)))
-    base_e2e_sk = n / (time.perf_counter() - t)
-    # --- PNG decoding alone: libpng (cv2) vs dropvision's reader (bit-identical, checked)
-    from dropvision.readers.png import read_png
-
-    t = time.perf_counter()
-    for f in files:
-        cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
-    dec_libpng = (time.perf_counter() - t) / n * 1e3
-    t = time.perf_counter()
-    for f in files:
-        read_png(f)
-    dec_ours = (time.perf_counter() - t) / n * 1e3
-    for f in files[:: max(1, n // 20)]:
-        if not np.array_equal(read_png(f), cv2.imread(str(f), cv2.IMREAD_UNCHANGED)):
-            raise AssertionError(f"{f}: dropvision's PNG decode differs from libpng")
-    # --- dropvision end to end, one thread
-    t = time.perf_counter()
-    res = measure_sequence(seq, config=MeasureConfig(workers=1))
-    ours_e2e = n / (time.perf_counter() - t)
-    # --- in memory
-    imgs = [cv2.imread(str(f), cv2.IMREAD_UNCHANGED) for f in files]
-    report["shape"] = list(imgs[0].shape)
-    t = time.perf_counter()
-    for img in imgs:
-        baseline_frame(img)
-    base_mem = n / (time.perf_counter() - t)
-    ctx = _context(seq)
-    refs = open_sequence(seq).meta.frames
-    t = time.perf_counter()
-    reps = 3
-    for _ in range(reps):
-        for ref, img in zip(refs, imgs):
-            measure_frame(img, ctx, ref)
-    ours_mem = reps * n / (time.perf_counter() - t)
-    del imgs
-    # --- CLI wall time on 2 workers, interpreter start-up included
-    with tempfile.TemporaryDirectory() as out:
-        t = time.perf_counter()
-        subprocess.run([sys.executable, "-m", "dropvision.app.cli", "measure", str(seq), "--out", str(Path(out) / "o"),
-                        "--workers", "2"], check=True, capture_output=True, cwd=ROOT)
-        cli_wall = time.perf_counter() - t
-    # --- memory vs sequence length (the same frames three times, as repeats at each delay)
-    import shutil
-
-    long_seq = Path(tmp.name) / "long"
-    long_seq.mkdir(exist_ok=True)
-    listed = []
-    for fr in json.loads((seq / "sequence.json").read_text())["frames"]:
-        for k in range(3):
-            name = f"r{k}_{fr['file']}"
-            shutil.copyfile(seq / fr["file"], long_seq / name)
-            listed.append({"file": name, "delay_us": fr["delay_us"]})
-    meta = json.loads((seq / "sequence.json").read_text())
-    meta["frames"] = listed
-    (long_seq / "sequence.json").write_text(json.dumps(meta))
-    rss_n = _peak_rss_mb(seq, 2)
-    rss_3n = _peak_rss_mb(long_seq, 2)
-
-    report.update({
-        "png_decode_ms_libpng": dec_libpng,
-        "png_decode_ms_dropvision": dec_ours,
-        "baseline_end_to_end_fps": base_e2e,
-        "dropvision_end_to_end_fps": ours_e2e,
-        "end_to_end_speedup": ours_e2e / base_e2e,
-        "baseline_skimage_imread_end_to_end_fps": base_e2e_sk,
-        "end_to_end_speedup_vs_skimage_imread": ours_e2e / base_e2e_sk,
-        "baseline_in_memory_fps": base_mem,
-        "dropvision_in_memory_fps": ours_mem,
-        "in_memory_speedup": ours_mem / base_mem,
-        "cli_wall_s_2_workers": cli_wall,
-        "peak_rss_mb_n": rss_n,
-        "peak_rss_mb_3n": rss_3n,
-        "pinchoff_us": res.summary["pinchoff_us"],
-    })
-    for k, v in report.items():
-        print(f"{k:32s} {v:.4g}" if isinstance(v, float) else f"{k:32s} {v}")
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    folders = _write_variants(seq, work, kinds)
+    rows = []
+    for kind in kinds:
+        if folders[kind] is None:
+            print(f"[{kind}] SKIPPED: no JPEG reader registered in dropvision.readers (IMAGE_SUFFIXES has no .jpg)")
+            continue
+        rows.append(bench_kind(kind, folders[kind], args.rounds, work))
+        r = rows[-1]
+        print(f"[{kind}] {r['properties']}")
+        print(f"[{kind}] decode ms/frame: library {r['decode_ms_library']:.2f}, dropvision {r['decode_ms_dropvision']:.2f}; "
+              f"end to end frames/s: baseline {r['baseline_fps']:.0f}, dropvision {r['dropvision_fps']:.0f}, "
+              f"speed-up {r['speedup']:.2f}x ({r['speedup_range'][0]:.2f}-{r['speedup_range'][1]:.2f}); "
+              f"peak RSS {r['peak_rss_mb_n']:.0f} MB at N={r['frames']}, {r['peak_rss_mb_3n']:.0f} MB at 3N", flush=True)
+    if "pillow" in folders and folders["pillow"] is not None:
+        walls = []
+        with tempfile.TemporaryDirectory() as out:
+            for i in range(args.rounds):  # CLI wall time on 2 workers, interpreter start-up included
+                t = time.perf_counter()
+                subprocess.run([sys.executable, "-m", "dropvision.app.cli", "measure", str(folders["pillow"]),
+                                "--out", str(Path(out) / f"o{i}"), "--workers", "2"], check=True, capture_output=True, cwd=ROOT)
+                walls.append(time.perf_counter() - t)
+        print(f"[pillow] CLI wall time, 2 workers, start-up included: median {statistics.median(walls):.2f} s "
+              f"(runs {', '.join(f'{w:.2f}' for w in walls)})")
+    print()
+    print(f"{'kind':8s} {'frames':>6s} {'dec lib ms':>10s} {'dec ours ms':>11s} {'base fps':>8s} {'ours fps':>8s} "
+          f"{'speed-up':>8s} {'RSS N MB':>8s} {'RSS 3N MB':>9s}  file")
+    for r in rows:
+        print(f"{r['kind']:8s} {r['frames']:6d} {r['decode_ms_library']:10.2f} {r['decode_ms_dropvision']:11.2f} "
+              f"{r['baseline_fps']:8.0f} {r['dropvision_fps']:8.0f} {r['speedup']:7.2f}x {r['peak_rss_mb_n']:8.0f} "
+              f"{r['peak_rss_mb_3n']:9.0f}  {r['properties']}")
     tmp.cleanup()
     return 0
-
-
-def _context(seq: Path):
-    """The per-frame context `measure_sequence` builds (calibration on the spread frames)."""
-    from dropvision.sequence import open_sequence
-    from dropvision.context import calibrate_sequence
-
-    return calibrate_sequence(open_sequence(seq))[2]
 
 
 if __name__ == "__main__":

@@ -11,12 +11,14 @@ from __future__ import annotations
 from pathlib import PurePath
 
 from dropvision.readers.base import ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage
+from dropvision.readers.jpeg import JpegReader
 from dropvision.readers.opencv import OpenCVReader
 from dropvision.readers.png import PngReader
 from dropvision.readers.tiff import TiffReader
+from dropvision.readers.video import VideoReader
 
 __all__ = ["READERS", "IMAGE_SUFFIXES", "reader_for", "Reader", "ImageInfo", "OpenImage",
-           "UnreadableImage", "InvalidImage"]
+           "UnreadableImage", "InvalidImage", "VIDEO_SUFFIXES"]
 
 #: The registered readers, one per format. The order fixes the order of
 #: :data:`IMAGE_SUFFIXES` (as listed in messages); a suffix belongs to one reader only.
@@ -24,6 +26,8 @@ READERS: tuple[Reader, ...] = (
     PngReader(),
     TiffReader(),
     OpenCVReader(),
+    JpegReader(),
+    VideoReader(),
 )
 
 _BY_SUFFIX: dict[str, Reader] = {}
@@ -37,6 +41,8 @@ del _reader, _suffix
 
 #: Image file types read (lower-case suffixes).
 IMAGE_SUFFIXES: tuple[str, ...] = tuple(_BY_SUFFIX)
+#: The suffixes of video files (one file, many frames; delays from ``frame_rate_hz``).
+VIDEO_SUFFIXES: tuple[str, ...] = VideoReader.suffixes
 
 
 def reader_for(path) -> Reader | None:

@@ -1,8 +1,9 @@
-"""Generic OpenCV reader: formats decoded with ``cv2.imread`` (BMP).
+"""Generic OpenCV reader: formats decoded with ``cv2.imread`` (BMP; PGM/PPM/PBM/PNM, 8- and
+16-bit).
 
 Before decoding, the file size is checked against
-:data:`dropvision.readers.base.MAX_FILE_BYTES` and the BMP header's width x height against
-:data:`~dropvision.readers.base.MAX_PIXELS`.
+:data:`dropvision.readers.base.MAX_FILE_BYTES` and the header's width x height (BMP DIB
+header, PNM text header) against :data:`~dropvision.readers.base.MAX_PIXELS`.
 """
 
 from __future__ import annotations
@@ -31,10 +32,35 @@ def _check_bmp_header(head: bytes) -> None:
     check_pixels(abs(width), abs(height), "BMP")
 
 
+def _check_pnm_header(head: bytes) -> None:
+    """Refuse a PNM (P1..P6) whose text header claims an empty image or more than MAX_PIXELS
+    pixels."""
+    if len(head) < 2 or head[:1] != b"P" or head[1:2] not in b"123456":
+        return  # left to OpenCV
+    tokens, i, n = [], 2, len(head)
+    while len(tokens) < 2 and i < n:
+        c = head[i:i + 1]
+        if c == b"#":  # comment to the end of the line
+            while i < n and head[i:i + 1] not in (b"\n", b"\r"):
+                i += 1
+        elif c.isspace():
+            i += 1
+        else:
+            j = i
+            while j < n and head[j:j + 1].isdigit():
+                j += 1
+            if j == i:
+                return  # malformed: left to OpenCV
+            tokens.append(int(head[i:j]))
+            i = j
+    if len(tokens) == 2:
+        check_pixels(tokens[0], tokens[1], "PNM")
+
+
 class OpenCVReader(Reader):
     """Single-image files decoded by OpenCV (``cv2.IMREAD_UNCHANGED``; colour in BGR order)."""
 
-    suffixes = (".bmp",)
+    suffixes = (".bmp", ".pgm", ".ppm", ".pbm", ".pnm")
     bgr = True
 
     def decode(self, path: Path, page: int | None) -> np.ndarray:
@@ -44,11 +70,13 @@ class OpenCVReader(Reader):
         try:
             with open(path, "rb") as fh:
                 check_file_size(os.fstat(fh.fileno()).st_size, kind)
-                head = fh.read(26)
+                head = fh.read(26 if kind == "BMP" else 4096)
         except OSError as exc:
             raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
         if kind == "BMP":
             _check_bmp_header(head)
+        else:
+            _check_pnm_header(head)
         try:
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if img is None:  # e.g. a path cv2 cannot open: decode from bytes

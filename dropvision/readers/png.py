@@ -1,26 +1,37 @@
 """PNG reader, with a fast decoder for grey PNG strobe frames.
 
-Decoding a 640 x 1024 8-bit PNG with libpng (OpenCV, imageio, pyspng alike) costs about 4.4 ms
-here, seven times what measuring the frame costs. Nearly all of it is zlib's inflate and the
-per-row unfiltering. :func:`decode_grey_png` decodes the PNGs drop watchers and
-`dropvision synth` write (grey, 8 or 16 bits, not interlaced, rows filtered with None, Sub or Up)
-with Intel ISA-L's inflate (``isal``) and vectorised unfiltering (``imagecodecs.delta_decode``):
-about 1.1 ms for the same frame, bit-identical to libpng.
+Decoding a 640 x 1024 8-bit PNG with libpng (OpenCV, imageio, imagecodecs' libpng and spng
+alike) costs about 4.5-5.8 ms here, several times what measuring the frame costs. Nearly all of
+it is zlib's inflate and the per-row unfiltering. :func:`decode_grey_png` decodes the PNGs drop
+watchers, Pillow and `dropvision synth` write (grey, 8 or 16 bits, not interlaced, any of the
+five row filters) with Intel ISA-L's inflate (``isal``) and vectorised unfiltering: about 1.5 ms
+for an OpenCV-written frame (every row Sub) and 2.1 ms for a Pillow-written one (adaptive
+filtering: Sub, Up and a few Paeth rows), bit-identical to libpng.
+
+How the filters are undone (see :func:`_unfilter`): None and Sub rows all at once
+(``imagecodecs.delta_decode`` along the rows); Up rows all at once as one running sum down the
+image less its value above each run of Up rows; Average and Paeth rows, which depend on the
+left pixel of their own row too, run by run by libpng itself: the run and the decoded row above
+it are wrapped in a small stored (uncompressed) PNG and decoded with ``cv2.imdecode`` (about
+12 us for one row; no second inflate, exact by construction). A numba kernel was measured as
+the alternative: importing numba alone costs ~0.18 s of every command's start-up, more than it
+would save on a 181-frame sequence.
 
 Resources are bounded before decoding: the IHDR size against
 :data:`dropvision.readers.base.MAX_PIXELS`, the file size against
 :data:`~dropvision.readers.base.MAX_FILE_BYTES` (checked before the file is read), the number
 of chunks against :data:`MAX_CHUNKS`.
 
-Every other PNG (colour, palette, 1/2/4-bit, interlaced, a ``tRNS`` chunk, rows using the
-Average or Paeth filters) is left to libpng: :func:`decode_grey_png` returns None and
-:func:`read_png` decodes it with OpenCV. Broken files raise :class:`PngError`.
+Every other PNG (colour, palette, 1/2/4-bit, interlaced, a ``tRNS`` chunk) is left to libpng:
+:func:`decode_grey_png` returns None and :func:`read_png` decodes it with OpenCV. Broken files
+raise :class:`PngError`.
 """
 
 from __future__ import annotations
 
 import os
 import struct
+import zlib
 from pathlib import Path
 
 import cv2
@@ -36,6 +47,7 @@ __all__ = ["PngReader", "PngError", "decode_grey_png", "read_png", "png_signific
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _CRITICAL = (b"IHDR", b"IDAT", b"IEND", b"PLTE")
+_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
 #: Most chunks walked in one file (a file of millions of empty chunks is refused, not walked
 #: for minutes; libpng writes one IDAT chunk per 8 KiB, so a 2 GiB image needs ~260 000).
 MAX_CHUNKS = 1_000_000
@@ -57,8 +69,8 @@ def decode_grey_png(data) -> np.ndarray | None:
     -------
     image : ndarray of uint8 or uint16, shape (height, width), or None
         Native byte order, as ``cv2.imread(..., cv2.IMREAD_UNCHANGED)`` returns it. None for
-        data that is not a PNG or a PNG that is not a non-interlaced 8/16-bit grey image whose
-        rows use only the None, Sub and Up filters (decode those with libpng).
+        data that is not a PNG or a PNG that is not a non-interlaced 8/16-bit grey image
+        (decode those with libpng).
 
     Raises
     ------
@@ -144,15 +156,21 @@ def decode_grey_png(data) -> np.ndarray | None:
         raise PngError("image data stream is cut short before its checksum (truncated)")
     rows = np.frombuffer(raw, np.uint8).reshape(height, stride + 1)
     out = _unfilter(rows, bpp)
-    if out is None:
-        return None
     if bpp == 2:
         return out.view(">u2").astype(np.uint16)
     return out
 
 
-def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray | None:
-    """Undo PNG row filters None (0), Sub (1) and Up (2); None if Average/Paeth rows occur."""
+def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray:
+    """Undo the PNG row filters of ``rows`` (filter byte + filtered bytes per row).
+
+    None and Sub rows depend on no other row and are undone for all of them at once. Up rows
+    are a running sum down each run of Up rows, seeded by the row above the run: one running
+    sum down the whole image, less its value at the row above each run (modulo 256), undoes
+    them all at once too. Average and Paeth rows also depend on the left pixel of the same row,
+    so they are undone run by run, by libpng itself (:func:`_libpng_unfilter`), and the Up rows
+    between them block by block.
+    """
     ftype = rows[:, 0]
     body = rows[:, 1:]
     height, stride = body.shape
@@ -160,8 +178,6 @@ def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray | None:
     if kinds.size > 5:
         bad = int(np.flatnonzero(ftype > 4)[0])
         raise PngError(f"invalid filter type {int(ftype[bad])} in row {bad}")
-    if kinds[3] or kinds[4]:
-        return None
 
     def sub(block: np.ndarray) -> np.ndarray:  # running sum along the row, bpp bytes apart
         if bpp == 1:
@@ -171,19 +187,84 @@ def _unfilter(rows: np.ndarray, bpp: int) -> np.ndarray | None:
 
     if kinds[1] == height:  # the common case (OpenCV writes every row with Sub)
         return sub(body)
-    out = np.empty((height, stride), np.uint8)
-    if kinds[0]:
-        out[ftype == 0] = body[ftype == 0]
+    out = body.copy()  # None rows done; Up rows hold their filtered bytes
     if kinds[1]:
         out[ftype == 1] = sub(body[ftype == 1])
-    if kinds[2]:  # runs of Up rows: running sum down the run, seeded by the row above it
-        up = np.flatnonzero(ftype == 2)
-        starts = up[np.r_[True, np.diff(up) > 1]]
-        stops = up[np.r_[np.diff(up) > 1, True]] + 1
-        for s, e in zip(starts, stops):
-            seed = out[s - 1:s] if s > 0 else np.zeros((1, stride), np.uint8)
-            out[s:e] = delta_decode(np.concatenate([seed, body[s:e]]), axis=0)[1:]
+    if not (kinds[3] or kinds[4]):
+        if kinds[2]:
+            _undo_up(out, ftype, 0, height)
+        return out
+    slow = np.flatnonzero(ftype >= 3)  # Average / Paeth rows, in runs of consecutive rows
+    breaks = np.flatnonzero(np.diff(slow) > 1)
+    starts = slow[np.r_[0, breaks + 1]].tolist()
+    stops = (slow[np.r_[breaks, slow.size - 1]] + 1).tolist()
+    if len(starts) > _MAX_LIBPNG_RUNS:  # many short runs: one libpng call from the first on
+        starts, stops = starts[:1], [height]
+    pos = 0
+    zero = np.zeros((1, stride), np.uint8)
+    for s, e in zip(starts, stops):
+        if kinds[2]:
+            _undo_up(out, ftype, pos, s)
+        out[s:e] = _libpng_unfilter(out[s - 1:s] if s > 0 else zero, rows[s:e], bpp)
+        pos = e
+    if kinds[2]:
+        _undo_up(out, ftype, pos, height)
     return out
+
+
+#: More runs of Average/Paeth rows than this in one image and libpng unfilters every row from
+#: the first such run on in one call (each call costs some 20-40 us).
+_MAX_LIBPNG_RUNS = 24
+
+
+def _undo_up(out: np.ndarray, ftype: np.ndarray, a: int, b: int) -> None:
+    """Undo the Up rows among rows ``a:b`` of ``out`` in place (no Average/Paeth rows there;
+    the other rows, and the row above ``a``, already decoded; Up rows hold their filtered
+    bytes). Row i of a run of Up rows starting below row s is ``C[i] - C[s]`` (mod 256), with C
+    the running sum down rows ``a - 1 .. b`` (the row above ``a``, or zeros, first)."""
+    if b <= a:
+        return
+    up = ftype[a:b] == 2
+    if not up.any():
+        return
+    n, stride = b - a, out.shape[1]
+    ext = np.empty((n + 2, stride), np.uint8)  # a zero row, the row above a, rows a:b
+    ext[0] = 0
+    ext[1] = out[a - 1] if a > 0 else 0
+    ext[2:] = out[a:b]
+    # the running sum down the rows, along rows of the transpose (3x faster than along axis 0)
+    ext_t = cv2.transpose(ext)
+    csum = cv2.transpose(delta_decode(ext_t, axis=-1, out=ext_t))
+    idx = np.arange(n + 2)
+    is_start = np.r_[True, True, ~up]
+    start = np.maximum.accumulate(np.where(is_start, idx, 0))
+    ri = np.flatnonzero(up) + 2
+    out[a + ri - 2] = csum[ri] - csum[start[ri] - 1]
+
+
+def _libpng_unfilter(seed: np.ndarray, rows: np.ndarray, bpp: int) -> np.ndarray:
+    """Undo the filters of ``rows`` (filter byte + bytes, any filter types) below the decoded
+    row ``seed`` with libpng: a small PNG of the seed row (filter None) and these rows in a
+    stored (uncompressed) zlib stream, decoded by ``cv2.imdecode``. Exact by construction
+    (libpng's own Average and Paeth code) and, with no inflate to do, about as fast as the
+    unfiltering itself; only the rows that need it are passed, never the whole image."""
+    n, stride1 = rows.shape
+    stride = stride1 - 1
+    raw = np.empty((n + 1, stride1), np.uint8)
+    raw[0, 0] = 0
+    raw[0, 1:] = seed
+    raw[1:] = rows
+    ihdr = b"IHDR" + struct.pack(">IIBBBBB", stride // bpp, n + 1, 8 * bpp, 0, 0, 0, 0)
+    idat = b"IDAT" + zlib.compress(raw.data, 0)
+    png = b"".join((PNG_SIGNATURE, struct.pack(">I", 13), ihdr, struct.pack(">I", isal_zlib.crc32(ihdr)),
+                    struct.pack(">I", len(idat) - 4), idat, struct.pack(">I", isal_zlib.crc32(idat)),
+                    _IEND))
+    img = cv2.imdecode(np.frombuffer(png, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None or img.shape != (n + 1, stride // bpp):  # never: the PNG is made right here
+        raise PngError("libpng could not unfilter Average/Paeth rows")
+    if bpp == 2:
+        img = img.astype(">u2").view(np.uint8)
+    return img[1:].reshape(n, stride)
 
 
 def read_png(path: Path) -> np.ndarray:

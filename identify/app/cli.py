@@ -3,7 +3,7 @@
     identify fit DATASET --out model.json
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
-    identify paper --u1 U1 --u2 U2 [--samples N] [--seed S] [--json]
+    identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -34,6 +34,16 @@ def _positive(name):
             raise argparse.ArgumentTypeError(f"{name} must be > 0, got {text!r}")
         return v
     return conv
+
+
+def _level(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--level must be a number, got {text!r}") from None
+    if not 0 < v < 1:
+        raise argparse.ArgumentTypeError(f"--level must be in (0, 1), got {text!r}")
+    return v
 
 
 def _print_table(title: str, df) -> None:
@@ -140,6 +150,7 @@ def cmd_predict(args) -> int:
     res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
     _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res))
     mc = res.summary()
+    iv = m.interval_prediction(args.u1, args.u2, level=args.level, mc=res)
     nominal = m.predict(args.u1, args.u2)
     # Same keys as `identify paper`: nominal pinch-off and grown volume, Monte Carlo spreads of
     # the in-flight volume and jetting velocity (and of the first two under *_mc keys).
@@ -152,6 +163,13 @@ def cmd_predict(args) -> int:
         "grown_volume_at_pinchoff_mc_nl": mc["grown_volume_at_pinchoff_nl"],
     }
     _check_finite(summary, args.model)
+    # two intervals per measured output (HybridModel.interval_prediction): confidence of the
+    # mean drop, prediction of one drop; "low"/"high" stay the raw parameter Monte Carlo band.
+    for k in ("inflight_volume_nl", "jetting_velocity_m_s"):
+        summary[k] = {**summary[k], **{f: iv[k][f] for f in INTERVAL_FIELDS}}
+    summary["pinchoff_us_intervals"] = {f: iv["pinchoff_us"][f] for f in ("mean", *INTERVAL_FIELDS)}
+    summary["level"] = args.level
+    summary["interval_note"] = INTERVAL_NOTE
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -160,8 +178,30 @@ def cmd_predict(args) -> int:
 
         if not Region(m.controls).inside(args.u1, args.u2)[0]:
             print("warning: (u1, u2) outside the training region: extrapolation", file=sys.stderr)
-    _print_summary(summary, f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
+    pct = f"{100 * args.level:g} %"
+    print(f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
+    print(f"  {'pinchoff_us':30s} {nominal['pinchoff_us']:.4g} us (nominal)")
+    print(f"  {'grown_volume_at_pinchoff_nl':30s} {nominal['grown_volume_at_pinchoff_nl']:.4g} nl (nominal)")
+    print(f"  {'quantity':30s} {'mean':>9s}   {'confidence ' + pct + ' (mean drop)':>30s}   "
+          f"{'prediction ' + pct + ' (one drop)':>30s}")
+    for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
+                   ("jetting_velocity_m_s", "jetting_velocity_m_s")):
+        e = summary[key]
+        pred = f"[{e['prediction_low']:.5g}, {e['prediction_high']:.5g}]" if e["prediction_available"] else "n/a"
+        print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['confidence_low'], e['confidence_high']):>30s}   "
+              f"{pred:>30s} {OUTPUT_UNITS[k]}")
+    print(f"note: {INTERVAL_NOTE}")
+    if not iv["inflight_volume_nl"]["prediction_available"]:
+        print("note: this model file has no drop scatter (fitted before intervals existed): refit it for the "
+              "prediction interval", file=sys.stderr)
     return 0
+
+
+INTERVAL_FIELDS = ("level", "confidence_low", "confidence_high", "confidence_std", "prediction_low",
+                   "prediction_high", "prediction_std", "prediction_available")
+INTERVAL_NOTE = ("confidence = where the mean of many drops lies (parameter uncertainty of the ECM, pinch-off and "
+                 "adjuster fits, plus model discrepancy seen in cross-validation); prediction = where one "
+                 "individual drop lies (confidence + drop-to-drop scatter of the training data)")
 
 
 def cmd_design(args) -> int:
@@ -181,12 +221,25 @@ def cmd_design(args) -> int:
 
 
 def cmd_paper(args) -> int:
-    from identify.paper import paper_prediction
+    from identify.paper import EXPECTATION_SAMPLES, paper_expectation, paper_prediction
 
-    _check_samples(args.samples)
-    out = paper_prediction(args.u1, args.u2, samples=args.samples, seed=args.seed, simulation=args.simulation)
+    if args.scheme_draw:
+        samples = 10_000 if args.samples is None else args.samples
+        _check_samples(samples)
+        out = paper_prediction(args.u1, args.u2, samples=samples, seed=args.seed, simulation=args.simulation)
+        what = (f"ONE draw of the paper's Monte Carlo scheme (10 values per coefficient, {out['samples']} "
+                "combinations): its mean scatters by ~0.4 nl / 0.05 m/s from seed to seed; std/low/high: "
+                "spread (min/max) within the draw")
+    else:
+        samples = EXPECTATION_SAMPLES if args.samples is None else args.samples
+        _check_samples(samples)
+        out = paper_expectation(args.u1, args.u2, samples=samples, seed=args.seed, simulation=args.simulation)
+        what = (f"EXPECTATION of the paper's Monte Carlo model (converged: adjusters exact, ECM over {samples} "
+                "independent draws; stable between seeds to ~0.002 nl); std/low/high: spread of one Monte "
+                "Carlo model (2.5/97.5 %); --scheme-draw gives one draw of the paper's own sampling scheme")
     summary = {k: out[k] for k in OUTPUT_UNITS if k in out}
     if args.json:
+        summary["estimate"] = out["estimate"]
         print(json.dumps(summary))
     else:
         _print_summary(
@@ -194,6 +247,7 @@ def cmd_paper(args) -> int:
             f"published colour-ink model (Eqs. 14-17) at u1 = {args.u1} um/ms, u2 = {args.u2} um, "
             f"{args.simulation} simulation",
         )
+        print(f"estimate: {what}")
         if args.simulation == "sampled":
             print(
                 "note: the published A2 gives a ~100 kHz mode with damping ratio 0.0012; sampled every 10 us "
@@ -235,6 +289,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--u2", type=_positive("--u2"), required=True, help="stroke (um)")
     q.add_argument("--samples", type=int, default=10_000)
     q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--level", type=_level, default=0.95, help="level of both intervals (default 0.95)")
     q.add_argument("--json", action="store_true")
     add_rerun_args(q)
     q.set_defaults(func=cmd_predict)
@@ -252,7 +307,10 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("paper", help="published colour-ink model of the paper")
     r.add_argument("--u1", type=_positive("--u1"), required=True)
     r.add_argument("--u2", type=_positive("--u2"), required=True)
-    r.add_argument("--samples", type=int, default=10_000)
+    r.add_argument("--samples", type=int, default=None,
+                   help="draws (default: 20000 independent for the expectation, 10000 = 10^4 for --scheme-draw)")
+    r.add_argument("--scheme-draw", action="store_true",
+                   help="one draw of the paper's own sampling scheme (seed-dependent) instead of the expectation")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--simulation", choices=["sampled", "exact"], default="sampled",
                    help="sampled: the paper's 10 us simulation (reproduces Section 5.2, default); "
