@@ -558,8 +558,10 @@ def classify(case, rc, stdout, stderr, hung, peak, out, changed):
             try:
                 got = pd.json_normalize(json.loads(stdout)).iloc[0]
                 ref = pd.json_normalize(case.truth["predict"]).iloc[0]
-                same = list(got.index) == list(ref.index) and np.allclose(got.to_numpy(float), ref.to_numpy(float),
-                                                                          rtol=1e-9, equal_nan=True)
+                same = list(got.index) == list(ref.index) and all(
+                    np.isclose(g, r, rtol=1e-9, equal_nan=True)
+                    if isinstance(r, (int, float)) and not isinstance(r, bool) else g == r
+                    for g, r in zip(got.tolist(), ref.tolist()))
             except (ValueError, TypeError):
                 same = False
             return ("correct", "prediction unchanged") if same else ("silent_wrong", "prediction changed, no word")
