@@ -23,6 +23,15 @@ A dataset is a folder with three files:
 Several sequences may share one (u1, u2). :func:`load_dataset` raises
 :class:`DatasetError` naming the file and the column for every problem it finds.
 
+Irregular campaigns are accepted (issue 13): missing frames (gaps in ``delay_us``, or attached
+rows with NaN volume), repeated delays, a failed sequence (in one file only, or too short),
+a sequence with no pinch-off seen (NaN ``pinchoff_us`` / volume / velocity in the summary).
+:func:`timeseries_runs` and :func:`summary_usable` say what each fit can use and return notes
+on what was dropped and why; :func:`validate` refuses only when nothing usable is left (fewer
+than ``min_controls`` distinct (u1, u2) for a polynomial, or no sequence for the ECM) and keeps
+refusing what cannot be true (constant outputs, swapped u1/u2, unit errors, wrong dtypes,
+off-grid delays).
+
 :func:`make_synthetic_dataset` writes such a folder from the default synthetic physics of
 the project (ECM + pinch-off and adjuster laws), whose truth is exactly known.
 """
@@ -52,8 +61,11 @@ _KIND = {"id": "id", "float": "f", "bool": "b"}
 TIMESERIES_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.TIMESERIES.columns if c.required}
 #: Required columns of summary.parquet, from `identify.schema.DATASET_SUMMARY`.
 SUMMARY_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.DATASET_SUMMARY.columns if c.required}
-#: Summary columns that may hold NaN.
-_SUMMARY_NAN_OK = {"flow_velocity_at_max_stroke_m_s"}
+#: Summary columns that may hold NaN (not measured; the fits drop that sequence where needed).
+_SUMMARY_NAN_OK = {"flow_velocity_at_max_stroke_m_s", "pinchoff_us", "grown_volume_at_pinchoff_nl",
+                   "inflight_volume_nl", "jetting_velocity_m_s"}
+#: Least number of contiguous samples from delay 0 that a sequence needs for the ECM/ARX fits.
+MIN_RUN_SAMPLES = 8
 
 
 class DatasetError(ValueError):
@@ -117,15 +129,20 @@ class Dataset:
         Hydraulics or None
             ``(LN, RN, LR, RR)`` in kg/m^4 and kg/(m^4 s)
             (:func:`identify.hydraulics.hydraulics_from_dimensions`), or None when
-            ``dataset.json`` has no ``ink`` or ``nozzle`` block.
+            ``dataset.json`` has no ``ink`` or ``nozzle`` block or misses one of their
+            dimensions (the ECM is then fitted at the coefficient level).
 
         Raises
         ------
         DatasetError
-            If the ink density/viscosity or a nozzle dimension is missing or not a number.
+            If the ink density/viscosity or a nozzle dimension is not a number.
         """
         if not self.ink or not self.nozzle:
             return None
+        if any(self.ink.get(k) is None for k in ("density_kg_m3", "viscosity_mPa_s")) or any(
+                self.nozzle.get(k) is None for k in ("length_mm", "reservoir_channel_radius_um",
+                                                     "reservoir_channel_length_mm")):
+            return None  # partial knowledge: the ECM coefficients are fitted directly
         try:
             rho = float(self.ink["density_kg_m3"])
             mu_mpa_s = float(self.ink["viscosity_mPa_s"])
@@ -186,13 +203,127 @@ def _check_columns(df: pd.DataFrame, spec: dict, fname: str) -> None:
             raise DatasetError(f"{fname}: column {col} has missing values")
 
 
-def _finite(df: pd.DataFrame, col: str, fname: str, mask=None) -> None:
+def _finite(df: pd.DataFrame, col: str, fname: str, mask=None, *, nan_ok: bool = False) -> None:
     v = df[col].to_numpy(float)
     if mask is not None:
         v = v[np.asarray(mask)]
-    bad = ~np.isfinite(v)
+    bad = np.isinf(v) if nan_ok else ~np.isfinite(v)
     if bad.any():
-        raise DatasetError(f"{fname}: column {col} has {int(bad.sum())} NaN/inf value(s)")
+        raise DatasetError(f"{fname}: column {col} has {int(bad.sum())} {'inf' if nan_ok else 'NaN/inf'} value(s)")
+
+
+def _fmt_id(sid) -> str:
+    return repr(sid.item() if hasattr(sid, "item") else sid)
+
+
+def timeseries_runs(ds: Dataset) -> tuple[dict, list[str]]:
+    """Time series usable for the ECM and ARX fits, and notes on what was dropped.
+
+    Per sequence of the summary: its rows sorted by delay, repeated delays averaged (volume and
+    flow velocity; attached only if every repeat is), attached rows with NaN volume taken as
+    missing frames, then the contiguous run of attached samples from delay 0 (the fits need
+    uniform sampling from the piston at rest). A run with fewer than :data:`MIN_RUN_SAMPLES`
+    samples or ending before the dead time drops the sequence from the time-series fits.
+
+    Returns
+    -------
+    runs : dict
+        sequence_id -> DataFrame (columns of timeseries.parquet, attached rows only).
+    notes : list of str
+    """
+    h = ds.sample_interval_us
+    notes: list[str] = []
+    runs: dict = {}
+    ts = ds.timeseries
+    ids_su = list(ds.summary["sequence_id"])
+    only_ts = sorted(set(ts["sequence_id"].unique()) - set(ids_su), key=str)
+    if only_ts:
+        notes.append(f"{len(only_ts)} sequence(s) in timeseries.parquet but not in summary.parquet dropped "
+                     f"(e.g. {', '.join(_fmt_id(x) for x in only_ts[:3])})")
+    groups = {sid: g for sid, g in ts.groupby("sequence_id", sort=False)}
+    for sid in ids_su:
+        g = groups.get(sid)
+        if g is None or len(g) == 0:
+            notes.append(f"sequence {_fmt_id(sid)}: no time-series rows (failed sequence?): dropped from the "
+                         "ECM/ARX fits; its summary values are used")
+            continue
+        g = g.sort_values("delay_us", kind="stable")
+        d = g["delay_us"].to_numpy(float)
+        if np.any(np.diff(d) == 0):
+            n_rep = int(len(d) - np.unique(d).size)
+            agg = {c: "first" for c in g.columns}
+            agg.update({"grown_volume_nl": "mean", "flow_velocity_m_s": "mean", "attached": "all"})
+            g = g.groupby("delay_us", sort=True, as_index=False).agg(agg)[list(g.columns)]
+            notes.append(f"sequence {_fmt_id(sid)}: {n_rep} repeated delay(s) averaged")
+        att = g["attached"].to_numpy(bool)
+        vol = g["grown_volume_nl"].to_numpy(float)
+        missing = att & ~np.isfinite(vol)
+        if missing.any():
+            notes.append(f"sequence {_fmt_id(sid)}: {int(missing.sum())} attached frame(s) without a volume "
+                         "treated as missing")
+        g = g[att & np.isfinite(vol)]
+        k = np.round(g["delay_us"].to_numpy(float) / h).astype(np.int64)
+        if k.size == 0 or k[0] != 0:
+            first = "none" if k.size == 0 else f"{k[0] * h:g} us"
+            notes.append(f"sequence {_fmt_id(sid)}: no attached frame at delay 0 (first: {first}): dropped from "
+                         "the ECM/ARX fits; its summary values are used")
+            continue
+        n_run = int(np.argmax(np.diff(k) != 1)) + 1 if np.any(np.diff(k) != 1) else k.size
+        if n_run < k.size:
+            gap_at = (k[n_run - 1] + 1) * h
+            lost = k.size - n_run
+        else:
+            gap_at, lost = None, 0
+        if n_run < MIN_RUN_SAMPLES or k[n_run - 1] * h <= ds.dead_time_us:
+            why = f"frames missing from {gap_at:g} us" if gap_at is not None else "too few frames"
+            notes.append(f"sequence {_fmt_id(sid)}: only {n_run} contiguous sample(s) from delay 0 ({why}): "
+                         "dropped from the ECM/ARX fits; its summary values are used")
+            continue
+        if lost:
+            notes.append(f"sequence {_fmt_id(sid)}: frames missing from {gap_at:g} us: the ECM/ARX fits use the "
+                         f"{n_run} contiguous samples up to {k[n_run - 1] * h:g} us ({lost} later attached "
+                         "sample(s) unused)")
+        runs[sid] = g.iloc[:n_run]
+    return runs, notes
+
+
+#: What each polynomial target needs from the summary (adjuster reference "ecm"; "measured" adds
+#: the measured grown volume and flow velocity).
+_TARGET_COLUMNS = {
+    "pinchoff": ("pinchoff_us",),
+    "volume_adjuster": ("pinchoff_us", "inflight_volume_nl"),
+    "velocity_adjuster": ("jetting_velocity_m_s",),
+}
+
+
+def summary_usable(ds: Dataset, adjuster_reference: str = "ecm") -> tuple[dict, list[str]]:
+    """Which summary rows each polynomial can use (finite values), and notes on the others.
+
+    Returns
+    -------
+    masks : dict
+        ``"pinchoff"``, ``"volume_adjuster"``, ``"velocity_adjuster"`` -> boolean array over the
+        summary rows.
+    notes : list of str
+    """
+    su = ds.summary
+    need = {k: list(v) for k, v in _TARGET_COLUMNS.items()}
+    if adjuster_reference == "measured":
+        need["volume_adjuster"] = ["inflight_volume_nl", "grown_volume_at_pinchoff_nl"]
+        need["velocity_adjuster"] = ["jetting_velocity_m_s", "flow_velocity_at_max_stroke_m_s"]
+    masks, notes = {}, []
+    ids = su["sequence_id"].to_numpy()
+    for name, cols in need.items():
+        ok = np.ones(len(su), bool)
+        for c in cols:
+            fin = np.isfinite(su[c].to_numpy(float))
+            bad = ~fin & ok
+            if bad.any():
+                notes.append(f"{name}: {int(bad.sum())} sequence(s) without {c} dropped "
+                             f"(e.g. {', '.join(_fmt_id(x) for x in ids[bad][:3])})")
+            ok &= fin
+        masks[name] = ok
+    return masks, notes
 
 
 def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
@@ -222,10 +353,10 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
     for col in ("u1_um_per_ms", "u2_um", "delay_us"):
         _finite(ts, col, f_ts)
     att = ts["attached"].to_numpy(bool)
-    _finite(ts, "grown_volume_nl", f_ts, mask=att)
+    _finite(ts, "grown_volume_nl", f_ts, mask=att, nan_ok=True)  # NaN: a missing frame
     for col in SUMMARY_COLUMNS:
-        if SUMMARY_COLUMNS[col] == "f" and col not in _SUMMARY_NAN_OK:
-            _finite(su, col, f_su)
+        if SUMMARY_COLUMNS[col] == "f":
+            _finite(su, col, f_su, nan_ok=col in _SUMMARY_NAN_OK)
     for fname, df in ((f_ts, ts), (f_su, su)):
         for col in ("u1_um_per_ms", "u2_um"):
             if (df[col].to_numpy(float) <= 0).any():
@@ -240,6 +371,7 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
     if (su["jetting_velocity_m_s"].to_numpy(float) <= 0).any():
         raise DatasetError(f"{f_su}: column jetting_velocity_m_s must be > 0")
     gv = ts["grown_volume_nl"].to_numpy(float)[att]
+    gv = gv[np.isfinite(gv)]
     # grown volumes are meniscus-subtracted, so slightly negative values from noise are fine;
     # a clearly negative volume signals a sign or unit error.
     scale = max(float(np.nanmax(np.abs(gv))) if gv.size else 0.0, 1e-12)
@@ -249,10 +381,6 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
     if su["sequence_id"].duplicated().any():
         dup = su["sequence_id"][su["sequence_id"].duplicated()].iloc[0]
         raise DatasetError(f"{f_su}: sequence_id {dup!r} appears more than once")
-    ids_ts, ids_su = set(ts["sequence_id"].unique()), set(su["sequence_id"])
-    if ids_ts != ids_su:
-        only = sorted(map(str, ids_ts ^ ids_su))[:3]
-        raise DatasetError(f"{f_ts} and {f_su}: sequence_id sets differ (e.g. {', '.join(only)})")
     if len(su) < 2:
         raise DatasetError(f"{f_su}: only {len(su)} sequence; identification needs several sequences")
 
@@ -262,28 +390,39 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
         d = g["delay_us"].to_numpy(float)
         if np.unique(g["u1_um_per_ms"]).size != 1 or np.unique(g["u2_um"]).size != 1:
             raise DatasetError(f"{f_ts}: sequence {sid!r} has several (u1_um_per_ms, u2_um) values")
+        if sid not in su_idx.index:
+            continue  # in timeseries.parquet only: dropped by the fits with a note
         row = su_idx.loc[sid]
         if not np.isclose(g["u1_um_per_ms"].iloc[0], row["u1_um_per_ms"]) or not np.isclose(g["u2_um"].iloc[0], row["u2_um"]):
             raise DatasetError(f"{f_ts}: sequence {sid!r} (u1_um_per_ms, u2_um) differs from {f_su}")
         ds_sorted = np.sort(d)
-        if np.any(np.diff(ds_sorted) == 0):
-            raise DatasetError(f"{f_ts}: sequence {sid!r} has duplicated delay_us values")
         k = ds_sorted / h
         if not np.allclose(k, np.round(k), atol=1e-6):
             raise DatasetError(
                 f"{f_ts}: sequence {sid!r} column delay_us is not on the {h} us sampling grid "
                 "(non-uniform sampling)"
             )
-        if np.any(np.diff(np.round(k)) != 1):
-            raise DatasetError(f"{f_ts}: sequence {sid!r} column delay_us has gaps (non-uniform sampling)")
-        if d.size < 5:
-            raise DatasetError(f"{f_ts}: sequence {sid!r} has only {d.size} samples")
+        # gaps, repeated delays and short sequences are irregular, not wrong: see timeseries_runs
     n_ctrl = len(ds.distinct_controls())
     if n_ctrl < min_controls:
         raise DatasetError(
             f"{f_su}: only {n_ctrl} distinct (u1_um_per_ms, u2_um) pair(s); the polynomial models "
             f"need at least {min_controls}"
         )
+    masks, _ = summary_usable(ds)
+    ctrl = su[["u1_um_per_ms", "u2_um"]].to_numpy(float)
+    for name, m in masks.items():
+        n_use = len(np.unique(ctrl[m], axis=0)) if m.any() else 0
+        if n_use < min_controls:
+            cols = ", ".join(_TARGET_COLUMNS[name])
+            raise DatasetError(
+                f"{f_su}: only {n_use} distinct (u1_um_per_ms, u2_um) pair(s) with finite {cols}; the "
+                f"{name} polynomial needs at least {min_controls}")
+    runs, _ = timeseries_runs(ds)
+    if not runs:
+        raise DatasetError(
+            f"{f_ts}: no sequence usable for the ECM: each needs at least {MIN_RUN_SAMPLES} contiguous "
+            "attached samples from delay 0 past the dead time")
     _check_plausible(ds, f_ts, f_su, f_js)
     return ds
 
@@ -313,6 +452,7 @@ def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
     su = ds.summary
     for col in ("inflight_volume_nl", "grown_volume_at_pinchoff_nl", "jetting_velocity_m_s"):
         v = su[col].to_numpy(float)
+        v = v[np.isfinite(v)]
         if v.size >= 2 and np.all(v == v[0]):
             raise DatasetError(
                 f"{f_su}: column {col} is constant ({v[0]:.6g} in all {v.size} sequences): nothing to "
@@ -320,13 +460,15 @@ def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
     u1 = su["u1_um_per_ms"].to_numpy(float)
     u2 = su["u2_um"].to_numpy(float)
     stroke_us = 1000.0 * u2 / u1
-    early = (su["pinchoff_us"].to_numpy(float) - ds.dead_time_us) < stroke_us
+    tp_all = su["pinchoff_us"].to_numpy(float)
+    seen = np.isfinite(tp_all)
+    early = (tp_all[seen] - ds.dead_time_us) < stroke_us[seen]
     if early.sum() > 0.5 * early.size:
         raise DatasetError(
             f"{f_su}: columns u1_um_per_ms and u2_um look swapped: in {int(early.sum())} of {early.size} "
             f"sequences pinch-off comes before the maximum stroke (dead time + 1000 u2/u1 us: median "
             f"{ds.dead_time_us + float(np.median(stroke_us)):.4g} us, pinch-off median "
-            f"{float(np.median(su['pinchoff_us'])):.4g} us); u1 (um/ms) median {float(np.median(u1)):.4g}, "
+            f"{float(np.median(tp_all[seen])):.4g} us); u1 (um/ms) median {float(np.median(u1)):.4g}, "
             f"u2 (um) median {float(np.median(u2)):.4g}")
     area_um2 = np.pi / 4.0 * ds.nozzle_inner_diameter_um**2
     per_stroke_nl = area_um2 * u2 * 1e-6  # um^3 -> nl
@@ -335,7 +477,11 @@ def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
         (f_su, "grown_volume_at_pinchoff_nl", su["grown_volume_at_pinchoff_nl"].to_numpy(float)),
         (f_su, "inflight_volume_nl", su["inflight_volume_nl"].to_numpy(float)),
     ):
-        ratio = float(np.median(values / per_stroke_nl))
+        fin = np.isfinite(values)
+        if not fin.any():
+            continue
+        ratio = float(np.median(values[fin] / per_stroke_nl[fin]))
+        values = values[fin]
         if not lo <= ratio <= hi:
             unit = "pl labelled nl" if ratio > hi else "ul or m^3 labelled nl"
             raise DatasetError(
@@ -345,7 +491,7 @@ def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
                 "diameter?")
     gv = ds.timeseries["grown_volume_nl"].to_numpy(float)
     att = ds.timeseries["attached"].to_numpy(bool)
-    top = float(np.nanmax(gv[att])) if att.any() else 0.0
+    top = float(np.nanmax(gv[att])) if np.isfinite(gv[att]).any() else 0.0
     top_ref = float(np.max(per_stroke_nl))
     if top > hi * top_ref:
         raise DatasetError(
@@ -359,9 +505,9 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
     Raises
     ------
     DatasetError
-        Missing folder/file, bad JSON, missing columns, wrong dtypes, NaNs, out-of-range
-        values, non-uniform sampling, duplicated delays, a single sequence, too few
-        distinct (u1, u2) pairs.
+        Missing folder/file, bad JSON, missing columns, wrong dtypes, inf, out-of-range
+        values, delays off the sampling grid, a single sequence, too few distinct (u1, u2)
+        pairs usable for a polynomial, no sequence usable for the ECM, implausible data.
     """
     path = Path(path)
     if not path.is_dir():

@@ -197,8 +197,9 @@ class EcmFit:
     ----------
     method : str
         ``"oe"`` or ``"delta"``.
-    parameters : EcmParameters
+    parameters : EcmParameters or None
         Estimate (oe) or mean over sequences (delta), SI units; ``La`` is the fixed value.
+        None at ``level == "coefficients"`` (no hydraulics: not identifiable).
     coefficients : EcmCoefficients
         Eq. (5) from ``parameters`` (delta: mean of the per-sequence coefficients).
     param_ci95 : dict
@@ -234,6 +235,9 @@ class EcmFit:
     n_samples: int
     per_sequence: pd.DataFrame | None = None
     identifiability: dict = field(default_factory=dict)
+    #: ``"physical"`` (Ra, CN, Kc given the hydraulics of Eq. 2) or ``"coefficients"`` (A3..B0
+    #: up to scale, A3 = 1, fitted directly: see :func:`fit_ecm_coefficients`).
+    level: str = "physical"
 
     def ratios(self) -> np.ndarray:
         """θ of Eq. (10)."""
@@ -256,7 +260,8 @@ class EcmFit:
         return {
             "schema": "identify.ecm_fit/1",
             "method": self.method,
-            "parameters": self.parameters.to_dict(),
+            "level": self.level,
+            "parameters": None if self.parameters is None else self.parameters.to_dict(),
             "coefficients": self.coefficients.to_dict(),
             "param_ci95": {k: [float(a), float(b)] for k, (a, b) in self.param_ci95.items()},
             "param_cov": conv(self.param_cov),
@@ -289,7 +294,7 @@ class EcmFit:
                 ident[k] = np.asarray(v, dtype=float)
         return cls(
             method=d["method"],
-            parameters=EcmParameters(**d["parameters"]),
+            parameters=None if d.get("parameters") is None else EcmParameters(**d["parameters"]),
             coefficients=EcmCoefficients(**d["coefficients"]),
             param_ci95={k: (float(a), float(b)) for k, (a, b) in d["param_ci95"].items()},
             param_cov=np.asarray(d["param_cov"], dtype=float),
@@ -300,6 +305,7 @@ class EcmFit:
             n_samples=int(d["n_samples"]),
             per_sequence=df,
             identifiability=ident,
+            level=d.get("level", "physical"),
         )
 
 
@@ -615,12 +621,134 @@ def _fit_delta(sequences, hyd: Hydraulics, la: float, h_us: float | None, final_
     )
 
 
+# --------------------------------------------------------------------------- coefficients
+
+
+def _coeffs_of(p: float, a1: float, a0: float, b1: float, b0: float) -> EcmCoefficients:
+    """Eq. (6) with A(s) = (s + p)(s^2 + a1 s + a0), A3 = 1 (the scale is not identifiable)."""
+    return EcmCoefficients(A3=1.0, A2=p + a1, A1=p * a1 + a0, A0=p * a0, B1=b1, B0=b0)
+
+
+_DAMPING_GRID = (0.05, 0.15, 0.4, 1.0)
+
+
+def fit_ecm_coefficients(sequences: Sequence[EcmData], initial: EcmCoefficients | None = None) -> EcmFit:
+    """Output-error fit of the ECM coefficients A3..B0 of Eq. (6) directly, without hydraulics.
+
+    For a nozzle whose ink or reservoir channel is unknown (Eq. 2 cannot be evaluated): the
+    same consistent estimator as ``fit_ecm(method="oe")`` (exact first-order-hold simulation of
+    all sequences, joint nonlinear least squares) over the five ratios of Eq. (10), with the
+    denominator written as ``(s + p)(s^2 + a1 s + a0)`` (``p, a1, a0 > 0``: stable, searched in
+    log space after a coarse grid of piston poles, resonances and damping ratios) and the
+    numerator ``B1, B0`` eliminated in closed form (the volume is linear in them, variable
+    projection). The scale is fixed by ``A3 = 1`` (Eq. 6 is invariant under a common factor).
+    Physical parameters are not identifiable at this level: ``parameters`` is None,
+    ``level == "coefficients"``. Covariance ``s^2 (J^T J)^-1`` over
+    ``(log p, log a1, log a0, B1, B0)``, carried to the coefficients and ratios by the delta
+    method (A3 row/column zero).
+    """
+    h, U, Y, mask = _stack(list(sequences))
+    y = Y[mask]
+
+    def basis(q3) -> np.ndarray:
+        p, a1, a0 = np.exp(q3)
+        v1 = simulate_sampled(_coeffs_of(p, a1, a0, 1.0, 0.0), h, U)[0][mask]
+        v0 = simulate_sampled(_coeffs_of(p, a1, a0, 0.0, 1.0), h, U)[0][mask]
+        return np.column_stack([v1, v0])
+
+    def solve_b(X) -> np.ndarray:
+        b, *_ = np.linalg.lstsq(X, y, rcond=None)
+        return b
+
+    def vp_residual(q3) -> np.ndarray:
+        X = basis(q3)
+        if not np.all(np.isfinite(X)):
+            return np.full(y.size, 1e6 * (np.abs(y).max() + 1.0))
+        return X @ solve_b(X) - y
+
+    if initial is None:
+        best = (np.inf, None)
+        for pole in _POLE_GRID:
+            for f in _FRES_GRID:
+                w = 2 * np.pi * f
+                for zeta in _DAMPING_GRID:
+                    q = np.log([pole, 2 * zeta * w, w * w])
+                    r = vp_residual(q)
+                    val = float(r @ r)
+                    if np.isfinite(val) and val < best[0]:
+                        best = (val, q)
+        if best[1] is None:
+            raise RuntimeError("fit_ecm_coefficients: grid search found no finite objective value")
+        q0 = best[1]
+    else:
+        roots = np.roots([initial.A3, initial.A2, initial.A1, initial.A0])
+        real = roots[np.argmin(np.abs(roots.imag))].real
+        rest = np.poly(np.delete(roots, np.argmin(np.abs(roots.imag)))).real
+        q0 = np.log([-real, rest[1], rest[2]])
+    sol = optimize.least_squares(vp_residual, q0, x_scale=1.0, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+    q3 = sol.x
+    b = solve_b(basis(q3))
+    p, a1, a0 = np.exp(q3)
+    coeffs = _coeffs_of(p, a1, a0, *b)
+    resid = vp_residual(q3)
+    n_obs, n_par = y.size, 5
+    sigma2 = float(resid @ resid) / max(n_obs - n_par, 1)
+    theta = np.concatenate([q3, b])
+
+    def sim_full(th) -> np.ndarray:
+        return basis(th[:3]) @ th[3:]
+
+    J = np.empty((n_obs, 5))
+    for j in range(5):
+        e = np.zeros(5)
+        e[j] = 1e-5 if j < 3 else 1e-5 * max(abs(theta[j]), 1e-300)
+        J[:, j] = (sim_full(theta + e) - sim_full(theta - e)) / (2 * e[j])
+    col = np.linalg.norm(J, axis=0)
+    col[col == 0] = 1.0
+    Jn = J / col
+    cov_t = sigma2 * np.linalg.pinv(Jn.T @ Jn) / np.outer(col, col)
+    sd = np.sqrt(np.clip(np.diag(cov_t), 0, None))
+    corr = cov_t / np.outer(np.where(sd > 0, sd, 1.0), np.where(sd > 0, sd, 1.0))
+    Js = J / np.linalg.norm(J, axis=0)
+    sv = np.linalg.svd(Js, compute_uv=False)
+
+    def coeff_of(th):
+        return _coeffs_of(*np.exp(th[:3]), *th[3:]).to_array()
+
+    def ratio_of(th):
+        return _coeffs_of(*np.exp(th[:3]), *th[3:]).ratios()
+
+    return EcmFit(
+        method="oe",
+        parameters=None,
+        coefficients=coeffs,
+        param_ci95={},
+        param_cov=np.full((4, 4), np.nan),
+        coeff_cov=_delta_cov(coeff_of, theta, cov_t),
+        ratio_cov=_delta_cov(ratio_of, theta, cov_t),
+        rmse_nl=float(np.sqrt(np.mean(resid**2))),
+        n_sequences=len(sequences),
+        n_samples=int(n_obs),
+        per_sequence=None,
+        identifiability={
+            "parameters": ["log p", "log a1", "log a0", "B1", "B0"],
+            "singular_values": sv,
+            "rank": int(np.sum(sv > 1e-6 * sv[0])),
+            "correlation": corr,
+            "optimizer_success": bool(sol.success),
+            "note": "coefficients fitted directly (A3 = 1): La, Ra, CN, Kc not identifiable without the "
+                    "hydraulics of Eq. (2)",
+        },
+        level="coefficients",
+    )
+
+
 # --------------------------------------------------------------------------- public
 
 
 def fit_ecm(
     sequences: Sequence[EcmData],
-    hydraulics: Hydraulics | Sequence[float],
+    hydraulics: Hydraulics | Sequence[float] | None,
     method: str = "oe",
     *,
     la: float = LA_DEFAULT,
@@ -635,8 +763,10 @@ def fit_ecm(
     sequences : sequence of EcmData
         Measured sequences on a common sampling interval (e.g. 10 µs), each truncated at
         pinch-off.
-    hydraulics : Hydraulics or (LN, RN, LR, RR)
+    hydraulics : Hydraulics or (LN, RN, LR, RR) or None
         Known elements of Eq. (2), e.g. from :func:`identify.hydraulics.hydraulics_from_geometry`.
+        None: the coefficients A3..B0 are fitted directly (:func:`fit_ecm_coefficients`,
+        ``method="oe"`` only; physical parameters not identifiable).
     method : {"oe", "delta"}
         ``"oe"``: joint output-error fit of the exact continuous-time model (default,
         consistent). ``"delta"``: the paper's per-sequence delta-operator least squares with
@@ -657,6 +787,10 @@ def fit_ecm(
     -------
     EcmFit
     """
+    if hydraulics is None:
+        if method != "oe":
+            raise ValueError(f"fit_ecm: method {method!r} needs the hydraulics of Eq. (2); without them use 'oe'")
+        return fit_ecm_coefficients(list(sequences))
     try:
         hyd = Hydraulics(*(float(v) for v in hydraulics))
     except TypeError as exc:

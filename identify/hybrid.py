@@ -33,7 +33,7 @@ import pandas as pd
 from identify import __version__, schema
 from identify.arx_selection import grid_for_dead_time, select_structure
 from identify.atomic import write_json
-from identify.dataset import Dataset, DatasetError
+from identify.dataset import Dataset, DatasetError, summary_usable, timeseries_runs
 from identify.design import DesignResult, design
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
@@ -76,6 +76,11 @@ class HybridModel:
     versions: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     intervals: dict | None = None  # scatter of drops about the model, see `interval_prediction`
+    #: "physical" (La..Kc given Eq. 2) or "coefficients" (A3..B0 fitted directly, no physical
+    #: parameters); None in models written before the level was recorded (physical).
+    ecm_level: str | None = None
+    #: what the fit dropped or changed and why (`FitReport.notes`); None in older models.
+    notes: list | None = None
 
     # ---- prediction ----------------------------------------------------------------
     def waveform(self, u1: float, u2: float) -> Waveform:
@@ -213,6 +218,9 @@ class HybridModel:
                 "coefficient_order": list(COEFF_NAMES),
                 "coefficient_covariance": None if cov is None else cov.tolist(),
                 "parameters": self.ecm_parameters,
+                **({} if self.ecm_level is None else {"level": self.ecm_level}),
+                **({"parameters_note": "not identifiable: the ink or the reservoir channel geometry of Eq. (2) "
+                    "is unknown; A3..B0 fitted directly, scale A3 = 1"} if self.ecm_level == "coefficients" else {}),
             },
             "pinchoff": self.pinchoff.to_dict(),
             "volume_adjuster": self.volume_adjuster.to_dict(),
@@ -222,6 +230,7 @@ class HybridModel:
             "versions": self.versions,
             "extra": self.extra,
             **({} if self.intervals is None else {"intervals": self.intervals}),
+            **({} if self.notes is None else {"notes": list(self.notes)}),
         }
 
     @classmethod
@@ -253,6 +262,8 @@ class HybridModel:
                 versions=d.get("versions", {}),
                 extra=d.get("extra", {}),
                 intervals=d.get("intervals"),
+                ecm_level=e.get("level"),
+                notes=None if d.get("notes") is None else list(d["notes"]),
             )
         except (KeyError, TypeError, ValueError, OverflowError) as exc:
             raise ModelFileError(f"{source}: invalid model file ({type(exc).__name__}: {exc})") from None
@@ -446,6 +457,13 @@ def _check_model_dict(d: dict, source) -> None:
     if e.get("parameters") is not None and not isinstance(e["parameters"], dict):
         raise _model_error(source, "ecm.parameters", "must be an object or null")
     _optional_numbers(e.get("parameters"), source, "ecm.parameters")
+    if e.get("level") is not None and e["level"] not in ("physical", "coefficients"):
+        raise _model_error(source, "ecm.level", f"must be 'physical' or 'coefficients', got {_short(e['level'])}")
+    if e.get("parameters_note") is not None and not isinstance(e["parameters_note"], str):
+        raise _model_error(source, "ecm.parameters_note", "must be a string")
+    if d.get("notes") is not None and (not isinstance(d["notes"], list)
+                                       or not all(isinstance(x, str) for x in d["notes"])):
+        raise _model_error(source, "notes", "must be a list of strings")
     for k in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
         _check_polynomial(d[k], source, k)
     if d.get("training_controls") is not None:
@@ -516,17 +534,21 @@ class FitReport:
 # ---------------------------------------------------------------------------------------
 
 
-def _sequences(ds: Dataset):
-    """Per sequence: (summary row, attached rows sorted by delay)."""
+def _sequences(ds: Dataset, notes: list | None = None):
+    """Per usable sequence: (summary row, attached rows from delay 0 without gaps, sorted by
+    delay; :func:`identify.dataset.timeseries_runs`). What was dropped goes to ``notes``."""
+    runs, why = timeseries_runs(ds)
+    if notes is not None:
+        notes.extend(why)
     out = []
     for _, row in ds.summary.iterrows():
-        g = ds.sequence(row["sequence_id"])
-        g = g[g["attached"].to_numpy(bool)]
-        out.append((row, g))
+        g = runs.get(row["sequence_id"])
+        if g is not None:
+            out.append((row, g))
     return out
 
 
-def arx_sequences(ds: Dataset) -> list[tuple[np.ndarray, np.ndarray]]:
+def arx_sequences(ds: Dataset, notes: list | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """ARX data: u = Eq. (9) waveform without dead time sampled from the trigger, y = grown volume.
 
     Each sequence is cut at its last attached sample; samples start at delay 0 (missing
@@ -535,7 +557,7 @@ def arx_sequences(ds: Dataset) -> list[tuple[np.ndarray, np.ndarray]]:
     """
     h = ds.sample_interval_us
     out = []
-    for row, g in _sequences(ds):
+    for row, g in _sequences(ds, notes):
         d = g["delay_us"].to_numpy(float)
         if d.size < 5 or abs(d[0]) > 1e-6:
             continue
@@ -545,7 +567,7 @@ def arx_sequences(ds: Dataset) -> list[tuple[np.ndarray, np.ndarray]]:
     return out
 
 
-def ecm_sequences(ds: Dataset) -> list[dict]:
+def ecm_sequences(ds: Dataset, notes: list | None = None) -> list[dict]:
     """ECM identification data of a dataset, one dict per sequence.
 
     Parameters
@@ -561,15 +583,21 @@ def ecm_sequences(ds: Dataset) -> list[dict]:
         ``pinchoff_displacement_um`` (µm), ``u1_um_per_ms``, ``u2_um``.
     """
     out = []
-    for row, g in _sequences(ds):
+    for row, g in _sequences(ds, notes):
         w = ds.waveform(row["u1_um_per_ms"], row["u2_um"])
         t = g["delay_us"].to_numpy(float)
+        vol = g["grown_volume_nl"].to_numpy(float)
+        # y_ss, K_ss of Eq. (13) (delta method only): the last sample where pinch-off was not seen
+        y_ss = float(row["grown_volume_at_pinchoff_nl"])
+        t_ss = float(row["pinchoff_us"])
+        if not np.isfinite(y_ss) or not np.isfinite(t_ss):
+            y_ss, t_ss = float(vol[-1]), float(t[-1])
         out.append({
             "t_us": t,
             "u_um": w.displacement_um(t - ds.dead_time_us),
-            "volume_nl": g["grown_volume_nl"].to_numpy(float),
-            "pinchoff_volume_nl": float(row["grown_volume_at_pinchoff_nl"]),
-            "pinchoff_displacement_um": float(w.displacement_um(row["pinchoff_us"] - ds.dead_time_us)),
+            "volume_nl": vol,
+            "pinchoff_volume_nl": y_ss,
+            "pinchoff_displacement_um": float(w.displacement_um(t_ss - ds.dead_time_us)),
             "u1_um_per_ms": float(row["u1_um_per_ms"]),
             "u2_um": float(row["u2_um"]),
         })
@@ -578,18 +606,34 @@ def ecm_sequences(ds: Dataset) -> list[dict]:
 
 def _fit_ecm(ds: Dataset, method: str, notes: list):
     """Fit the ECM through :func:`identify.ecm_fit.fit_ecm` (Section 4.3)."""
-    hyd = ds.hydraulics()
+    hyd = _hydraulics_or_none(ds)
+    data = [EcmData(**s) for s in ecm_sequences(ds, notes)]
+    if not data:
+        raise DatasetError(f"{ds.json_name}: no sequence usable for the ECM (see the notes: {'; '.join(notes)})")
     if hyd is None:
-        raise DatasetError(
-            f"{ds.json_name}: ink (density_kg_m3, viscosity_mPa_s) and nozzle geometry (length_mm, "
-            "reservoir_channel_radius_um, reservoir_channel_length_mm) are needed for Eq. (2)"
-        )
-    data = [EcmData(**s) for s in ecm_sequences(ds)]
+        notes.append("ECM level: coefficients: A3..B0 fitted directly (output error, scale A3 = 1); physical "
+                     "parameters La, Ra, CN, Kc not identifiable: dataset.json lacks the ink (density_kg_m3, "
+                     "viscosity_mPa_s) or the nozzle geometry (length_mm, reservoir_channel_radius_um, "
+                     "reservoir_channel_length_mm) of Eq. (2)")
+        if method != "oe":
+            notes.append(f"ECM method {method!r} needs the hydraulics of Eq. (2): output error ('oe') used instead")
+        return fit_ecm(data, None, method="oe")
+    notes.append(f"ECM level: physical: Ra, CN, Kc fitted given the hydraulics of Eq. (2) (method {method!r})")
     return fit_ecm(data, hyd, method=method)
 
 
+def _hydraulics_or_none(ds: Dataset):
+    """The hydraulics of Eq. (2), or None where the ink or any nozzle dimension is missing."""
+    ink, noz = ds.ink or {}, ds.nozzle or {}
+    if not all(ink.get(k) is not None for k in ("density_kg_m3", "viscosity_mPa_s")) or \
+            not all(noz.get(k) is not None for k in ("length_mm", "reservoir_channel_radius_um",
+                                                      "reservoir_channel_length_mm")):
+        return None
+    return ds.hydraulics()
+
+
 def _arx_select(ds: Dataset, notes: list, ranges: dict | None, folds: int, progress: bool):
-    seqs = arx_sequences(ds)
+    seqs = arx_sequences(ds)  # what was dropped is noted once, by the ECM fit
     if len(seqs) < 2:
         notes.append("ARX structure selection skipped: fewer than 2 sequences start at delay 0")
         return None
@@ -723,6 +767,13 @@ def fit_hybrid(
     Steps: ARX structure selection (Section 4.2, reported only), ECM identification
     (Section 4.3, through :mod:`identify.ecm_fit`), then 10-fold CV order selection and
     fits of the pinch-off polynomial and the two adjusters (Section 4.4).
+
+    Level of prior knowledge: with the ink and the full nozzle geometry in ``dataset.json`` the
+    physical parameters are fitted (``ecm.level == "physical"``); otherwise the coefficients
+    A3..B0 directly (``"coefficients"``, :func:`identify.ecm_fit.fit_ecm_coefficients`).
+    Irregular campaigns: each fit uses what it can (:func:`identify.dataset.timeseries_runs`,
+    :func:`identify.dataset.summary_usable`); ``FitReport.notes`` (and ``notes`` of model.json)
+    say what was dropped and why.
     """
     from tqdm import tqdm
 
@@ -737,16 +788,19 @@ def fit_hybrid(
     c_arr = efit.coefficients.to_array()[None, :]
     modal = modal_form(c_arr)
     su = ds.summary
+    masks, su_notes = summary_usable(ds, adjuster_reference)
+    notes.extend(su_notes)
     u1 = su["u1_um_per_ms"].to_numpy(float)
     u2 = su["u2_um"].to_numpy(float)
     tp = su["pinchoff_us"].to_numpy(float)
     inflight = su["inflight_volume_nl"].to_numpy(float)
     jet = su["jetting_velocity_m_s"].to_numpy(float)
-    v_ecm = np.empty(len(su))
+    v_ecm = np.full(len(su), np.nan)
     q_ecm = np.empty(len(su))
     for i in range(len(su)):
         w = ds.waveform(u1[i], u2[i])
-        v_ecm[i] = ecm_response_at(modal, w, np.array([tp[i] - ds.dead_time_us]))[0][0]
+        if np.isfinite(tp[i]):
+            v_ecm[i] = ecm_response_at(modal, w, np.array([tp[i] - ds.dead_time_us]))[0][0]
         q_ecm[i] = ecm_response_at(modal, w, np.array([w.max_stroke_us]))[1][0]
     vel_ecm = flow_velocity_m_s(q_ecm, ds.nozzle_inner_diameter_um)
     if adjuster_reference == "ecm":
@@ -754,19 +808,25 @@ def fit_hybrid(
         vel_target = jet - vel_ecm
     else:
         meas_vel = su["flow_velocity_at_max_stroke_m_s"].to_numpy(float)
-        if not np.all(np.isfinite(meas_vel)):
+        if not np.any(np.isfinite(meas_vel)):
             raise DatasetError(
-                f"{ds.path or '.'}/summary.parquet: column flow_velocity_at_max_stroke_m_s has NaN; "
+                f"{ds.path or '.'}/summary.parquet: column flow_velocity_at_max_stroke_m_s has only NaN; "
                 "it is needed with adjuster_reference='measured'"
             )
         vol_target = inflight - su["grown_volume_at_pinchoff_nl"].to_numpy(float)
         vel_target = jet - meas_vel
     kw = dict(orders=orders, folds=folds, seed=seed)
-    sel_p = select_order(u1, u2, tp, name="pinchoff", unit="us", **kw)
+    for name, m in masks.items():
+        n_ctrl = len(np.unique(np.column_stack([u1[m], u2[m]]), axis=0)) if m.any() else 0
+        if n_ctrl < 3:
+            raise DatasetError(f"{ds.path or '.'}/summary.parquet: only {n_ctrl} distinct (u1_um_per_ms, u2_um) "
+                               f"pair(s) usable for the {name} polynomial; it needs at least 3")
+    mp, mv, mq = masks["pinchoff"], masks["volume_adjuster"], masks["velocity_adjuster"]
+    sel_p = select_order(u1[mp], u2[mp], tp[mp], name="pinchoff", unit="us", **kw)
     bar.update(1)
-    sel_v = select_order(u1, u2, vol_target, name="volume_adjuster", unit="nl", **kw)
+    sel_v = select_order(u1[mv], u2[mv], vol_target[mv], name="volume_adjuster", unit="nl", **kw)
     bar.update(1)
-    sel_q = select_order(u1, u2, vel_target, name="velocity_adjuster", unit="m/s", **kw)
+    sel_q = select_order(u1[mq], u2[mq], vel_target[mq], name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     bar.close()
     versions = software_versions()
@@ -785,9 +845,15 @@ def fit_hybrid(
         arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=ds.distinct_controls(),
         adjuster_reference=adjuster_reference, versions=versions,
         extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
+        ecm_level=efit.level, notes=notes,
     )
-    model.intervals = _fit_intervals(model, u1, u2, {"pinchoff_us": tp, "inflight_volume_nl": inflight,
-                                                     "jetting_velocity_m_s": jet}, vol_target, vel_target,
+    mall = mp & mv & mq
+    if not mall.all():
+        notes.append(f"intervals: drop scatter and cross-validation from the {int(mall.sum())} of {len(mall)} "
+                     "sequences with every summary value")
+    model.intervals = _fit_intervals(model, u1[mall], u2[mall],
+                                     {"pinchoff_us": tp[mall], "inflight_volume_nl": inflight[mall],
+                                      "jetting_velocity_m_s": jet[mall]}, vol_target[mall], vel_target[mall],
                                      folds=folds, seed=seed, notes=notes)
     training = pd.DataFrame({
         "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,

@@ -202,7 +202,9 @@ MANIFEST = Document("manifest", "manifest.json", "dropvision.manifest/1", (
 
 MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
     F("schema", "str", "", "document id"),
-    F("ecm", "object", "", "ECM coefficients A3..B0 (SI), their covariance and physical parameters"),
+    F("ecm", "object", "", "ECM coefficients A3..B0 (SI), their covariance and physical parameters; level "
+      "(optional): physical (La..Kc given Eq. 2) or coefficients (A3..B0 fitted directly, scale A3 = 1, "
+      "parameters null: not identifiable without ink and reservoir geometry); absent in older models: physical"),
     F("pinchoff", "object", "", "pinch-off polynomial in (u1, u2), us"),
     F("volume_adjuster", "object", "", "volume adjuster polynomial, nl"),
     F("velocity_adjuster", "object", "", "velocity adjuster polynomial, m/s"),
@@ -211,6 +213,8 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
     F("intervals", "object", "", "drop scatter for the prediction interval: per output (pinchoff_us, "
       "inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source (repeats|residuals), model_std, cv_rmse, "
       "in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); absent in older models", required=False),
+    F("notes", "list", "", "what the fit dropped or changed and why (irregular campaigns, ECM level); absent in "
+      "older models", required=False),
 ), "Identified hybrid model (Eq. 8).")
 
 OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision.output-marker/1", (

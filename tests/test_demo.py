@@ -1,5 +1,6 @@
 """`make demo` runs end to end (quick grid, no recordings): the sample sequences are found and
-measured, the campaign is fitted and a prediction printed."""
+measured, the campaign is fitted, a prediction printed and the report (`identify.app.report`)
+written to out/report/."""
 
 import subprocess
 import sys
@@ -14,4 +15,5 @@ def test_quick_demo_runs(tmp_path):
     for name in ("colour_ink_u70_u25", "satellite_dust_tiff16", "u55_u30"):
         assert name in text
     assert "in-flight volume (nl)" in text and "== 5. prediction at u1 =" in text and "inverse design" in text
-    assert (out / "model.json").is_file() and (out / "fig7_hybrid_montecarlo.png").is_file()
+    assert (out / "model.json").is_file() and (out / "report" / "index.html").is_file()
+    assert (out / "report" / "fig7_u1_65_u2_27.5.png").is_file() and "report/index.html" in text

@@ -152,3 +152,20 @@ def test_bad_input_errors():
         fit_ecm(data, (1.0, -2.0, 3.0, 4.0))
     with pytest.raises(ValueError, match="no sequences"):
         fit_ecm([], HYD)
+
+
+def test_coefficient_level_without_hydraulics():
+    """Issue 13 item 2: with no hydraulics the coefficients A3..B0 are fitted directly (output
+    error, A3 = 1); the volume response matches the truth, physical parameters are None."""
+    data = synthetic_sequences(u1_grid=[50, 70, 80], u2_grid=[20, 25, 35])
+    fit = fit_ecm(data, None)
+    assert fit.level == "coefficients" and fit.parameters is None and fit.coefficients.A3 == 1.0
+    truth = P.coefficients()
+    for s in data:
+        v_fit, _ = simulate_sampled(fit.coefficients, s.interval_us, s.u_um[None, :])
+        v_true, _ = simulate_sampled(truth, s.interval_us, s.u_um[None, :])
+        assert np.max(np.abs(v_fit - v_true)) < 2e-3 * np.max(np.abs(v_true))
+    back = EcmFit.from_dict(json.loads(json.dumps(fit.to_dict())))
+    assert back.level == "coefficients" and back.parameters is None
+    with pytest.raises(ValueError, match="needs the hydraulics"):
+        fit_ecm(data, None, method="delta")

@@ -142,7 +142,7 @@ def test_measure_cli_writes_rerun_recording(tmp_path):
     assert main(["measure", str(seq), "--out", str(tmp_path / "out"), "--rerun", str(rrd)]) == 0
     frames = pd.read_parquet(tmp_path / "out" / "frames.parquet")
     r = Rrd(rrd)
-    for entity in ("/frame/raw", "/frame/transmission", "/frame/segmentation", "/frame/edges", "/frame/bodies",
+    for entity in ("/frame/transmission", "/frame/segmentation", "/frame/edges", "/frame/bodies",
                    "/frame/axis", "/frame/tip_plane", "/series/volume_nl/grown", "/summary", "/calibration"):
         assert entity in r.entities(), entity
     grown = r.series("/series/volume_nl/grown", "Scalars:scalars")

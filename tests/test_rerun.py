@@ -120,12 +120,13 @@ def test_entities_and_timelines(measured_rrd):
     path, _ = measured_rrd
     rrd = Rrd(path)
     assert [s.application_id for s in rrd.reader.recordings()] == ["dv_test"]
-    expected = {"/frame", "/frame/raw", "/frame/transmission", "/frame/segmentation", "/frame/axis",
+    expected = {"/frame", "/frame/transmission", "/frame/segmentation", "/frame/axis",
                 "/frame/tip_plane", "/frame/edges", "/frame/bodies", "/frame/track", "/frame/drop",
                 "/series/volume_nl/grown", "/series/volume_nl/drop", "/series/velocity_m_s/flow",
                 "/series/position_um/drop_z", "/series/position_um/drop_x",
                 "/series/count/satellites", "/log", "/summary", "/calibration"}
     assert expected <= rrd.entities()
+    assert "/frame/raw" not in rrd.entities()  # the raw frame only on request (test_images)
     grown = rrd.series("/series/volume_nl/grown", "Scalars:scalars")
     # delay timeline: integer nanoseconds; frame timeline: processing index
     assert grown["delay_ns"].tolist() == [0, 30_500, 1_150_250]
@@ -156,15 +157,36 @@ def test_annotation_context_and_segmentation(measured_rrd):
         assert set(np.unique(labels)) == {0, 1, 2, 3, 4, 5}
 
 
-def test_images(measured_rrd):
+def _decode_jpeg(blob) -> np.ndarray:
+    import io
+
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(bytes(np.asarray(blob, np.uint8)))))
+
+
+def test_images(measured_rrd, tmp_path):
+    # default: the normalised frame as a JPEG (a few kB), no raw frame
     path, frames = measured_rrd
     rrd = Rrd(path)
-    raw = rrd.series("/frame/raw", "Image:buffer")["value"]
-    trans = rrd.series("/frame/transmission", "Image:buffer")["value"]
+    blobs = rrd.series("/frame/transmission", "EncodedImage:blob")["value"]
+    media = rrd.series("/frame/transmission", "EncodedImage:media_type")["value"]
+    assert len(blobs) == len(frames)
+    for i in range(len(frames)):
+        assert media[i] == ["image/jpeg"]
+        decoded = _decode_jpeg(blobs[i][0])
+        expected = np.round(np.clip(frames[i][2], 0, 1) * 255).astype(np.uint8)
+        assert decoded.shape == (ROWS, COLS)
+        assert np.abs(decoded.astype(int) - expected).max() <= 8  # JPEG quality 90, lossy
+    # on request (RerunOptions.raw / --rerun-raw): the raw frame too, unchanged
+    raw_path = tmp_path / "raw.rrd"
+    with RerunLogger(path=raw_path, raw=True) as logger:
+        for frame in frames:
+            logger.log_frame(*frame)
+    raw = Rrd(raw_path).series("/frame/raw", "Image:buffer")["value"]
     for i in range(len(frames)):
         np.testing.assert_array_equal(np.asarray(raw[i][0], np.uint8).reshape(ROWS, COLS), frames[i][1])
-        expected = np.round(np.clip(frames[i][2], 0, 1) * 255).astype(np.uint8)
-        np.testing.assert_array_equal(np.asarray(trans[i][0], np.uint8).reshape(ROWS, COLS), expected)
+    assert [k[0] for k in _view_kinds(Rrd(raw_path))].count("2D") == 2  # normalised | raw tabs
 
 
 def test_geometry_overlays(measured_rrd):
@@ -219,7 +241,7 @@ def test_texts_and_blueprint(measured_rrd):
             kinds += batch.column("ViewBlueprint:class_identifier").to_pylist()
             origins += batch.column("ViewBlueprint:space_origin").to_pylist()
     kinds = [k[0] for k in kinds]
-    assert kinds.count("2D") == 2 and kinds.count("TimeSeries") == 3
+    assert kinds.count("2D") == 1 and kinds.count("TimeSeries") == 3  # no raw tab without raw
     assert ["/series/volume_nl"] in origins and ["/frame"] in origins
 
 
@@ -350,6 +372,8 @@ def test_cli_flags(tmp_path):
     connect = options_from_args(_parser().parse_args(["--rerun-connect"]))
     assert connect.connect_url == rst.DEFAULT_VIEWER_URL and connect.path is None
     assert options_from_args(_parser().parse_args(["--rerun-spawn"])).spawn
+    assert not opts.raw
+    assert options_from_args(_parser().parse_args(["--rerun", str(tmp_path / "x.rrd"), "--rerun-raw"])).raw
     from identify.app.errors import UsageError
 
     with pytest.raises(UsageError, match="is a directory"):
@@ -423,7 +447,93 @@ def test_identify_logging(tmp_path):
     table = rrd.static["/identify/cv/table"]["TextDocument:text"][0]
     assert "| fold | rmse_volume_nl | n |" in table and "| fold 2 | 0.34 | 6 |" in table
     np.testing.assert_allclose(rrd.static["/identify/cv/bar"]["BarChart:values"][0]["buffer"], [0.12, 0.34])
-    assert {k[0] for k in _view_kinds(rrd)} == {"TimeSeries", "TextDocument", "BarChart"}
+    # a band was logged: the prediction views (incl. the 2-D (u1, u2) plane) are in the layout
+    assert {k[0] for k in _view_kinds(rrd)} == {"TimeSeries", "TextDocument", "BarChart", "2D"}
+    fill = rrd.series(f"/identify/monte_carlo/volume_nl/{seq}/fill", "Scalars:scalars")
+    assert fill["delay_ns"].min() == 300_000 and fill["delay_ns"].max() == 900_000
+    assert min(v[0] for v in fill["value"]) == pytest.approx(0.9)
+    assert max(v[0] for v in fill["value"]) == pytest.approx(3.3)
+
+
+def _colour(rrd: Rrd, entity: str, archetype: str) -> int:
+    return rrd.static[entity][f"{archetype}:colors"][0]
+
+
+@pytest.fixture(scope="module")
+def identification_rrd(tmp_path_factory):
+    from identify.dataset import load_dataset, make_synthetic_dataset
+    from identify.hybrid import fit_hybrid
+
+    base = tmp_path_factory.mktemp("ident")
+    grid = [(a, b) for a in (55.0, 70.0, 85.0) for b in (20.0, 35.0)]
+    make_synthetic_dataset(base / "ds", grid=grid, noise_percent=1.0, seed=3, repeats=1)
+    ds = load_dataset(base / "ds")
+    model = fit_hybrid(ds, arx=False).model
+    mc = model.monte_carlo(70.0, 25.0, samples=300, seed=0, band=True)
+    path = base / "identify.rrd"
+    rec = irl.open_identify_recording(RerunOptions(path=path, application_id="dv_identify"))
+    irl.log_model_fit(rec, ds, model)
+    irl.log_prediction(rec, mc)  # the model of log_model_fit gives the intervals
+    irl.close_recording(rec)
+    return Rrd(path), grid, model.interval_prediction(70.0, 25.0, mc=mc)
+
+
+def test_identification_view_colours_and_names(identification_rrd):
+    rrd, grid, _ = identification_rrd
+    parts = [f"u1\\={a:g}\\ u2\\={b:g}" for a, b in grid]  # rr.escape_entity_path_part
+    colours = []
+    for name, part in zip((irl.control_name(a, b) for a, b in grid), parts):
+        base = f"/identify/volume_nl/{part}"
+        measured = _colour(rrd, f"{base}/measured", "SeriesPoints")
+        # measured points and simulated line of one sequence share its colour; so do the
+        # pinch-off markers (cross: measured, diamond: simulated) and the flow series
+        assert measured == _colour(rrd, f"{base}/simulated", "SeriesLines")
+        assert measured == _colour(rrd, f"{base}/pinchoff", "SeriesPoints")
+        assert measured == _colour(rrd, f"/identify/flow_m_s/{part}/simulated", "SeriesLines")
+        assert rrd.static[f"{base}/pinchoff"]["SeriesPoints:markers"][0] != \
+            rrd.static[f"{base}/pinchoff_simulated"]["SeriesPoints:markers"][0]
+        # legends name series by (u1, u2), never 16 identical "simulated"
+        assert rrd.static[f"{base}/simulated"]["SeriesLines:names"][0] == f"{name} simulated"
+        assert len(rrd.series(f"{base}/pinchoff", "Scalars:scalars")) == 1
+        colours.append(measured)
+    assert len(set(colours)) == len(grid)  # one colour per sequence
+    # the training points in the (u1, u2) plane carry the same colours
+    pts = rrd.static["/identify/controls/training"]
+    assert sorted(map(tuple, pts["Points2D:positions"])) == sorted(grid)
+    assert sorted(pts["Points2D:colors"]) == sorted(colours)
+    # fit table worst first, and one small multiple per sequence
+    table = rrd.static["/identify/fit/table"]["TextDocument:text"][0]
+    rmse = [float(line.split("|")[4]) for line in table.splitlines() if line.startswith("| u1=")]
+    assert len(rmse) == len(grid) and rmse == sorted(rmse, reverse=True)
+    kinds = [k[0] for k in _view_kinds(rrd)]
+    assert kinds.count("TimeSeries") == len(grid) + 4 and kinds.count("2D") == 1
+
+
+def test_identification_view_prediction(identification_rrd):
+    rrd, grid, iv = identification_rrd
+    seq = "u1\\=70\\ u2\\=25"
+    base = f"/identify/monte_carlo/volume_nl/{seq}"
+    for kind in ("mean", "low", "high", "fill"):
+        assert f"{base}/{kind}" in rrd.entities()
+    lo = np.concatenate(rrd.series(f"{base}/low", "Scalars:scalars")["value"])
+    hi = np.concatenate(rrd.series(f"{base}/high", "Scalars:scalars")["value"])
+    assert np.all(hi >= lo - 1e-12)
+    # the intervals at the pinch-off: confidence inside prediction, equal to interval_prediction
+    for output, quantity in (("inflight_volume_nl", "volume_nl"), ("jetting_velocity_m_s", "flow_m_s"),
+                             ("pinchoff_us", "volume_nl")):
+        b = f"/identify/monte_carlo/{quantity}/{seq}/{output}"
+        e = iv[output]
+        for kind in ("confidence", "prediction"):
+            df = rrd.series(f"{b}/{kind}", "Scalars:scalars")
+            ends = (df["delay_ns"].to_numpy() / 1000.0 if output == "pinchoff_us"
+                    else np.concatenate(df["value"].to_numpy()))
+            np.testing.assert_allclose(sorted(ends), [e[f"{kind}_low"], e[f"{kind}_high"]], atol=1e-3)
+        assert e["prediction_low"] <= e["confidence_low"] <= e["mean"] <= e["confidence_high"] <= e["prediction_high"]
+    pred = rrd.static["/identify/controls/prediction"]
+    assert [tuple(p) for p in pred["Points2D:positions"]] == [(70.0, 25.0)]
+    assert "prediction u1=70 u2=25" in pred["Points2D:labels"][0]
+    table = rrd.static["/identify/prediction/table"]["TextDocument:text"][0]
+    assert "| inflight_volume_nl |" in table and "prediction high" in table
 
 
 def _view_kinds(rrd: Rrd) -> list:

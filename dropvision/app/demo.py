@@ -5,7 +5,8 @@
 3. measure it into a training dataset (`dropvision campaign`);
 4. fit the hybrid model (`identify fit`): ARX structure, ECM, pinch-off and adjusters;
 5. predict one operating point with Monte Carlo and inverse-design a target volume;
-6. write ``out/``: dataset, model.json, Rerun recordings, PNG plots like Figs. 6 and 7;
+6. write ``out/``: dataset, model.json, Rerun recordings and ``report/`` (`identify.app.report`:
+   ``index.html`` with PNG figures like Figs. 6 and 7, surfaces, CV tables, residuals);
 7. print a report: measured and predicted values against the synthetic truth.
 
 Run ``python -m dropvision.app.demo --help`` for options (``--quick`` for a smaller grid).
@@ -19,23 +20,20 @@ import sys
 import time
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 
 from dropvision.app.campaign import run_campaign, synth_campaign
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
+from identify.app.report import write_report
 from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
 from identify.app.rerun_stream import RerunOptions
-from identify.atomic import OutputError, claim_dir
+from identify.atomic import OutputError, check_output_dir, claim_dir
 from identify.dataset import load_dataset
 from identify.design import design
 from identify.hybrid import fit_hybrid
 from identify.physics import SynthPhysics, drop_history
-
-matplotlib.use("Agg")  # files only, no display
-import matplotlib.pyplot as plt  # noqa: E402  (after choosing the backend)
 
 REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> repository root
 SAMPLE_FRAMES = REPO / "sample_frames"
@@ -96,76 +94,6 @@ def print_sample_report(rows: list[dict]) -> None:
             print(f"  {label:36s} {_fmt(m, spec):>10s} {_fmt(tv, spec):>10s} {_rel_err(m, tv):>9s}")
 
 
-def make_plots(out: Path, ds, model, mc, truth_fn, u1: float, u2: float) -> list[Path]:
-    """Figs. 6 and 7 of the paper, from our dataset and model."""
-    ts, su = ds.timeseries, ds.summary
-    paths = []
-    # Fig. 6: volumes and flow velocities at fixed u1 (varying u2) and fixed u2 (varying u1).
-    fig, axes = plt.subplots(2, 2, figsize=(12, 8), sharex=True)
-    for col, (fixed, varying, value) in enumerate((("u1_um_per_ms", "u2_um", u1), ("u2_um", "u1_um_per_ms", u2))):
-        sel = su[np.isclose(su[fixed], value)].sort_values(varying)
-        cmap = plt.get_cmap("viridis", max(len(sel), 2))
-        for i, row in enumerate(sel.itertuples()):
-            g = ts[ts.sequence_id == row.sequence_id].sort_values("delay_us")
-            g = g[g.attached]
-            a, b = (row.u1_um_per_ms, row.u2_um)
-            t = np.arange(0.0, float(g.delay_us.max()) + 1.0, 1.0)
-            vol, vel = model.simulate(a, b, t)
-            c = cmap(i)
-            lab = f"{varying.split('_')[0]} = {getattr(row, varying):g}"
-            axes[0, col].plot(g.delay_us, g.grown_volume_nl, "o", ms=3, color=c, label=lab)
-            axes[0, col].plot(t, vol, "-", lw=1, color=c)
-            axes[0, col].errorbar([row.pinchoff_us + 30], [row.inflight_volume_nl], fmt="s", color=c, ms=6)
-            axes[1, col].plot(g.delay_us, g.flow_velocity_m_s, "o", ms=3, color=c)
-            axes[1, col].plot(t, vel, "-", lw=1, color=c)
-            axes[1, col].plot([row.pinchoff_us + 30], [row.jetting_velocity_m_s], "s", color=c, ms=6)
-        axes[0, col].set_title(f"{fixed.split('_')[0]} = {value:g}: measured (dots), ECM (lines), in-flight (squares)")
-        axes[0, col].legend(fontsize=8)
-    axes[0, 0].set_ylabel("grown volume (nl)")
-    axes[1, 0].set_ylabel("flow velocity (m/s)")
-    for ax in axes[1]:
-        ax.set_xlabel("delay after trigger (us)")
-    fig.tight_layout()
-    p = out / "fig6_volume_flow.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
-
-    # Fig. 7: one operating point, with the Monte Carlo band and the in-flight predictions.
-    band = mc.band
-    sel = su[np.isclose(su.u1_um_per_ms, u1) & np.isclose(su.u2_um, u2)]
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    for ax, (vcol, bcol, out_key, unit) in zip(
-        axes,
-        (("grown_volume_nl", "volume", "inflight_volume_nl", "nl"),
-         ("flow_velocity_m_s", "flow_velocity", "jetting_velocity_m_s", "m/s")),
-    ):
-        suffix = "_nl" if unit == "nl" else "_m_s"
-        if band is not None:
-            ax.fill_between(band.delay_us, band[f"{bcol}_low{suffix}"], band[f"{bcol}_high{suffix}"], color="r", alpha=0.2,
-                            label="ECM 95 % band (Monte Carlo)")
-            ax.plot(band.delay_us, band[f"{bcol}_nominal{suffix}"], "r-", label="ECM nominal")
-        for row in sel.itertuples():
-            g = ts[(ts.sequence_id == row.sequence_id) & ts.attached].sort_values("delay_us")
-            ax.plot(g.delay_us, g[vcol], "k.-", lw=0.8, label="measured" if row.Index == sel.index[0] else None)
-            ax.plot([row.pinchoff_us + 40], [getattr(row, out_key)], "ko")
-        s = mc.summary()[out_key]
-        x = float(mc.nominal["pinchoff_us"]) + 60
-        ax.errorbar([x], [s["mean"]], yerr=[[s["mean"] - s["low"]], [s["high"] - s["mean"]]], fmt="ro", capsize=4,
-                    label="hybrid model: mean, 95 %")
-        ax.axhline(truth_fn(u1, u2)[out_key], color="g", ls=":", label="synthetic truth")
-        ax.set_xlabel("delay after trigger (us)")
-        ax.set_ylabel(f"{out_key} / {vcol} ({unit})")
-        ax.legend(fontsize=8)
-    fig.suptitle(f"u1 = {u1:g} um/ms, u2 = {u2:g} um")
-    fig.tight_layout()
-    p = out / "fig7_hybrid_montecarlo.png"
-    fig.savefig(p, dpi=110)
-    plt.close(fig)
-    paths.append(p)
-    return paths
-
-
 def _is_demo_output(folder: Path) -> bool:
     """An output folder of the demo of an older version (before ownership markers)."""
     return (folder / "model.json").is_file() and (folder / "dataset" / "manifest.json").is_file()
@@ -184,6 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out
     try:
         claim_dir(out, overwrite=args.overwrite, kind="demo", is_ours=_is_demo_output)
+        check_output_dir(out / "report", overwrite=args.overwrite)  # refused now, not after the run
     except OutputError as exc:
         print(f"dropvision demo: error: {exc}", file=sys.stderr)
         return 2
@@ -264,8 +193,10 @@ def main(argv: list[str] | None = None) -> int:
           f"({_rel_err(td['inflight_volume_nl'], target).strip()} from the target), "
           f"jetting velocity {td['jetting_velocity_m_s']:.3f} m/s")
 
-    # 6. plots and the identification recording
-    plots = make_plots(out, ds, model, mc, truth_fn, u1, u2)
+    # 6. the report (figures and index.html) and the identification recording
+    report = write_report(out / "report", model, ds, fit_report=rep, at=[(u1, u2)], mc={(u1, u2): mc},
+                          truth_fn=truth_fn, samples=10_000, seed=0, overwrite=args.overwrite,
+                          title="dropvision demo: identified hybrid model")
     if not args.no_rerun:
         rec = open_identify_recording(RerunOptions(path=out / "identify.rrd", application_id="dropvision-identify"))
         try:
@@ -274,7 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         finally:
             close_recording(rec)
     print(f"\n== 6. outputs in {out}/ ==")
-    for p in [out / "dataset", out / "model.json", *plots, *sorted(out.glob("*.rrd"))]:
+    for p in [out / "dataset", out / "model.json", report.index, *report.figures, *sorted(out.glob("*.rrd"))]:
         print(f"  {p}")
     print(f"\ndemo finished in {time.perf_counter() - t_start:.0f} s")
     return 0

@@ -17,8 +17,11 @@ Timelines
 Entity paths (all coordinates in the Rerun 2-D image space of the canonical frame, see below)
 ---------------------------------------------------------------------------------------------
 ``/frame``                      static :class:`rerun.AnnotationContext` (classes below)
-``/frame/raw``                  :class:`rerun.Image`, native dtype (uint8 / uint16)
-``/frame/transmission``         :class:`rerun.Image`, uint8 = ``round(255 * clip(T, 0, 1))``
+``/frame/transmission``         :class:`rerun.EncodedImage`, JPEG (quality
+                                :data:`TRANSMISSION_JPEG_QUALITY`) of the uint8 image
+                                ``round(255 * clip(T, 0, 1))``: what a person looks at
+``/frame/raw``                  :class:`rerun.Image`, native dtype (uint8 / uint16), lossless;
+                                only with ``RerunOptions(raw=True)`` / ``--rerun-raw``
 ``/frame/segmentation``         :class:`rerun.SegmentationImage` of the class ids (uint8)
 ``/frame/axis``                 static :class:`rerun.LineStrips2D`, nozzle axis
 ``/frame/tip_plane``            static :class:`rerun.LineStrips2D`, nozzle tip plane
@@ -81,6 +84,7 @@ __all__ = [
     "PIXEL_CENTRE_OFFSET",
     "ROW_SERIES",
     "RerunLogger",
+    "TRANSMISSION_JPEG_QUALITY",
     "logger_from_args",
     "measurement_blueprint",
 ]
@@ -134,6 +138,11 @@ _CLASS_NAMES: dict[str, int] = {
     "static_speck": CLASS_SPECK,
 }
 
+#: JPEG quality of the logged transmission image. One frame of a 704 x 224 sequence is ~8 kB
+#: instead of 158 kB (raw) + 158 kB (transmission) uncompressed; the raw frame is logged only on
+#: request (``--rerun-raw``).
+TRANSMISSION_JPEG_QUALITY = 90
+
 #: Rerun draws pixel (r, c) over [c, c+1] x [r, r+1]; dropvision pixel centres are integers.
 PIXEL_CENTRE_OFFSET = 0.5
 
@@ -164,25 +173,25 @@ _SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
 # --- blueprint -------------------------------------------------------------------------------
 
 
-def measurement_blueprint() -> rrb.Blueprint:
-    """Default layout: frame (raw | normalised tabs) left, time series stacked right.
+def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
+    """Default layout: frame (normalised | raw tabs) left, time series stacked right.
 
-    ``Horizontal(Tabs(Spatial2DView raw, Spatial2DView normalised),
+    ``Horizontal(Tabs(Spatial2DView normalised[, Spatial2DView raw]),
     Vertical(TimeSeriesView volume, velocity, position, TextDocumentView summary))``, with the
-    ``delay`` timeline selected in the time panel.
+    ``delay`` timeline selected in the time panel. The raw tab exists only when ``raw``.
     """
     import rerun.blueprint as rrb
 
     overlays = ["/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
                 "/frame/bodies", "/frame/track", "/frame/drop"]
+    views = [rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
+                               contents=["/frame", "/frame/transmission", *overlays])]
+    if raw:
+        views.append(rrb.Spatial2DView(name="raw frame", origin="/frame",
+                                       contents=["/frame", "/frame/raw", *overlays]))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Tabs(
-                rrb.Spatial2DView(name="raw frame", origin="/frame",
-                                  contents=["/frame", "/frame/raw", *overlays]),
-                rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
-                                  contents=["/frame", "/frame/transmission", *overlays]),
-            ),
+            rrb.Tabs(*views) if len(views) > 1 else views[0],
             rrb.Vertical(
                 rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
                 rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
@@ -325,6 +334,8 @@ class RerunLogger:
         (not both): ``RerunLogger(path="seq.rrd", app_id="dropvision")``.
     path, spawn, connect_url, app_id, recording_id, recording_name
         As the :class:`RerunOptions` fields (``app_id`` = ``application_id``).
+    raw : bool
+        Also log the raw frame at ``/frame/raw`` (lossless, full size); as ``RerunOptions.raw``.
     blueprint : rerun.blueprint.BlueprintLike, optional
         Layout saved with the recording; default :func:`measurement_blueprint`.
     """
@@ -332,21 +343,21 @@ class RerunLogger:
     def __init__(self, options: RerunOptions | None = None, *, path: str | Path | None = None,
                  spawn: bool = False, connect_url: str | None = None,
                  app_id: str = DEFAULT_APPLICATION_ID, recording_id: str | None = None,
-                 recording_name: str | None = None,
+                 recording_name: str | None = None, raw: bool = False,
                  blueprint: rrb.BlueprintLike | None = None) -> None:
         if options is None:
             options = RerunOptions(path=None if path is None else Path(path), spawn=spawn,
                                    connect_url=connect_url, application_id=app_id,
-                                   recording_id=recording_id, recording_name=recording_name)
-        elif (path, spawn, connect_url, app_id, recording_id, recording_name) != (
-                None, False, None, DEFAULT_APPLICATION_ID, None, None):
+                                   recording_id=recording_id, recording_name=recording_name, raw=raw)
+        elif (path, spawn, connect_url, app_id, recording_id, recording_name, raw) != (
+                None, False, None, DEFAULT_APPLICATION_ID, None, None, False):
             raise TypeError("RerunLogger: give either options or the keyword fields, not both")
         import rerun as rr
 
         self._rr = rr
         self.options = options
         self.stream: rr.RecordingStream = open_stream(
-            options, blueprint if blueprint is not None else measurement_blueprint())
+            options, blueprint if blueprint is not None else measurement_blueprint(raw=options.raw))
         self._calibration: _Calibration | None = None
         self._shape: tuple[int, int] | None = None
         self._lines_logged = False
@@ -461,9 +472,11 @@ class RerunLogger:
         ref : FrameRef-like
             ``index`` (int), ``delay_us`` (float), optional ``file``; attributes or mapping keys.
         image : 2-D array or None
-            Raw canonical frame (uint8/uint16), logged unchanged at ``/frame/raw``.
+            Raw canonical frame (uint8/uint16): gives the image shape; logged unchanged at
+            ``/frame/raw`` only when the options ask for it (``raw=True``).
         transmission : 2-D float array or None
-            Illumination-normalised frame (1 = background); logged as uint8 ``255*clip(T,0,1)``.
+            Illumination-normalised frame (1 = background); logged as the JPEG of the uint8
+            image ``255*clip(T,0,1)`` (:data:`TRANSMISSION_JPEG_QUALITY`).
         labels : 2-D integer array or None
             Class id per pixel (``CLASS_*`` constants, 0 = background): the image's shape, or a
             region of interest placed at ``roi_origin_xy`` (padded with background).
@@ -496,7 +509,8 @@ class RerunLogger:
             if image.ndim != 2:
                 raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
             shape = image.shape
-            rec.log("/frame/raw", rr.Image(image))
+            if self.options.raw:
+                rec.log("/frame/raw", rr.Image(image))
         if transmission is not None:
             transmission = np.asarray(transmission)
             if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
@@ -506,7 +520,9 @@ class RerunLogger:
             if transmission.dtype != np.uint8:
                 transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
                                         * 255.0).astype(np.uint8)
-            rec.log("/frame/transmission", rr.Image(transmission, draw_order=-5.0))
+            rec.log("/frame/transmission", rr.Image(transmission, color_model="L").compress(
+                jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+            rec.log("/frame/transmission", rr.EncodedImage.from_fields(draw_order=-5.0))
         ox, oy = (int(v) for v in roi_origin_xy)
         if labels is not None:
             labels = np.asarray(labels)

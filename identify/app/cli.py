@@ -4,6 +4,7 @@
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
+    identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -79,6 +80,10 @@ def cmd_fit(args) -> int:
     from identify.hybrid import fit_hybrid
 
     check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=_is_model_file)
+    if args.report is not None:  # refuse a report folder that is not ours before the fit
+        from identify.atomic import check_output_dir
+
+        check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
     ds = load_dataset(args.dataset)
     rep = fit_hybrid(ds, folds=args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
                      adjuster_reference=args.adjuster_reference, progress=sys.stderr.isatty())
@@ -101,7 +106,35 @@ def cmd_fit(args) -> int:
         print(f"note: {n}")
     m.save(args.out)
     print(f"\nwrote {args.out}")
+    if args.report is not None:
+        from identify.app.report import write_report
+
+        r = write_report(args.report, m, ds, fit_report=rep, inputs=[args.dataset, args.out],
+                         overwrite=args.overwrite, seed=args.seed)
+        print(f"wrote {r.index}")
     _with_recording(args, lambda rec, lg: lg.log_model_fit(rec, ds, m, rep.arx_selection))
+    return 0
+
+
+def _point(text):
+    parts = text.split(",")
+    if len(parts) != 2:
+        raise argparse.ArgumentTypeError(f"--at must be U1,U2 (two numbers), got {text!r}")
+    return tuple(_positive("--at")(x.strip()) for x in parts)
+
+
+def cmd_report(args) -> int:
+    from identify.app.report import write_report
+    from identify.atomic import check_output_dir
+    from identify.dataset import load_dataset
+
+    _check_samples(args.samples)
+    check_output_dir(args.out, inputs=[args.model, args.dataset], overwrite=args.overwrite)
+    m = _load_model(args.model)
+    ds = load_dataset(args.dataset)
+    r = write_report(args.out, m, ds, at=args.at, samples=args.samples, seed=args.seed, level=args.level,
+                     inputs=[args.model, args.dataset], overwrite=args.overwrite)
+    print(f"wrote {r.index} ({len(r.figures)} figures)")
     return 0
 
 
@@ -148,7 +181,7 @@ def cmd_predict(args) -> int:
     m = _load_model(args.model)
     want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
     res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
-    _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res))
+    _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res, model=m))
     mc = res.summary()
     iv = m.interval_prediction(args.u1, args.u2, level=args.level, mc=res)
     nominal = m.predict(args.u1, args.u2)
@@ -280,6 +313,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--ecm-method", default="oe", choices=["oe", "delta"])
     f.add_argument("--adjuster-reference", default="ecm", choices=["ecm", "measured"])
     f.add_argument("--max-rows", type=int, default=30, help="rows of the ARX table to print")
+    f.add_argument("--report", default=None, metavar="DIR",
+                   help="also write the report (figures and index.html, see `identify report`) into DIR")
     add_rerun_args(f)
     f.set_defaults(func=cmd_fit)
 
@@ -317,6 +352,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "exact: the continuous-time model")
     r.add_argument("--json", action="store_true")
     r.set_defaults(func=cmd_paper)
+
+    g = sub.add_parser("report", help="figures and an HTML page of a model and its training dataset")
+    g.add_argument("model")
+    g.add_argument("--dataset", required=True, help="the training dataset folder")
+    g.add_argument("--out", required=True, help="report folder to write (index.html and PNG figures)")
+    g.add_argument("--at", type=_point, action="append", default=None, metavar="U1,U2",
+                   help="point of the interval figure (repeatable; default: the centre of the training grid)")
+    g.add_argument("--samples", type=int, default=10_000)
+    g.add_argument("--seed", type=int, default=0)
+    g.add_argument("--level", type=_level, default=0.95, help="level of both intervals (default 0.95)")
+    g.add_argument("--overwrite", action="store_true",
+                   help="write into an existing --out that holds other files (those are kept)")
+    g.set_defaults(func=cmd_report)
     return p
 
 

@@ -19,15 +19,37 @@ Time axis: the ``delay`` duration timeline in integer nanoseconds after the firi
 (``round(t_us * 1000)``), the same timeline as the measurement recordings of
 :mod:`dropvision.app.rerun_log`.
 
+The view (:func:`identify_blueprint`, sent when the recording is closed, when every sequence is
+known): one colour per sequence, from its (u1, u2) (:func:`sequence_colours`: hue by u1, darker
+with u2), measured samples as points and the simulation as a line of the same colour, series named
+by their (u1, u2); pinch-off instants as markers; small multiples (one plot per sequence, worst fit
+first) beside the overview; the fit table (RMSE per sequence, worst first); the prediction as a
+filled band against the delay with its confidence / prediction intervals at the pinch-off, and as
+a star among the training (u1, u2) points.
+
 Entity paths (``<name>`` = sequence / band name, escaped with ``rr.escape_entity_path_part``)
 -----------------------------------------------------------------------------------------
-``/identify/volume_nl/<name>/measured``     Scalars, drawn as points
-``/identify/volume_nl/<name>/simulated``    Scalars, drawn as a line
+``/identify/volume_nl/<name>/measured``     Scalars, drawn as points (colour of the sequence)
+``/identify/volume_nl/<name>/simulated``    Scalars, drawn as a line (same colour)
+``/identify/volume_nl/<name>/pinchoff``     Scalars, cross marker: measured pinch-off instant at
+                                            the grown volume there (if given)
+``/identify/volume_nl/<name>/pinchoff_simulated``  Scalars, diamond marker: simulated pinch-off
 ``/identify/flow_m_s/<name>/measured``      Scalars, points (only if given)
 ``/identify/flow_m_s/<name>/simulated``     Scalars, line (only if given)
+``/identify/fit/table``                     static TextDocument: RMSE per sequence, worst first
+``/identify/controls/training``             static Points2D at (u1, u2) [y axis = u2, downwards],
+                                            sequence colours, radius grows with the RMSE
+``/identify/controls/prediction``           static Points2D, the predicted (u1, u2) (star colour)
 ``/identify/cv/table``                      static TextDocument (markdown of the CV DataFrame)
 ``/identify/cv/bar``                        static BarChart of one CV column (if requested)
 ``/identify/monte_carlo/<quantity>/<name>/{mean,low,high}``   Scalars, lines
+``/identify/monte_carlo/<quantity>/<name>/fill``   Scalars, translucent hatching low..high (the band)
+``/identify/monte_carlo/<quantity>/<name>/<output>/{confidence,prediction}``   Scalars, two-sample
+    segments: the interval of ``pinchoff_us`` (horizontal, at the mean grown volume at pinch-off),
+    ``inflight_volume_nl`` / ``jetting_velocity_m_s`` (vertical, at the mean pinch-off)
+``/identify/monte_carlo/<quantity>/<name>/<output>/mean``   Scalars, marker at the point prediction
+``/identify/prediction/table``              static TextDocument: mean, confidence and prediction
+                                            intervals of the prediction
 """
 
 from __future__ import annotations
@@ -35,6 +57,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -55,34 +78,141 @@ __all__ = [
     "log_cv_table",
     "log_monte_carlo_band",
     "close_recording",
+    "control_name",
+    "log_model_fit",
+    "log_prediction",
+    "sequence_colours",
 ]
 
 DEFAULT_APPLICATION_ID = "dropvision-identify"
 
-_MEASURED = (230, 40, 40)
-_SIMULATED = (40, 120, 255)
-_BAND_MEAN = (40, 40, 40)
-_BAND_EDGE = (150, 150, 150)
+# the viewer's background is dark: the prediction is drawn in white / gold / orange
+_BAND = (245, 245, 245)
+_BAND_FILL = (200, 200, 200, 60)
+_BAND_EDGE = (170, 170, 170)
+_CONFIDENCE = (255, 200, 0)
+_PREDICTION = (255, 120, 0)
+_PREDICTION_POINT = (255, 255, 255)
+#: colours of sequences logged without one (cycled)
+_PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+            (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
 
 
-def identify_blueprint() -> rrb.Blueprint:
-    """Layout: measured vs simulated volume and flow left; Monte Carlo band and CV table right."""
+def sequence_colours(u1: Any, u2: Any) -> list[tuple[int, int, int]]:
+    """One RGB colour per (u1, u2): hue from u1 (red ... blue over the u1 range), darker and more
+    saturated with u2, so that neighbours in the training grid have related but distinct colours.
+
+    Parameters
+    ----------
+    u1, u2 : array (n,)
+        Controls of the sequences (any units; only their ranks within the grid matter).
+    """
+    import colorsys
+
+    x1 = _ranks(np.asarray(u1, dtype=float))
+    x2 = _ranks(np.asarray(u2, dtype=float))
+    out = []
+    for a, b in zip(x1, x2):
+        r, g, bl = colorsys.hsv_to_rgb(0.78 * a, 0.55 + 0.45 * b, 0.95 - 0.4 * b)
+        out.append((int(round(255 * r)), int(round(255 * g)), int(round(255 * bl))))
+    return out
+
+
+def _ranks(x: np.ndarray) -> np.ndarray:
+    """Position of each value among the distinct values, in [0, 1] (0.5 when all equal)."""
+    levels = np.unique(x[np.isfinite(x)])
+    if levels.size <= 1:
+        return np.full(x.shape, 0.5)
+    return np.searchsorted(levels, x) / (levels.size - 1)
+
+
+def control_name(u1: float, u2: float) -> str:
+    """Name of a sequence / prediction by its controls, e.g. ``"u1=70 u2=25"``."""
+    return f"u1={float(u1):g} u2={float(u2):g}"
+
+
+@dataclass
+class _Sequence:
+    name: str
+    part: str
+    colour: tuple[int, int, int]
+    rmse_nl: float
+    u1: float | None = None
+    u2: float | None = None
+
+
+@dataclass
+class _State:
+    sequences: list[_Sequence] = field(default_factory=list)
+    bands: list[tuple[str, str]] = field(default_factory=list)  # (quantity part, name part)
+    training: bool = False
+    prediction: bool = False
+    model: Any = None
+
+
+_STATES: dict[int, _State] = {}
+
+
+def _state(rec: rr.RecordingStream) -> _State:
+    return _STATES.setdefault(id(rec), _State())
+
+
+def identify_blueprint(sequences: Sequence[tuple[str, str]] = (), *, prediction: bool = True) -> rrb.Blueprint:
+    """Layout of the identification recording.
+
+    Left: all sequences in one volume plot and one flow plot (colour = sequence, points =
+    measured, lines = simulated, markers = pinch-off). Right: small multiples (one volume plot per
+    sequence, in the order given: worst fit first) and the fit table; the prediction (the
+    (u1, u2) plane with the training points and the predicted point; the band against the
+    delay); the cross-validation table.
+
+    Parameters
+    ----------
+    sequences : sequence of (name, escaped entity path part)
+        The small multiples, in display order.
+    prediction : bool
+        Show the prediction views.
+    """
     import rerun.blueprint as rrb
 
+    per_sequence: list[Any] = [
+        rrb.TimeSeriesView(name=name, origin=f"/identify/volume_nl/{part}",
+                           plot_legend=rrb.PlotLegend(visible=False))
+        for name, part in sequences]
+    right: list[Any] = []
+    if per_sequence:
+        right.append(rrb.Tabs(
+            rrb.Grid(*per_sequence, name="per sequence: volume (worst fit first)",
+                     grid_columns=min(4, len(per_sequence))),
+            rrb.TextDocumentView(name="fit per sequence (RMSE)", origin="/identify/fit/table"),
+        ))
+    if prediction:
+        right.append(rrb.Horizontal(
+            rrb.Spatial2DView(name="(u1 right, u2 down): training points, prediction",
+                              origin="/identify/controls"),
+            rrb.Tabs(
+                rrb.TimeSeriesView(name="prediction: grown volume band [nl]",
+                                   origin="/identify/monte_carlo/volume_nl"),
+                rrb.TimeSeriesView(name="prediction: flow velocity band [m/s]",
+                                   origin="/identify/monte_carlo/flow_m_s"),
+                rrb.TextDocumentView(name="prediction intervals", origin="/identify/prediction/table"),
+            ),
+        ))
+    right.append(rrb.Tabs(
+        rrb.TextDocumentView(name="cross-validation table", origin="/identify/cv/table"),
+        rrb.BarChartView(name="cross-validation", origin="/identify/cv/bar"),
+    ))
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
-                rrb.TimeSeriesView(name="volume: measured vs simulated [nl]", origin="/identify/volume_nl"),
-                rrb.TimeSeriesView(name="flow velocity: measured vs simulated [m/s]",
+                rrb.TimeSeriesView(name="grown volume [nl]: points measured, lines simulated, "
+                                        "markers pinch-off", origin="/identify/volume_nl"),
+                rrb.TimeSeriesView(name="flow velocity [m/s]: points measured, lines simulated",
                                    origin="/identify/flow_m_s"),
+                row_shares=[3, 2],
             ),
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="Monte Carlo band", origin="/identify/monte_carlo"),
-                rrb.Tabs(
-                    rrb.TextDocumentView(name="cross-validation table", origin="/identify/cv/table"),
-                    rrb.BarChartView(name="cross-validation", origin="/identify/cv/bar"),
-                ),
-            ),
+            rrb.Vertical(*right, row_shares=[3, 3, 1][-len(right):] if len(right) > 1 else None),
+            column_shares=[1, 1],
         ),
         rrb.TimePanel(timeline="delay"),
         collapse_panels=False,
@@ -90,8 +220,11 @@ def identify_blueprint() -> rrb.Blueprint:
 
 
 def open_identify_recording(options: RerunOptions) -> rr.RecordingStream:
-    """Open an explicit recording stream with :func:`identify_blueprint` saved alongside."""
-    return open_stream(options, identify_blueprint())
+    """Open an explicit recording stream; :func:`close_recording` sends :func:`identify_blueprint`
+    (it needs the sequences) as the default blueprint and finalises the file."""
+    rec = open_stream(options, None)
+    _STATES[id(rec)] = _State()
+    return rec
 
 
 def recording_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID) -> rr.RecordingStream | None:
@@ -103,8 +236,24 @@ def recording_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICAT
 
 
 def close_recording(rec: rr.RecordingStream) -> None:
-    """Flush and finalise the sinks (writes the .rrd footer); never blocks on an unreachable
-    viewer (:func:`identify.app.rerun_stream.close_stream`)."""
+    """Send the blueprint and the fit table, then flush and finalise the sinks (writes the .rrd
+    footer); never blocks on an unreachable viewer (:func:`identify.app.rerun_stream.close_stream`)."""
+    import rerun as rr
+
+    st = _STATES.pop(id(rec), _State())
+    order = sorted(st.sequences, key=lambda q: -q.rmse_nl if math.isfinite(q.rmse_nl) else math.inf)
+    if order:
+        lines = ["## Fit per sequence (worst first)", "",
+                 "RMSE of the simulated grown volume at the measured delays.", "",
+                 "| sequence | u1 [um/ms] | u2 [um] | RMSE volume [nl] |", "|---|---|---|---|"]
+        for q in order:
+            lines.append(f"| {q.name} | {'' if q.u1 is None else f'{q.u1:g}'} | "
+                         f"{'' if q.u2 is None else f'{q.u2:g}'} | {q.rmse_nl:.4g} |")
+        rec.log("/identify/fit/table", rr.TextDocument("\n".join(lines), media_type="text/markdown"),
+                static=True)
+    rec.send_blueprint(identify_blueprint([(f"{q.name}: RMSE {q.rmse_nl:.3g} nl", q.part) for q in order],
+                                          prediction=st.prediction or st.training or bool(st.bands)),
+                       make_active=True, make_default=True)
     close_stream(rec)
 
 
@@ -141,14 +290,39 @@ def _send_series(rec: rr.RecordingStream, path: str, t_us: np.ndarray, values: n
     return int(keep.sum())
 
 
-def _style(rec: rr.RecordingStream, path: str, name: str, colour: tuple[int, int, int], *,
-           points: bool, width: float = 2.0) -> None:
+def _style(rec: rr.RecordingStream, path: str, name: str, colour: tuple[int, ...], *,
+           points: bool, width: float = 2.0, marker: str = "circle", marker_size: float = 3.0) -> None:
     import rerun as rr
 
     if points:
-        rec.log(path, rr.SeriesPoints(names=name, colors=colour, marker_sizes=3.0), static=True)
+        rec.log(path, rr.SeriesPoints(names=name, colors=colour, markers=marker,
+                                      marker_sizes=marker_size), static=True)
     else:
         rec.log(path, rr.SeriesLines(names=name, colors=colour, widths=width), static=True)
+
+
+def _send_rows(rec: rr.RecordingStream, path: str, t_us: Sequence[float], values: Sequence[float]) -> None:
+    """Send rows as given (repeated delays allowed: a vertical segment in a time-series plot)."""
+    import rerun as rr
+
+    t = np.asarray(t_us, dtype=float)
+    v = np.asarray(values, dtype=float)
+    keep = np.isfinite(t) & np.isfinite(v)
+    if keep.any():
+        rec.send_columns(path, indexes=[_delay_column(t[keep])], columns=rr.Scalars.columns(scalars=v[keep]))
+
+
+def _rmse(t: np.ndarray, measured: np.ndarray, ts: np.ndarray, simulated: np.ndarray) -> float:
+    """RMSE of the simulation (linearly interpolated at the measured delays) against the measurement."""
+    ok_s = np.isfinite(ts) & np.isfinite(simulated)
+    if ok_s.sum() < 1:
+        return math.nan
+    order = np.argsort(ts[ok_s])
+    tt, ss = ts[ok_s][order], simulated[ok_s][order]
+    ok = np.isfinite(t) & np.isfinite(measured) & (t >= tt[0]) & (t <= tt[-1])
+    if not ok.any():
+        return math.nan
+    return float(np.sqrt(np.mean((np.interp(t[ok], tt, ss) - measured[ok]) ** 2)))
 
 
 def _part(name: str) -> str:
@@ -167,7 +341,11 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
                      simulated_volume_nl: Sequence[float] | np.ndarray, *,
                      measured_flow_m_s: Sequence[float] | np.ndarray | None = None,
                      simulated_flow_m_s: Sequence[float] | np.ndarray | None = None,
-                     sim_t_us: Sequence[float] | np.ndarray | None = None) -> None:
+                     sim_t_us: Sequence[float] | np.ndarray | None = None,
+                     colour: tuple[int, int, int] | None = None,
+                     controls: tuple[float, float] | None = None,
+                     pinchoff: tuple[float, float] | None = None,
+                     simulated_pinchoff: tuple[float, float] | None = None) -> None:
     """Log measured vs simulated grown volume (and flow velocity) of one sequence.
 
     Parameters
@@ -175,7 +353,8 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
     rec : rerun.RecordingStream
         From :func:`open_identify_recording`.
     name : str
-        Sequence name (entity path part, escaped).
+        Sequence name (entity path part, escaped; also the legend name), e.g.
+        :func:`control_name` ``(u1, u2)``.
     t_us : array (n,)
         Delays after the trigger of the measured samples [us].
     measured_volume_nl : array (n,)
@@ -186,8 +365,20 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
         Flow velocity [m/s] at ``t_us`` / ``sim_t_us``; NaN samples are skipped.
     sim_t_us : array (m,), optional
         Times of the simulated series [us], e.g. a fine grid; default ``t_us``.
+    colour : (r, g, b), optional
+        Colour of every series of this sequence (:func:`sequence_colours`); default: the next
+        colour of a 10-colour palette.
+    controls : (u1, u2), optional
+        The sequence's controls, for the fit table.
+    pinchoff, simulated_pinchoff : (t_us, volume_nl), optional
+        Measured / simulated pinch-off instant and the grown volume there: a cross / diamond
+        marker on the volume plot.
     """
     part = _part(name)
+    st = _state(rec)
+    if colour is None:
+        colour = _PALETTE[len(st.sequences) % len(_PALETTE)]
+    colour = tuple(int(c) for c in colour)
     t = _vector("t_us", t_us)
     ts = t if sim_t_us is None else _vector("sim_t_us", sim_t_us)
     series = [
@@ -200,9 +391,34 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
         series.append(("flow_m_s", "simulated", _vector("simulated_flow_m_s", simulated_flow_m_s, ts.size), ts))
     for quantity, kind, values, times in series:
         path = f"/identify/{quantity}/{part}/{kind}"
-        measured = kind == "measured"
-        _style(rec, path, f"{name} {kind}", _MEASURED if measured else _SIMULATED, points=measured)
+        _style(rec, path, f"{name} {kind}", colour, points=kind == "measured")
         _send_series(rec, path, times, values)
+    for kind, marker, at in (("pinchoff", "cross", pinchoff), ("pinchoff_simulated", "diamond", simulated_pinchoff)):
+        if at is None:
+            continue
+        path = f"/identify/volume_nl/{part}/{kind}"
+        _style(rec, path, f"{name} {kind.replace('_', ' ')}", colour, points=True, marker=marker,
+               marker_size=7.0)
+        _send_rows(rec, path, [at[0]], [at[1]])
+    u1, u2 = (None, None) if controls is None else (float(controls[0]), float(controls[1]))
+    st.sequences.append(_Sequence(name, part, colour, _rmse(t, series[0][2], ts, series[1][2]), u1, u2))
+
+
+def log_training_points(rec: rr.RecordingStream) -> None:
+    """Log the (u1, u2) of the sequences logged so far (with ``controls``) at
+    ``/identify/controls/training``: their colours, labels with the RMSE, radius growing with it."""
+    import rerun as rr
+
+    seqs = [q for q in _state(rec).sequences if q.u1 is not None]
+    if not seqs:
+        return
+    rmse = np.array([q.rmse_nl for q in seqs])
+    top = np.nanmax(rmse) if np.isfinite(rmse).any() and np.nanmax(rmse) > 0 else 1.0
+    radii = [0.4 + 0.8 * (0.0 if not math.isfinite(r) else r / top) for r in rmse]
+    rec.log("/identify/controls/training", rr.Points2D(
+        [(q.u1, q.u2) for q in seqs], colors=[q.colour for q in seqs], radii=radii,
+        labels=[f"{q.name}: RMSE {q.rmse_nl:.3g} nl" for q in seqs], show_labels=False), static=True)
+    _state(rec).training = True
 
 
 def _markdown(table: pd.DataFrame, title: str) -> str:
@@ -251,8 +467,13 @@ def log_cv_table(rec: rr.RecordingStream, table: pd.DataFrame, *, value_column: 
 
 def log_monte_carlo_band(rec: rr.RecordingStream, name: str, t_us: Sequence[float] | np.ndarray,
                          mean: Sequence[float] | np.ndarray, low: Sequence[float] | np.ndarray,
-                         high: Sequence[float] | np.ndarray, *, quantity: str = "volume_nl") -> None:
-    """Log a Monte Carlo band (mean and low/high bounds, e.g. 5 % / 95 %) over delay.
+                         high: Sequence[float] | np.ndarray, *, quantity: str = "volume_nl",
+                         fill_samples: int = 200) -> None:
+    """Log a Monte Carlo band (mean and low/high bounds, e.g. 2.5 % / 97.5 %) over delay.
+
+    The mean is a thick dark line, the bounds thin grey lines, and ``fill`` a translucent
+    hatching of ``fill_samples`` vertical strokes from low to high (Rerun 0.41 time-series plots
+    have no filled area).
 
     Parameters
     ----------
@@ -265,6 +486,8 @@ def log_monte_carlo_band(rec: rr.RecordingStream, name: str, t_us: Sequence[floa
         Band in the unit named by ``quantity``; ``low <= high`` is required where finite.
     quantity : str
         Entity path part naming the quantity and unit, e.g. ``"volume_nl"`` or ``"flow_m_s"``.
+    fill_samples : int
+        Number of hatching strokes (0: no fill).
     """
     t = _vector("t_us", t_us)
     m = _vector("mean", mean, t.size)
@@ -273,44 +496,153 @@ def log_monte_carlo_band(rec: rr.RecordingStream, name: str, t_us: Sequence[floa
     both = np.isfinite(lo) & np.isfinite(hi)
     if np.any(lo[both] > hi[both]):
         raise ValueError("log_monte_carlo_band: low > high at some times (swapped bounds?)")
-    base = f"/identify/monte_carlo/{_part(quantity)}/{_part(name)}"
-    for kind, values, colour, width in (("mean", m, _BAND_MEAN, 2.0), ("low", lo, _BAND_EDGE, 1.0),
+    qpart, npart = _part(quantity), _part(name)
+    base = f"/identify/monte_carlo/{qpart}/{npart}"
+    for kind, values, colour, width in (("mean", m, _BAND, 2.5), ("low", lo, _BAND_EDGE, 1.0),
                                         ("high", hi, _BAND_EDGE, 1.0)):
         path = f"{base}/{kind}"
         _style(rec, path, f"{name} {kind}", colour, points=False, width=width)
         _send_series(rec, path, t, values)
+    ok = both & np.isfinite(t)
+    if fill_samples > 0 and ok.sum() >= 2:
+        tt = np.linspace(t[ok].min(), t[ok].max(), int(fill_samples))
+        order = np.argsort(t[ok])
+        flo = np.interp(tt, t[ok][order], lo[ok][order])
+        fhi = np.interp(tt, t[ok][order], hi[ok][order])
+        # lo(t0) hi(t0) hi(t1) lo(t1) lo(t2) ...: vertical strokes joined along the bounds
+        pairs = np.where((np.arange(tt.size) % 2 == 0)[:, None], np.column_stack([flo, fhi]),
+                         np.column_stack([fhi, flo]))
+        _style(rec, f"{base}/fill", f"{name} band", _BAND_FILL, points=False, width=1.0)
+        _send_rows(rec, f"{base}/fill", np.repeat(tt, 2), pairs.ravel())
+    st = _state(rec)
+    if (qpart, npart) not in st.bands:
+        st.bands.append((qpart, npart))
 
 
-def log_model_fit(rec: "rr.RecordingStream", dataset, model, arx_selection=None, *, max_cv_rows: int = 20) -> None:
+def log_model_fit(rec: rr.RecordingStream, dataset: Any, model: Any, arx_selection: Any = None, *,
+                  max_cv_rows: int = 20) -> None:
     """Log an identified model against its training dataset.
 
-    For every sequence of ``dataset`` (an :class:`identify.dataset.Dataset`): the measured grown
-    volume and flow velocity before pinch-off and the nominal ECM simulation of ``model``
-    (:class:`identify.hybrid.HybridModel`) at the same delays; plus the ARX structure-selection
-    table when given.
+    For every sequence of ``dataset`` (an :class:`identify.dataset.Dataset`), named by its
+    (u1, u2) and coloured by :func:`sequence_colours`: the measured grown volume and flow velocity
+    before pinch-off and the nominal ECM simulation of ``model``
+    (:class:`identify.hybrid.HybridModel`) at the same delays, the measured and simulated
+    pinch-off instants; the training points in the (u1, u2) plane; the ARX structure-selection
+    table when given. The model is kept for :func:`log_prediction` on the same recording.
     """
     ts = dataset.timeseries
-    for row in dataset.summary.itertuples():
+    summary = dataset.summary.reset_index(drop=True)
+    u1s = summary.u1_um_per_ms.to_numpy(float)
+    u2s = summary.u2_um.to_numpy(float)
+    colours = sequence_colours(u1s, u2s)
+    names = [control_name(a, b) for a, b in zip(u1s, u2s)]
+    dup = {n for n in names if names.count(n) > 1}
+    for i, row in enumerate(summary.itertuples()):
         g = ts[(ts.sequence_id == row.sequence_id) & ts.attached].sort_values("delay_us")
         if len(g) < 2:
             continue
+        name = names[i] + (f" ({row.sequence_id})" if names[i] in dup else "")
         t = g.delay_us.to_numpy(float)
         vol, vel = model.simulate(row.u1_um_per_ms, row.u2_um, t)
-        log_sequence_fit(rec, str(row.sequence_id), t, g.grown_volume_nl.to_numpy(float), vol,
-                         measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel)
+        nominal = model.predict(row.u1_um_per_ms, row.u2_um)
+        pin = (float(row.pinchoff_us), float(getattr(row, "grown_volume_at_pinchoff_nl", math.nan)))
+        log_sequence_fit(rec, name, t, g.grown_volume_nl.to_numpy(float), vol,
+                         measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel,
+                         colour=colours[i], controls=(float(u1s[i]), float(u2s[i])), pinchoff=pin,
+                         simulated_pinchoff=(nominal["pinchoff_us"], nominal["grown_volume_at_pinchoff_nl"]))
+    log_training_points(rec)
+    _state(rec).model = model
     if arx_selection is not None:
         log_cv_table(rec, arx_selection.table.head(max_cv_rows), value_column="val_rmse_nl",
                      title="ARX structure selection")
 
 
-def log_prediction(rec: "rr.RecordingStream", mc) -> None:
-    """Log the per-time Monte Carlo band of a prediction (:class:`identify.montecarlo.MonteCarloResult`
-    computed with ``band=True``): volume and flow velocity, mean between low and high."""
+def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level: float = 0.95) -> None:
+    """Log a prediction (:class:`identify.montecarlo.MonteCarloResult` computed with ``band=True``).
+
+    * the per-time Monte Carlo band of the grown volume and of the flow velocity (mean between
+      low and high, filled);
+    * at the pinch-off: the confidence and prediction intervals (``level``) of the pinch-off
+      instant (horizontal segments), of the in-flight volume (vertical, volume plot) and of the
+      jetting velocity (vertical, flow plot), from ``model.interval_prediction`` (the model given,
+      else the one of :func:`log_model_fit` on this recording; without a model: the Monte Carlo
+      percentiles, as the confidence interval only);
+    * the predicted (u1, u2) among the training points (``model.controls`` when they were not
+      logged by :func:`log_model_fit`) and a table of the intervals.
+    """
+    import rerun as rr
+
     b = mc.band
     if b is None:
         raise ValueError("the Monte Carlo result has no band: run it with band=True")
-    name = f"u1={mc.u1_um_per_ms:g},u2={mc.u2_um:g}"
+    st = _state(rec)
+    model = model if model is not None else st.model
+    u1, u2 = float(mc.u1_um_per_ms), float(mc.u2_um)
+    name = control_name(u1, u2)
     log_monte_carlo_band(rec, name, b.delay_us, b.volume_mean_nl, b.volume_low_nl, b.volume_high_nl,
                          quantity="volume_nl")
     log_monte_carlo_band(rec, name, b.delay_us, b.flow_velocity_mean_m_s, b.flow_velocity_low_m_s,
                          b.flow_velocity_high_m_s, quantity="flow_m_s")
+
+    if model is not None and callable(getattr(model, "interval_prediction", None)):
+        iv = model.interval_prediction(u1, u2, level=level, mc=mc)
+        how = f"{100 * level:g} % intervals of the hybrid model"
+    else:
+        iv = {}
+        for k, v in mc.summary().items():
+            iv[k] = {"mean": v["mean"], "confidence_low": v["low"], "confidence_high": v["high"],
+                     "prediction_low": math.nan, "prediction_high": math.nan}
+        lo_p, hi_p = getattr(mc, "percentiles", (2.5, 97.5))
+        how = f"Monte Carlo {lo_p:g} / {hi_p:g} % percentiles (no model: no prediction interval)"
+    grown = np.asarray(mc.samples.get("grown_volume_at_pinchoff_nl", [math.nan]), dtype=float)
+    v_at = float(np.mean(grown)) if grown.size else math.nan
+    t_p = float(iv["pinchoff_us"]["mean"]) if "pinchoff_us" in iv else math.nan
+    qv, qf = _part("volume_nl"), _part("flow_m_s")
+    npart = _part(name)
+    segments = [("pinchoff_us", qv, True, v_at), ("inflight_volume_nl", qv, False, t_p),
+                ("jetting_velocity_m_s", qf, False, t_p)]
+    for output, qpart, horizontal, at in segments:
+        e = iv.get(output)
+        if e is None or not math.isfinite(at):
+            continue
+        base = f"/identify/monte_carlo/{qpart}/{npart}/{output}"
+        for kind, colour, width in (("prediction", _PREDICTION, 6.0), ("confidence", _CONFIDENCE, 3.0)):
+            lo, hi = float(e[f"{kind}_low"]), float(e[f"{kind}_high"])
+            if not (math.isfinite(lo) and math.isfinite(hi)):
+                continue
+            _style(rec, f"{base}/{kind}", f"{output} {kind} interval", colour, points=False, width=width)
+            if horizontal:
+                _send_rows(rec, f"{base}/{kind}", [lo, hi], [at, at])
+            else:
+                _send_rows(rec, f"{base}/{kind}", [at, at], [lo, hi])
+        _style(rec, f"{base}/mean", f"{output} predicted", _PREDICTION_POINT, points=True,
+               marker="diamond" if horizontal else "circle", marker_size=6.0)
+        if horizontal:
+            _send_rows(rec, f"{base}/mean", [e["mean"]], [at])
+        else:
+            _send_rows(rec, f"{base}/mean", [at], [e["mean"]])
+
+    # the (u1, u2) plane: training points and the predicted point
+    if not st.training and model is not None and getattr(model, "controls", None) is not None:
+        c = np.asarray(model.controls, dtype=float).reshape(-1, 2)
+        rec.log("/identify/controls/training", rr.Points2D(
+            c, colors=sequence_colours(c[:, 0], c[:, 1]), radii=0.6,
+            labels=[control_name(a, b) for a, b in c], show_labels=False), static=True)
+        st.training = True
+    label = f"prediction {name}"
+    if "inflight_volume_nl" in iv:
+        e = iv["inflight_volume_nl"]
+        label += f": in-flight {e['mean']:.3g} nl"
+    rec.log("/identify/controls/prediction", rr.Points2D(
+        [(u1, u2)], colors=[_PREDICTION_POINT], radii=1.2, labels=[label], show_labels=True), static=True)
+    lines = [f"## Prediction at {name}", "", how, "",
+             "| output | mean | confidence low | confidence high | prediction low | prediction high |",
+             "|---|---|---|---|---|---|"]
+    for k, e in iv.items():
+        cells = [e.get(c, math.nan) for c in ("mean", "confidence_low", "confidence_high",
+                                              "prediction_low", "prediction_high")]
+        lines.append(f"| {k} | " + " | ".join("" if not math.isfinite(float(x)) else f"{float(x):.4g}"
+                                             for x in cells) + " |")
+    rec.log("/identify/prediction/table", rr.TextDocument("\n".join(lines), media_type="text/markdown"),
+            static=True)
+    st.prediction = True

@@ -76,6 +76,9 @@ class RerunOptions:
         Rerun recording id; ``None`` gives a fresh random UUID per logger.
     recording_name : str or None
         Name shown in the viewer's recording list (e.g. the sequence folder name).
+    raw : bool
+        Measurement recordings: also log every raw frame losslessly at ``/frame/raw`` (large:
+        one uncompressed frame each); by default only the JPEG of the normalised frame.
     """
 
     path: Path | None = None
@@ -84,6 +87,7 @@ class RerunOptions:
     application_id: str = DEFAULT_APPLICATION_ID
     recording_id: str | None = None
     recording_name: str | None = None
+    raw: bool = False
 
     def __post_init__(self) -> None:
         if self.path is not None:
@@ -218,7 +222,7 @@ def open_stream(options: RerunOptions, blueprint: rrb.BlueprintLike | None = Non
 
 
 def add_rerun_args(parser: argparse.ArgumentParser) -> None:
-    """Add ``--rerun FILE.rrd``, ``--rerun-spawn`` and ``--rerun-connect [URL]`` to ``parser``.
+    """Add ``--rerun FILE.rrd``, ``--rerun-spawn``, ``--rerun-connect [URL]`` and ``--rerun-raw``.
 
     Rerun's own ``rr.script_add_args`` flags (``--save``, ``--connect``, ``--url``,
     ``--headless``, ...) are deliberately not used: their generic names would clash with or
@@ -231,6 +235,9 @@ def add_rerun_args(parser: argparse.ArgumentParser) -> None:
                        help="start a Rerun viewer and stream to it live")
     group.add_argument("--rerun-connect", nargs="?", const=DEFAULT_VIEWER_URL, default=None,
                        metavar="URL", help=f"stream to a running Rerun viewer (default {DEFAULT_VIEWER_URL})")
+    group.add_argument("--rerun-raw", action="store_true",
+                       help="also log every raw frame losslessly (large); by default only a JPEG "
+                            "of the normalised frame is logged")
 
 
 def options_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATION_ID, *,
@@ -246,6 +253,6 @@ def options_from_args(args: argparse.Namespace, app_id: str = DEFAULT_APPLICATIO
         return None
     try:
         return RerunOptions(path=path, spawn=spawn, connect_url=url, application_id=app_id,
-                            recording_name=recording_name)
+                            recording_name=recording_name, raw=bool(getattr(args, "rerun_raw", False)))
     except ValueError as exc:
         raise UsageError(str(exc)) from exc
