@@ -30,7 +30,6 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 
 
 def _default_numba_cache_dir() -> str:

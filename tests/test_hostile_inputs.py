@@ -5,7 +5,6 @@ reported in summary.json["errors"]; never a traceback, a hang or a silent wrong 
 Every input is generated in tmp_path (no stored files)."""
 
 import json
-import os
 import shutil
 import struct
 import time
@@ -21,7 +20,7 @@ import dropvision.readers.base as readers_base
 import dropvision.readers.png as png_reader
 from dropvision.app.cli import main
 from dropvision.readers import UnreadableImage
-from dropvision.sequence import SequenceError, open_sequence
+from dropvision.sequence import open_sequence
 from dropvision.writers import write_multipage_tiff
 
 
@@ -224,7 +223,7 @@ def test_frame_unreadable_by_the_os_is_skipped_and_reported(seq, tmp_path, capsy
             raise PermissionError(13, "Permission denied", str(path))
         return real_open(path, *args, **kwargs)
 
-    monkeypatch.setattr(png_reader, "open", failing_open, raising=False)
+    monkeypatch.setattr(readers_base, "open", failing_open, raising=False)  # where the readers open files
     errors = _measured(seq, tmp_path, capsys)
     assert [Path(e["file"]).name for e in errors] == [name]
     assert "Permission denied" in errors[0]["reason"]

@@ -14,6 +14,8 @@ cannot be used as asked (a page that does not exist, contradictory metadata) rai
 
 from __future__ import annotations
 
+import os
+
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -68,6 +70,17 @@ def check_file_size(size: int, kind: str) -> None:
         raise UnreadableImage(f"{kind} file of {size} bytes is over the limit of "
                               f"{MAX_FILE_BYTES} bytes ({MAX_FILE_BYTES / 1024 ** 3:g} GiB, "
                               "dropvision.readers.base.MAX_FILE_BYTES)")
+
+
+def read_file(path, kind: str, limit: int | None = None) -> bytes:
+    """The bytes of an image file (the first ``limit`` bytes when given), after checking its
+    size against :data:`MAX_FILE_BYTES`; :class:`UnreadableImage` when it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            check_file_size(os.fstat(fh.fileno()).st_size, kind)
+            return fh.read() if limit is None else fh.read(limit)
+    except OSError as exc:
+        raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
 
 
 @dataclass(frozen=True)

@@ -15,14 +15,13 @@ order and made grey by the sequence layer (ITU-R BT.601 luminance, docs/FORMAT.m
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from dropvision.readers.base import Reader, UnreadableImage, check_file_size, check_pixels
+from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
 
 __all__ = ["JpegReader", "jpeg_size"]
 
@@ -78,12 +77,7 @@ class JpegReader(Reader):
 
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode with ``cv2.imdecode(..., IMREAD_UNCHANGED)`` (``page`` is ignored)."""
-        try:
-            with open(path, "rb") as fh:
-                check_file_size(os.fstat(fh.fileno()).st_size, "JPEG")
-                data = fh.read()
-        except OSError as exc:
-            raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
+        data = read_file(path, "JPEG")
         found = _walk(data)
         if found is not None and found[1] > 0:  # height 0: a DNL marker, left to the decoder
             check_pixels(found[0], found[1], "JPEG")

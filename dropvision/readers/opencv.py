@@ -8,14 +8,13 @@ header, PNM text header) against :data:`~dropvision.readers.base.MAX_PIXELS`.
 
 from __future__ import annotations
 
-import os
 import struct
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from dropvision.readers.base import Reader, UnreadableImage, check_file_size, check_pixels
+from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
 
 __all__ = ["OpenCVReader"]
 
@@ -67,12 +66,7 @@ class OpenCVReader(Reader):
         """Decode the file with ``cv2.imread`` (from its bytes when cv2 cannot open the path,
         e.g. a non-ASCII name on Windows); ``page`` is ignored."""
         kind = Path(path).suffix.lstrip(".").upper() or "image"
-        try:
-            with open(path, "rb") as fh:
-                check_file_size(os.fstat(fh.fileno()).st_size, kind)
-                head = fh.read(26 if kind == "BMP" else 4096)
-        except OSError as exc:
-            raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
+        head = read_file(path, kind, limit=26 if kind == "BMP" else 4096)
         if kind == "BMP":
             _check_bmp_header(head)
         else:

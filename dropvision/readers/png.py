@@ -40,7 +40,7 @@ from imagecodecs import delta_decode
 from isal import isal_zlib
 
 from dropvision.readers import base
-from dropvision.readers.base import Reader, UnreadableImage, check_file_size, check_pixels
+from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
 
 __all__ = ["PngReader", "PngError", "decode_grey_png", "read_png", "png_significant_bits",
            "PNG_SIGNATURE"]
@@ -274,12 +274,7 @@ def read_png(path: Path) -> np.ndarray:
     order). Raises :class:`~dropvision.readers.base.UnreadableImage` for a file that cannot be
     read or decoded.
     """
-    try:
-        with open(path, "rb") as fh:
-            check_file_size(os.fstat(fh.fileno()).st_size, "PNG")
-            data = fh.read()
-    except OSError as exc:
-        raise UnreadableImage(f"cannot read file ({exc.strerror or exc})") from None
+    data = read_file(path, "PNG")
     _check_ihdr(data)
     try:
         img = decode_grey_png(data)
