@@ -336,18 +336,20 @@ def _check_ecm_stable(c: dict, source) -> None:
 
 
 def _optional_numbers(value, source, key: str) -> None:
-    """An object of numbers or nulls, nested (confidence intervals, physical parameters)."""
+    """Nested objects/lists of finite numbers or nulls (confidence intervals, physical
+    parameters); text only under descriptive keys (unit, units, note, source)."""
     if value is None:
         return
     if isinstance(value, dict):
         for k, v in value.items():
             _optional_numbers(v, source, f"{key}.{k}")
-    elif not (isinstance(value, (int, float)) and not isinstance(value, bool)) and not isinstance(value, str) \
-            or (isinstance(value, str) and key.rsplit(".", 1)[-1] not in ("unit", "units", "note", "source")):
-        if isinstance(value, list):
-            for i, v in enumerate(value):
-                _optional_numbers(v, source, f"{key}[{i}]")
-            return
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _optional_numbers(v, source, f"{key}[{i}]")
+    elif isinstance(value, str):
+        if key.rsplit(".", 1)[-1] not in ("unit", "units", "note", "source"):
+            raise _model_error(source, key, f"must be a number or null, got {_short(value)}")
+    elif isinstance(value, bool) or not isinstance(value, (int, float)):
         raise _model_error(source, key, f"must be a number or null, got {_short(value)}")
     elif isinstance(value, float) and not np.isfinite(value):
         raise _model_error(source, key, f"must be finite, got {value}")
