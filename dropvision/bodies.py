@@ -1,6 +1,7 @@
 """The dark bodies of a frame as liquid: attached liquid (nozzle body) and detached bodies.
 
-- `find_nozzle_body`: the largest body touching the top of the region that spans the axis;
+- `find_nozzle_body` (`dropvision.segmentation`): the largest body touching the top of the region that
+  spans the axis;
 - `measure_attached`: its run edges cut at the tip plane, its volume below the tip plane, its
   bottom and its neck;
 - `measure_body` / `describe_detached`: a detached body's volume, position on the axis, size,
@@ -24,6 +25,7 @@ from dropvision.segmentation import (
     CLASS_SPECK,
     Body,
     Segmentation,
+    find_nozzle_body,
 )
 from dropvision.volume import (
     BodyVolume,
@@ -56,6 +58,12 @@ class DetachedBody:
     on_dust: bool
     bbox: tuple[int, int, int, int]
     top_chord_ratio: float = float("nan")
+    area_px: int = 0
+    row_px: float = float("nan")  # volume centroid in the canonical frame (px)
+    col_px: float = float("nan")
+    min_transmission: float = float("nan")
+    edge_blur_px: float = float("nan")
+    reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
 
 
 @dataclass
@@ -81,27 +89,6 @@ class AttachedLiquid:
     neck_px: float
     leaves: bool
     edges: RowEdges
-
-
-def find_nozzle_body(bodies: list[Body], axis_roi: float) -> Body | None:
-    """The largest body touching the top of the region whose columns span the axis.
-
-    Parameters
-    ----------
-    bodies : list of Body
-    axis_roi : float
-        Axis column (region coordinates, px).
-
-    Returns
-    -------
-    Body or None
-    """
-    found: Body | None = None
-    for b in bodies:
-        if b.nozzle and b.x0 <= axis_roi < b.x1:
-            if found is None or b.area_px > found.area_px:
-                found = b
-    return found
 
 
 def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body, gain: float) -> AttachedLiquid:
@@ -188,7 +175,8 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
         length_um=(volume.bottom_row - volume.top_row + 1) * px * cos_t,
         diameter_um=volume.max_chord_px * px * cos_t,
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
-        on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1),
+        on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
+        row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
     )
 
 

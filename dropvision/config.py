@@ -44,6 +44,11 @@ class MeasureConfig:
     ambiguous_gap_px : float
         A detached body closer than this (px) to the attached liquid (or a neck thinner than
         this) makes the separation ambiguous (flagged).
+    mist_blur_factor, mist_blur_offset_px : float
+        A detached body whose edge spread exceeds ``mist_blur_factor`` x the in-focus nozzle
+        walls' plus ``mist_blur_offset_px`` is out of focus (mist, dust on the optics): listed in
+        bodies.parquet, never a drop or a satellite (`dropvision.classify`; chosen on synthetic
+        frames: in-focus bodies 0.98-1.1x the walls', bodies blurred a further 3 px or more >= 1.2x).
     workers : int
         Decoding/measuring threads (cv2 releases the GIL).
     dead_time_us : float
@@ -98,6 +103,8 @@ class MeasureConfig:
     saturation_limit: float = 0.01
     gain_tolerance: float = 0.005
     ambiguous_gap_px: float = 1.5
+    mist_blur_factor: float = 1.2
+    mist_blur_offset_px: float = 0.25
     workers: int = 2
     dead_time_us: float = DEAD_TIME_US
     pixel_size_tolerance_fraction: float = 0.02

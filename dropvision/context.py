@@ -19,7 +19,8 @@ from dropvision import quality as q
 from dropvision.calibration import Calibration, CalibrationError, calibrate, edge_sigma_px, find_nozzle
 from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
-from dropvision.segmentation import edge_threshold, threshold_image
+from dropvision.classify import nozzle_edge_spread_px
+from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
 from dropvision.volume import NL_PER_UM3
 
 
@@ -65,6 +66,10 @@ class FrameContext:
     sharpness_ref: float = float("nan")
     max_frame_blur_px: float = float("inf")
     min_wall_contrast: float = 0.0
+    # out-of-focus bodies (`dropvision.classify`): edge spread of the in-focus nozzle and the limit rule
+    edge_blur_ref_px: float = float("nan")
+    mist_blur_factor: float = 1.2
+    mist_blur_offset_px: float = 0.25
 
     @classmethod
     def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig) -> "FrameContext":
@@ -108,6 +113,7 @@ class FrameContext:
             pixel_size_um=cal.pixel_size_um, max_value=max_value,
             sample_rows=sample_rows, sample_cols=sample_cols, min_area_px=config.min_body_area_px,
             gain_tolerance=config.gain_tolerance, saturation_limit=config.saturation_limit,
+            mist_blur_factor=config.mist_blur_factor, mist_blur_offset_px=config.mist_blur_offset_px,
         )
 
     @property
@@ -225,7 +231,16 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
     ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
     _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
+    ctx.edge_blur_ref_px = _nozzle_edge_spread(first, ctx)
     return cal, sigma, ctx
+
+
+def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
+    """Edge spread of the nozzle body in the first calibration frame (`dropvision.classify`)."""
+    roi = first[ctx.r0:, ctx.c0:ctx.c1]
+    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    return float("nan") if body is None else nozzle_edge_spread_px(roi, ctx.inv_background, seg.labels, body)
 
 
 def transmission_noise(transmission: np.ndarray, default: float) -> float:

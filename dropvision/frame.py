@@ -30,6 +30,7 @@ from dropvision.bodies import (
     measure_attached,
     measure_body,
 )
+from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
@@ -41,7 +42,8 @@ class FrameRecord:
     """Everything kept from one frame (small).
 
     Volumes in nl, rows in region coordinates (px), ``neck_px`` and ``blur_px`` in px; ``bodies``
-    are the detached bodies, largest first (the first is the main drop).
+    are the in-focus detached bodies, largest first (the first is the main drop); ``rejected``
+    the out-of-focus ones (`dropvision.classify`).
     """
 
     index: int
@@ -53,6 +55,8 @@ class FrameRecord:
     attached_bottom_row: float = float("nan")
     neck_px: float = float("nan")
     bodies: list[DetachedBody] = field(default_factory=list)
+    rejected: list[DetachedBody] = field(default_factory=list)  # out of focus (mist, dust): never liquid
+    attached_body: dict | None = None  # area, centroid, appearance of the attached body (bodies.parquet)
     flags: list[str] = field(default_factory=list)
     gain: float = 1.0
     blur_px: float = float("nan")
@@ -92,6 +96,10 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         rec.flags.append(q.NO_NOZZLE)
     else:
         att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
+        app = appearance(roi, ctx.inv_background, seg.labels, nozzle_body.label,
+                         (nozzle_body.x0, nozzle_body.y0, nozzle_body.x1, nozzle_body.y1), rec.gain, skip_top_rows=2)
+        rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": app.min_transmission,
+                             "edge_blur_px": app.edge_blur_px}
         edges.append(att.edges)
         if att.leaves:
             rec.flags.append(q.ATTACHED_LEAVES)
@@ -113,7 +121,15 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
                 rec.attached_volume_nl += bv.volume_px3 * ctx.nl_per_px3
             rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
-        rec.bodies.append(describe_detached(ctx, seg, b, ed, bv))
+        app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain)
+        body = describe_detached(ctx, seg, b, ed, bv)
+        body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
+        why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px)
+        if why is None:
+            rec.bodies.append(body)
+        else:
+            body.reason = why
+            rec.rejected.append(body)
     rec.bodies.sort(key=lambda d: -d.volume_nl)
     if logger is not None:
         _log_frame(logger, ref, image, ctx, seg, nozzle_body, rec, edges)

@@ -27,6 +27,7 @@ import pandas as pd
 
 from dropvision import quality as q
 from dropvision.config import MeasureConfig
+from dropvision.classify import bodies_table
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, stream_frames
 from dropvision.sequence import Sequence, SequenceError, open_sequence
@@ -37,10 +38,12 @@ from identify.atomic import atomic_dir, check_output_dir
 
 @dataclass
 class MeasureResult:
-    """Frame table and summary of one sequence (see `dropvision.summary`)."""
+    """Frame table, body table and summary of one sequence (see `dropvision.summary`,
+    `dropvision.classify`)."""
 
     frames: pd.DataFrame
     summary: dict
+    bodies: pd.DataFrame | None = None
 
     def per_delay(self) -> pd.DataFrame:
         """Mean, std and count of the numeric columns per delay (columns ``<name>_mean`` ...)."""
@@ -61,7 +64,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Sequence folder (see docs/FORMAT.md), or an open `dropvision.sequence.Sequence` (e.g.
         frames in memory from `dropvision.sequence.sequence_from_arrays`).
     out_dir : str or Path, optional
-        Write the result there (atomically): frames.parquet, per_delay.parquet, summary.json.
+        Write the result there (atomically): frames.parquet, bodies.parquet, per_delay.parquet, summary.json.
         It may not be the sequence folder, lie inside it or contain it; an existing folder is
         replaced only when it holds nothing but an earlier result of ours (see
         `identify.atomic.atomic_dir`). Checked before anything is measured.
@@ -114,7 +117,9 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         records.append(rec)
     seq.close()
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
-    result = MeasureResult(frames, summary)
+    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
+    summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
+    result = MeasureResult(frames, summary, bodies)
     if logger is not None:
         logger.log_table(frames)
         logger.log_summary(summary)

@@ -1,4 +1,4 @@
-"""Writing a measurement: frames.parquet (+ frames.csv), per_delay.parquet, summary.json."""
+"""Writing a measurement: frames.parquet (+ frames.csv), bodies.parquet, per_delay.parquet, summary.json."""
 
 from __future__ import annotations
 
@@ -32,6 +32,8 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
     result.frames.to_parquet(out / "frames.parquet", index=False)
     if csv:
         result.frames.to_csv(out / "frames.csv", index=False)
+    if result.bodies is not None:
+        result.bodies.to_parquet(out / "bodies.parquet", index=False)
     per_delay(result.frames).to_parquet(out / "per_delay.parquet", index=False)
     summary = dict(result.summary)
     if extra_summary:

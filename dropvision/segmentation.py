@@ -151,6 +151,27 @@ def segment(mask: np.ndarray, min_area_px: int = 4) -> Segmentation:
     return Segmentation(labels, bodies)
 
 
+def find_nozzle_body(bodies: list[Body], axis_roi: float) -> Body | None:
+    """The largest body touching the top of the region whose columns span the axis.
+
+    Parameters
+    ----------
+    bodies : list of Body
+    axis_roi : float
+        Axis column (region coordinates, px).
+
+    Returns
+    -------
+    Body or None
+    """
+    found: Body | None = None
+    for b in bodies:
+        if b.nozzle and b.x0 <= axis_roi < b.x1:
+            if found is None or b.area_px > found.area_px:
+                found = b
+    return found
+
+
 def fill_holes(mask: np.ndarray) -> np.ndarray:
     """uint8 mask with every enclosed hole filled (outer contours drawn filled)."""
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)

@@ -110,6 +110,30 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
 ), "One row per frame, in delay order (repeats kept).")
 
+#: Classes of the bodies table (`dropvision.classify`), in the order the rules are tried.
+BODY_CLASSES = ("nozzle", "attached", "mist", "dust", "border", "noise", "main_drop", "satellite", "tail")
+
+BODIES = Table("bodies", "bodies.parquet", "dropvision.bodies/1", (
+    F("file", "str", "", "image file (relative to the sequence folder)", nullable=False),
+    F("page", "int", "", "page of a multi-page TIFF (null for single images)"),
+    F("delay_us", "float", "us", "strobe delay after the firing trigger", nullable=False),
+    F("repeat", "int", "", "index among frames at the same delay", nullable=False),
+    F("body_id", "int", "", "body number within the frame (0, 1, ... in the order listed)", nullable=False),
+    F("body_class", "str", "", "one of " + ", ".join(BODY_CLASSES) + " (rules in docs/BODIES.md)",
+      nullable=False),
+    F("reason", "str", "", "why the body got its class, with the figures compared", nullable=False),
+    F("counted", "bool", "", "counted in n_satellites of the frames table", nullable=False),
+    F("area_px", "int", "px", "pixels of the body's silhouette (lens spot filled)", nullable=False),
+    F("volume_nl", "float", "nl", "disc-integrated volume (attached: below the tip plane; null for nozzle)"),
+    F("row_px", "float", "px", "centroid row in the canonical frame (nozzle at the top)"),
+    F("col_px", "float", "px", "centroid column in the canonical frame"),
+    F("z_um", "float", "um", "centroid along the jetting axis from the tip plane"),
+    F("x_um", "float", "um", "centroid across the axis"),
+    F("min_transmission", "float", "", "darkest transmission inside the body (background = 1)"),
+    F("edge_blur_px", "float", "px", "edge spread of the body (same estimator as edge_blur_ref_px)"),
+    F("edge_blur_ref_px", "float", "px", "edge spread of the in-focus nozzle walls in the calibration frame"),
+), "One row per dark body per frame: what it is and why (satellites are counted from it).")
+
 #: Frames-table columns summarised per delay in per_delay.parquet, with their units.
 PER_DELAY_SOURCES = (("attached_volume_nl", "nl"), ("grown_volume_nl", "nl"), ("drop_volume_nl", "nl"),
                      ("detached_volume_nl", "nl"), ("drop_z_um", "um"), ("drop_x_um", "um"),
@@ -224,7 +248,7 @@ OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision
     F("files", "list", "", "files we wrote there (a folder is replaced only if it holds nothing else)"),
 ), "Ownership marker of every folder we write.")
 
-TABLES = {t.name: t for t in (FRAMES, PER_DELAY, TIMESERIES, DATASET_SUMMARY)}
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER)}
 
 class Quality:

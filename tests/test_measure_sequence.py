@@ -33,8 +33,8 @@ def seq(tmp_path_factory):
 def test_cli_writes_complete_result(seq, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["measure", str(seq), "--out", str(out), "--csv"]) == 0
-    assert sorted(p.name for p in out.iterdir()) == [".dropvision-output.json", "frames.csv", "frames.parquet",
-                                                     "per_delay.parquet", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [".dropvision-output.json", "bodies.parquet", "frames.csv",
+                                                     "frames.parquet", "per_delay.parquet", "summary.json"]
     frames = pd.read_parquet(out / "frames.parquet")
     assert list(frames.columns) == FRAME_COLUMNS
     truth = pd.read_csv(seq / "truth_frames.csv")

@@ -88,7 +88,7 @@ def test_measure_replaces_only_its_own_earlier_result(seq, tmp_path, capsys):
     out = tmp_path / "r"
     assert main(["measure", str(seq), "--out", str(out), "--csv"]) == 0
     first = json.loads((out / MARKER).read_text())
-    assert set(first["files"]) == {"frames.parquet", "frames.csv", "per_delay.parquet", "summary.json"}
+    assert set(first["files"]) == {"frames.parquet", "bodies.parquet", "frames.csv", "per_delay.parquet", "summary.json"}
     assert main(["measure", str(seq), "--out", str(out)]) == 0  # ours: replaced as a whole
     assert not (out / "frames.csv").exists()
     (out / "my_plot.png").write_bytes(b"user data")  # the user adds a file to our output
