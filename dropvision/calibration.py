@@ -171,6 +171,94 @@ def estimate_background(
     return BackgroundModel(background, opaque, len(images), dust_pixels, falloff)
 
 
+def clipped_fraction(background: np.ndarray, max_value: int | None) -> float:
+    """Fraction of the background model at the sensor maximum (within 1 %): a clipped backlight."""
+    if not max_value:
+        return 0.0
+    return float(np.mean(background[::4, ::4] >= 0.99 * max_value))
+
+
+def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> float:
+    """Background grey level a clipped frame would have had, from the nozzle walls' edge profile.
+
+    Across an outer wall the grey level rises from the wall's dark interior ``d`` to the
+    background ``B`` as a blurred step ``d + (B - d) Phi((u - u0) / sigma)``; the sensor clips
+    its upper part. The profiles across each wall are averaged over the wall rows (aligned on
+    the nearest pixel of each row's edge), and the step is fitted by least squares to the
+    samples below the clip (unknowns ``B``, ``u0``, ``sigma``; ``d`` from the samples deep
+    inside the wall). Where the profile is not an error-function step (real optics: a halo, a
+    long dark tail; fit residual over 2 % of full scale), the steepest point of the averaged
+    profile is taken as its middle ``(d + B) / 2``, provided the two samples above it are below
+    the clip. ``B`` is the median over the walls that give an estimate (at least five unclipped
+    samples in the rising part, the middle below the clip); otherwise (a sharp edge against a
+    strongly clipped background) there is none and the frames are flagged ``saturated``.
+
+    Parameters
+    ----------
+    image : ndarray
+        Raw frame (canonical orientation).
+    nozzle : Nozzle
+        Its outer walls (`find_nozzle`).
+    max_value : int
+        Sensor maximum.
+    half_px : int
+        Half width of the profile taken across each wall.
+
+    Returns
+    -------
+    float
+        NaN without an estimate.
+    """
+    from scipy.optimize import least_squares
+    from scipy.special import ndtr
+
+    img = np.asarray(image, np.float64)
+    h, w = img.shape
+    clip = 0.98 * max_value
+    u = np.arange(-half_px, half_px + 1, dtype=float)  # + towards the background
+    found = []
+    for edges, sign in ((nozzle.left_px, -1), (nozzle.right_px, 1)):
+        profs = []
+        for r, e in zip(nozzle.rows, edges):
+            c = int(round(e)) if np.isfinite(e) else -1
+            if c - half_px < 0 or c + half_px + 1 > w:
+                continue
+            profs.append(img[int(r), c - half_px:c + half_px + 1][::sign])
+        if len(profs) < 3:
+            continue
+        prof = np.mean(profs, axis=0)
+        d = float(np.median(prof[:3]))
+        use = prof < clip
+        rising = use & (prof > d + 0.05 * (clip - d))
+        if rising.sum() < 5:
+            continue
+
+        def resid(x, uu=u[use], vv=prof[use], d=d):
+            b, u0, sig = x
+            return d + (b - d) * ndtr((uu - u0) / sig) - vv
+
+        x0 = (1.2 * max_value, 0.0, 1.5)
+        fit = least_squares(resid, x0, bounds=([max_value * 0.5, -half_px / 2, 0.3],
+                                               [max_value * 20, half_px / 2, half_px / 2]))
+        b = float(fit.x[0])
+        rms = float(np.sqrt(np.mean(fit.fun**2)))
+        if fit.success and 0.5 * (b + d) < clip and rms < 0.02 * max_value:
+            found.append(b)
+            continue
+        # not an error-function step (real optics: halo, long dark tail): the steepest point of
+        # the averaged profile is the middle, if the two samples above it are below the clip
+        diff = np.diff(prof)
+        k = int(np.argmax(diff))
+        if 0 < k < diff.size - 2 and prof[k + 2] < clip:
+            den = diff[k - 1] - 2 * diff[k] + diff[k + 1]
+            off = 0.5 * (diff[k - 1] - diff[k + 1]) / den if den < 0 else 0.0
+            mid = float(np.interp(k + 0.5 + off, np.arange(prof.size), prof))
+            found.append(2.0 * mid - d)
+    if not found:
+        return float("nan")
+    return float(np.median(found))
+
+
 # ----------------------------------------------------------------------------- nozzle
 @dataclass
 class Nozzle:
@@ -413,6 +501,15 @@ class Calibration:
     pixel_size_ratio: float = float("nan")
     #: Standard uncertainty of that ratio from the measured outer diameter (see `outer_diameter_uncertainty_px`).
     pixel_size_ratio_uncertainty: float = float("nan")
+    #: A clipped background: ``fraction`` at the sensor maximum, unclipped ``level`` (NaN: unknown), ``method``.
+    clipped: dict | None = None
+
+    @property
+    def clipped_level(self) -> float:
+        """Unclipped background level used where the background is clipped; NaN when not clipped or unknown."""
+        if not self.clipped or not np.isfinite(self.clipped["level"]):
+            return float("nan")
+        return float(self.clipped["level"])
 
     @property
     def tilt_deg(self) -> float:
@@ -444,6 +541,7 @@ class Calibration:
                 "dust_pixels": self.background.dust_pixels,
                 "illumination_falloff": self.background.falloff,
             },
+            "clipped_background": None if self.clipped is None else dict(self.clipped),
             "notes": list(self.notes),
         }
 
@@ -459,6 +557,8 @@ def calibrate(
     axis_col: float | None = None,
     pixel_size_tolerance: float = 0.02,
     edge_position_floor_px: float = 0.05,
+    max_value: int | None = None,
+    clipped_limit: float = 0.01,
 ) -> Calibration:
     """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
 
@@ -479,10 +579,31 @@ def calibrate(
         calibration note (and a `CalibrationWarning`) is given.
     edge_position_floor_px : float
         Systematic uncertainty of one wall edge (px), see `outer_diameter_uncertainty_px`.
+    max_value : int, optional
+        Sensor maximum; with it, a background clipped there over more than ``clipped_limit`` of
+        the frame gets its unclipped level from the nozzle walls (`unclipped_level`).
+    clipped_limit : float
+        Fraction of the background at the sensor maximum from which it is treated as clipped.
     """
     bg = estimate_background(spread)
-    t_first = np.asarray(first, np.float32) / bg.background
     notes: list[str] = []
+    clipped = None
+    frac = clipped_fraction(bg.background, max_value)
+    if frac > clipped_limit:
+        level = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5), max_value)
+        clipped = {"fraction": frac, "level": level,
+                   "method": "background grey level from the nozzle walls' steepest point (2 L_mid - d), used "
+                             "wherever the background model is at the sensor maximum"}
+        if np.isfinite(level) and level > max_value:
+            bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(level),
+                                     bg.background).astype(np.float32)
+            notes.append(f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
+                         f"level {level:.0f} (max {max_value}) estimated from the nozzle walls; edges are taken "
+                         "below the clip")
+        else:
+            notes.append(f"background clipped over {100 * frac:.0f} % of the frame and its level could not be "
+                         "estimated (the middle of the nozzle walls' edge is clipped too)")
+    t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
     nozzle = find_nozzle(t_first, 0.5)
     thr_n = edge_threshold(nozzle.interior_level)
@@ -549,6 +670,7 @@ def calibrate(
         notes=notes,
         pixel_size_ratio=ratio,
         pixel_size_ratio_uncertainty=ratio_u,
+        clipped=clipped,
     )
 
 
@@ -578,14 +700,16 @@ def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float)
     return float(np.hypot(stat, np.sqrt(2.0) * edge_position_floor_px) * np.cos(nozzle.tilt_rad))
 
 
-def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int = 8) -> float:
+def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int = 8,
+                  clip_transmission: float = float("inf")) -> float:
     """Effective blur of straight edges (px): Gaussian sigma including the pixel box.
 
     The transmission samples across the nozzle's outer walls, placed at their distance from
     each row's sub-pixel 50 % edge, are pooled into one finely sampled edge-spread function and
     fitted by least squares with an error function ``(1 + erf(u / (sqrt(2) sigma))) / 2``
     (plus a shift).  This sigma (optics and pixel box together) is the smoothing that displaces
-    a curved 50 % edge by ``sigma^2 * curvature / 2``.
+    a curved 50 % edge by ``sigma^2 * curvature / 2``.  Samples at or above
+    ``clip_transmission`` (a clipped background) are left out of the fit.
     """
     from scipy.special import erf
 
@@ -600,8 +724,9 @@ def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int 
             if c0 < 0 or c1 > w:
                 continue
             x = np.arange(c0, c1)
-            us.append(sign * (x - xe))
-            vs.append((t[y, c0:c1] - lo) / (1.0 - lo))
+            keep = t[y, c0:c1] < clip_transmission
+            us.append(sign * (x[keep] - xe))
+            vs.append((t[y, c0:c1][keep] - lo) / (1.0 - lo))
     if not us:
         return float("nan")
     u = np.concatenate(us)

@@ -68,6 +68,8 @@ class FrameContext:
     min_wall_contrast: float = 0.0
     # out-of-focus bodies (`dropvision.classify`): edge spread of the in-focus nozzle and the limit rule
     edge_blur_ref_px: float = float("nan")
+    # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
+    clipped_level: float = float("nan")
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
 
@@ -221,14 +223,17 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col,
             pixel_size_tolerance=config.pixel_size_tolerance_fraction,
             edge_position_floor_px=config.edge_position_floor_px,
+            max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
         )
     except CalibrationError as exc:
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level))
-    sigma = edge_sigma_px(t_first, nozzle)
     max_value = 2 ** int(meta.bit_depth) - 1
+    clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
+    sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
+    ctx.clipped_level = cal.clipped_level
     ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
     _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
     ctx.edge_blur_ref_px = _nozzle_edge_spread(first, ctx)

@@ -154,13 +154,15 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -
         Updated in place.
     """
     samples = image[ctx.r0:, ctx.c0:ctx.c1][ctx.sample_rows, ctx.sample_cols]
-    gain = q.frame_gain(samples, ctx.background[ctx.sample_rows, ctx.sample_cols])
+    clipped = bool(np.isfinite(ctx.clipped_level))
+    # a clipped background shows no strobe variation: the strobe is taken as steady (gain 1)
+    gain = 1.0 if clipped else q.frame_gain(samples, ctx.background[ctx.sample_rows, ctx.sample_cols])
     if not np.isfinite(gain):
         gain = 1.0
         rec.flags.append(q.ILLUMINATION)
     rec.gain = gain
     if q.saturation_fraction(samples, ctx.max_value) > ctx.saturation_limit:
-        rec.flags.append(q.SATURATED)
+        rec.flags.append(q.CLIPPED if clipped else q.SATURATED)
     if ctx.wall_rows is not None:
         prof = image[ctx.wall_rows, ctx.wall_cols].astype(np.float32) * ctx.wall_inv_background / gain
         sharp = q.edge_sharpness(prof)

@@ -14,6 +14,7 @@ from identify.schema import Quality
 # The codes and their explanations are declared once, in the schema of our outputs.
 OK = Quality.OK
 SATURATED = Quality.SATURATED
+CLIPPED = Quality.CLIPPED
 ILLUMINATION = Quality.ILLUMINATION
 LOW_CONTRAST = Quality.LOW_CONTRAST
 BLURRED = Quality.BLURRED

@@ -199,6 +199,11 @@ DATASET_SUMMARY = Table("dataset_summary", "summary.parquet", "dropvision.datase
     F("satellites", "float", "", "satellite count", required=False),
     F("n_frames", "float", "", "frames measured", required=False),
     F("n_errors", "float", "", "frames skipped", required=False),
+    F("pixel_size_ratio", "float", "", "pixel size implied by the nozzle's outer diameter / the given one "
+      "(summary.json calibration); sets the pixel-size part of the intervals' measurement term", required=False),
+    F("pixel_size_ratio_uncertainty", "float", "", "its standard uncertainty", required=False),
+    F("inflight_frames", "float", "", "in-flight frames behind inflight_volume_nl (its standard error: "
+      "inflight_volume_std_nl / sqrt(inflight_frames))", required=False),
 ), "Training summary: one row per sequence.")
 
 DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
@@ -212,6 +217,11 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
     F("nozzle", "object", "", "length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm",
       required=False),
     F("pixel_size_um", "float", "um", "pixel size of the images", required=False),
+    F("measurement_uncertainty", "object", "", "systematic measurement uncertainty shared by every sequence "
+      "(relative standard uncertainties, 1 sigma): volume_rel and velocity_rel (used as given), or "
+      "pixel_size_rel (calibration of the pixel size, combined with the method's 0.1 % volume / 0.2 % "
+      "velocity); pinchoff_std_us; source (text). Absent: from the pixel-size check of the campaign, else "
+      "defaults (identify.dataset.measurement_uncertainty)", required=False),
     F("sequences", "list", "", "sequence ids measured", required=False),
     F("failed", "object", "", "sequence id -> why it failed", required=False),
     F("versions", "object", "", "software versions", required=False),
@@ -235,8 +245,10 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
     F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter"),
     F("versions", "object", "", "software versions", required=False),
     F("intervals", "object", "", "drop scatter for the prediction interval: per output (pinchoff_us, "
-      "inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source (repeats|residuals), model_std, cv_rmse, "
-      "in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); absent in older models", required=False),
+      "inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source (repeats|sequence_se|residuals), "
+      "model_std, cv_rmse, in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); measurement "
+      "(systematic measurement uncertainty in both intervals: volume_rel, velocity_rel, pixel_size_rel, pinchoff_std_us, source; absent "
+      "in older models: no term); absent in older models", required=False),
     F("notes", "list", "", "what the fit dropped or changed and why (irregular campaigns, ECM level); absent in "
       "older models", required=False),
 ), "Identified hybrid model (Eq. 8).")
@@ -258,6 +270,7 @@ class Quality:
 
     OK = "ok"
     SATURATED = "saturated"
+    CLIPPED = "clipped_background"
     ILLUMINATION = "illumination_changed"
     LOW_CONTRAST = "low_contrast"
     BLURRED = "blurred"
@@ -280,7 +293,10 @@ class Quality:
 #: Quality code -> explanation (docs/FORMAT.md lists them).
 QUALITY_CODES: dict[str, str] = {
     Quality.OK: "every value of the frame is trusted",
-    Quality.SATURATED: "too many background pixels at the sensor maximum: volumes not trusted",
+    Quality.SATURATED: "too many background pixels at the sensor maximum and their level unknown: volumes not "
+                       "trusted",
+    Quality.CLIPPED: "background clipped at the sensor maximum; its level was estimated from the nozzle walls "
+                     "and the edges taken below the clip: values kept (a note in the summary gives the level)",
     Quality.ILLUMINATION: "the strobe intensity differs from the background model: segmentation not trusted",
     Quality.LOW_CONTRAST: "liquid too bright against the background for sub-pixel edges",
     Quality.BLURRED: "edges blurred beyond the limit (focus or motion)",
