@@ -18,6 +18,30 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _holder(text: str):
+    t = text.strip().lower()
+    if t in ("yes", "true", "on", "1"):
+        return True
+    if t in ("no", "false", "off", "0"):
+        return False
+    try:
+        return float(t)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"holder {text!r}: expected yes, no or a width in µm") from None
+
+
+def _rig_names() -> list[str]:
+    # the preset names, without importing the synthesizer (kept in step by a test)
+    return ["clean", "watcher-side", "pendant-saturated", "low-contrast", "tilted-dusty", "single-frame"]
+
+
+#: command-line option -> SynthConfig field, for options whose default (None) means "the rig's"
+_REALISM = {"orientation": "orientation", "jpeg_quality": "jpeg_quality", "colour": "colour",
+            "exposure": "exposure", "clip_fraction": "clip_fraction", "vignetting": "vignetting",
+            "mist": "mist", "path_dust": "path_dust", "holder": "holder",
+            "nozzle_protrusion_um": "nozzle_protrusion_um"}
+
+
 def register(subparsers) -> argparse.ArgumentParser:
     """Add the ``synth`` sub-command."""
     p = subparsers.add_parser(
@@ -47,17 +71,44 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--axis-col", type=float, default=None, help="axis column (default: width/2 - 0.4)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    r = p.add_argument_group("realism tier (docs/SYNTH_REALISM.md); an option given explicitly overrides the rig")
+    r.add_argument("--rig", default=None, help="start from a rig preset: " + ", ".join(_rig_names()))
+    r.add_argument("--orientation", choices=("down", "up", "left", "right"), default=None,
+                   help="direction the drops travel in the stored frames (default down)")
+    r.add_argument("--jpeg-quality", type=int, default=None,
+                   help="write 8-bit JPEG frames of this quality (1-100; implies --format jpeg)")
+    r.add_argument("--colour", "--color", dest="colour", action="store_true", default=None,
+                   help="RGB frames from a colour sensor (BT.601 luma = the grey scene)")
+    r.add_argument("--exposure", type=float, default=None,
+                   help="light gain (> 1: the background clips at full scale)")
+    r.add_argument("--clip-fraction", type=float, default=None,
+                   help="expose so that this fraction of the background pixels clips (0-0.99)")
+    r.add_argument("--vignetting", type=float, default=None, help="corner light = 1 - vignetting (0-0.95)")
+    r.add_argument("--mist", type=int, default=None, help="out-of-focus mist droplets per frame")
+    r.add_argument("--path-dust", type=int, default=None, help="static dust specks on the drop path")
+    r.add_argument("--holder", type=_holder, default=None,
+                   help="holder block around the nozzle: 'yes' (5 x nozzle outer diameter), 'no', "
+                        "or its width in µm")
+    r.add_argument("--nozzle-protrusion-um", type=float, default=None,
+                   help="nozzle length below the holder face (µm, default 60)")
+    r.add_argument("--no-nozzle-diameters", action="store_true", default=None,
+                   help="sequence.json without nozzle diameters (pixel size only)")
     p.set_defaults(func=run)
     return p
 
 
+def _explicit(parser_defaults: dict, args) -> set:
+    return {k for k, v in vars(args).items() if k in parser_defaults and v != parser_defaults[k]}
+
+
 def run(args) -> int:
     from dropvision.synth.sequence import SynthConfig, parse_delays
+
     from dropvision.synth.writer import write_synthetic_sequence
 
     w, h = args.size
     try:
-        cfg = SynthConfig(
+        base = dict(
             u1_um_per_ms=args.u1, u2_um=args.u2, seed=args.seed, width_px=w, height_px=h,
             pixel_size_um=args.pixel_size_um,
             tip_row=59.4 if args.tip_row is None else args.tip_row,
@@ -65,6 +116,22 @@ def run(args) -> int:
             tilt_deg=args.tilt_deg, drift_mrad=args.drift_mrad, delays_us=parse_delays(args.delays),
             repeats=args.repeats, satellites=args.satellites, dust=args.dust, blur_px=args.blur_px,
             falloff=args.falloff, noise=args.noise, bit_depth=args.bit_depth, format=args.format)
+        realism = {field: getattr(args, opt) for opt, field in _REALISM.items() if getattr(args, opt) is not None}
+        if args.jpeg_quality is not None:
+            realism["format"] = "jpeg"
+        if args.no_nozzle_diameters:
+            realism["write_nozzle_diameters"] = False
+        if args.rig is None:
+            cfg = SynthConfig(**{**base, **realism})
+        else:
+            # the rig's values, then every option given on the command line (differing from its default)
+            given = _explicit(_BASE_DEFAULTS, args)
+            keep = {k: v for k, v in base.items() if _BASE_FIELDS.get(k) in given}
+            if "size" in given:
+                keep.update(width_px=w, height_px=h)
+                if args.axis_col is None:
+                    keep["axis_col"] = None
+            cfg = SynthConfig.for_rig(args.rig, **{**keep, **realism})
         t0 = time.perf_counter()
         out = write_synthetic_sequence(cfg, args.out, progress=False if args.no_progress else None,
                                        overwrite=args.overwrite)
@@ -73,3 +140,15 @@ def run(args) -> int:
     n = len(cfg.delays_us) * cfg.repeats
     print(f"dropvision synth: wrote {n} frames to {out} in {time.perf_counter() - t0:.1f} s")
     return 0
+
+
+#: defaults of the plain options (to tell which ones the user gave with --rig)
+_BASE_DEFAULTS = {"u1": 70.0, "u2": 25.0, "seed": 0, "size": (640, 1024), "pixel_size_um": 4.73,
+                  "tip_row": None, "axis_col": None, "tilt_deg": 0.0, "drift_mrad": 0.0, "delays": "0:1800:10",
+                  "repeats": 1, "satellites": 0, "dust": 2, "blur_px": 0.8, "falloff": 0.1, "noise": 1.0,
+                  "bit_depth": 8, "format": "png"}
+_BASE_FIELDS = {"u1_um_per_ms": "u1", "u2_um": "u2", "seed": "seed", "pixel_size_um": "pixel_size_um",
+                "tip_row": "tip_row", "axis_col": "axis_col", "tilt_deg": "tilt_deg", "drift_mrad": "drift_mrad",
+                "delays_us": "delays", "repeats": "repeats", "satellites": "satellites", "dust": "dust",
+                "blur_px": "blur_px", "falloff": "falloff", "noise": "noise", "bit_depth": "bit_depth",
+                "format": "format"}

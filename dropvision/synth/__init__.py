@@ -6,6 +6,13 @@ layer, no images),
 :mod:`~dropvision.synth.render` (supersampled silhouettes, optics, sensor),
 :mod:`~dropvision.synth.sequence` (configuration, synthesis, truth),
 :mod:`~dropvision.synth.writer` (sequence folder), :mod:`~dropvision.app.synth_cli`.
+
+Realism tier (docs/SYNTH_REALISM.md): options of :class:`SynthConfig` (all off by default, so
+a default render is bit-identical to the plain synthesizer) for rotated frames, a holder block,
+vignetting, a clipped background, colour sensors and JPEG, mist and dust on the drop path, a
+bead on the orifice, touching/dumbbell satellites, a tail with a bulb, a static pendant drop
+and sequence.json without nozzle diameters; rig presets in :data:`RIGS`
+(``SynthConfig.for_rig(name, **overrides)``); per-body truth in truth_bodies.csv.
 """
 
 import importlib
@@ -16,6 +23,9 @@ _WHERE = {
     "FORMATS": "sequence", "TRUTH_COLUMNS": "sequence", "FrameTruth": "sequence", "SynthConfig": "sequence",
     "parse_delays": "sequence", "plan": "sequence", "sequence_truth": "sequence", "synthesize": "sequence",
     "DropShapeModel": "shapes", "ShapeParams": "shapes", "write_synthetic_sequence": "writer",
+    # realism tier (docs/SYNTH_REALISM.md)
+    "RIGS": "sequence", "BODY_COLUMNS": "sequence", "BODY_CLASSES": "sequence", "BodyTruth": "sequence",
+    "PendantShapeModel": "shapes", "young_laplace_profile": "shapes",
 }
 __all__ = list(_WHERE)
 

@@ -11,8 +11,13 @@ and their neighbours are supersampled.
 Image formation per frame (intensities as fractions of full scale):
 
     T = 1 - c_liquid (1 - T_liquid') - c_nozzle (1 - T_nozzle)   (T_liquid' brightened by the lens spot)
-    I = backlight(r, c) * dust(r, c) * GaussianBlur(T, sigma)
+    T = (T (1 - c_block) + c_block T_block') x shadows          (realism tier: holder block with its
+                                                               reflections T_block', wedge, cuvette wall)
+    I = backlight(r, c) * vignetting(r, c) * dust(r, c) * GaussianBlur(T, sigma) * mist(r, c) * exposure
     DN = quantise((Poisson(I * full_well) + N(0, read_noise)) / full_well * (2^bits - 1))
+    colour: DN_c = quantise(... x gain_c) per channel (gains with BT.601 luma 1)
+
+Every realism step is skipped when its option is off, so default renders are unchanged bit for bit.
 
 Pixel (row, col) centres are integers; the pixel square is [row ± 0.5] x [col ± 0.5].
 """
@@ -26,7 +31,8 @@ import numpy as np
 
 from dropvision.synth.shapes import Body, Profile, QuadraticNeck
 
-__all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer"]
+__all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer",
+           "Structure", "polygon_coverage", "mist_map"]
 
 
 @dataclass(frozen=True)
@@ -227,6 +233,17 @@ class Optics:
     bit_depth : int
         8, 12 (in 16-bit containers) or 16.
     supersample : int
+    vignetting : float
+        Radial multiplicative fall-off of the light, separate from ``falloff``:
+        1 - vignetting ρ³ (ρ = distance from the image centre / centre-to-corner distance),
+        so the corners get (1 - vignetting) x the light.
+    exposure : float
+        Gain on the light before the sensor (> 1: the bright background clips at full scale).
+    colour_gains : (gR, gG, gB) or None
+        None: grey frames. Otherwise RGB frames, channel = gain x grey scene (each channel
+        quantised and clipped on its own).
+    demosaic_blur_px : float
+        Extra Gaussian blur of the R and B channels (Bayer-like demosaicing; colour only).
     """
 
     blur_sigma_px: float = 0.8
@@ -240,6 +257,10 @@ class Optics:
     noise: bool = True
     bit_depth: int = 8
     supersample: int = 8
+    vignetting: float = 0.0
+    exposure: float = 1.0
+    colour_gains: tuple | None = None
+    demosaic_blur_px: float = 0.0
 
 
 class Renderer:
@@ -252,9 +273,13 @@ class Renderer:
     nozzle_outer_radius_um : float
     dust : list of (row, col, sigma_px, depth)
         Static dark specks (multiplicative Gaussian blobs).
+    structures : list of Structure
+        Static rig structures in focus (holder block, its reflections, wedge shadow, cuvette
+        wall), composited into the transmission before the blur.
     """
 
-    def __init__(self, geom: CameraGeometry, optics: Optics, nozzle_outer_radius_um: float, dust=()):
+    def __init__(self, geom: CameraGeometry, optics: Optics, nozzle_outer_radius_um: float, dust=(),
+                 structures=()):
         if optics.bit_depth not in (8, 12, 16):
             raise ValueError(f"bit_depth must be 8, 12 or 16, got {optics.bit_depth!r}")
         self.geom, self.optics = geom, optics
@@ -267,6 +292,12 @@ class Renderer:
         cc = (np.arange(W) - (W - 1) / 2.0) / ((W - 1) / 2.0)
         rho2 = (rr[:, None] ** 2 + cc[None, :] ** 2) / 2.0  # 1 at the corners
         self.backlight = optics.backlight_level * (1.0 - optics.falloff * rho2)
+        if optics.vignetting > 0:
+            self.backlight = self.backlight * (1.0 - optics.vignetting * (rho2 ** 1.5))
+        self.struct_keep = self.struct_add = None
+        self.structure_info = []
+        if structures:
+            self._init_structures(structures, optics.supersample)
         dust_map = np.ones((H, W))
         yy, xx = np.mgrid[0:H, 0:W]
         for r, c, sig, depth in dust:
@@ -281,6 +312,35 @@ class Renderer:
         self.max_dn = float(2 ** optics.bit_depth - 1)
         self.dtype = np.uint8 if optics.bit_depth == 8 else np.uint16
 
+    def _init_structures(self, structures, supersample: int) -> None:
+        H, W = self.geom.shape
+        K = max(1, min(int(supersample), 8 if H * W <= 400_000 else 4))
+        hcov = np.zeros((H, W))
+        hmap = np.zeros((H, W))
+        shadow = np.ones((H, W))
+        covs = []
+        for st in structures:
+            cov = polygon_coverage((H, W), [st.polygon], K)
+            covs.append(cov)
+            if cov.sum() > 0:
+                rr, cc = np.mgrid[0:H, 0:W]
+                w = cov.sum()
+                self.structure_info.append((st, float((rr * cov).sum() / w), float((cc * cov).sum() / w)))
+            else:
+                self.structure_info.append((st, float("nan"), float("nan")))
+        for st, cov in zip(structures, covs):
+            if st.kind == "block":
+                hmap = hmap * (1.0 - cov) + st.transmission * cov
+                hcov = np.maximum(hcov, cov)
+        for st, cov in zip(structures, covs):
+            if st.kind == "reflection":
+                cov = cov * hcov
+                hmap = hmap * (1.0 - cov) + st.transmission * cov
+            elif st.kind == "shadow":
+                shadow = shadow * (1.0 - cov * (1.0 - st.transmission))
+        self.struct_keep = (1.0 - hcov) * shadow
+        self.struct_add = hcov * hmap * shadow
+
     def intensity(self, bodies) -> np.ndarray:
         """Noise-free intensity (fraction of full scale) of a frame with these liquid bodies."""
         o, g = self.optics, self.geom
@@ -292,19 +352,95 @@ class Renderer:
         cov = np.minimum(cov, 1.0)
         t_liq = o.liquid_transmission + (o.spot_transmission - o.liquid_transmission) * spot
         trans = 1.0 - cov * (1.0 - t_liq) - self.nozzle_cov * (1.0 - o.nozzle_transmission)
-        trans = np.clip(trans, 0.0, 1.0).astype(np.float32)
+        trans = np.clip(trans, 0.0, 1.0)
+        if self.struct_keep is not None:
+            trans = trans * self.struct_keep + self.struct_add
+        trans = trans.astype(np.float32)
         if o.blur_sigma_px > 0:
             trans = cv2.GaussianBlur(trans, (0, 0), o.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
         return trans * self.static
 
-    def render(self, bodies, rng: np.random.Generator) -> np.ndarray:
-        """One quantised frame (uint8 or uint16)."""
+    def render(self, bodies, rng: np.random.Generator, mist=()) -> np.ndarray:
+        """One quantised frame (uint8 or uint16; (H, W, 3) RGB with ``colour_gains``).
+
+        ``mist``: out-of-focus droplets of this frame, (row, col, diameter_px, sigma_px,
+        attenuation) each (see :func:`mist_map`)."""
         o = self.optics
         img = self.intensity(bodies)
+        if len(mist):
+            img = img * mist_map(self.geom.shape, mist)
+        if o.exposure != 1.0:
+            img = img * o.exposure
         if o.noise:
             e = rng.poisson(np.maximum(img, 0.0) * o.full_well_e).astype(np.float32)
             if o.read_noise_e > 0:
                 e += rng.normal(0.0, o.read_noise_e, size=e.shape).astype(np.float32)
             img = e / o.full_well_e
+        if o.colour_gains is not None:
+            chans = []
+            for k, g in enumerate(o.colour_gains):
+                c = np.asarray(img, np.float32) * np.float32(g)
+                if o.demosaic_blur_px > 0 and k != 1:
+                    c = cv2.GaussianBlur(c, (0, 0), o.demosaic_blur_px, borderType=cv2.BORDER_REPLICATE)
+                chans.append(np.rint(np.clip(c * self.max_dn, 0.0, self.max_dn)).astype(self.dtype))
+            return np.stack(chans, axis=-1)
         dn = np.rint(np.clip(img * self.max_dn, 0.0, self.max_dn))
         return dn.astype(self.dtype)
+
+
+@dataclass(frozen=True)
+class Structure:
+    """A static rig structure in focus, as a polygon in canonical pixel coordinates.
+
+    kind: ``"block"`` (opaque-ish occluder: replaces the scene's transmission by its own),
+    ``"reflection"`` (bright streak/patch inside a block: replaces the block's transmission
+    where both overlap), ``"shadow"`` (multiplies the transmission: wedge, cuvette wall).
+    ``name`` and ``body_class`` go to truth_bodies.csv."""
+
+    name: str
+    kind: str
+    polygon: tuple  # ((row, col), ...)
+    transmission: float
+    body_class: str = "holder"
+
+
+def polygon_coverage(shape, polygons, K: int = 8) -> np.ndarray:
+    """Area coverage (float64 in [0, 1]) of the union of polygons given as ((row, col), ...)
+    in pixel coordinates (pixel centres integers), by filling a K x K supersampled raster with
+    sub-pixel vertex precision (cv2.fillPoly, 8 fractional bits) and averaging."""
+    H, W = int(shape[0]), int(shape[1])
+    canvas = np.zeros((H * K, W * K), np.uint8)
+    shift = 8
+    lim = 4.0 * (H + W) * K
+    pts = []
+    for poly in polygons:
+        a = np.asarray(poly, float)
+        u = np.clip((a + 0.5) * K - 0.5, -lim, lim)  # supersampled coordinates, (row, col)
+        pts.append(np.round(u[:, ::-1] * (1 << shift)).astype(np.int32))
+    cv2.fillPoly(canvas, pts, 1, lineType=cv2.LINE_8, shift=shift)
+    return canvas.reshape(H, K, W, K).sum(axis=(1, 3), dtype=np.uint16) / float(K * K)
+
+
+def mist_map(shape, mist) -> np.ndarray:
+    """Multiplicative transmission (float64) of out-of-focus mist droplets: each a disc of
+    ``diameter_px`` blurred by a Gaussian of ``sigma_px``, scaled so that its darkest point
+    removes ``attenuation`` of the light: 1 - attenuation x blob / max(blob)."""
+    H, W = int(shape[0]), int(shape[1])
+    out = np.ones((H, W))
+    for r, c, dia, sig, att in mist:
+        rad = 0.5 * dia
+        half = int(np.ceil(rad + 4.0 * sig)) + 1
+        r0, r1 = int(np.floor(r)) - half, int(np.floor(r)) + half + 1
+        c0, c1 = int(np.floor(c)) - half, int(np.floor(c)) + half + 1
+        yy, xx = np.mgrid[r0:r1, c0:c1]
+        disc = np.clip(rad + 0.5 - np.hypot(yy - r, xx - c), 0.0, 1.0).astype(np.float32)
+        blob = cv2.GaussianBlur(disc, (0, 0), float(sig), borderType=cv2.BORDER_CONSTANT).astype(float)
+        m = blob.max()
+        if m <= 0:
+            continue
+        fac = 1.0 - att * blob / m
+        R0, R1, C0, C1 = max(r0, 0), min(r1, H), max(c0, 0), min(c1, W)
+        if R0 >= R1 or C0 >= C1:
+            continue
+        out[R0:R1, C0:C1] *= fac[R0 - r0:R1 - r0, C0 - c0:C1 - c0]
+    return out

@@ -1,4 +1,5 @@
-"""Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv.
+"""Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv,
+truth_bodies.csv.
 
 All files go through the shared writers of :mod:`dropvision.writers` (images, multi-page TIFF,
 sequence.json) and :mod:`identify.atomic`; the whole folder is built in a temporary sibling
@@ -9,21 +10,30 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from identify.atomic import atomic_dir, check_output_dir, write_json, write_text
-from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
-from dropvision.synth.sequence import STACK_FILE, SynthConfig, frames_table, plan, sequence_truth, synthesize
+import cv2
+import numpy as np
 
-__all__ = ["write_synthetic_sequence", "sequence_metadata"]
+from identify.atomic import atomic_dir, check_output_dir, write_bytes, write_json, write_text
+from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.synth.sequence import (STACK_FILE, SynthConfig, bodies_table, frames_table, plan, sequence_truth,
+                                       synthesize)
+
+__all__ = ["write_synthetic_sequence", "sequence_metadata", "encode_jpeg"]
 
 
 def sequence_metadata(config: SynthConfig, frames) -> dict:
     """sequence.json content (without the schema key) for a config and its frame list."""
     cfg, ph = config, config.physics
+    if cfg.scene == "pendant":  # the needle: its outer diameter as rendered, inner 0.6 x outer
+        d_out = cfg.needle_outer_diameter_um
+        d_in = float(ph.nozzle_inner_diameter_um) if cfg.needle_diameter_um is None else 0.6 * d_out
+    else:
+        d_out, d_in = float(ph.nozzle_outer_diameter_um), float(ph.nozzle_inner_diameter_um)
     meta = {
         "pixel_size_um": float(cfg.pixel_size_um),
-        "nozzle_inner_diameter_um": float(ph.nozzle_inner_diameter_um),
-        "nozzle_outer_diameter_um": float(ph.nozzle_outer_diameter_um),
-        "orientation": "down",
+        "nozzle_inner_diameter_um": d_in,
+        "nozzle_outer_diameter_um": d_out,
+        "orientation": cfg.orientation,
         "waveform": {"u1_um_per_ms": float(cfg.u1_um_per_ms), "u2_um": float(cfg.u2_um),
                      "u3_um_per_ms": float(ph.u3_um_per_ms), "hold_us": float(ph.hold_us),
                      "dead_time_us": float(ph.dead_time_us)},
@@ -38,7 +48,20 @@ def sequence_metadata(config: SynthConfig, frames) -> dict:
         "frames": [({"file": f, "page": int(pg), "delay_us": float(d)} if pg is not None
                     else {"file": f, "delay_us": float(d)}) for _, f, pg, d, _ in frames],
     }
+    if not cfg.write_nozzle_diameters:
+        del meta["nozzle_inner_diameter_um"], meta["nozzle_outer_diameter_um"]
     return meta
+
+
+def encode_jpeg(img: np.ndarray, quality: int) -> bytes:
+    """JPEG bytes (OpenCV's libjpeg-turbo) of an 8-bit grey or RGB frame."""
+    if img.dtype != np.uint8:
+        raise ValueError(f"JPEG frames are 8-bit only, got {img.dtype}")
+    arr = cv2.cvtColor(img, cv2.COLOR_RGB2BGR) if img.ndim == 3 else img
+    ok, buf = cv2.imencode(".jpg", np.ascontiguousarray(arr), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:  # pragma: no cover - cv2 encodes every 8-bit array
+        raise ValueError("cv2 could not encode the JPEG frame")
+    return buf.tobytes()
 
 
 def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | None = None,
@@ -76,9 +99,13 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
                                  pixel_size_um=config.pixel_size_um)
         else:
             for img, truth in synthesize(config, progress=progress, synth_plan=p):
-                write_image(tmp / truth.file, img)
+                if config.format == "jpeg":
+                    write_bytes(tmp / truth.file, encode_jpeg(img, config.jpeg_quality))
+                else:
+                    write_image(tmp / truth.file, img)
                 rows.append(truth)
         write_sequence_json(tmp, sequence_metadata(config, p.frames))
         write_json(tmp / "truth.json", sequence_truth(p))
         write_text(tmp / "truth_frames.csv", frames_table(rows).to_csv(index=False, float_format="%.9g"))
+        write_text(tmp / "truth_bodies.csv", bodies_table(rows).to_csv(index=False, float_format="%.9g"))
     return out
