@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from dropvision.context import FrameContext
@@ -64,6 +65,7 @@ class DetachedBody:
     min_transmission: float = float("nan")
     edge_blur_px: float = float("nan")
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
+    touching: bool = False  # split off the main drop at a waist: not a separate silhouette
 
 
 @dataclass
@@ -158,7 +160,8 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
     -------
     DetachedBody
         ``leaves``: touches the bottom of the frame or its side; ``out_of_band``: touches the side
-        of the measured band inside the frame; ``on_dust``: overlaps opaque dust.
+        of the measured band inside the frame; ``on_dust``: opaque dust on its boundary (a speck
+        wholly inside the silhouette changes no edge).
     """
     hh, ww = seg.labels.shape
     b = body
@@ -167,8 +170,13 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
     z, x = ctx.to_axis_um(volume.centroid_row, volume.centroid_col)
     leaves = b.y1 >= hh or (b.x0 == 0 and ctx.c0 == 0) or (b.x1 >= ww and ctx.c1 >= ctx.width)
     out_band = (b.x0 == 0 and ctx.c0 > 0) or (b.x1 >= ww and ctx.c1 < ctx.width)
-    on_dust = bool(ctx.opaque is not None and ctx.opaque[b.y0:b.y1, b.x0:b.x1][
-        seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label].any())
+    on_dust = False
+    if ctx.opaque is not None:
+        # an opaque speck inside the silhouette is filled over and changes no edge; one on its
+        # boundary cuts a notch into it
+        inside = (seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label).astype(np.uint8)
+        rim = inside > cv2.erode(inside, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
+        on_dust = bool(ctx.opaque[b.y0:b.y1, b.x0:b.x1][rim].any())
     return DetachedBody(
         top_chord_ratio=top_chord_ratio(edges, volume),
         volume_nl=volume.volume_px3 * ctx.nl_per_px3, z_um=z, x_um=x,

@@ -179,30 +179,41 @@ def clipped_fraction(background: np.ndarray, max_value: int | None) -> float:
 
 
 def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> float:
-    """Background grey level a clipped frame would have had, from the nozzle walls' edge profile.
+    """Background grey level a clipped frame would have had, from the edges of the top body.
 
-    Across an outer wall the grey level rises from the wall's dark interior ``d`` to the
-    background ``B`` as a blurred step ``d + (B - d) Phi((u - u0) / sigma)``; the sensor clips
-    its upper part. The profiles across each wall are averaged over the wall rows (aligned on
-    the nearest pixel of each row's edge), and the step is fitted by least squares to the
-    samples below the clip (unknowns ``B``, ``u0``, ``sigma``; ``d`` from the samples deep
-    inside the wall). Where the profile is not an error-function step (real optics: a halo, a
-    long dark tail; fit residual over 2 % of full scale), the steepest point of the averaged
-    profile is taken as its middle ``(d + B) / 2``, provided the two samples above it are below
-    the clip. ``B`` is the median over the walls that give an estimate (at least five unclipped
-    samples in the rising part, the middle below the clip); otherwise (a sharp edge against a
-    strongly clipped background) there is none and the frames are flagged ``saturated``.
+    Across an edge the grey level rises from the dark interior ``d`` to the background ``B`` as
+    a blurred step, ``d + (B - d) Phi((u - u0) / sigma)`` (``u`` the distance along the edge
+    normal); the sensor clips its upper part.
+
+    1. The profiles across each straight wall, averaged over the wall rows (aligned on the
+       nearest pixel of each row's edge), fitted with the step below the clip (unknowns ``B``,
+       ``u0``, ``sigma``; ``d`` from the samples deep inside the wall); needs five unclipped
+       samples in the rising part. Median over the walls.
+    2. The outline of the body touching the top (nozzle walls and any liquid hanging below),
+       wherever it is steeper than 45 degrees: the samples of each row are placed at their
+       distance along the normal from the row's edge (found at the clipped threshold), ``d`` is
+       each row's level 6 px and more inside; pooled, they sample the step at every sub-pixel
+       phase where the outline is curved or tilted (used when at least four of five phase bins
+       hold 5 % of the rows). The step is fitted by least squares to the samples below the
+       clip (unknowns ``B``, ``u0``, ``sigma``); kept when ``B``'s standard error is under 1 %.
+    3. Where these fail or are not an error-function step (real optics: a halo, a long dark tail;
+       residual over 2 % of full scale), the steepest point of each averaged wall profile is taken
+       as the middle ``(d + B) / 2``, provided the two samples above it are below the clip.
+
+    Every estimate needs the middle of the step below the clip; otherwise (a sharp, straight
+    edge against a strongly clipped background) there is none and the frames are flagged
+    ``saturated``.
 
     Parameters
     ----------
     image : ndarray
         Raw frame (canonical orientation).
     nozzle : Nozzle
-        Its outer walls (`find_nozzle`).
+        The top body's walls and outline (`find_nozzle`).
     max_value : int
         Sensor maximum.
     half_px : int
-        Half width of the profile taken across each wall.
+        Half width of the profile taken across each edge.
 
     Returns
     -------
@@ -215,8 +226,9 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
     img = np.asarray(image, np.float64)
     h, w = img.shape
     clip = 0.98 * max_value
-    u = np.arange(-half_px, half_px + 1, dtype=float)  # + towards the background
-    found = []
+    offs = np.arange(-half_px, half_px + 1, dtype=float)
+    # 1. the straight walls' profiles, averaged over the rows, fitted one wall at a time
+    walls, fitted = [], []
     for edges, sign in ((nozzle.left_px, -1), (nozzle.right_px, 1)):
         profs = []
         for r, e in zip(nozzle.rows, edges):
@@ -228,28 +240,68 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
             continue
         prof = np.mean(profs, axis=0)
         d = float(np.median(prof[:3]))
+        walls.append((prof, d))
         use = prof < clip
-        rising = use & (prof > d + 0.05 * (clip - d))
-        if rising.sum() < 5:
+        if (use & (prof > d + 0.05 * (clip - d))).sum() < 5:
             continue
-
-        def resid(x, uu=u[use], vv=prof[use], d=d):
-            b, u0, sig = x
-            return d + (b - d) * ndtr((uu - u0) / sig) - vv
-
-        x0 = (1.2 * max_value, 0.0, 1.5)
-        fit = least_squares(resid, x0, bounds=([max_value * 0.5, -half_px / 2, 0.3],
-                                               [max_value * 20, half_px / 2, half_px / 2]))
+        fit = least_squares(lambda x, uu=offs[use], vv=prof[use], d=d: d + (x[0] - d) * ndtr((uu - x[1]) / x[2]) - vv,
+                            (1.2 * max_value, 0.0, 1.5),
+                            bounds=([0.5 * max_value, -half_px / 2, 0.3], [20 * max_value, half_px / 2, half_px / 2]))
         b = float(fit.x[0])
-        rms = float(np.sqrt(np.mean(fit.fun**2)))
-        if fit.success and 0.5 * (b + d) < clip and rms < 0.02 * max_value:
-            found.append(b)
-            continue
-        # not an error-function step (real optics: halo, long dark tail): the steepest point of
-        # the averaged profile is the middle, if the two samples above it are below the clip
+        if fit.success and 0.5 * (b + d) < clip and np.sqrt(np.mean(fit.fun**2)) < 0.02 * max_value:
+            fitted.append(b)
+    if fitted:
+        return float(np.median(fitted))
+    # 2. pooled outline
+    if nozzle.outline_rows is not None and nozzle.outline_rows.size >= 5:
+        us, vs, ds, phases = [], [], [], []
+        rows = nozzle.outline_rows
+        for edges, sign in ((nozzle.outline_left, -1.0), (nozzle.outline_right, 1.0)):
+            slope = np.gradient(edges, rows) if rows.size > 1 else np.zeros(rows.size)
+            for r, xe, sl in zip(rows, edges, slope):
+                if not np.isfinite(xe) or abs(sl) > 1.0:
+                    continue
+                c = int(round(xe))
+                if c - half_px < 0 or c + half_px + 1 > w:
+                    continue
+                v = img[int(r), c - half_px:c + half_px + 1]
+                u = sign * (c + offs - xe) / np.hypot(1.0, sl)  # + towards the background
+                inside = u < -6.0
+                if inside.sum() < 2:
+                    continue
+                keep = v < clip
+                us.append(u[keep])
+                vs.append(v[keep])
+                ds.append(np.full(int(keep.sum()), float(np.median(v[inside]))))
+                phases.append(xe - c)
+        # the step is only separable from its level when it is sampled at many sub-pixel phases
+        bins = np.bincount(np.minimum(((np.asarray(phases) + 0.5) * 5).astype(int), 4), minlength=5)
+        if us and (bins >= max(3, 0.05 * len(phases))).sum() >= 4:
+            u, v, d = np.concatenate(us), np.concatenate(vs), np.concatenate(ds)
+            rising = v > d + 0.05 * (clip - d)
+            if rising.sum() >= 20:
+                def resid(x):
+                    return d + (x[0] - d) * ndtr((u - x[1]) / x[2]) - v
+
+                fit = least_squares(resid, (1.2 * max_value, 0.0, 1.5),
+                                    bounds=([0.5 * max_value, -half_px / 2, 0.2], [20 * max_value, half_px / 2,
+                                                                                   half_px / 2]))
+                b = float(fit.x[0])
+                rms = float(np.sqrt(np.mean(fit.fun[rising] ** 2)))
+                try:  # standard error of B from the fit's Jacobian: the lower half alone may not fix it
+                    cov = np.linalg.inv(fit.jac.T @ fit.jac) * float(np.mean(fit.fun**2))
+                    b_se = float(np.sqrt(max(cov[0, 0], 0.0)))
+                except np.linalg.LinAlgError:
+                    b_se = float("inf")
+                if (fit.success and 0.5 * (b + float(np.median(d))) < clip and rms < 0.02 * max_value
+                        and b_se < 0.01 * b):
+                    return b
+    # 3. steepest point of the averaged wall profiles
+    found = []
+    for prof, d in walls:
         diff = np.diff(prof)
         k = int(np.argmax(diff))
-        if 0 < k < diff.size - 2 and prof[k + 2] < clip:
+        if 0 < k < diff.size - 2 and prof[k + 2] < clip and (prof > d + 0.05 * (clip - d)).sum() >= 3:
             den = diff[k - 1] - 2 * diff[k] + diff[k + 1]
             off = 0.5 * (diff[k - 1] - diff[k + 1]) / den if den < 0 else 0.0
             mid = float(np.interp(k + 0.5 + off, np.arange(prof.size), prof))
@@ -288,6 +340,10 @@ class Nozzle:
     outer_width_px: float
     straight_end_row: int
     interior_level: float
+    #: Sub-pixel outer edges of every row of the top body (walls and the liquid hanging below).
+    outline_rows: np.ndarray | None = None
+    outline_left: np.ndarray | None = None
+    outline_right: np.ndarray | None = None
 
     @property
     def tilt_rad(self) -> float:
@@ -364,7 +420,10 @@ def find_nozzle(transmission: np.ndarray, threshold: float = 0.5) -> Nozzle:
     inner = cv2.erode(body[: b].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     vals_in = t[: b][inner & (t[: b] < threshold)]
     level = float(np.median(vals_in)) if vals_in.size else 0.0
-    return Nozzle(rows, left, right, float(coef[1]), float(coef[0]), float(np.mean(right - left)), int(b - 1), level)
+    orows = np.nonzero((first > 0) & (last < w) & (last > first))[0]
+    outline = subpixel_edges(t, ones, orows, first[orows], last[orows], threshold)
+    return Nozzle(rows, left, right, float(coef[1]), float(coef[0]), float(np.mean(right - left)), int(b - 1), level,
+                  orows, outline.left_px, outline.right_px)
 
 
 def _crossing_down(profile: np.ndarray, start: int, stop: int, threshold: float) -> float:

@@ -16,13 +16,16 @@ class, tried in this order (thresholds in `dropvision.config.MeasureConfig`):
    the drop separates is not liquid of this firing).
 5. ``main_drop``: the largest remaining body; ``tail``: another body longer than
    ``compact_ratio`` equivalent-sphere diameters (a free ligament); ``satellite``: the others.
+   A satellite touching the main drop (one silhouette with a short waist,
+   `dropvision.volume.waist_row`) is split off it at the waist and listed as a satellite that
+   is not counted (it is not a separate silhouette).
 
 ``counted`` is True for satellites and tails of a frame whose ``n_satellites`` is known (the
 frame's main drop and its companions are trusted); ``n_satellites`` of the frames table is the
 number of counted bodies.
 
-The edge spread of a body is ``(1 - T_min) / (sqrt(2 pi) g)``, with ``T_min`` its darkest
-transmission and ``g`` the median gradient magnitude (px^-1) at its boundary pixels: the Gaussian
+The edge spread of a body is ``(1 - max(T_min, T_liquid)) / (sqrt(2 pi) g)``, with ``T_min`` its
+darkest transmission (2nd percentile), ``T_liquid`` the liquid's interior level, and ``g`` the median gradient magnitude (px^-1) at its boundary pixels: the Gaussian
 sigma of a step edge from ``T_min`` to 1, biased high by pixel sampling in the same way for the
 nozzle walls (so only the ratio is used).  On synthetic frames in-focus drops, satellites and
 the nozzle walls give 0.95-1.1x the walls' value at blur 0.8-1.8 px; bodies blurred by a further
@@ -57,7 +60,8 @@ class Appearance:
 
 
 def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, label: int,
-               bbox: tuple[int, int, int, int], gain: float, *, skip_top_rows: int = 0, pad: int = 3) -> Appearance:
+               bbox: tuple[int, int, int, int], gain: float, *, floor: float = 0.0, skip_top_rows: int = 0,
+               pad: int = 3) -> Appearance:
     """Darkest transmission and edge spread of one labelled body.
 
     Parameters
@@ -74,6 +78,9 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
         Its bounding box, half-open (region px).
     gain : float
         Frame illumination relative to the background model.
+    floor : float
+        The step's depth is taken to at most ``1 - floor`` (the liquid's interior level): dust
+        or noise darker than the liquid inside a body does not make its edges look softer.
     skip_top_rows : int
         Boundary pixels in the region's first rows are left out (a body cut by the top of the
         region has no edge there).
@@ -94,7 +101,7 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
     inside = labels[ya:yb, xa:xb] == label
     if not inside.any():
         return Appearance(float("nan"), float("nan"))
-    t_min = float(t[inside].min())
+    t_min = float(np.percentile(t[inside], 2))
     gx = cv2.Sobel(t, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(t, cv2.CV_32F, 0, 1, ksize=3)
     grad = cv2.magnitude(gx, gy) / 8.0
@@ -105,15 +112,16 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
     if g.size < 3:
         return Appearance(t_min, float("nan"))
     g_med = float(np.median(g))
-    depth = 1.0 - t_min
+    depth = 1.0 - max(t_min, floor)
     spread = depth / (_SQRT_2PI * g_med) if g_med > 0 and depth > 0 else float("inf")
     return Appearance(t_min, spread)
 
 
-def nozzle_edge_spread_px(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, body) -> float:
+def nozzle_edge_spread_px(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, body,
+                          floor: float = 0.0) -> float:
     """Edge spread of the in-focus nozzle body (its walls and meniscus), the reference for mist."""
     return appearance(roi, inv_background, labels, body.label, (body.x0, body.y0, body.x1, body.y1), 1.0,
-                      skip_top_rows=2).edge_blur_px
+                      floor=floor, skip_top_rows=2).edge_blur_px
 
 
 def out_of_focus_reason(app: Appearance, ref_px: float, factor: float, offset_px: float) -> str | None:
@@ -189,6 +197,8 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
                 cls, why = "noise", "detached body in a frame before the pinch-off: not liquid of this firing"
             elif j == 0:
                 cls, why = "main_drop", "largest in-focus detached body"
+            elif b.touching:
+                why = b.reason + ": not counted"
             elif b.length_um > compact_ratio * _d_eq_um(b.volume_nl):
                 cls, why = "tail", f"in focus, detached, longer than {compact_ratio:g} equivalent diameters"
                 counted = known

@@ -245,7 +245,8 @@ def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
     roi = first[ctx.r0:, ctx.c0:ctx.c1]
     seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
     body = find_nozzle_body(seg.bodies, ctx.axis_roi)
-    return float("nan") if body is None else nozzle_edge_spread_px(roi, ctx.inv_background, seg.labels, body)
+    return (float("nan") if body is None
+            else nozzle_edge_spread_px(roi, ctx.inv_background, seg.labels, body, floor=ctx.liquid_level))
 
 
 def transmission_noise(transmission: np.ndarray, default: float) -> float:

@@ -34,7 +34,7 @@ from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
-from dropvision.volume import RowEdges
+from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
 
 
 @dataclass
@@ -92,12 +92,14 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     edges: list[RowEdges] = []
     nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi)
     threads: set[int] = set()
+    sources: dict[int, tuple[Body, RowEdges]] = {}
     if nozzle_body is None:
         rec.flags.append(q.NO_NOZZLE)
     else:
         att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
         app = appearance(roi, ctx.inv_background, seg.labels, nozzle_body.label,
-                         (nozzle_body.x0, nozzle_body.y0, nozzle_body.x1, nozzle_body.y1), rec.gain, skip_top_rows=2)
+                         (nozzle_body.x0, nozzle_body.y0, nozzle_body.x1, nozzle_body.y1), rec.gain,
+                         floor=ctx.liquid_level, skip_top_rows=2)
         rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": app.min_transmission,
                              "edge_blur_px": app.edge_blur_px}
         edges.append(att.edges)
@@ -121,19 +123,50 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
                 rec.attached_volume_nl += bv.volume_px3 * ctx.nl_per_px3
             rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
-        app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain)
+        app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain,
+                         floor=ctx.liquid_level)
         body = describe_detached(ctx, seg, b, ed, bv)
         body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
         why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px)
         if why is None:
             rec.bodies.append(body)
+            sources[id(body)] = (b, ed)
         else:
             body.reason = why
             rec.rejected.append(body)
     rec.bodies.sort(key=lambda d: -d.volume_nl)
+    if rec.bodies:
+        _split_touching(ctx, seg, rec, *sources[id(rec.bodies[0])])
     if logger is not None:
         _log_frame(logger, ref, image, ctx, seg, nozzle_body, rec, edges)
     return rec
+
+
+def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body: Body, edges: RowEdges) -> None:
+    """A satellite touching the main drop (one silhouette with a short waist) is split off it.
+
+    The main drop is then the larger lobe; the smaller one is listed as a touching satellite
+    (not a separate silhouette, so not counted in ``n_satellites``; its volume stays in the
+    detached volume). `dropvision.volume.waist_row` says what a waist is.
+    """
+    row = waist_row(edges)
+    if row is None:
+        return
+    main = rec.bodies[0]
+    parts = []
+    for part in split_at_row(edges, row):
+        vol = integrate(part, ctx.tilt_rad, None, ctx.sigma_px)
+        if vol.volume_px3 <= 0:
+            return
+        d = describe_detached(ctx, seg, body, part, vol)
+        d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
+        parts.append(d)
+    parts.sort(key=lambda d: -d.volume_nl)
+    parts[1].touching = True
+    parts[1].reason = f"touches the main drop (one silhouette, split at its waist, row {row + ctx.r0})"
+    rec.bodies[0] = parts[0]
+    rec.bodies.append(parts[1])
+    rec.bodies[1:] = sorted(rec.bodies[1:], key=lambda d: -d.volume_nl)
 
 
 def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -> None:

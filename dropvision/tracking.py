@@ -152,7 +152,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             length[k], diam[k] = b.length_um, b.diameter_um
             if not sat_bad:
                 det_vol[k] = sum(o.volume_nl for o in r.bodies)
-                nsat[k] = len(others)
+                nsat[k] = sum(not o.touching for o in others)
             d_eq_um = (6.0 * b.volume_nl / NL_PER_UM3 / np.pi) ** (1.0 / 3.0)
             inflight[k] = (b.length_um <= config.compact_ratio * d_eq_um
                            and not (b.top_chord_ratio < config.tail_chord_ratio))

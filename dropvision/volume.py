@@ -360,3 +360,75 @@ def top_chord_ratio(edges: RowEdges, volume: BodyVolume, at: float = 0.25) -> fl
     if not np.any(sel):
         return float("nan")
     return float(edges.chord_px[sel].max() / volume.max_chord_px)
+
+
+def waist_row(edges: RowEdges, ratio: float = 0.6, max_neck_rows: int = 3, min_lobe_rows: int = 3) -> int | None:
+    """Row of a short waist joining two lobes (a satellite touching the drop), or None.
+
+    The widest chord per row is scanned for its narrowest interior row whose chord is below
+    ``ratio`` x the widest chord of *both* lobes (above and below), where the narrow part is at
+    most ``max_neck_rows`` rows long (a thin tail is long and is not a waist) and each lobe has
+    at least ``min_lobe_rows`` rows.
+
+    Parameters
+    ----------
+    edges : RowEdges
+        Run edges of one body (px).
+    ratio : float
+        Neck chord over the smaller lobe's widest chord.
+    max_neck_rows : int
+        Longest narrow part that is still a waist (rows).
+    min_lobe_rows : int
+        Fewest rows of each lobe.
+
+    Returns
+    -------
+    int or None
+        The waist row (region coordinates), or None.
+    """
+    if edges.row.size == 0:
+        return None
+    rows = np.unique(edges.row)
+    width = np.zeros(rows.size)
+    np.maximum.at(width, np.searchsorted(rows, edges.row), edges.chord_px)
+    n = rows.size
+    if n < 2 * min_lobe_rows + 1 or np.any(np.diff(rows) != 1):
+        return None
+    best = None
+    for i in range(min_lobe_rows, n - min_lobe_rows):
+        above, below = width[:i].max(), width[i + 1:].max()
+        if width[i] >= ratio * min(above, below):
+            continue
+        narrow = width < ratio * min(above, below)
+        j0 = i
+        while j0 > 0 and narrow[j0 - 1]:
+            j0 -= 1
+        j1 = i
+        while j1 < n - 1 and narrow[j1 + 1]:
+            j1 += 1
+        if j1 - j0 + 1 > max_neck_rows or j0 < min_lobe_rows or n - 1 - j1 < min_lobe_rows:
+            continue
+        if best is None or width[i] < width[best]:
+            best = i
+    return None if best is None else int(rows[best])
+
+
+def split_at_row(edges: RowEdges, row: int) -> tuple[RowEdges, RowEdges]:
+    """The runs above ``row`` (and half of it) and below it: two bodies joined at a waist.
+
+    The waist row's runs are given to both parts with their chord divided by sqrt(2) (same
+    centre): half the slice area each, so the two volumes add up to the whole.
+    """
+    up = edges.row < row
+    down = edges.row > row
+    at = edges.row == row
+    half = edges.chord_px[at] / (2.0 * math.sqrt(2.0))
+    half_l = edges.centre_px[at] - half
+    half_r = edges.centre_px[at] + half
+
+    def part(sel):
+        return RowEdges(np.concatenate([edges.row[sel], edges.row[at]]),
+                        np.concatenate([edges.left_px[sel], half_l]),
+                        np.concatenate([edges.right_px[sel], half_r]), edges.touches)
+
+    return part(up), part(down)

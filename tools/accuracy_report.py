@@ -1,6 +1,6 @@
 """Accuracy of `dropvision measure` against the synthesizer's exact truth, over a sweep.
 
-    python tools/accuracy_report.py [--full] [--out report.csv]
+    python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--out report.csv]
 
 Renders each case of the sweep (waveforms, noise, blur, tilt, bit depth, fall-off, dust,
 satellites, repeated frames) into a temporary folder, measures it and compares with
@@ -15,6 +15,18 @@ tests/test_measure_accuracy.py.  Metrics (all errors signed unless "abs"):
 - satellites_ok: per-frame satellite count exact wherever the truth's drop is in view and the
   measurement is trusted, and the summary count exact;
 - dust_ok: no dust ever counted (no extra detached body in attached frames).
+
+Realism tier (``--tier realism``): the rig presets of the synthesizer
+(`dropvision.synth.RIGS`: drop watcher from the side in a holder block with colour JPEG, mist,
+touching and dumbbell satellites, a bead; a clipped pendant drop; low contrast; tilted and
+dusty; a single frame), measured with the same goals.  Metrics (`compare_realism`):
+grown_max_pct, drop_max_pct, inflight_pct, velocity_pct, pinchoff_ok as above; attached_pct
+(abs attached-volume error, %, over frames holding at least half the largest attached volume:
+the pendant drop, the grown meniscus); satellite_frames / satellites_wrong (frames with a
+known count compared with the truth's visible satellites); mist_counted (counted bodies within
+4 px of a truth mist droplet or dust speck); false_ok (frames with quality "ok" whose grown
+volume is off by more than 1 % of the peak, main-drop volume by more than 1 %, or satellite
+count wrong); refused (the measurement raised).
 """
 
 from __future__ import annotations
@@ -26,6 +38,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,6 +69,105 @@ def cases(full: bool = False) -> dict[str, dict]:
         else:
             kw.update(width_px=320, height_px=800, delays_us=tuple(float(d) for d in range(0, 1501, 20)))
         out[name] = kw
+    return out
+
+
+#: Realism tier: rig preset -> overrides (frame size for the report; `realism_cases` adds delays).
+REALISM = {
+    "watcher-side": dict(width_px=640, height_px=1024, tip_row=120.4, axis_col=319.6, seed=31),
+    "pendant-saturated": dict(seed=32),
+    "low-contrast": dict(seed=33),
+    "tilted-dusty": dict(seed=34),
+    "single-frame": dict(seed=35),
+}
+
+
+def realism_cases(full: bool = False) -> dict[str, dict]:
+    """Realism cases: (rig, overrides); small frames and 20 us steps unless ``full``."""
+    out = {}
+    for name, kw in REALISM.items():
+        kw = dict(kw)
+        if name in ("low-contrast", "tilted-dusty") and not full:
+            kw.update(width_px=320, height_px=800)
+        if name not in ("pendant-saturated", "single-frame"):
+            step = 10 if full else 20
+            kw["delays_us"] = tuple(float(d) for d in range(0, 1501 if not full else 1801, step))
+        out[name] = kw
+    return out
+
+
+def compare_realism(result, seq_dir) -> dict:
+    """Realism-tier metrics of a `MeasureResult` against the truth files in ``seq_dir``."""
+    seq_dir = Path(seq_dir)
+    truth = json.loads((seq_dir / "truth.json").read_text())
+    tf = pd.read_csv(seq_dir / "truth_frames.csv")
+    tb = pd.read_csv(seq_dir / "truth_bodies.csv")
+    f, s, b = result.frames, result.summary, result.bodies
+    m = f.merge(tf, on=["file", "delay_us", "repeat"], suffixes=("", "_t"), validate="one_to_one")
+    nan = float("nan")
+    out = {"frames": int(len(f)), "refused": False}
+    att = m[m["attached_t"]]
+    peak = float(tf["grown_volume_nl"].max()) if tf["grown_volume_nl"].notna().any() else nan
+    g_err = (att["grown_volume_nl"] - att["grown_volume_nl_t"]).abs() / peak * 100 if peak > 0 else pd.Series(dtype=float)
+    out["grown_max_pct"] = float(g_err.max()) if g_err.notna().any() else nan
+    big = att[att["attached_volume_nl_t"] >= 0.5 * att["attached_volume_nl_t"].max()] if len(att) else att
+    out["attached_pct"] = (float(100 * (big["attached_volume_nl"] / big["attached_volume_nl_t"] - 1).abs().max())
+                           if len(big) else nan)
+    inf = m[m["inflight_t"] & m["drop_in_view"] & m["drop_volume_nl"].notna()]
+    d_err = (inf["drop_volume_nl"] / inf["drop_volume_nl_t"] - 1).abs() * 100
+    out["drop_max_pct"] = float(d_err.max()) if len(d_err) else nan
+    out["drop_frames"] = int(len(d_err))
+
+    def rel(key_m, key_t):
+        t = truth.get(key_t)
+        v = s.get(key_m)
+        return 100 * (v / t - 1) if t not in (None, 0) and v is not None and np.isfinite(t) else nan
+
+    out["inflight_pct"] = rel("inflight_volume_nl", "inflight_volume_nl")
+    out["velocity_pct"] = rel("jetting_velocity_m_s", "jetting_velocity_m_s")
+    tp = truth.get("pinchoff_us")
+    out["pinchoff_ok"] = bool(tp is None or not np.isfinite(tp) or len(f) < 5 or s["pinchoff_us"] == tp)
+    view = m[~m["attached_t"] & m["drop_in_view"] & m["n_satellites"].notna()]
+    sat_wrong = view["n_satellites"].astype(int) != view["n_satellites_visible"].astype(int)
+    out["satellite_frames"] = int(len(view))
+    out["satellites_wrong"] = int(sat_wrong.sum())
+    soft = tb[tb["body_class"].isin(["mist", "dust"])]
+    counted = b[b["counted"]]
+    mist_counted = 0
+    for key, grp in counted.groupby(["file", "delay_us", "repeat"]):
+        sp = soft[(soft["file"] == key[0]) & (soft["delay_us"] == key[1]) & (soft["repeat"] == key[2])]
+        for _, row in grp.iterrows():
+            if len(sp) and (np.hypot(sp["row_px"] - row["row_px"], sp["col_px"] - row["col_px"]) < 4).any():
+                mist_counted += 1
+    out["mist_counted"] = mist_counted
+    bad = pd.Series(False, index=m.index)
+    if peak > 0:
+        bad |= m["attached_t"] & ((m["grown_volume_nl"] - m["grown_volume_nl_t"]).abs() / peak > 0.01)
+    bad |= (m["inflight_t"] & m["drop_in_view"] & m["drop_volume_nl"].notna()
+            & ((m["drop_volume_nl"] / m["drop_volume_nl_t"] - 1).abs() > 0.01))
+    bad.loc[view.index] |= sat_wrong
+    out["false_ok"] = int((bad & (m["quality"] == q.OK)).sum())
+    out["not_ok_frames"] = int((f["quality"] != q.OK).sum())
+    return out
+
+
+def run_realism_case(name: str, kw: dict, workdir) -> dict:
+    """Render the rig preset ``name`` with overrides ``kw`` into ``workdir`` and compare."""
+    from dropvision.config import MeasureConfig
+    from dropvision.measurement import measure_sequence
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    seq = Path(workdir) / "seq"
+    t0 = time.perf_counter()
+    write_synthetic_sequence(SynthConfig.for_rig(name, **kw), seq, progress=False)
+    t1 = time.perf_counter()
+    try:
+        res = measure_sequence(seq, config=MeasureConfig(workers=1))
+    except Exception as exc:  # the report lists a refusal as a result
+        return {"refused": True, "error": f"{type(exc).__name__}: {exc}", "render_s": t1 - t0}
+    t2 = time.perf_counter()
+    out = compare_realism(res, seq)
+    out.update(render_s=t1 - t0, measure_s=t2 - t1)
     return out
 
 
@@ -121,8 +233,27 @@ def run_case(kw: dict, workdir) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="640x1024 frames every 10 us (slower)")
-    ap.add_argument("--out", help="also write the table as CSV")
+    ap.add_argument("--tier", choices=("clean", "realism", "all"), default="all",
+                    help="clean sweep, realism tier (rig presets), or both (default)")
+    ap.add_argument("--out", help="also write the table(s) as CSV (realism tier: NAME-realism.csv)")
     args = ap.parse_args(argv)
+    if args.tier in ("realism", "all"):
+        rrows = []
+        for name, kw in realism_cases(args.full).items():
+            with tempfile.TemporaryDirectory() as tmp:
+                r = run_realism_case(name, kw, tmp)
+            r["case"] = name
+            rrows.append(r)
+            print(f"realism {name}: " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
+                                                  for k, v in r.items() if k != "case"), flush=True)
+        rtable = pd.DataFrame(rrows).set_index("case")
+        with pd.option_context("display.width", 200, "display.max_columns", 50):
+            print(rtable.T.to_string(float_format=lambda v: f"{v:.4g}"))
+        if args.out:
+            out = Path(args.out)
+            rtable.to_csv(out.with_name(out.stem + "-realism" + out.suffix))
+        if args.tier == "realism":
+            return 0
     rows = []
     for name, kw in cases(args.full).items():
         with tempfile.TemporaryDirectory() as tmp:
