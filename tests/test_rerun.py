@@ -475,11 +475,11 @@ def identification_rrd(tmp_path_factory):
     irl.log_model_fit(rec, ds, model)
     irl.log_prediction(rec, mc)  # the model of log_model_fit gives the intervals
     irl.close_recording(rec)
-    return Rrd(path), grid, model.interval_prediction(70.0, 25.0, mc=mc)
+    return Rrd(path), grid, model.interval_prediction(70.0, 25.0, mc=mc), model, ds
 
 
 def test_identification_view_colours_and_names(identification_rrd):
-    rrd, grid, _ = identification_rrd
+    rrd, grid, *_ = identification_rrd
     parts = [f"u1\\={a:g}\\ u2\\={b:g}" for a, b in grid]  # rr.escape_entity_path_part
     colours = []
     for name, part in zip((irl.control_name(a, b) for a, b in grid), parts):
@@ -492,8 +492,8 @@ def test_identification_view_colours_and_names(identification_rrd):
         assert measured == _colour(rrd, f"/identify/flow_m_s/{part}/simulated", "SeriesLines")
         assert rrd.static[f"{base}/pinchoff"]["SeriesPoints:markers"][0] != \
             rrd.static[f"{base}/pinchoff_simulated"]["SeriesPoints:markers"][0]
-        # legends name series by (u1, u2), never 16 identical "simulated"
-        assert rrd.static[f"{base}/simulated"]["SeriesLines:names"][0] == f"{name} simulated"
+        # legends name series by (u1, u2), never 16 identical "simulated", with the fit's RMSE
+        assert rrd.static[f"{base}/simulated"]["SeriesLines:names"][0].startswith(f"{name} simulated (RMSE ")
         assert len(rrd.series(f"{base}/pinchoff", "Scalars:scalars")) == 1
         colours.append(measured)
     assert len(set(colours)) == len(grid)  # one colour per sequence
@@ -507,10 +507,11 @@ def test_identification_view_colours_and_names(identification_rrd):
     assert len(rmse) == len(grid) and rmse == sorted(rmse, reverse=True)
     kinds = [k[0] for k in _view_kinds(rrd)]
     assert kinds.count("TimeSeries") == len(grid) + 4 and kinds.count("2D") == 1
+    assert kinds.count("3D") == 3 and kinds.count("BarChart") == 2  # surfaces; RMSE and CV bars
 
 
 def test_identification_view_prediction(identification_rrd):
-    rrd, grid, iv = identification_rrd
+    rrd, grid, iv, *_ = identification_rrd
     seq = "u1\\=70\\ u2\\=25"
     base = f"/identify/monte_carlo/volume_nl/{seq}"
     for kind in ("mean", "low", "high", "fill"):
@@ -544,3 +545,73 @@ def _view_kinds(rrd: Rrd) -> list:
         if "ViewBlueprint:class_identifier" in batch.schema.names:
             out += batch.column("ViewBlueprint:class_identifier").to_pylist()
     return out
+
+
+def test_identification_view_worst_fit(identification_rrd):
+    """Which sequence fits worst: RMSE bars worst first (= the fit table), RMSE labels on the
+    training points, a frame around the worst one."""
+    rrd, grid, *_ = identification_rrd
+    table = rrd.static["/identify/fit/table"]["TextDocument:text"][0]
+    rows = [line.split("|") for line in table.splitlines() if line.startswith("| u1=")]
+    rmse = [float(r[4]) for r in rows]
+    bars = rrd.static["/identify/fit/rmse_nl"]["BarChart:values"][0]["buffer"]
+    np.testing.assert_allclose(bars, rmse, rtol=1e-3)
+    assert np.all(np.diff(bars) <= 0)
+    pts = rrd.static["/identify/controls/training"]
+    labels = dict(zip(map(tuple, pts["Points2D:positions"]), pts["Points2D:labels"]))
+    worst_name = rows[0][1].strip()
+    worst = next(p for p in grid if irl.control_name(*p) == worst_name)
+    assert labels[worst].startswith("worst: ") and sum(lb.startswith("worst") for lb in labels.values()) == 1
+    for row in rows:  # every label is the RMSE of its sequence
+        u1, u2 = float(row[2]), float(row[3])
+        assert float(labels[(u1, u2)].removeprefix("worst: ").removesuffix(" nl")) == pytest.approx(float(row[4]), rel=0.05)
+    assert pts["Points2D:show_labels"] == [True]
+    box = rrd.static["/identify/controls/worst"]
+    assert [tuple(c) for c in box["Boxes2D:centers"]] == [worst]
+    # the prediction among the training grid: box and crosshair through (70, 25)
+    pbox = rrd.static["/identify/controls/prediction_box"]
+    assert [tuple(c) for c in pbox["Boxes2D:centers"]] == [(70.0, 25.0)]
+    assert pbox["Boxes2D:labels"][0].startswith("prediction ")
+    cross = rrd.static["/identify/controls/prediction_crosshair"]["LineStrips2D:strips"]
+    horizontal, vertical = (np.asarray(c) for c in cross)
+    assert np.all(horizontal[:, 1] == 25.0) and horizontal[:, 0].min() < 55 and horizontal[:, 0].max() > 85
+    assert np.all(vertical[:, 0] == 70.0) and vertical[:, 1].min() < 20 and vertical[:, 1].max() > 35
+
+
+def test_identification_view_surfaces(identification_rrd):
+    """Pinch-off and adjuster polynomials over (u1, u2): mesh values, training targets, residual
+    lines and the prediction, against the model and identify.app.report.training_targets."""
+    from identify.app.report import training_targets
+
+    rrd, grid, _, model, ds = identification_rrd
+    targets = training_targets(model, ds)
+    for attr, column, _title, unit in irl.SURFACES:
+        poly = getattr(model, attr)
+        base = f"/identify/surfaces/{attr}"
+        assert rrd.static[base]["ViewCoordinates:xyz"] is not None  # z up
+        verts = np.asarray(rrd.static[f"{base}/mesh"]["Mesh3D:vertex_positions"], dtype=float)
+        assert verts.shape == (25 * 25, 3)
+        assert verts[:, 0].min() == 55.0 and verts[:, 0].max() == 85.0
+        assert verts[:, 1].min() == 20.0 and verts[:, 1].max() == 35.0
+        np.testing.assert_allclose(verts[:, 2], poly.predict(verts[:, 0], verts[:, 1]), rtol=1e-5,
+                                   atol=1e-6 * np.abs(verts[:, 2]).max())
+        tri = np.asarray(rrd.static[f"{base}/mesh"]["Mesh3D:triangle_indices"])
+        assert tri.shape == (2 * 24 * 24, 3) and tri.max() == 25 * 25 - 1
+        assert len(rrd.static[f"{base}/mesh"]["Mesh3D:vertex_colors"]) == 25 * 25
+        # training targets at their true values (hover shows them), residual line to the surface
+        pts = np.asarray(rrd.static[f"{base}/training"]["Points3D:positions"], dtype=float)
+        expect = targets[["u1_um_per_ms", "u2_um", column]].to_numpy(float)
+        np.testing.assert_allclose(pts[np.lexsort(pts[:, :2].T)], expect[np.lexsort(expect[:, :2].T)],
+                                   rtol=1e-5, atol=1e-9)
+        for strip in rrd.static[f"{base}/residuals"]["LineStrips3D:strips"]:
+            (a1, a2, target), (b1, b2, surface) = np.asarray(strip, dtype=float)
+            assert (a1, a2) == (b1, b2)
+            assert surface == pytest.approx(float(poly.predict(np.array([a1]), np.array([a2]))[0]), rel=1e-5, abs=1e-9)
+        assert all(unit in lb and "residual" in lb for lb in rrd.static[f"{base}/training"]["Points3D:labels"])
+        # the value axis is scaled for display (Transform3D), the values themselves are not
+        scale = np.asarray(rrd.static[f"{base}/mesh"]["Transform3D:scale"][0], dtype=float)
+        assert scale[0] == scale[1] == 1.0 and scale[2] > 0
+        # the prediction at (70, 25) on the surface
+        (p,) = np.asarray(rrd.static[f"{base}/prediction"]["Points3D:positions"], dtype=float)
+        assert tuple(p[:2]) == (70.0, 25.0)
+        assert p[2] == pytest.approx(float(poly.predict(np.array([70.0]), np.array([25.0]))[0]), rel=1e-5, abs=1e-9)

@@ -37,9 +37,28 @@ Entity paths (``<name>`` = sequence / band name, escaped with ``rr.escape_entity
 ``/identify/flow_m_s/<name>/measured``      Scalars, points (only if given)
 ``/identify/flow_m_s/<name>/simulated``     Scalars, line (only if given)
 ``/identify/fit/table``                     static TextDocument: RMSE per sequence, worst first
+``/identify/fit/rmse_nl``                   static BarChart: RMSE per sequence, worst first (bar k =
+                                            row k of the fit table)
 ``/identify/controls/training``             static Points2D at (u1, u2) [y axis = u2, downwards],
-                                            sequence colours, radius grows with the RMSE
-``/identify/controls/prediction``           static Points2D, the predicted (u1, u2) (star colour)
+                                            sequence colours, radius grows with the RMSE, labels
+                                            shown: "<x> nl" (the RMSE; "worst: <x> nl")
+``/identify/controls/worst``                static Boxes2D, red frame around the worst fit
+``/identify/controls/prediction``           static Points2D, the predicted (u1, u2) (white)
+``/identify/controls/prediction_box``       static Boxes2D around it, labelled (shown) with the
+                                            prediction; ``.../prediction_crosshair`` LineStrips2D
+                                            through it across the training range
+``/identify/surfaces/<surface>``            static ViewCoordinates (z up)
+``/identify/surfaces/<surface>/*``          static Transform3D on every child: z scaled so that the
+                                            value range is 0.6 x the larger (u1, u2) range (the
+                                            logged values stay true)
+``/identify/surfaces/<surface>/mesh``       static Mesh3D: the polynomial over the training (u1, u2)
+                                            range (25 x 25 grid), vertices (u1, u2, value), coloured
+                                            by value (viridis)
+``/identify/surfaces/<surface>/training``   static Points3D: the training targets (u1, u2, target),
+                                            sequence colours, labels with target / surface / residual
+``/identify/surfaces/<surface>/residuals``  static LineStrips3D: target -> surface, sequence colours
+``/identify/surfaces/<surface>/prediction`` static Points3D: the surface at the predicted (u1, u2)
+    ``<surface>``: ``pinchoff`` [us], ``volume_adjuster`` [nl], ``velocity_adjuster`` [m/s]
 ``/identify/cv/table``                      static TextDocument (markdown of the CV DataFrame)
 ``/identify/cv/bar``                        static BarChart of one CV column (if requested)
 ``/identify/monte_carlo/<quantity>/<name>/{mean,low,high}``   Scalars, lines
@@ -81,7 +100,10 @@ __all__ = [
     "control_name",
     "log_model_fit",
     "log_prediction",
+    "log_surfaces",
+    "log_training_points",
     "sequence_colours",
+    "SURFACES",
 ]
 
 DEFAULT_APPLICATION_ID = "dropvision-identify"
@@ -93,6 +115,7 @@ _BAND_EDGE = (170, 170, 170)
 _CONFIDENCE = (255, 200, 0)
 _PREDICTION = (255, 120, 0)
 _PREDICTION_POINT = (255, 255, 255)
+_WORST = (255, 60, 60)
 #: colours of sequences logged without one (cycled)
 _PALETTE = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
             (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)]
@@ -148,6 +171,8 @@ class _State:
     training: bool = False
     prediction: bool = False
     model: Any = None
+    #: (view title, path part, (camera position, look target) in the view's space)
+    surfaces: list[tuple[str, str, Any]] = field(default_factory=list)
 
 
 _STATES: dict[int, _State] = {}
@@ -157,21 +182,26 @@ def _state(rec: rr.RecordingStream) -> _State:
     return _STATES.setdefault(id(rec), _State())
 
 
-def identify_blueprint(sequences: Sequence[tuple[str, str]] = (), *, prediction: bool = True) -> rrb.Blueprint:
+def identify_blueprint(sequences: Sequence[tuple[str, str]] = (), *, prediction: bool = True,
+                       surfaces: Sequence[tuple[str, str]] = ()) -> rrb.Blueprint:
     """Layout of the identification recording.
 
     Left: all sequences in one volume plot and one flow plot (colour = sequence, points =
-    measured, lines = simulated, markers = pinch-off). Right: small multiples (one volume plot per
-    sequence, in the order given: worst fit first) and the fit table; the prediction (the
-    (u1, u2) plane with the training points and the predicted point; the band against the
-    delay); the cross-validation table.
+    measured, lines = simulated, markers = pinch-off). Right, top: which sequence fits worst and
+    where the prediction lies: the (u1, u2) plane with the training points (labelled with their
+    RMSE, the worst marked) and the predicted point, beside the RMSE bar chart (worst first) and the
+    fit table. Right, bottom, tabs: the polynomial surfaces over (u1, u2) with the training
+    targets (3-D, one view per surface); small multiples (one volume plot per sequence, worst fit
+    first); the prediction band against the delay and its intervals; the cross-validation.
 
     Parameters
     ----------
     sequences : sequence of (name, escaped entity path part)
         The small multiples, in display order.
     prediction : bool
-        Show the prediction views.
+        Show the (u1, u2) plane and the prediction views.
+    surfaces : sequence of (title, surface entity path part[, (eye position, look target)])
+        The 3-D surface views (``/identify/surfaces/<part>``), with their camera.
     """
     import rerun.blueprint as rrb
 
@@ -179,42 +209,61 @@ def identify_blueprint(sequences: Sequence[tuple[str, str]] = (), *, prediction:
         rrb.TimeSeriesView(name=name, origin=f"/identify/volume_nl/{part}",
                            plot_legend=rrb.PlotLegend(visible=False))
         for name, part in sequences]
-    right: list[Any] = []
-    if per_sequence:
-        right.append(rrb.Tabs(
-            rrb.Grid(*per_sequence, name="per sequence: volume (worst fit first)",
-                     grid_columns=min(4, len(per_sequence))),
-            rrb.TextDocumentView(name="fit per sequence (RMSE)", origin="/identify/fit/table"),
-        ))
+    fit_views: list[Any] = []
     if prediction:
-        right.append(rrb.Horizontal(
-            rrb.Spatial2DView(name="(u1 right, u2 down): training points, prediction",
-                              origin="/identify/controls"),
-            rrb.Tabs(
-                rrb.TimeSeriesView(name="prediction: grown volume band [nl]",
-                                   origin="/identify/monte_carlo/volume_nl"),
-                rrb.TimeSeriesView(name="prediction: flow velocity band [m/s]",
-                                   origin="/identify/monte_carlo/flow_m_s"),
-                rrb.TextDocumentView(name="prediction intervals", origin="/identify/prediction/table"),
-            ),
-        ))
-    right.append(rrb.Tabs(
+        fit_views.append(rrb.Spatial2DView(
+            name="(u1 right, u2 down): training points with their RMSE, prediction (white)",
+            origin="/identify/controls"))
+    fit_views.append(rrb.Tabs(
+        rrb.BarChartView(name="RMSE per sequence [nl], worst first (bar k = row k of the table)",
+                         origin="/identify/fit/rmse_nl"),
+        rrb.TextDocumentView(name="fit per sequence (RMSE)", origin="/identify/fit/table"),
+    ))
+    tabs: list[Any] = []
+    if surfaces:
+        views3d = []
+        for title, part, *eye in surfaces:
+            controls = None
+            if eye and eye[0] is not None:
+                controls = rrb.EyeControls3D(position=eye[0][0], look_target=eye[0][1], eye_up=(0.0, 0.0, 1.0))
+            views3d.append(rrb.Spatial3DView(name=title, origin=f"/identify/surfaces/{part}",
+                                             eye_controls=controls))
+        tabs.append(rrb.Horizontal(
+            *views3d,
+            name="surfaces over (u1, u2): mesh = polynomial, dots = training targets"))
+    if per_sequence:
+        tabs.append(rrb.Grid(*per_sequence, name="per sequence: volume (worst fit first)",
+                             grid_columns=min(4, len(per_sequence))))
+    if prediction:
+        tabs += [
+            rrb.TimeSeriesView(name="prediction: grown volume band [nl]", origin="/identify/monte_carlo/volume_nl"),
+            rrb.TimeSeriesView(name="prediction: flow velocity band [m/s]", origin="/identify/monte_carlo/flow_m_s"),
+            rrb.TextDocumentView(name="prediction intervals", origin="/identify/prediction/table"),
+        ]
+    tabs += [
         rrb.TextDocumentView(name="cross-validation table", origin="/identify/cv/table"),
         rrb.BarChartView(name="cross-validation", origin="/identify/cv/bar"),
-    ))
+    ]
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Vertical(
                 rrb.TimeSeriesView(name="grown volume [nl]: points measured, lines simulated, "
-                                        "markers pinch-off", origin="/identify/volume_nl"),
+                                        "markers pinch-off", origin="/identify/volume_nl",
+                                   plot_legend=rrb.PlotLegend(corner="LeftTop")),
                 rrb.TimeSeriesView(name="flow velocity [m/s]: points measured, lines simulated",
-                                   origin="/identify/flow_m_s"),
+                                   origin="/identify/flow_m_s", plot_legend=rrb.PlotLegend(visible=False)),
                 row_shares=[3, 2],
             ),
-            rrb.Vertical(*right, row_shares=[3, 3, 1][-len(right):] if len(right) > 1 else None),
+            rrb.Vertical(
+                rrb.Horizontal(*fit_views, column_shares=[3, 2] if len(fit_views) == 2 else None),
+                rrb.Tabs(*tabs),
+                row_shares=[1, 1],
+            ),
             column_shares=[1, 1],
         ),
-        rrb.TimePanel(timeline="delay"),
+        rrb.TimePanel(timeline="delay", state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
         collapse_panels=False,
     )
 
@@ -251,8 +300,12 @@ def close_recording(rec: rr.RecordingStream) -> None:
                          f"{'' if q.u2 is None else f'{q.u2:g}'} | {q.rmse_nl:.4g} |")
         rec.log("/identify/fit/table", rr.TextDocument("\n".join(lines), media_type="text/markdown"),
                 static=True)
-    rec.send_blueprint(identify_blueprint([(f"{q.name}: RMSE {q.rmse_nl:.3g} nl", q.part) for q in order],
-                                          prediction=st.prediction or st.training or bool(st.bands)),
+        rmse = np.array([q.rmse_nl for q in order], dtype=float)
+        rec.log("/identify/fit/rmse_nl", rr.BarChart(np.nan_to_num(rmse, nan=0.0), color=(230, 80, 60),
+                                                     abscissa=np.arange(1, rmse.size + 1)), static=True)
+    rec.send_blueprint(identify_blueprint([(f"{q.rmse_nl:.2g} nl: {q.name}", q.part) for q in order],
+                                          prediction=st.prediction or st.training or bool(st.bands),
+                                          surfaces=st.surfaces),
                        make_active=True, make_default=True)
     close_stream(rec)
 
@@ -389,9 +442,13 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
         series.append(("flow_m_s", "measured", _vector("measured_flow_m_s", measured_flow_m_s, t.size), t))
     if simulated_flow_m_s is not None:
         series.append(("flow_m_s", "simulated", _vector("simulated_flow_m_s", simulated_flow_m_s, ts.size), ts))
+    rmse = _rmse(t, series[0][2], ts, series[1][2])
     for quantity, kind, values, times in series:
         path = f"/identify/{quantity}/{part}/{kind}"
-        _style(rec, path, f"{name} {kind}", colour, points=kind == "measured")
+        label = f"{name} {kind}"
+        if quantity == "volume_nl" and kind == "simulated" and math.isfinite(rmse):
+            label += f" (RMSE {rmse:.2g} nl)"
+        _style(rec, path, label, colour, points=kind == "measured")
         _send_series(rec, path, times, values)
     for kind, marker, at in (("pinchoff", "cross", pinchoff), ("pinchoff_simulated", "diamond", simulated_pinchoff)):
         if at is None:
@@ -401,12 +458,14 @@ def log_sequence_fit(rec: rr.RecordingStream, name: str, t_us: Sequence[float] |
                marker_size=7.0)
         _send_rows(rec, path, [at[0]], [at[1]])
     u1, u2 = (None, None) if controls is None else (float(controls[0]), float(controls[1]))
-    st.sequences.append(_Sequence(name, part, colour, _rmse(t, series[0][2], ts, series[1][2]), u1, u2))
+    st.sequences.append(_Sequence(name, part, colour, rmse, u1, u2))
 
 
 def log_training_points(rec: rr.RecordingStream) -> None:
     """Log the (u1, u2) of the sequences logged so far (with ``controls``) at
-    ``/identify/controls/training``: their colours, labels with the RMSE, radius growing with it."""
+    ``/identify/controls/training``: their colours, radius growing with the RMSE, labels shown:
+    the RMSE (``"worst: <x> nl"`` on the sequence with the largest; the position names the
+    sequence)."""
     import rerun as rr
 
     seqs = [q for q in _state(rec).sequences if q.u1 is not None]
@@ -415,10 +474,141 @@ def log_training_points(rec: rr.RecordingStream) -> None:
     rmse = np.array([q.rmse_nl for q in seqs])
     top = np.nanmax(rmse) if np.isfinite(rmse).any() and np.nanmax(rmse) > 0 else 1.0
     radii = [0.4 + 0.8 * (0.0 if not math.isfinite(r) else r / top) for r in rmse]
+    worst = int(np.nanargmax(rmse)) if np.isfinite(rmse).any() else -1
+    labels = [f"{'worst: ' if i == worst else ''}{q.rmse_nl:.2g} nl" for i, q in enumerate(seqs)]
     rec.log("/identify/controls/training", rr.Points2D(
         [(q.u1, q.u2) for q in seqs], colors=[q.colour for q in seqs], radii=radii,
-        labels=[f"{q.name}: RMSE {q.rmse_nl:.3g} nl" for q in seqs], show_labels=False), static=True)
+        labels=labels, show_labels=True), static=True)
+    if worst >= 0:  # a red frame around the worst-fitting sequence
+        q = seqs[worst]
+        r = radii[worst] * 1.6
+        rec.log("/identify/controls/worst", rr.Boxes2D(
+            centers=[(q.u1, q.u2)], half_sizes=[(r, r)], colors=[_WORST], radii=-2.0,
+            labels=[f"worst fit: {q.name}"], show_labels=False), static=True)
     _state(rec).training = True
+
+
+#: the polynomial surfaces of the hybrid model: (model attribute, training column, title, unit)
+SURFACES = (("pinchoff", "pinchoff_us", "pinch-off instant", "us"),
+            ("volume_adjuster", "volume_adjustment_nl", "volume adjuster", "nl"),
+            ("velocity_adjuster", "velocity_adjustment_m_s", "velocity adjuster", "m/s"))
+_VIRIDIS = np.array([(68, 1, 84), (59, 82, 139), (33, 145, 140), (94, 201, 98), (253, 231, 37)], dtype=float)
+
+
+def _viridis(x: np.ndarray) -> np.ndarray:
+    """RGB (uint8) of values in [0, 1] on a 5-stop viridis scale."""
+    x = np.clip(np.nan_to_num(np.asarray(x, dtype=float), nan=0.0), 0.0, 1.0) * (len(_VIRIDIS) - 1)
+    i = np.minimum(x.astype(int), len(_VIRIDIS) - 2)
+    f = (x - i)[..., None]
+    return np.round(_VIRIDIS[i] * (1 - f) + _VIRIDIS[i + 1] * f).astype(np.uint8)
+
+
+def _grid_triangles(n1: int, n2: int) -> np.ndarray:
+    """Two triangles per cell of an (n2, n1) vertex grid stored row by row."""
+    i, j = np.meshgrid(np.arange(n2 - 1), np.arange(n1 - 1), indexing="ij")
+    a = (i * n1 + j).ravel()
+    b, c, d = a + 1, a + n1, a + n1 + 1
+    return np.concatenate([np.column_stack([a, b, d]), np.column_stack([a, d, c])]).astype(np.uint32)
+
+
+def log_surfaces(rec: rr.RecordingStream, model: Any, training: pd.DataFrame, *,
+                 colours: Sequence[tuple[int, int, int]] | None = None,
+                 names: Sequence[str] | None = None, grid: int = 25) -> None:
+    """Log the pinch-off and adjuster polynomials of ``model`` over (u1, u2) with their training
+    targets, one 3-D scene per surface at ``/identify/surfaces/<surface>`` (:data:`SURFACES`).
+
+    Each scene: the polynomial on a ``grid`` x ``grid`` mesh over the training (u1, u2) range,
+    coloured by value (viridis, low = violet, high = yellow); the training targets as dots in
+    their sequence colours, with a line to the surface (the residual). Positions are the true
+    values (u1 [um/ms], u2 [um], value in the surface's unit; hover a dot for its numbers); a
+    ``Transform3D`` on every entity scales the value axis so that its range is 0.6 x the larger
+    control range (the scene is readable whatever the unit).
+
+    Parameters
+    ----------
+    rec : rerun.RecordingStream
+    model : identify.hybrid.HybridModel
+        Its ``pinchoff``, ``volume_adjuster`` and ``velocity_adjuster`` polynomials.
+    training : pandas.DataFrame
+        One row per sequence: ``u1_um_per_ms``, ``u2_um`` and the targets (columns of
+        :data:`SURFACES`, e.g. :func:`identify.app.report.training_targets`).
+    colours, names : sequence, optional
+        Colour and name of each row (default: :func:`sequence_colours`, :func:`control_name`).
+    """
+    import rerun as rr
+
+    u1 = training["u1_um_per_ms"].to_numpy(float)
+    u2 = training["u2_um"].to_numpy(float)
+    ok_u = np.isfinite(u1) & np.isfinite(u2)
+    if not ok_u.any():
+        return
+    colours = list(colours) if colours is not None else sequence_colours(u1, u2)
+    names = list(names) if names is not None else [control_name(a, b) for a, b in zip(u1, u2)]
+    lo1, hi1 = float(u1[ok_u].min()), float(u1[ok_u].max())
+    lo2, hi2 = float(u2[ok_u].min()), float(u2[ok_u].max())
+    if hi1 == lo1:
+        lo1, hi1 = lo1 - 1.0, hi1 + 1.0
+    if hi2 == lo2:
+        lo2, hi2 = lo2 - 1.0, hi2 + 1.0
+    g1, g2 = np.meshgrid(np.linspace(lo1, hi1, grid), np.linspace(lo2, hi2, grid))
+    span = max(hi1 - lo1, hi2 - lo2)
+    st = _state(rec)
+    for attr, column, title, unit in SURFACES:
+        poly = getattr(model, attr, None)
+        if poly is None or column not in training.columns:
+            continue
+        z = np.asarray(poly.predict(g1, g2), dtype=float)
+        target = training[column].to_numpy(float)
+        at = np.asarray(poly.predict(u1, u2), dtype=float)
+        ok = ok_u & np.isfinite(target) & np.isfinite(at)
+        values = np.concatenate([z[np.isfinite(z)], target[ok], at[ok]])
+        if values.size == 0:
+            continue
+        zmin, zmax = float(values.min()), float(values.max())
+        if zmax <= zmin:
+            zmax = zmin + 1.0
+        k = 0.6 * span / (zmax - zmin)
+        transform = rr.Transform3D(translation=(0.0, 0.0, -k * zmin), scale=(1.0, 1.0, k))
+        base = f"/identify/surfaces/{attr}"
+        rec.log(base, rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        for child in ("mesh", "training", "residuals", "prediction"):
+            rec.log(f"{base}/{child}", transform, static=True)
+        rec.log(f"{base}/mesh", rr.Mesh3D(
+            vertex_positions=np.column_stack([g1.ravel(), g2.ravel(), z.ravel()]),
+            triangle_indices=_grid_triangles(grid, grid),
+            vertex_colors=_viridis((z.ravel() - zmin) / (zmax - zmin))), static=True)
+        idx = np.flatnonzero(ok)
+        rmse = float(np.sqrt(np.mean((target[ok] - at[ok]) ** 2))) if idx.size else math.nan
+        if idx.size:
+            rec.log(f"{base}/training", rr.Points3D(
+                np.column_stack([u1[ok], u2[ok], target[ok]]), colors=[colours[i] for i in idx], radii=-6.0,
+                labels=[f"{names[i]}: {target[i]:.4g} {unit} (surface {at[i]:.4g}, residual "
+                        f"{target[i] - at[i]:+.2g})" for i in idx], show_labels=False), static=True)
+            rec.log(f"{base}/residuals", rr.LineStrips3D(
+                [[(u1[i], u2[i], target[i]), (u1[i], u2[i], at[i])] for i in idx],
+                colors=[colours[i] for i in idx], radii=-1.5), static=True)
+        label = f"{title} [{unit}]" + (f", RMSE {rmse:.2g}" if math.isfinite(rmse) else "")
+        # camera: in front (low u2), left (low u1) and above, far enough for the whole surface
+        centre = np.array([(lo1 + hi1) / 2, (lo2 + hi2) / 2, 0.3 * span])
+        eye = (tuple(centre + span * np.array([-0.9, -1.9, 1.1])), tuple(centre))
+        st.surfaces = [q for q in st.surfaces if q[1] != attr] + [(label, attr, eye)]
+
+
+def _log_surface_prediction(rec: rr.RecordingStream, model: Any, u1: float, u2: float) -> None:
+    """The surfaces at the predicted (u1, u2): a white dot per logged surface scene."""
+    import rerun as rr
+
+    units = {attr: unit for attr, _c, _t, unit in SURFACES}
+    for _label, attr, _eye in _state(rec).surfaces:
+        poly = getattr(model, attr, None)
+        if poly is None:
+            continue
+        value = float(np.asarray(poly.predict(np.array([u1]), np.array([u2])), dtype=float).ravel()[0])
+        if not math.isfinite(value):
+            continue
+        rec.log(f"/identify/surfaces/{attr}/prediction", rr.Points3D(
+            [(u1, u2, value)], colors=[_PREDICTION_POINT], radii=-9.0,
+            labels=[f"prediction: {value:.4g} {units[attr]}"], show_labels=True), static=True)
 
 
 def _markdown(table: pd.DataFrame, title: str) -> str:
@@ -551,6 +741,17 @@ def log_model_fit(rec: rr.RecordingStream, dataset: Any, model: Any, arx_selecti
                          colour=colours[i], controls=(float(u1s[i]), float(u2s[i])), pinchoff=pin,
                          simulated_pinchoff=(nominal["pinchoff_us"], nominal["grown_volume_at_pinchoff_nl"]))
     log_training_points(rec)
+    try:
+        from identify.app.report import training_targets
+
+        training = training_targets(model, dataset)
+    except Exception as exc:  # noqa: BLE001 - the view without surfaces rather than no recording
+        import warnings
+
+        warnings.warn(f"rerun: polynomial surfaces not logged ({type(exc).__name__}: {exc})", stacklevel=2)
+    else:
+        log_surfaces(rec, model, training, colours=colours,
+                     names=[n + (f" ({sid})" if n in dup else "") for n, sid in zip(names, summary.sequence_id)])
     _state(rec).model = model
     if arx_selection is not None:
         log_cv_table(rec, arx_selection.table.head(max_cv_rows), value_column="val_rmse_nl",
@@ -629,12 +830,28 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
             c, colors=sequence_colours(c[:, 0], c[:, 1]), radii=0.6,
             labels=[control_name(a, b) for a, b in c], show_labels=False), static=True)
         st.training = True
+    if model is not None and st.surfaces:
+        _log_surface_prediction(rec, model, u1, u2)
     label = f"prediction {name}"
     if "inflight_volume_nl" in iv:
         e = iv["inflight_volume_nl"]
         label += f": in-flight {e['mean']:.3g} nl"
     rec.log("/identify/controls/prediction", rr.Points2D(
-        [(u1, u2)], colors=[_PREDICTION_POINT], radii=1.2, labels=[label], show_labels=True), static=True)
+        [(u1, u2)], colors=[_PREDICTION_POINT], radii=1.2, labels=[label], show_labels=False), static=True)
+    # a labelled box around it (the label clear of a training point's label at the same place) and
+    # a crosshair across the training range: where the prediction lies among the data
+    grid_u = (np.asarray(model.controls, dtype=float).reshape(-1, 2)
+              if model is not None and getattr(model, "controls", None) is not None else np.array([[u1, u2]]))
+    lo, hi = np.minimum(grid_u.min(0), (u1, u2)), np.maximum(grid_u.max(0), (u1, u2))
+    steps = [np.diff(np.unique(grid_u[:, k])) for k in (0, 1)]
+    half = [0.45 * (float(d.min()) if d.size else 1.0) for d in steps]
+    short = "prediction" + (f" {iv['inflight_volume_nl']['mean']:.3g} nl" if "inflight_volume_nl" in iv else "")
+    rec.log("/identify/controls/prediction_box", rr.Boxes2D(
+        centers=[(u1, u2)], half_sizes=[half], colors=[_PREDICTION_POINT], radii=-1.5, labels=[short],
+        show_labels=True), static=True)
+    rec.log("/identify/controls/prediction_crosshair", rr.LineStrips2D(
+        [[(lo[0] - half[0], u2), (hi[0] + half[0], u2)], [(u1, lo[1] - half[1]), (u1, hi[1] + half[1])]],
+        colors=[(255, 255, 255, 110)], radii=-0.75), static=True)
     lines = [f"## Prediction at {name}", "", how, "",
              "| output | mean | confidence low | confidence high | prediction low | prediction high |",
              "|---|---|---|---|---|---|"]

@@ -1,0 +1,194 @@
+"""tools/rerun_screenshot.py: Rerun recordings opened in the real (headless) Rerun viewer.
+
+The image checks and the reading of a recording run everywhere. The viewer tests need a
+graphics adapter the viewer can use; on a machine without one (CI, containers) they skip with
+the install line (``apt-get install -y mesa-vulkan-drivers``, a software Vulkan driver).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dropvision.app.rerun_log import (
+    CLASS_ATTACHED,
+    CLASS_DROP,
+    CLASS_NOZZLE,
+    CLASS_SATELLITE,
+    CLASSES,
+    RerunLogger,
+)
+from identify.app import rerun_log as irl
+from identify.app.rerun_stream import RerunOptions
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _load_tool():
+    spec = importlib.util.spec_from_file_location("rerun_screenshot", ROOT / "tools" / "rerun_screenshot.py")
+    mod = importlib.util.module_from_spec(spec)
+    sys.modules["rerun_screenshot"] = mod
+    spec.loader.exec_module(mod)
+    return mod
+
+
+shot = _load_tool()
+ROWS, COLS = 120, 64
+DELAYS_US = [100.0, 400.0, 900.0]
+
+
+@dataclass(frozen=True)
+class _Ref:
+    index: int
+    file: str
+    page: int | None
+    delay_us: float
+    repeat: int
+
+
+def _labels(i: int) -> np.ndarray:
+    """Frame 0: nozzle + attached liquid; 1: + main drop; 2: main drop + a satellite."""
+    lab = np.zeros((ROWS, COLS), dtype=np.uint8)
+    lab[:12, 20:44] = CLASS_NOZZLE
+    if i < 2:
+        lab[12:30 + 10 * i, 24:40] = CLASS_ATTACHED
+    if i >= 1:
+        lab[50 + 20 * i:66 + 20 * i, 24:40] = CLASS_DROP
+    if i == 2:
+        lab[60:66, 48:54] = CLASS_SATELLITE  # off the axis (its label sits mid-frame)
+    return lab
+
+
+@pytest.fixture(scope="module")
+def measurement_rrd(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("shot") / "measure-tiny.rrd"
+    with RerunLogger(RerunOptions(path=path, application_id="dv_test", recording_name="tiny")) as logger:
+        logger.log_calibration({"tip_row": 11.0, "axis_col": 31.5, "tilt_deg": 0.0, "pixel_size_um": 4.0},
+                               shape=(ROWS, COLS))
+        for i, delay in enumerate(DELAYS_US):
+            lab = _labels(i)
+            transmission = np.where(lab > 0, 0.1, 1.0)
+            logger.log_frame(_Ref(i, f"f{i}.png", None, delay, 0), None, transmission, lab, None, None,
+                             row={"grown_volume_nl": 1.0 + i, "flow_velocity_m_s": 1.0 - 0.2 * i})
+        logger.log_summary({"inflight_volume_nl": 1.5})
+    return path
+
+
+@pytest.fixture(scope="module")
+def identification_rrd(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("shot") / "identify-tiny.rrd"
+    rec = irl.open_identify_recording(RerunOptions(path=path, application_id="dv_test"))
+    grid = [(a, b) for a in (50.0, 80.0) for b in (20.0, 35.0)]
+    colours = irl.sequence_colours([a for a, _ in grid], [b for _, b in grid])
+    t = np.linspace(0.0, 1000.0, 21)
+    for k, ((u1, u2), colour) in enumerate(zip(grid, colours)):
+        vol = (u1 * u2 / 100.0) * np.sin(math.pi * t / 2000.0) ** 2
+        irl.log_sequence_fit(rec, irl.control_name(u1, u2), t, vol, vol * (1.0 + 0.01 * k), colour=colour,
+                             controls=(u1, u2), pinchoff=(t[-1], vol[-1]))
+    irl.log_training_points(rec)
+    irl.close_recording(rec)
+    return path
+
+
+# --- everywhere: reading the recording, the image checks ---------------------------------------
+
+
+def test_read_facts_and_times(measurement_rrd, identification_rrd):
+    facts = shot.read_facts(measurement_rrd)
+    assert facts.frames == 3
+    ns = [int(d * 1000) for d in DELAYS_US]
+    assert sorted(facts.classes) == ns
+    assert facts.classes[ns[0]][CLASS_ATTACHED] == 18 * 16
+    assert facts.classes[ns[2]][CLASS_SATELLITE] == 36
+    assert facts.class_colours[CLASS_DROP] == CLASSES[CLASS_DROP][1]
+    # the frame with the most attached liquid, the middle frame with a drop, the most satellite
+    assert shot.choose_times_ns(facts, ns[0], ns[-1]) == [ns[1], ns[2]]
+    ident = shot.read_facts(identification_rrd)
+    assert ident.frames is None and ident.classes == {}
+    assert len(ident.control_colours) == 4
+    assert shot.choose_times_ns(ident, 0, 1_000_000) == [500_000]
+
+
+def test_image_checks():
+    flat = np.zeros((40, 60, 3), dtype=np.uint8)
+    assert shot.image_stats(flat) == {"colours": 1, "foreground": 0.0}
+    img = flat.copy()
+    img[10:20, 10:30] = (255, 255, 255)
+    assert shot.image_stats(img)["foreground"] == pytest.approx(200 / 2400)
+    # a class colour blended at 45 % over grey keeps its hue: found; another hue is not
+    red = np.asarray(CLASSES[CLASS_DROP][1][:3], dtype=float)
+    grey = np.full((30, 30, 3), 200.0)
+    blend = np.round(0.45 * red + 0.55 * grey).astype(np.uint8)
+    assert shot.hue_pixels(blend, CLASSES[CLASS_DROP][1]) == 900
+    assert shot.hue_pixels(blend, CLASSES[CLASS_ATTACHED][1]) == 0
+    assert shot.hue_pixels(np.full((5, 5, 3), 128, np.uint8), CLASSES[CLASS_DROP][1]) == 0  # grey: no hue
+    assert shot.colour_pixels(img, (250, 250, 250)) == 200
+
+
+def test_no_viewer_is_reported_with_the_install_line(monkeypatch):
+    monkeypatch.setattr(shot, "_PROBE", None)
+    monkeypatch.setattr(shot, "vulkan_icds", lambda: [])
+    monkeypatch.setattr(shot.platform, "system", lambda: "Linux")
+    ok, why = shot.probe()
+    assert not ok and "apt-get install -y mesa-vulkan-drivers" in why
+    monkeypatch.setattr(shot, "_PROBE", None)
+
+
+# --- with a viewer ----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def viewer_ok():
+    ok, why = shot.probe()
+    if not ok:
+        pytest.skip(f"no Rerun viewer can render here: {why} (install: {shot.INSTALL_HINT})")
+    return why
+
+
+def test_measurement_recording_in_the_viewer(viewer_ok, measurement_rrd, tmp_path):
+    res = shot.check_recording(measurement_rrd, tmp_path, window_size="1000x700", timeout=120, oneshot=True)
+    assert res.ok, "\n".join(res.failures)
+    assert res.exit_status == 0 and res.oneshot_exit_status == 0
+    assert res.frames == 3 and res.bytes_per_frame == pytest.approx(res.size_bytes / 3, abs=0.1)
+    assert 0 <= res.index_s <= res.load_s <= res.first_paint_s <= res.total_s <= 120
+    names = {Path(s.path).name for s in res.shots}
+    assert {"measure-tiny.png", "measure-tiny@400us.png", "measure-tiny@900us.png",
+            "measure-tiny-oneshot.png"} <= names
+    frame_views = {s.delay_us: s.found for s in res.shots if s.view == "normalised (transmission)"}
+    # at 400 us: nozzle (grey, not checked), attached liquid and the main drop; at 900 us the
+    # satellite instead of the attached liquid
+    assert set(frame_views[400.0]) == {"attached liquid", "main drop"}
+    assert set(frame_views[900.0]) == {"main drop", "satellite"}
+    assert all(n >= shot.MIN_HUE_PIXELS for found in frame_views.values() for n in found.values())
+    for s in res.shots:
+        assert Path(s.path).stat().st_size > 0 and s.colours >= shot.MIN_COLOURS
+
+
+def test_identification_recording_in_the_viewer(viewer_ok, identification_rrd, tmp_path):
+    res = shot.check_recording(identification_rrd, tmp_path, window_size="1000x700", timeout=120,
+                               oneshot=False)
+    assert res.ok, "\n".join(res.failures)
+    (plane,) = [s for s in res.shots if s.view and s.view.startswith("(u1 right, u2 down)")]
+    assert len(plane.found) == 4 and min(plane.found.values()) >= 3  # every training point's colour
+
+
+def test_a_missing_colour_fails(viewer_ok, measurement_rrd, tmp_path, monkeypatch):
+    # the check is not vacuous: claim the main drop is green, and the screenshot says otherwise
+    real = shot.read_facts
+
+    def lying(path):
+        facts = real(path)
+        facts.class_colours[CLASS_DROP] = (0, 255, 0, 255)
+        return facts
+
+    monkeypatch.setattr(shot, "read_facts", lying)
+    res = shot.check_recording(measurement_rrd, tmp_path, window_size="800x600", times_us=[900.0],
+                               timeout=120, oneshot=False)
+    assert not res.ok
+    assert any("colour of main drop (0, 255, 0) not found" in f for f in res.failures)
