@@ -8,9 +8,14 @@
   specks that stay dark in every frame and are not joined to the nozzle are *opaque dust*,
   removed from every dark mask.  One frame only: the polynomial alone, no dust detection.
 - Nozzle `find_nozzle`: the dark body touching the top edge (canonical orientation); its
-  straight part is the longest run of rows whose outer width is the modal width; the outer
-  walls' sub-pixel 50 % edges over those rows give the midline (axis column, tilt) and the
-  outer width (cross-check of the pixel size).
+  straight part is a run of rows of constant width of the dark run holding the nozzle (followed
+  up from the body's lowest row): the one of the expected outer width when the metadata gives
+  it, else the narrowest (a holder block above it is wider; `_straight_walls`); the outer walls'
+  sub-pixel 50 % edges over those rows give the midline (axis column, tilt) and the outer width
+  (cross-check of the pixel size).  Walls shorter than 10 rows (a nozzle barely protruding from
+  its holder) take the tilt from the holder's face instead, and with no straight walls at all
+  the part of the body below the face is the nozzle (`_face_nozzle`: the axis is perpendicular
+  to the face).
 - Tip plane `find_tip`: in a frame with the meniscus at rest, the vertical transmission
   profiles of the wall annulus columns (between the inner and outer radius) cross 50 % at the
   tip; when liquid hangs below the walls (annulus dark below the straight part) the tip is the
@@ -371,7 +376,117 @@ def _longest_true_run(flags: np.ndarray) -> tuple[int, int]:
     return best
 
 
-def find_nozzle(transmission: np.ndarray, threshold: float = 0.5) -> Nozzle:
+def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
+    """(start, stop) of the nozzle's straight part: a run of rows of constant width.
+
+    Runs of consecutive candidate rows whose widths stay within 1.5 px of the run's median are
+    the straight parts of the top body (a holder block above the nozzle, the nozzle, a needle).
+    With the nozzle's expected outer width (px), the longest run within a factor 1.5 of it is the
+    nozzle; none: (0, 0).  Without it, runs of at least 6 rows are preferred to shorter ones (at
+    least 3) and the narrowest is the nozzle (a holder is wider; the liquid hanging below is not
+    of constant width), the longest on a tie.
+    """
+    runs_ = []
+    i, n = 0, width.size
+    while i < n:
+        if not cand[i]:
+            i += 1
+            continue
+        j = i + 1
+        while j < n and cand[j] and abs(width[j] - np.median(width[i:j])) <= 1.5:
+            j += 1
+        if width[i] >= 4 and j - i >= 3:
+            runs_.append((i, j))
+        i = j
+    if not runs_:
+        return (0, 0)
+    med = {r: float(np.median(width[r[0]:r[1]])) for r in runs_}
+    if expected_px:
+        near = [r for r in runs_ if 1 / 1.5 < med[r] / expected_px < 1.5]
+        return max(near, key=lambda r: r[1] - r[0]) if near else (0, 0)
+    if any(r[1] - r[0] >= 6 for r in runs_):
+        runs_ = [r for r in runs_ if r[1] - r[0] >= 6]
+    return min(runs_, key=lambda r: (med[r], -(r[1] - r[0])))
+
+
+def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int, int, float] | None:
+    """A nozzle barely protruding from a holder block or plate: (first row, stop row, axis slope).
+
+    The lowest dark row of the top body in each column is its bottom profile; its longest
+    straight stretch (RANSAC) is the holder's face, and the columns reaching more than 1.5 px below the face
+    (the group nearest the middle of the face) are the nozzle (and its meniscus).  Returns the rows
+    from the face down to the bottom of that group and the axis slope (col per row,
+    perpendicular to the face), or None when nothing protrudes.
+    """
+    cols = np.nonzero(body.any(axis=0))[0]
+    if cols.size < 20:
+        return None
+    bottom = np.array([np.nonzero(body[:, c])[0].max() for c in cols], float)
+    # the face is the longest straight stretch of the bottom profile (a wedge or a rounded corner
+    # beside it is not): RANSAC over pairs of columns, inliers within 1 px, refitted
+    x = cols.astype(float)
+    rng = np.random.default_rng(0)
+    best = None
+    for _ in range(300):
+        i, j = rng.choice(cols.size, 2, replace=False)
+        if x[i] == x[j]:
+            continue
+        slope = (bottom[j] - bottom[i]) / (x[j] - x[i])
+        inl = np.abs(bottom - (bottom[i] + slope * (x - x[i]))) <= 1.0
+        if best is None or inl.sum() > best.sum():
+            best = inl
+    if best is None or best.sum() < 10:
+        return None
+    q = np.polyfit(x[best], bottom[best], 1)
+    res = bottom - np.polyval(q, x)
+    below = res >= 1.5
+    if not below.any():
+        return None
+    # groups of adjacent protruding columns; the nozzle is the one nearest the middle of the face
+    # (a wedge or corner protrudes at its ends)
+    edges_ = np.flatnonzero(np.diff(np.r_[0, below.astype(int), 0]))
+    groups = list(zip(edges_[::2], edges_[1::2] - 1))
+    face_mid = 0.5 * (x[best].min() + x[best].max())
+    lo, hi = min(groups, key=lambda g: abs(0.5 * (x[g[0]] + x[g[1]]) - face_mid))
+    face_row = float(max(np.polyval(q, cols[lo]), np.polyval(q, cols[hi])))  # the face's lower end over the nozzle
+    r0 = int(np.ceil(face_row + 1.0))
+    r1 = int(bottom[lo:hi + 1].max()) + 1
+    if r1 - r0 < 2:
+        return None
+    return r0, r1, float(-q[0])
+
+
+def _axis_runs(rr: np.ndarray, s: np.ndarray, e: np.ndarray, y1: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the dark run holding the nozzle: followed from the lowest row upwards.
+
+    In the lowest row the widest run is taken; in each row above, the run overlapping the one
+    below it most. Rows above the first row without such a run get -1.
+    """
+    start = np.full(y1, -1)
+    stop = np.full(y1, -1)
+    order = np.argsort(rr, kind="stable")
+    rr, s, e = rr[order], s[order], e[order]
+    bounds = np.searchsorted(rr, np.arange(y1 + 1))
+    prev = None
+    for r in range(y1 - 1, -1, -1):
+        i0, i1 = bounds[r], bounds[r + 1]
+        if i0 == i1:
+            if prev is None:
+                continue
+            break
+        if prev is None:
+            k = i0 + int(np.argmax(e[i0:i1] - s[i0:i1]))
+        else:
+            overlap = np.minimum(e[i0:i1], prev[1]) - np.maximum(s[i0:i1], prev[0])
+            if overlap.max() <= 0:
+                break
+            k = i0 + int(np.argmax(overlap))
+        start[r], stop[r] = s[k], e[k]
+        prev = (s[k], e[k])
+    return start, stop
+
+
+def find_nozzle(transmission: np.ndarray, threshold: float = 0.5, expected_width_px: float | None = None) -> Nozzle:
     """Locate the nozzle (dark body at the top edge) and fit its outer walls.
 
     Parameters
@@ -380,6 +495,9 @@ def find_nozzle(transmission: np.ndarray, threshold: float = 0.5) -> Nozzle:
         Background-normalised frame (canonical orientation).
     threshold : float
         Edge level (50 % between background and the nozzle's interior).
+    expected_width_px : float, optional
+        The nozzle's outer diameter in pixels when the metadata gives it: picks the nozzle among
+        the straight parts of the top body (a holder block is wider).
     """
     t = np.asarray(transmission, np.float32)
     h, w = t.shape
@@ -399,24 +517,40 @@ def find_nozzle(transmission: np.ndarray, threshold: float = 0.5) -> Nozzle:
     first_vals = np.full(y1, w + 1)
     np.minimum.at(first_vals, rr, s)
     first = np.where(first_vals <= w, first_vals, -1)
-    width = np.where(first >= 0, last - first, 0)
-    cand = (width > 2) & (width < 0.9 * w) & (first > 0) & (last < w)
+    # the run holding the nozzle in each row, followed up from the body's lowest row (a holder
+    # block beside the nozzle is another run, or makes this one much wider)
+    a_start, a_stop = _axis_runs(rr, s, e, y1)
+    width = np.where(a_start >= 0, a_stop - a_start, 0)
+    cand = (width > 2) & (width < 0.9 * w) & (a_start > 0) & (a_stop < w)
     if cand.sum() < 3:
-        raise CalibrationError("no nozzle: the dark body at the top edge has no straight walls")
-    vals, counts = np.unique(width[cand], return_counts=True)
-    mode = vals[np.argmax(counts)]
-    straight = cand & (np.abs(width - mode) <= 1.5)
-    a, b = _longest_true_run(straight)
-    if b - a < 3:
-        raise CalibrationError("no nozzle: fewer than 3 straight wall rows at the top edge")
-    # sub-pixel edges of the outer walls, away from the tip (blur)
-    use_stop = max(a + 3, b - 4)
-    rows = np.arange(a, use_stop)
+        raise CalibrationError(f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to "
+                               f"{int(np.max(last - np.maximum(first, 0)))} px wide) has no straight walls")
+    a, b = _straight_walls(width, cand, expected_width_px)
+    face_slope = None
+    if b - a < 3:  # no walls of the expected width: a nozzle barely protruding from a holder or plate
+        face = _face_nozzle(t, body[:y1], threshold)
+        if face is None:
+            raise CalibrationError(
+                f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to {int(width.max())} px wide) "
+                "has fewer than 3 rows of constant width"
+                + (f" near the expected {expected_width_px:.0f} px" if expected_width_px else "")
+                + " and nothing protrudes below its lower face; give nozzle_tip_row and axis_col in sequence.json")
+        a, b, face_slope = face
+    # sub-pixel edges of the outer walls, away from the tip (blur) and from a holder's face
+    if b - a >= 12:
+        rows = np.arange(a + 2 if a > 0 else a, b - 4)  # 2 rows off a holder's face above the walls
+    else:
+        rows = np.arange(a, max(a + 1, b - 1) if face_slope is not None else max(a + 3, b - 2))
     ones = np.ones_like(t)
-    edges = subpixel_edges(t, ones, rows, first[rows], last[rows], threshold)
+    edges = subpixel_edges(t, ones, rows, a_start[rows], a_stop[rows], threshold)
     left, right = edges.left_px, edges.right_px
     mid = 0.5 * (left + right)
     coef = np.polyfit(rows.astype(float), mid, 1) if rows.size >= 2 else np.array([0.0, mid[0]])
+    if face_slope is None and rows.size < 10:  # walls too short for their midline's slope
+        face_slope = _face_nozzle(t, body[:y1], threshold)
+        face_slope = None if face_slope is None else face_slope[2]
+    if face_slope is not None and rows.size < 10:  # the axis is perpendicular to the holder's face
+        coef = np.array([face_slope, float(np.mean(mid) - face_slope * np.mean(rows))])
     inner = cv2.erode(body[: b].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     vals_in = t[: b][inner & (t[: b] < threshold)]
     level = float(np.median(vals_in)) if vals_in.size else 0.0
@@ -647,9 +781,11 @@ def calibrate(
     bg = estimate_background(spread)
     notes: list[str] = []
     clipped = None
+    expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um else None
     frac = clipped_fraction(bg.background, max_value)
     if frac > clipped_limit:
-        level = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5), max_value)
+        level = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5, expected),
+                                max_value)
         clipped = {"fraction": frac, "level": level,
                    "method": "background grey level from the nozzle walls' steepest point (2 L_mid - d), used "
                              "wherever the background model is at the sensor maximum"}
@@ -664,9 +800,9 @@ def calibrate(
                          "estimated (the middle of the nozzle walls' edge is clipped too)")
     t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
-    nozzle = find_nozzle(t_first, 0.5)
+    nozzle = find_nozzle(t_first, 0.5, expected)
     thr_n = edge_threshold(nozzle.interior_level)
-    nozzle = find_nozzle(t_first, thr_n)
+    nozzle = find_nozzle(t_first, thr_n, expected)
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
     tip, tip_src = find_tip(t_first, nozzle, thr_n, r_in)
     tilt = nozzle.tilt_rad

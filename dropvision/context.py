@@ -228,7 +228,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     except CalibrationError as exc:
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
-    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level))
+    expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
+    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
     max_value = 2 ** int(meta.bit_depth) - 1
     clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
     sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)

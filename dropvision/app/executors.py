@@ -112,7 +112,7 @@ def make_executor(
             if dask_local < 1:
                 raise ValueError(f"--dask-local needs at least one worker, got {dask_local}")
             with dd.LocalCluster(
-                n_workers=dask_local, threads_per_worker=1, processes=True, dashboard_address=None
+                n_workers=dask_local, threads_per_worker=1, processes=True, dashboard_address=":0",  # any free port
             ) as cluster, dd.Client(cluster) as client:
                 yield client.get_executor()
         return
