@@ -1,11 +1,12 @@
 # The whole set-up on a fresh machine is `make demo` and `make test`.
+# `make screenshots` (after `make demo`) checks the demo's Rerun recordings in the headless viewer.
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 
-.PHONY: demo test clean
+.PHONY: demo test screenshots clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +25,10 @@ demo: $(STAMP)
 
 test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -n 2 -q
+
+# needs the demo's out/*.rrd (the tool says so, exit 2, when there are none) and a Vulkan driver
+screenshots: $(STAMP)
+	$(BIN)/python tools/rerun_screenshot.py
 
 clean:
 	rm -rf $(VENV) out

@@ -234,8 +234,15 @@ def segment_frame(roi: np.ndarray, ctx: FrameContext, gain: float) -> Segmentati
 
 def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: Body | None,
                rec: FrameRecord, all_edges: list[RowEdges]) -> None:
-    """Hand the frame's stages to a Rerun logger (only called when logging is on)."""
-    labels, boxes = class_image(seg, nozzle_body, rec.bodies[0].bbox if rec.bodies else None, ctx.opaque)
+    """Hand the frame's stages to a Rerun logger (only called when logging is on).
+
+    The class image and body boxes follow bodies.parquet's rules as far as one frame can tell
+    (`dropvision.bodies.class_image`): mist and dust both as out of focus (``rec.rejected``).
+    """
+    from dropvision.config import MeasureConfig  # the default when the context has no compact_ratio
+
+    labels, boxes = class_image(seg, nozzle_body, rec.bodies, rec.rejected, ctx.opaque,
+                                compact_ratio=getattr(ctx, "compact_ratio", MeasureConfig.compact_ratio))
     t_full = image.astype(np.float32)
     t_full[ctx.r0:, ctx.c0:ctx.c1] *= ctx.inv_background
     pts = []

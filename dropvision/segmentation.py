@@ -11,7 +11,12 @@ Static specks (opaque dust found during calibration) are removed from the dark m
 labelling, so they can never become liquid.
 
 `CLASS_*` are the class ids of the segmentation image shown by the Rerun viewer
-(`dropvision.frame` assigns them, `dropvision.app.rerun_log` colours them).
+(`dropvision.bodies.class_image` assigns them per frame, `dropvision.app.rerun_log` colours and
+names them).  They follow the body classes of bodies.parquet (`dropvision.classify`) as far as
+one frame can tell: ``mist`` and ``dust`` are both `CLASS_OUT_OF_FOCUS` (dust is decided over
+the sequence: an out-of-focus body at the same place in half the frames), and ``noise`` (a
+detached body before the pinch-off, also a sequence-level decision) is drawn as the detached
+class it would otherwise have.
 """
 
 from __future__ import annotations
@@ -27,7 +32,11 @@ CLASS_NOZZLE = 1
 CLASS_ATTACHED = 2
 CLASS_DROP = 3
 CLASS_SATELLITE = 4
-CLASS_SPECK = 5
+CLASS_SPECK = 5  # static opaque speck found during calibration (never a body)
+CLASS_OUT_OF_FOCUS = 6  # out-of-focus detached body: mist, or dust when static over the sequence
+CLASS_TOUCHING = 7  # satellite touching the main drop, split off it at the waist (not counted)
+CLASS_TAIL = 8  # detached body longer than ``compact_ratio`` equivalent diameters (a free ligament)
+CLASS_BORDER = 9  # detached body cut by the edge of the frame or of the measured band
 
 
 def edge_threshold(interior_level: float) -> float:

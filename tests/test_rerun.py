@@ -24,11 +24,18 @@ import pytest
 
 from dropvision.app.rerun_log import (
     CLASS_ATTACHED,
+    CLASS_BORDER,
     CLASS_DROP,
     CLASS_NOZZLE,
+    CLASS_OUT_OF_FOCUS,
     CLASS_SATELLITE,
     CLASS_SPECK,
+    CLASS_TAIL,
+    CLASS_TOUCHING,
+    CLASSES,
+    LABELLED_CLASSES,
     RerunLogger,
+    body_labels,
     logger_from_args,
 )
 from identify.app import rerun_log as irl
@@ -146,8 +153,16 @@ def test_annotation_context_and_segmentation(measured_rrd):
     rrd = Rrd(path)
     context = rrd.static["/frame"]["AnnotationContext:context"][0]
     classes = {c["class_id"]: c["class_description"]["info"]["label"] for c in context}
-    assert classes == {0: "background", 1: "nozzle", 2: "attached liquid", 3: "main drop",
-                       4: "satellite", 5: "static speck"}
+    assert classes == {cid: label for cid, (label, _colour) in CLASSES.items()}
+    assert classes[CLASS_DROP] == "main drop" and classes[CLASS_OUT_OF_FOCUS].startswith("out of focus (mist")
+    assert set(classes) == set(range(10))
+    # every body class its own hue (the screenshot check tells them apart by hue)
+    import colorsys
+
+    hues = [colorsys.rgb_to_hsv(*(c / 255 for c in colour[:3]))[0] * 360
+            for cid, (_label, colour) in CLASSES.items() if cid not in (0, CLASS_NOZZLE)]
+    gaps = [abs((a - b + 180) % 360 - 180) for i, a in enumerate(hues) for b in hues[i + 1:]]
+    assert min(gaps) > 12
     seg = rrd.series("/frame/segmentation", "SegmentationImage:buffer")
     fmt = rrd.series("/frame/segmentation", "SegmentationImage:format")
     for i, (buf, f) in enumerate(zip(seg["value"], fmt["value"])):
@@ -243,6 +258,21 @@ def test_texts_and_blueprint(measured_rrd):
     kinds = [k[0] for k in kinds]
     assert kinds.count("2D") == 1 and kinds.count("TimeSeries") == 3  # no raw tab without raw
     assert ["/series/volume_nl"] in origins and ["/frame"] in origins
+    # the frame gets the room: selection and blueprint panels collapsed, the time panel on the
+    # delay timeline collapsed to its scrubber (PanelState 2 = collapsed)
+    panels = {}
+    for chunk in rrd.reader.stream(store=blueprint):
+        batch = chunk.to_record_batch()
+        for name in batch.schema.names:
+            if name.endswith(":state"):
+                panels[chunk.entity_path] = batch.column(name).to_pylist()[-1]
+        if "TimePanelBlueprint:timeline" in batch.schema.names:
+            assert batch.column("TimePanelBlueprint:timeline").to_pylist()[-1] == ["delay"]
+    assert panels == {"/time_panel": [2], "/selection_panel": [2], "/blueprint_panel": [2]}
+    # the axis and tip-plane lines carry no visible label (they covered the drops)
+    assert rrd.static["/frame/axis"]["LineStrips2D:show_labels"] == [False]
+    assert rrd.static["/frame/tip_plane"]["LineStrips2D:show_labels"] == [False]
+    assert all(v == [False] for v in rrd.series("/frame/drop", "Points2D:show_labels")["value"])
 
 
 def test_tilted_calibration_lines(tmp_path):
@@ -342,8 +372,8 @@ def test_bad_inputs(tmp_path):
     img = np.zeros((ROWS, COLS), np.uint8)
     with pytest.raises(ValueError, match="labels shape"):
         logger.log_frame(ref, img, None, np.zeros((ROWS, COLS + 1), int), None, None, None)
-    with pytest.raises(ValueError, match="class ids 0..5"):
-        logger.log_frame(ref, img, None, np.full((ROWS, COLS), 9), None, None, None)
+    with pytest.raises(ValueError, match="class ids 0..9"):
+        logger.log_frame(ref, img, None, np.full((ROWS, COLS), 10), None, None, None)
     with pytest.raises(ValueError, match=r"edges must be an \(N, 2\)"):
         logger.log_frame(ref, None, None, None, np.zeros((3, 3)), None, None)
     with pytest.raises(ValueError, match="unknown class 'blob'"):
@@ -615,3 +645,153 @@ def test_identification_view_surfaces(identification_rrd):
         (p,) = np.asarray(rrd.static[f"{base}/prediction"]["Points3D:positions"], dtype=float)
         assert tuple(p[:2]) == (70.0, 25.0)
         assert p[2] == pytest.approx(float(poly.predict(np.array([70.0]), np.array([25.0]))[0]), rel=1e-5, abs=1e-9)
+
+
+# --- body classes in the measurement view ------------------------------------------------------
+
+
+def _detached(bbox, top, bottom, *, volume_nl=0.01, length_um=16.0, touching=False, leaves=False):
+    from dropvision.bodies import DetachedBody
+
+    return DetachedBody(volume_nl=volume_nl, z_um=0.0, x_um=0.0, length_um=length_um, diameter_um=10.0,
+                        top_row=float(top), bottom_row=float(bottom), leaves=leaves, out_of_band=False,
+                        on_dust=False, bbox=bbox, touching=touching)
+
+
+def test_class_image_rejected_and_touching_bodies():
+    """dropvision.bodies.class_image, a pure function: segmentation + the frame's bodies in,
+    class image and one box per body (per part of a split silhouette) out."""
+    from dropvision.bodies import class_image
+    from dropvision.segmentation import find_nozzle_body, segment
+
+    mask = np.zeros((64, 40), np.uint8)
+    mask[0:10, 15:25] = 255  # nozzle with attached liquid (touches the top)
+    mask[20:26, 16:24] = 255  # main drop, rows 20-25 ...
+    mask[26:30, 18:22] = 255  # ... and a satellite touching it below its waist (one silhouette)
+    mask[34:38, 18:22] = 255  # satellite
+    mask[40:52, 19:21] = 255  # tail: 12 rows, thin
+    mask[42:47, 2:7] = 255  # out of focus (mist)
+    mask[58:64, 30:35] = 255  # cut by the bottom of the frame
+    mask[12:14, 30:33] = 255  # joined to the attached liquid by a thread (in neither list)
+    opaque = np.zeros(mask.shape, bool)
+    opaque[60:62, 2:4] = True  # a static speck
+    seg = segment(mask, 4)
+    nozzle = find_nozzle_body(seg.bodies, 20.0)
+    main = _detached((16, 20, 24, 30), 20, 25, volume_nl=0.2)
+    touching = _detached((16, 20, 24, 30), 25, 29, volume_nl=0.02, touching=True)
+    bodies = [main, _detached((30, 58, 35, 64), 58, 63, volume_nl=0.05, leaves=True),
+              _detached((19, 40, 21, 52), 40, 51, volume_nl=0.001, length_um=48.0),  # d_eq 12.4 um
+              touching, _detached((18, 34, 22, 38), 34, 37, volume_nl=0.01, length_um=16.0)]  # d_eq 26.7 um
+    rejected = [_detached((2, 42, 7, 47), 42, 46, volume_nl=0.03)]
+    labels, boxes = class_image(seg, nozzle, bodies, rejected, opaque, compact_ratio=2.0)
+
+    expected = np.zeros(mask.shape, np.uint8)
+    expected[0:10, 15:25] = CLASS_ATTACHED
+    expected[20:26, 16:24] = CLASS_DROP
+    expected[26:30, 18:22] = CLASS_TOUCHING
+    expected[34:38, 18:22] = CLASS_SATELLITE
+    expected[40:52, 19:21] = CLASS_TAIL
+    expected[42:47, 2:7] = CLASS_OUT_OF_FOCUS
+    expected[58:64, 30:35] = CLASS_BORDER
+    expected[12:14, 30:33] = CLASS_ATTACHED
+    expected[60:62, 2:4] = CLASS_SPECK
+    np.testing.assert_array_equal(labels, expected)
+    assert labels.dtype == np.uint8 and mask.max() == 255  # inputs untouched
+    got = sorted((b["bbox"], b["class_id"], b.get("volume_nl")) for b in boxes)
+    assert got == sorted([
+        ((15, 0, 25, 10), CLASS_ATTACHED, None), ((30, 12, 33, 14), CLASS_ATTACHED, None),
+        ((16, 20, 24, 26), CLASS_DROP, 0.2), ((18, 26, 22, 30), CLASS_TOUCHING, 0.02),  # a box per part
+        ((18, 34, 22, 38), CLASS_SATELLITE, 0.01), ((19, 40, 21, 52), CLASS_TAIL, 0.001),
+        ((2, 42, 7, 47), CLASS_OUT_OF_FOCUS, 0.03), ((30, 58, 35, 64), CLASS_BORDER, 0.05)])
+    # a touching satellite above the main drop takes the rows above it
+    up = _detached((16, 20, 24, 30), 20, 25, volume_nl=0.01, touching=True)
+    low = _detached((16, 20, 24, 30), 25, 29, volume_nl=0.3)
+    labels2, _ = class_image(seg, nozzle, [low, up], (), None)
+    assert (labels2[20:25, 16:24] == CLASS_TOUCHING).all() and (labels2[25:30, 18:22] == CLASS_DROP).all()
+    # no bodies: every detached silhouette is attached liquid (joined), nothing else
+    labels3, boxes3 = class_image(seg, nozzle)
+    assert set(np.unique(labels3)) == {0, CLASS_ATTACHED} and len(boxes3) == len(seg.bodies)
+
+
+@dataclass(frozen=True)
+class _Box:  # what body_labels reads of a box (full-frame, half-open)
+    x0: float
+    y0: float
+    x1: float
+    y1: float
+    class_id: int
+    volume_nl: float | None
+    centroid_xy: tuple[float, float] | None
+
+
+def test_body_labels_do_not_overlap():
+    boxes = [_Box(10, 100, 40, 130, CLASS_DROP, 18.9, None),
+             _Box(20, 130, 30, 136, CLASS_TOUCHING, 0.4, None),  # right under the drop
+             _Box(22, 140, 28, 144, CLASS_SATELLITE, 0.2, None),
+             _Box(0, 120, 8, 128, CLASS_OUT_OF_FOCUS, 0.1, None),  # hover only
+             _Box(10, 0, 50, 20, CLASS_ATTACHED, None, None)]
+    placed = body_labels(boxes, 13.0)
+    assert [c for _, c, _ in placed] == [CLASS_DROP, CLASS_TOUCHING, CLASS_SATELLITE]
+    assert [t for _, _, t in placed] == ["main drop 18.9 nl", "touching satellite 0.4 nl", "satellite 0.2 nl"]
+    ys = [p[1] for p, _, _ in placed]
+    assert ys[0] == 115.0 and all(b - a >= 13.0 for a, b in zip(ys, ys[1:]))
+    for (x, _y), _c, text in placed:  # the label (centred on its point) starts right of every box
+        assert x - 0.5 * 0.42 * 13.0 * len(text) > 40
+    assert set(LABELLED_CLASSES) == {CLASS_DROP, CLASS_SATELLITE, CLASS_TOUCHING, CLASS_TAIL}
+    assert body_labels([boxes[-1]], 13.0) == []
+
+
+@pytest.fixture(scope="module")
+def misty_rrd(tmp_path_factory):
+    """A small synthetic sequence measured with a Rerun logger; its last frame holds an
+    out-of-focus droplet beside the jet (mist)."""
+    import cv2
+
+    from dropvision.measurement import measure_sequence
+    from dropvision.sequence import sequence_from_arrays
+    from dropvision.synth import SynthConfig, synthesize
+
+    cfg = SynthConfig(u1_um_per_ms=62, u2_um=30, satellites=2, width_px=320, height_px=700, seed=5, dust=0,
+                      delays_us=(0.0, 300.0, 600.0, 900.0, 1200.0, 1350.0))
+    frames, delays = [], []
+    for img, truth in synthesize(cfg, progress=False):
+        if len(frames) == 5:
+            disc = np.zeros(img.shape, np.float32)
+            cv2.circle(disc, (120, 400), 6, 1.0, -1)
+            disc = cv2.GaussianBlur(disc, (0, 0), 4.0)
+            img = np.clip(img * (1.0 - 0.8 * disc / disc.max()), 0, 255).astype(np.uint8)
+        frames.append(img)
+        delays.append(truth.delay_us)
+    seq = sequence_from_arrays(frames, delays_us=delays, pixel_size_um=cfg.pixel_size_um,
+                               nozzle_inner_diameter_um=cfg.physics.nozzle_inner_radius_um * 2,
+                               nozzle_outer_diameter_um=cfg.physics.nozzle_outer_radius_um * 2)
+    path = tmp_path_factory.mktemp("mist") / "mist.rrd"
+    with RerunLogger(path=path) as logger:
+        result = measure_sequence(seq, logger=logger)
+    return Rrd(path), result
+
+
+def test_out_of_focus_body_logs_its_class(misty_rrd):
+    rrd, result = misty_rrd
+    b = result.bodies
+    mist = b[b["body_class"] == "mist"]
+    assert len(mist) == 1 and mist["delay_us"].iloc[0] == 1350.0
+    seg = rrd.series("/frame/segmentation", "SegmentationImage:buffer")
+    fmt = rrd.series("/frame/segmentation", "SegmentationImage:format")
+    ids = rrd.series("/frame/bodies", "Boxes2D:class_ids")
+    for k, delay_us in enumerate(result.frames["delay_us"]):
+        w, h = fmt["value"][k][0]["width"], fmt["value"][k][0]["height"]
+        labels = np.asarray(seg["value"][k][0], np.uint8).reshape(h, w)
+        has = (labels == CLASS_OUT_OF_FOCUS).any()
+        assert has == (delay_us == 1350.0)
+        if has:  # the droplet drawn at row 400, column 120, all of it, and nothing else
+            rows, cols = np.nonzero(labels == CLASS_OUT_OF_FOCUS)
+            assert abs(rows.mean() - 400) < 1 and abs(cols.mean() - 120) < 1 and rows.size > 50
+            assert np.hypot(rows - 400, cols - 120).max() < 10
+            assert CLASS_OUT_OF_FOCUS in ids["value"][ids["delay_ns"] == 1_350_000].iloc[0]
+    # the frame's main drop and satellites keep their classes; only they are labelled
+    last = ids["value"][ids["delay_ns"] == 1_350_000].iloc[0]
+    assert sorted(last) == sorted([CLASS_ATTACHED, CLASS_DROP, CLASS_SATELLITE, CLASS_SATELLITE, CLASS_OUT_OF_FOCUS])
+    texts = rrd.series("/frame/labels", "Points2D:labels")
+    shown = texts["value"][texts["delay_ns"] == 1_350_000].iloc[0]
+    assert [t.split(" ")[0] for t in shown] == ["satellite", "satellite", "main"]  # top to bottom

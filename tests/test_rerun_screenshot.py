@@ -18,9 +18,13 @@ import pytest
 
 from dropvision.app.rerun_log import (
     CLASS_ATTACHED,
+    CLASS_BORDER,
     CLASS_DROP,
     CLASS_NOZZLE,
+    CLASS_OUT_OF_FOCUS,
     CLASS_SATELLITE,
+    CLASS_TAIL,
+    CLASS_TOUCHING,
     CLASSES,
     RerunLogger,
 )
@@ -40,7 +44,9 @@ def _load_tool():
 
 shot = _load_tool()
 ROWS, COLS = 120, 64
-DELAYS_US = [100.0, 400.0, 900.0]
+DELAYS_US = [100.0, 400.0, 900.0, 1300.0]
+#: the body classes of frame 3
+OTHER_CLASSES = (CLASS_OUT_OF_FOCUS, CLASS_TOUCHING, CLASS_TAIL, CLASS_BORDER)
 
 
 @dataclass(frozen=True)
@@ -53,15 +59,23 @@ class _Ref:
 
 
 def _labels(i: int) -> np.ndarray:
-    """Frame 0: nozzle + attached liquid; 1: + main drop; 2: main drop + a satellite."""
+    """Frame 0: nozzle + attached liquid; 1: + main drop; 2: main drop + a satellite; 3: main
+    drop with a touching satellite, a tail above it, an out-of-focus droplet, a body cut by the
+    bottom of the frame."""
     lab = np.zeros((ROWS, COLS), dtype=np.uint8)
     lab[:12, 20:44] = CLASS_NOZZLE
     if i < 2:
         lab[12:30 + 10 * i, 24:40] = CLASS_ATTACHED
-    if i >= 1:
+    if 1 <= i <= 2:
         lab[50 + 20 * i:66 + 20 * i, 24:40] = CLASS_DROP
     if i == 2:
         lab[60:66, 48:54] = CLASS_SATELLITE  # off the axis (its label sits mid-frame)
+    if i == 3:
+        lab[40:62, 29:35] = CLASS_TAIL
+        lab[66:82, 24:40] = CLASS_DROP
+        lab[82:90, 28:36] = CLASS_TOUCHING
+        lab[60:70, 4:14] = CLASS_OUT_OF_FOCUS
+        lab[108:120, 22:42] = CLASS_BORDER
     return lab
 
 
@@ -101,14 +115,17 @@ def identification_rrd(tmp_path_factory) -> Path:
 
 def test_read_facts_and_times(measurement_rrd, identification_rrd):
     facts = shot.read_facts(measurement_rrd)
-    assert facts.frames == 3
+    assert facts.frames == 4
     ns = [int(d * 1000) for d in DELAYS_US]
     assert sorted(facts.classes) == ns
     assert facts.classes[ns[0]][CLASS_ATTACHED] == 18 * 16
     assert facts.classes[ns[2]][CLASS_SATELLITE] == 36
+    assert facts.classes[ns[3]][CLASS_TOUCHING] == 64
     assert facts.class_colours[CLASS_DROP] == CLASSES[CLASS_DROP][1]
-    # the frame with the most attached liquid, the middle frame with a drop, the most satellite
-    assert shot.choose_times_ns(facts, ns[0], ns[-1]) == [ns[1], ns[2]]
+    assert facts.class_names == {cid: label for cid, (label, _) in CLASSES.items()}
+    # the frame with the most attached liquid, the middle frame with a drop, the most satellite,
+    # the most of the other body classes
+    assert shot.choose_times_ns(facts, ns[0], ns[-1]) == [ns[1], ns[2], ns[3]]
     ident = shot.read_facts(identification_rrd)
     assert ident.frames is None and ident.classes == {}
     assert len(ident.control_colours) == 4
@@ -155,7 +172,7 @@ def test_measurement_recording_in_the_viewer(viewer_ok, measurement_rrd, tmp_pat
     res = shot.check_recording(measurement_rrd, tmp_path, window_size="1000x700", timeout=120, oneshot=True)
     assert res.ok, "\n".join(res.failures)
     assert res.exit_status == 0 and res.oneshot_exit_status == 0
-    assert res.frames == 3 and res.bytes_per_frame == pytest.approx(res.size_bytes / 3, abs=0.1)
+    assert res.frames == 4 and res.bytes_per_frame == pytest.approx(res.size_bytes / 4, abs=0.1)
     assert 0 <= res.index_s <= res.load_s <= res.first_paint_s <= res.total_s <= 120
     names = {Path(s.path).name for s in res.shots}
     assert {"measure-tiny.png", "measure-tiny@400us.png", "measure-tiny@900us.png",
@@ -165,6 +182,8 @@ def test_measurement_recording_in_the_viewer(viewer_ok, measurement_rrd, tmp_pat
     # satellite instead of the attached liquid
     assert set(frame_views[400.0]) == {"attached liquid", "main drop"}
     assert set(frame_views[900.0]) == {"main drop", "satellite"}
+    # at 1300 us every other body class, each in its own colour
+    assert set(frame_views[1300.0]) == {CLASSES[c][0] for c in (CLASS_DROP, *OTHER_CLASSES)}
     assert all(n >= shot.MIN_HUE_PIXELS for found in frame_views.values() for n in found.values())
     for s in res.shots:
         assert Path(s.path).stat().st_size > 0 and s.colours >= shot.MIN_COLOURS

@@ -13,8 +13,10 @@ window; a software Vulkan driver is enough), opens the file, and through the vie
 2. moves the time cursor of the ``delay`` timeline to a few times and saves the whole window,
    ``<stem>@<delay>us.png``, and every 2-D / 3-D view alone, ``<stem>@<delay>us-<view>.png``.
    Times: ``--times-us``, else for a measurement recording the frame with the most attached
-   liquid, the middle of the frames with a main drop and the frame with the most satellite pixels
-   (else the last frame); for other recordings the middle of the delay range;
+   liquid, the middle of the frames with a main drop, the frame with the most satellite pixels
+   (else the last frame) and the frame with the most pixels of the other body classes (out of
+   focus, touching satellite, tail, cut by the border; when there are any); for other
+   recordings the middle of the delay range;
 3. quits the viewer through its own "Quit" command.
 
 It asserts, per recording (a failed check is listed, and the exit status is 1):
@@ -29,7 +31,8 @@ It asserts, per recording (a failed check is listed, and the exit status is 1):
 * measurement recordings (with ``/frame/segmentation``): on the frame view at each time, the
   colour of every segmentation class that covers at least ``MIN_CLASS_PIXELS`` image pixels in
   the frame shown (read from the recording) is present: pixels of the class hue (the overlay is
-  the class colour blended over a grey image, which keeps the hue) at saturation >= 0.2;
+  the class colour blended over a grey image, which keeps the hue) at saturation >= 0.2; every
+  class has its own hue (named by the recording's annotation context);
 * identification recordings (with ``/identify/controls/training``): on the (u1, u2) view, the
   colour of every training point and of the predicted point is present.
 
@@ -88,6 +91,9 @@ MIN_COLOURS = 32
 MIN_FOREGROUND = 0.02
 #: a segmentation class must cover this many image pixels to be required in the screenshot
 MIN_CLASS_PIXELS = 12
+#: class ids from this one on are the body classes beyond nozzle, attached liquid, main drop,
+#: satellite and static speck (`dropvision.segmentation.CLASS_OUT_OF_FOCUS` ...)
+OTHER_CLASSES_FROM = 6
 #: screen pixels of a class hue needed to call the class "present"
 MIN_HUE_PIXELS = 12
 HUE_TOLERANCE_DEG = 8.0
@@ -280,6 +286,8 @@ class RecordingFacts:
     classes: dict[int, dict[int, int]] = field(default_factory=dict)
     #: class id -> RGBA of the annotation context at /frame
     class_colours: dict[int, tuple[int, int, int, int]] = field(default_factory=dict)
+    #: class id -> label of the annotation context at /frame
+    class_names: dict[int, str] = field(default_factory=dict)
     #: RGBA colours of /identify/controls/{training, prediction}
     control_colours: list[tuple[int, int, int, int]] = field(default_factory=list)
 
@@ -319,6 +327,8 @@ def read_facts(path: Path) -> RecordingFacts:
                 info = ctx["class_description"]["info"]
                 if info.get("color") is not None:
                     facts.class_colours[int(info["id"])] = _rgba(info["color"])
+                if info.get("label"):
+                    facts.class_names[int(info["id"])] = str(info["label"])
         elif entity in ("/identify/controls/training", "/identify/controls/prediction") \
                 and "Points2D:colors" in names:
             facts.control_colours += [_rgba(c) for c in batch.column("Points2D:colors").to_pylist()[-1] or []]
@@ -340,6 +350,10 @@ def choose_times_ns(facts: RecordingFacts, start: int | None, end: int | None) -
             out.append(with_drop[len(with_drop) // 2])
         sats = {t: c.get(4, 0) for t, c in seg.items()}
         out.append(max(sats, key=sats.get) if max(sats.values()) > 0 else max(seg))
+        # the other body classes (out of focus, touching satellite, tail, cut by the border)
+        others = {t: sum(n for cid, n in c.items() if cid >= OTHER_CLASSES_FROM) for t, c in seg.items()}
+        if max(others.values()) >= MIN_CLASS_PIXELS:
+            out.append(max(others, key=others.get))
         return sorted(set(out))
     if start is None or end is None:
         return []
@@ -486,7 +500,8 @@ def _wait_loaded(client: Any, deadline: float) -> Any:
         time.sleep(0.02)
 
 
-_CLASS_NAMES = {1: "nozzle", 2: "attached liquid", 3: "main drop", 4: "satellite", 5: "static speck"}
+_CLASS_NAMES = {1: "nozzle", 2: "attached liquid", 3: "main drop", 4: "satellite", 5: "static speck",
+                6: "out of focus", 7: "touching satellite", 8: "tail", 9: "cut by the border"}
 
 
 def check_recording(path: Path, out_dir: Path, *, times_us: Sequence[float] | None = None,
@@ -590,7 +605,9 @@ def _session(viewer: Viewer, res: Result, path: Path, out_dir: Path, stem: str, 
             if img is None:
                 continue
             if view.origin == "/frame" and shown is not None:
-                expected = {_CLASS_NAMES.get(cid, f"class {cid}"): facts.class_colours[cid]
+                name = {cid: facts.class_names.get(cid) or _CLASS_NAMES.get(cid, f"class {cid}")
+                        for cid in facts.classes[shown]}
+                expected = {name[cid]: facts.class_colours[cid]
                             for cid, n in facts.classes[shown].items()
                             if cid in facts.class_colours and n >= MIN_CLASS_PIXELS
                             and _chromatic(facts.class_colours[cid])}

@@ -26,7 +26,10 @@ Entity paths (all coordinates in the Rerun 2-D image space of the canonical fram
 ``/frame/axis``                 static :class:`rerun.LineStrips2D`, nozzle axis
 ``/frame/tip_plane``            static :class:`rerun.LineStrips2D`, nozzle tip plane
 ``/frame/edges``                :class:`rerun.Points2D`, sub-pixel edge points
-``/frame/bodies``               :class:`rerun.Boxes2D` with class ids and labels
+``/frame/bodies``               :class:`rerun.Boxes2D` with class ids, labels on hover
+``/frame/labels``               :class:`rerun.Points2D` (radius 0), the visible labels of the
+                                main drop, satellites and tails, beside their boxes, never
+                                overlapping (:func:`body_labels`)
 ``/frame/track``                :class:`rerun.LineStrips2D`, main-drop centroid track so far
 ``/frame/drop``                 :class:`rerun.Points2D`, main-drop centroid in this frame
 ``/series/volume_nl/<name>``    :class:`rerun.Scalars` (grown, attached, drop, detached)
@@ -80,7 +83,13 @@ __all__ = [
     "CLASS_DROP",
     "CLASS_SATELLITE",
     "CLASS_SPECK",
+    "CLASS_OUT_OF_FOCUS",
+    "CLASS_TOUCHING",
+    "CLASS_TAIL",
+    "CLASS_BORDER",
     "CLASSES",
+    "LABELLED_CLASSES",
+    "body_labels",
     "PIXEL_CENTRE_OFFSET",
     "ROW_SERIES",
     "RerunLogger",
@@ -105,10 +114,14 @@ def pd_to_float(values: Any) -> np.ndarray:
 from dropvision.segmentation import (  # noqa: E402  (one set of class ids, defined with the segmentation)
     CLASS_ATTACHED,
     CLASS_BACKGROUND,
+    CLASS_BORDER,
     CLASS_DROP,
     CLASS_NOZZLE,
+    CLASS_OUT_OF_FOCUS,
     CLASS_SATELLITE,
     CLASS_SPECK,
+    CLASS_TAIL,
+    CLASS_TOUCHING,
 )
 
 #: class id -> (label, RGBA colour) as logged in the annotation context at ``/frame``.
@@ -119,7 +132,26 @@ CLASSES: dict[int, tuple[str, tuple[int, int, int, int]]] = {
     CLASS_DROP: ("main drop", (230, 40, 40, 255)),
     CLASS_SATELLITE: ("satellite", (255, 170, 0, 255)),
     CLASS_SPECK: ("static speck", (60, 200, 80, 255)),
+    # per frame, mist and dust look alike; dust is decided over the sequence (bodies.parquet)
+    CLASS_OUT_OF_FOCUS: ("out of focus (mist, or dust if static: bodies.parquet)", (150, 90, 255, 255)),
+    CLASS_TOUCHING: ("touching satellite (split at the waist, not counted)", (255, 110, 0, 255)),
+    CLASS_TAIL: ("tail (free ligament)", (255, 60, 170, 255)),
+    CLASS_BORDER: ("cut by the border (volume unknown)", (180, 230, 40, 255)),
 }
+
+#: Classes whose bodies get a visible label beside their box (the others: on hover), and its
+#: short name.  Labels sit in a column right of these boxes, pushed apart vertically so that
+#: none overlap (`body_labels`).
+LABELLED_CLASSES: dict[int, str] = {
+    CLASS_DROP: "main drop",
+    CLASS_SATELLITE: "satellite",
+    CLASS_TOUCHING: "touching satellite",
+    CLASS_TAIL: "tail",
+}
+
+#: vertical spacing of the body labels, as a fraction of the image height (a 704-row frame fills
+#: the view's height at ~1.3 screen px per image px: ~13 image px per line of text)
+LABEL_SPACING = 0.022
 
 #: Accepted spellings of a body's class when given as a string.
 _CLASS_NAMES: dict[str, int] = {
@@ -136,6 +168,16 @@ _CLASS_NAMES: dict[str, int] = {
     "speck": CLASS_SPECK,
     "static speck": CLASS_SPECK,
     "static_speck": CLASS_SPECK,
+    "out of focus": CLASS_OUT_OF_FOCUS,
+    "out_of_focus": CLASS_OUT_OF_FOCUS,
+    "mist": CLASS_OUT_OF_FOCUS,
+    "dust": CLASS_OUT_OF_FOCUS,
+    "touching": CLASS_TOUCHING,
+    "touching satellite": CLASS_TOUCHING,
+    "touching_satellite": CLASS_TOUCHING,
+    "tail": CLASS_TAIL,
+    "border": CLASS_BORDER,
+    "cut": CLASS_BORDER,
 }
 
 #: JPEG quality of the logged transmission image. One frame of a 704 x 224 sequence is ~8 kB
@@ -178,12 +220,13 @@ def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
 
     ``Horizontal(Tabs(Spatial2DView normalised[, Spatial2DView raw]),
     Vertical(TimeSeriesView volume, velocity, position, TextDocumentView summary))``, with the
-    ``delay`` timeline selected in the time panel. The raw tab exists only when ``raw``.
+    ``delay`` timeline selected in the time panel, collapsed to its scrubber; the selection and
+    blueprint panels collapsed (the frame gets the room). The raw tab exists only when ``raw``.
     """
     import rerun.blueprint as rrb
 
     overlays = ["/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
-                "/frame/bodies", "/frame/track", "/frame/drop"]
+                "/frame/bodies", "/frame/labels", "/frame/track", "/frame/drop"]
     views = [rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
                                contents=["/frame", "/frame/transmission", *overlays])]
     if raw:
@@ -205,7 +248,9 @@ def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
             ),
             column_shares=[3, 2],
         ),
-        rrb.TimePanel(timeline="delay"),
+        rrb.TimePanel(timeline="delay", state="collapsed"),  # the scrubber only
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
         collapse_panels=False,
     )
 
@@ -244,11 +289,11 @@ def _class_id(body: Any, index: int) -> int:
         key = raw.strip().lower()
         if key not in _CLASS_NAMES:
             raise ValueError(f"log_frame: bodies[{index}] has unknown class {raw!r}; "
-                             f"expected one of {sorted(_CLASS_NAMES)} or an id 0..5")
+                             f"expected one of {sorted(_CLASS_NAMES)} or an id 0..{max(CLASSES)}")
         return _CLASS_NAMES[key]
     cid = int(raw)
     if cid not in CLASSES:
-        raise ValueError(f"log_frame: bodies[{index}] has class id {cid}, expected 0..5")
+        raise ValueError(f"log_frame: bodies[{index}] has class id {cid}, expected 0..{max(CLASSES)}")
     return cid
 
 
@@ -308,6 +353,37 @@ def _body_boxes(bodies: list[Any], ox: int = 0, oy: int = 0) -> list[_Box]:
         out.append(_Box(x0 + ox, y0 + oy, x1 + ox, y1 + oy, _class_id(body, i),
                         _finite(_get(body, ("volume_nl",))), centroid))
     return out
+
+
+def body_labels(boxes: Iterable[Any], spacing: float) -> list[tuple[tuple[float, float], int, str]]:
+    """Where to write the visible body labels so that none covers a labelled box or another label.
+
+    One label per box of a class in :data:`LABELLED_CLASSES`, in a column right of all these
+    boxes, at its box's mid-height; a label closer than ``spacing`` (image px, about one line of
+    text) to the one above is pushed down (greedy, top to bottom).  The viewer centres a point's
+    label on the point, so the point sits half the text's estimated width right of the column.
+
+    Returns
+    -------
+    list of ((x, y), class_id, text)
+        Rerun image coordinates of the label centres.
+    """
+    items = sorted((b for b in boxes if b.class_id in LABELLED_CLASSES), key=lambda b: (b.y0 + b.y1, b.x0))
+    if not items:
+        return []
+    column = max(b.x1 for b in items) + 0.5 * spacing
+    out: list[tuple[tuple[float, float], int, str]] = []
+    last = -math.inf
+    for b in items:
+        y = max((b.y0 + b.y1) / 2.0, last + spacing)
+        last = y
+        text = LABELLED_CLASSES[b.class_id] + ("" if b.volume_nl is None else f" {b.volume_nl:.3g} nl")
+        out.append(((column + 0.5 * _CHAR_WIDTH * spacing * (len(text) + 2), y), b.class_id, text))
+    return out
+
+
+#: width of a character of a label in lines of text (the viewer's font at its default size)
+_CHAR_WIDTH = 0.42
 
 
 # --- logger ----------------------------------------------------------------------------------
@@ -455,9 +531,9 @@ class RerunLogger:
         tip = np.column_stack([xs, cal.tip_row - (xs - cal.axis_col) * t])
         rr = self._rr
         self.stream.log("/frame/axis", rr.LineStrips2D([axis + PIXEL_CENTRE_OFFSET],
-                        colors=(255, 255, 0), radii=-1.0, labels="axis"), static=True)
+                        colors=(255, 255, 0), radii=-1.0, labels="axis", show_labels=False), static=True)
         self.stream.log("/frame/tip_plane", rr.LineStrips2D([tip + PIXEL_CENTRE_OFFSET],
-                        colors=(0, 255, 255), radii=-1.0, labels="tip plane"), static=True)
+                        colors=(0, 255, 255), radii=-1.0, labels="tip plane", show_labels=False), static=True)
         self._lines_logged = True
 
     # -- per frame ------------------------------------------------------------------------------
@@ -557,14 +633,14 @@ class RerunLogger:
                                                 radii=-1.5, colors=(255, 0, 255)))
         boxes = None if bodies is None else _body_boxes(list(bodies), ox, oy)
         if boxes is not None:
-            self._log_bodies(boxes)
+            self._log_bodies(boxes, shape or self._shape)
 
         if row is None:
             row = {}
         point = self._drop_point_px(row, boxes)
         if point is not None:
             self._track_px.append(point)
-            rec.log("/frame/drop", rr.Points2D([point], radii=-4.0, class_ids=CLASS_DROP))
+            rec.log("/frame/drop", rr.Points2D([point], radii=-4.0, class_ids=CLASS_DROP, show_labels=False))
         else:
             rec.log("/frame/drop", rr.Clear(recursive=False))
         if len(self._track_px) >= 2:
@@ -585,16 +661,27 @@ class RerunLogger:
             text += f": quality {float(quality):g}"
         rec.log("/log", rr.TextLog(text, level=level))
 
-    def _log_bodies(self, boxes: list[_Box]) -> None:
+    def _log_bodies(self, boxes: list[_Box], shape: tuple[int, int] | None) -> None:
+        """Boxes of every body (class colour, label on hover) and, beside the boxes of the
+        classes in :data:`LABELLED_CLASSES`, one visible label each (`body_labels`)."""
         rr = self._rr
         if not boxes:
             self.stream.log("/frame/bodies", rr.Clear(recursive=False))
+            self.stream.log("/frame/labels", rr.Clear(recursive=False))
             return
         texts = [CLASSES[b.class_id][0] + ("" if b.volume_nl is None else f" {b.volume_nl:.3g} nl")
                  for b in boxes]
         self.stream.log("/frame/bodies", rr.Boxes2D(
             mins=[(b.x0, b.y0) for b in boxes], sizes=[(b.x1 - b.x0, b.y1 - b.y0) for b in boxes],
             class_ids=[b.class_id for b in boxes], labels=texts, show_labels=False))
+        rows = shape[0] if shape is not None else max(b.y1 for b in boxes)
+        placed = body_labels(boxes, LABEL_SPACING * rows)
+        if not placed:
+            self.stream.log("/frame/labels", rr.Clear(recursive=False))
+            return
+        self.stream.log("/frame/labels", rr.Points2D(
+            [p for p, _, _ in placed], radii=0.0, class_ids=[c for _, c, _ in placed],
+            labels=[t for _, _, t in placed], show_labels=True))
 
     def _drop_point_px(self, row: Mapping[str, Any], boxes: list[_Box] | None) -> tuple[float, float] | None:
         """Main-drop centroid in Rerun pixel space: from the table (needs calibration), else bodies."""
