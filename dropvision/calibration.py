@@ -459,8 +459,9 @@ def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int
 def _axis_runs(rr: np.ndarray, s: np.ndarray, e: np.ndarray, y1: int) -> tuple[np.ndarray, np.ndarray]:
     """Per row, the dark run holding the nozzle: followed from the lowest row upwards.
 
-    In the lowest row the widest run is taken; in each row above, the run overlapping the one
-    below it most. Rows above the first row without such a run get -1.
+    In the lowest row with a run at least 3 px wide the widest run is taken; in each row above,
+    the run overlapping (8-connected) the one below it most. Rows above the first row without
+    such a run get -1.
     """
     start = np.full(y1, -1)
     stop = np.full(y1, -1)
@@ -476,8 +477,10 @@ def _axis_runs(rr: np.ndarray, s: np.ndarray, e: np.ndarray, y1: int) -> tuple[n
             break
         if prev is None:
             k = i0 + int(np.argmax(e[i0:i1] - s[i0:i1]))
-        else:
-            overlap = np.minimum(e[i0:i1], prev[1]) - np.maximum(s[i0:i1], prev[0])
+            if e[k] - s[k] < 3:  # a noise pixel hanging below the body
+                continue
+        else:  # 8-connected: a run touching the one below diagonally still continues it
+            overlap = np.minimum(e[i0:i1], prev[1] + 1) - np.maximum(s[i0:i1], prev[0] - 1)
             if overlap.max() <= 0:
                 break
             k = i0 + int(np.argmax(overlap))

@@ -27,3 +27,20 @@ def test_accuracy_against_synthetic_truth(name, tmp_path):
     assert r["satellites_ok"]
     assert r["dust_ok"]
     assert abs(r["tip_err_px"]) < 0.1 and abs(r["tilt_err_deg"]) < 0.05
+
+
+# --- realism tier: the synthesizer's rig presets (issue 11) ---------------------------------------
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::dropvision.sequence.RGBConvertedWarning")
+@pytest.mark.parametrize("name", list(ar.REALISM))
+def test_realism_tier_against_synthetic_truth(name, tmp_path):
+    r = ar.run_realism_case(name, ar.realism_cases()[name], tmp_path)
+    assert not r["refused"], r.get("error")
+    for key in ("grown_max_pct", "drop_max_pct", "attached_pct"):
+        assert not r[key] > 1.0, (key, r[key])  # NaN where the case has no such frame
+    assert r["satellites_wrong"] == 0
+    assert r["mist_counted"] == 0
+    assert r["pinchoff_ok"]
+    assert r["false_ok"] == 0
+    if name == "tilted-dusty":  # issue 11 item 7: the clean tier's goals
+        assert abs(r["inflight_pct"]) <= 0.3 and abs(r["velocity_pct"]) <= 0.5

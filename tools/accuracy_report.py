@@ -79,6 +79,9 @@ REALISM = {
     "low-contrast": dict(seed=33),
     "tilted-dusty": dict(seed=34),
     "single-frame": dict(seed=35),
+    # a single drop-watcher frame (no background sequence) without nozzle diameters
+    "watcher-single": dict(rig="watcher-side", width_px=640, height_px=1024, tip_row=120.4, axis_col=319.6,
+                           delays_us=(1300.0,), write_nozzle_diameters=False, seed=36),
 }
 
 
@@ -89,7 +92,7 @@ def realism_cases(full: bool = False) -> dict[str, dict]:
         kw = dict(kw)
         if name in ("low-contrast", "tilted-dusty") and not full:
             kw.update(width_px=320, height_px=800)
-        if name not in ("pendant-saturated", "single-frame"):
+        if name not in ("pendant-saturated", "single-frame", "watcher-single"):
             step = 10 if full else 20
             kw["delays_us"] = tuple(float(d) for d in range(0, 1501 if not full else 1801, step))
         out[name] = kw
@@ -159,7 +162,8 @@ def run_realism_case(name: str, kw: dict, workdir) -> dict:
 
     seq = Path(workdir) / "seq"
     t0 = time.perf_counter()
-    write_synthetic_sequence(SynthConfig.for_rig(name, **kw), seq, progress=False)
+    kw = dict(kw)
+    write_synthetic_sequence(SynthConfig.for_rig(kw.pop("rig", name), **kw), seq, progress=False)
     t1 = time.perf_counter()
     try:
         res = measure_sequence(seq, config=MeasureConfig(workers=1))
@@ -235,17 +239,19 @@ def main(argv=None) -> int:
     ap.add_argument("--full", action="store_true", help="640x1024 frames every 10 us (slower)")
     ap.add_argument("--tier", choices=("clean", "realism", "all"), default="all",
                     help="clean sweep, realism tier (rig presets), or both (default)")
+    ap.add_argument("--seeds", type=int, default=1, help="realism tier: render each case with this many seeds")
     ap.add_argument("--out", help="also write the table(s) as CSV (realism tier: NAME-realism.csv)")
     args = ap.parse_args(argv)
     if args.tier in ("realism", "all"):
         rrows = []
         for name, kw in realism_cases(args.full).items():
-            with tempfile.TemporaryDirectory() as tmp:
-                r = run_realism_case(name, kw, tmp)
-            r["case"] = name
-            rrows.append(r)
-            print(f"realism {name}: " + ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
-                                                  for k, v in r.items() if k != "case"), flush=True)
+            for k in range(args.seeds):
+                with tempfile.TemporaryDirectory() as tmp:
+                    r = run_realism_case(name, {**kw, "seed": kw.get("seed", 0) + 100 * k}, tmp)
+                r["case"] = name if args.seeds == 1 else f"{name}#{k}"
+                rrows.append(r)
+                print(f"realism {r['case']}: " + ", ".join(f"{key} {v:.3g}" if isinstance(v, float) else f"{key} {v}"
+                                                          for key, v in r.items() if key != "case"), flush=True)
         rtable = pd.DataFrame(rrows).set_index("case")
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             print(rtable.T.to_string(float_format=lambda v: f"{v:.4g}"))
