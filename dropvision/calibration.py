@@ -115,10 +115,21 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
 
 
 def dark_bodies_mask(image: np.ndarray, margin_px: int) -> np.ndarray:
-    """Bool mask of dark bodies (below half the bright level), holes filled, grown by ``margin_px``."""
+    """Bool mask of dark bodies, holes filled, grown by ``margin_px``.
+
+    Dark is below half the bright level (95th percentile).  In a low-contrast frame, whose
+    darkest 0.5 % is above 30 % of the bright level (liquid and nozzle half transparent), half
+    the bright level would miss the bodies themselves: the frame is smoothed (Gaussian, 2 px,
+    against its noise) and dark is below ``1 - (1 - darkest) / 4`` of the bright level.
+    """
     img = np.asarray(image, np.float32)
     level = float(np.percentile(img[::4, ::4], 95))
-    mask = (img < 0.5 * level).astype(np.uint8) * 255
+    darkest = float(np.percentile(img[::4, ::4], 0.5)) / max(level, 1e-6)
+    if darkest > 0.3:
+        img = cv2.GaussianBlur(img, (0, 0), 2.0)
+        mask = (img < (1.0 - 0.25 * (1.0 - darkest)) * level).astype(np.uint8) * 255
+    else:
+        mask = (img < 0.5 * level).astype(np.uint8) * 255
     mask = fill_holes(mask)
     if margin_px > 0:
         k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * margin_px + 1, 2 * margin_px + 1))
@@ -379,13 +390,18 @@ def _longest_true_run(flags: np.ndarray) -> tuple[int, int]:
 def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
     """(start, stop) of the nozzle's straight part: a run of rows of constant width.
 
-    Runs of consecutive candidate rows whose widths stay within 1.5 px of the run's median are
-    the straight parts of the top body (a holder block above the nozzle, the nozzle, a needle).
+    Runs of consecutive candidate rows whose widths (5-row running median) stay within 1.5 px of
+    the run's median are the straight parts of the top body (a holder block above the nozzle, the nozzle, a needle).
     With the nozzle's expected outer width (px), the longest run within a factor 1.5 of it is the
     nozzle; none: (0, 0).  Without it, runs of at least 6 rows are preferred to shorter ones (at
     least 3) and the narrowest is the nozzle (a holder is wider; the liquid hanging below is not
     of constant width), the longest on a tie.
     """
+    # a 5-row running median: edge noise (low contrast) must not break a straight wall
+    width = np.asarray(width, float)
+    if width.size >= 5:
+        pad = np.pad(width, 2, mode="edge")
+        width = np.median(np.lib.stride_tricks.sliding_window_view(pad, 5), axis=1)
     runs_ = []
     i, n = 0, width.size
     while i < n:
@@ -803,7 +819,10 @@ def calibrate(
                          "estimated (the middle of the nozzle walls' edge is clipped too)")
     t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
-    nozzle = find_nozzle(t_first, 0.5, expected)
+    # first pass at 50 % (at half the way to the darkest 0.5 % in a low-contrast frame, where the
+    # nozzle itself may sit near 50 %), refined with the measured nozzle level
+    darkest = float(np.percentile(t_first[::2, ::2], 0.5))
+    nozzle = find_nozzle(t_first, edge_threshold(darkest) if darkest > 0.3 else 0.5, expected)
     thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n, expected)
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um

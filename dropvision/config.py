@@ -49,6 +49,11 @@ class MeasureConfig:
         walls' plus ``mist_blur_offset_px`` is out of focus (mist, dust on the optics): listed in
         bodies.parquet, never a drop or a satellite (`dropvision.classify`; chosen on synthetic
         frames: in-focus bodies 0.98-1.1x the walls', bodies blurred a further 3 px or more >= 1.2x).
+    smooth_noise_limit, smooth_px : float
+        Frames whose background noise (transmission units) exceeds ``smooth_noise_limit`` are
+        smoothed by a Gaussian of ``smooth_px`` before segmentation and edges (its blur is
+        added to the calibrated blur for the volume correction): a 50 % edge moves by the noise
+        over the edge slope, so noisy low-contrast frames need it to stay within 1 %.
     workers : int
         Decoding/measuring threads (cv2 releases the GIL).
     dead_time_us : float
@@ -105,6 +110,8 @@ class MeasureConfig:
     ambiguous_gap_px: float = 1.5
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
+    smooth_noise_limit: float = 0.025
+    smooth_px: float = 1.0
     workers: int = 2
     dead_time_us: float = DEAD_TIME_US
     pixel_size_tolerance_fraction: float = 0.02

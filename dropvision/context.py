@@ -68,6 +68,8 @@ class FrameContext:
     min_wall_contrast: float = 0.0
     # out-of-focus bodies (`dropvision.classify`): edge spread of the in-focus nozzle and the limit rule
     edge_blur_ref_px: float = float("nan")
+    # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
+    smooth_px: float = 0.0
     # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
     clipped_level: float = float("nan")
     mist_blur_factor: float = 1.2
@@ -236,14 +238,25 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
     ctx.clipped_level = cal.clipped_level
     ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
+    if ctx.noise_t > config.smooth_noise_limit:  # noisy (low-contrast) frames: smooth before the edges
+        ctx.smooth_px = float(config.smooth_px)
+        if ctx.sigma_px > 0:
+            ctx.sigma_px = float(math.hypot(ctx.sigma_px, ctx.smooth_px))
     _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
     ctx.edge_blur_ref_px = _nozzle_edge_spread(first, ctx)
     return cal, sigma, ctx
 
 
+def smooth_roi(roi: np.ndarray, ctx: FrameContext) -> np.ndarray:
+    """The region of interest, smoothed by ``ctx.smooth_px`` when the frames are noisy."""
+    if ctx.smooth_px <= 0:
+        return roi
+    return cv2.GaussianBlur(np.ascontiguousarray(roi), (0, 0), ctx.smooth_px)
+
+
 def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
     """Edge spread of the nozzle body in the first calibration frame (`dropvision.classify`)."""
-    roi = first[ctx.r0:, ctx.c0:ctx.c1]
+    roi = smooth_roi(first[ctx.r0:, ctx.c0:ctx.c1], ctx)
     seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
     body = find_nozzle_body(seg.bodies, ctx.axis_roi)
     return (float("nan") if body is None

@@ -31,7 +31,7 @@ from dropvision.bodies import (
     measure_body,
 )
 from dropvision.classify import appearance, out_of_focus_reason
-from dropvision.context import FrameContext
+from dropvision.context import FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
 from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
@@ -86,8 +86,8 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         index=getattr(ref, "index", 0), file=getattr(ref, "file", ""), page=getattr(ref, "page", None),
         delay_us=float(getattr(ref, "delay_us", 0.0)), repeat=getattr(ref, "repeat", 0),
     )
-    roi = image[ctx.r0:, ctx.c0:ctx.c1]
     measure_photometry(image, ctx, rec)
+    roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
     seg = segment_frame(roi, ctx, rec.gain)
     edges: list[RowEdges] = []
     nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi)

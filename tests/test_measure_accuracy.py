@@ -36,8 +36,10 @@ def test_accuracy_against_synthetic_truth(name, tmp_path):
 def test_realism_tier_against_synthetic_truth(name, tmp_path):
     r = ar.run_realism_case(name, ar.realism_cases()[name], tmp_path)
     assert not r["refused"], r.get("error")
-    for key in ("grown_max_pct", "drop_max_pct", "attached_pct"):
+    for key in ("grown_max_pct", "drop_max_pct"):
         assert not r[key] > 1.0, (key, r[key])  # NaN where the case has no such frame
+    if name == "pendant-saturated":  # the attached drop is the measurement
+        assert r["attached_pct"] <= 1.0
     assert r["satellites_wrong"] == 0
     assert r["mist_counted"] == 0
     assert r["pinchoff_ok"]

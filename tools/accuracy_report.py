@@ -26,7 +26,8 @@ the pendant drop, the grown meniscus); satellite_frames / satellites_wrong (fram
 known count compared with the truth's visible satellites); mist_counted (counted bodies within
 4 px of a truth mist droplet or dust speck); false_ok (frames with quality "ok" whose grown
 volume is off by more than 1 % of the peak, main-drop volume by more than 1 %, or satellite
-count wrong); refused (the measurement raised).
+count wrong, or attached volume off by more than 1 % of the largest); refused (the measurement
+raised).
 """
 
 from __future__ import annotations
@@ -146,6 +147,9 @@ def compare_realism(result, seq_dir) -> dict:
     bad = pd.Series(False, index=m.index)
     if peak > 0:
         bad |= m["attached_t"] & ((m["grown_volume_nl"] - m["grown_volume_nl_t"]).abs() / peak > 0.01)
+    att_peak = float(tf["attached_volume_nl"].max())
+    if att_peak > 0:  # the attached volume itself (a wrong tip plane offsets it, not the grown volume)
+        bad |= m["attached_t"] & ((m["attached_volume_nl"] - m["attached_volume_nl_t"]).abs() / att_peak > 0.01)
     bad |= (m["inflight_t"] & m["drop_in_view"] & m["drop_volume_nl"].notna()
             & ((m["drop_volume_nl"] / m["drop_volume_nl_t"] - 1).abs() > 0.01))
     bad.loc[view.index] |= sat_wrong
