@@ -1,7 +1,10 @@
 """Inverse design: control parameters (u1, u2) for a target in-flight volume (and velocity).
 
 The search is restricted to the printable region: the convex hull of the distinct training
-controls (the bounding box when the hull is degenerate). A dense grid of nominal hybrid
+controls (the bounding box when the hull is degenerate). These are the model's
+``training_controls``: the (u1, u2) where every polynomial of the fit had a usable sequence, so a
+control whose sequences an irregular campaign lost (failed, no pinch-off, no velocity; see the
+fit's notes) does not widen the region. A dense grid of nominal hybrid
 predictions (vectorised) locates the best candidates, which a bounded Nelder-Mead search
 refines. Objective: relative squared error of the volume (+ of the velocity when given).
 
@@ -70,6 +73,7 @@ class Region:
 
     def __init__(self, controls: np.ndarray):
         c = np.asarray(controls, float)
+        self.n_controls = len(c)
         self.lo, self.hi = c.min(axis=0), c.max(axis=0)
         if np.any(self.hi <= self.lo):
             raise ValueError("the training controls span no area in (u1, u2); cannot design")
@@ -89,7 +93,7 @@ class Region:
 
     def to_dict(self) -> dict:
         return {"u1_um_per_ms": [float(self.lo[0]), float(self.hi[0])], "u2_um": [float(self.lo[1]), float(self.hi[1])],
-                "shape": "convex hull" if self.tri is not None else "bounding box"}
+                "shape": "convex hull" if self.tri is not None else "bounding box", "n_controls": int(self.n_controls)}
 
 
 def design(

@@ -33,7 +33,8 @@ import pandas as pd
 from identify import __version__, schema
 from identify.arx_selection import grid_for_dead_time, select_structure
 from identify.atomic import write_json
-from identify.dataset import Dataset, DatasetError, summary_usable, timeseries_runs
+from identify.dataset import Dataset, DatasetError, check_measurement_block, measurement_uncertainty, \
+    sequence_standard_errors, summary_usable, timeseries_runs
 from identify.design import DesignResult, design
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
@@ -148,12 +149,22 @@ class HybridModel:
         * ``confidence_low/high``: interval of the *mean* drop (parameter uncertainty): the
           spread of the parameter Monte Carlo (ECM coefficient covariance, pinch-off and both
           adjuster polynomials, pinch-off and volume adjuster drawn jointly) plus, where the
-          cross-validation found it, the model-discrepancy scatter ``model_std``;
-          ``confidence_std`` is its standard deviation;
+          cross-validation found it, the model-discrepancy scatter ``model_std``, plus the
+          systematic measurement uncertainty ``measurement_std`` (below); ``confidence_std`` is
+          its standard deviation;
         * ``prediction_low/high``: interval of an *individual drop*: the confidence variance
           plus the drop-to-drop scatter ``drop_std`` estimated from the training data (repeats
-          where present, else the residuals of the fit), Student-t with the scatter's degrees
-          of freedom; ``prediction_std``.
+          where present, else the sequences' own standard errors, else the residuals of the
+          fit), Student-t with the scatter's degrees of freedom; ``prediction_std``.
+
+        Measurement term (``intervals["measurement"]`` of the model, from
+        :func:`identify.dataset.measurement_uncertainty`): what every sequence of the training
+        campaign shares and residual scatter therefore cannot show (pixel size: volume ∝ px³,
+        velocity ∝ px; edge-position bias; the strobe grid of the pinch-off).
+        ``measurement_std`` = ``volume_rel`` x |mean| (in-flight volume), ``velocity_rel`` x
+        |mean| (jetting velocity), ``pinchoff_std_us`` (pinch-off); ``measurement_source`` says
+        where the figures come from. Models without it (older files) add nothing
+        (``measurement_std`` 0, source None).
 
         A model without ``intervals`` (fitted before they existed) gives the prediction
         interval equal to the confidence interval and ``prediction_available`` False.
@@ -166,6 +177,7 @@ class HybridModel:
         res = mc if mc is not None else self.monte_carlo(u1, u2, samples=samples, seed=seed)
         nominal = res.nominal
         scatter = (self.intervals or {}).get("scatter") or {}
+        meas = (self.intervals or {}).get("measurement") or {}
         z = float(stats.norm.ppf(0.5 + level / 2))
         out = {}
         for k in INTERVAL_OUTPUTS:
@@ -175,9 +187,11 @@ class HybridModel:
             sc = scatter.get(k) or {}
             s_model = float(sc.get("model_std") or 0.0)
             s_drop = sc.get("drop_std")
-            s_conf = float(np.hypot(s_mc, s_model))
+            s_meas = _measurement_std(meas, k, mean)
+            s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))
             entry = {"mean": mean, "nominal": float(nominal[k]), "level": float(level),
-                     "parameter_std": s_mc, "model_std": s_model,
+                     "parameter_std": s_mc, "model_std": s_model, "measurement_std": s_meas,
+                     "measurement_source": meas.get("source") if meas else None,
                      "confidence_std": s_conf,
                      "confidence_low": mean - z * s_conf, "confidence_high": mean + z * s_conf}
             if s_drop is not None:
@@ -289,6 +303,37 @@ class HybridModel:
         except RecursionError:
             raise ModelFileError(f"{path}: invalid JSON (nested too deeply)") from None
         return cls.from_dict(d, source=str(path))
+
+
+#: Key of ``intervals["measurement"]`` per output and whether it is relative to the mean.
+MEASUREMENT_TERMS = {"pinchoff_us": ("pinchoff_std_us", False), "inflight_volume_nl": ("volume_rel", True),
+                     "jetting_velocity_m_s": ("velocity_rel", True)}
+
+
+def _measurement_std(meas: dict, output: str, mean: float) -> float:
+    """Standard deviation of the systematic measurement error of ``output`` at ``mean``."""
+    key, relative = MEASUREMENT_TERMS[output]
+    v = float(meas.get(key) or 0.0) if meas else 0.0
+    return abs(mean) * v if relative else v
+
+
+def describe_measurement(model: HybridModel) -> str:
+    """One sentence on the systematic measurement term of ``model``'s intervals and its source
+    (for `identify predict` and the report)."""
+    m = (model.intervals or {}).get("measurement")
+    if not m:
+        return ("systematic measurement uncertainty: none in this model (fitted before the term existed; "
+                "refit it to include the calibration of the images)")
+    parts = []
+    if m.get("volume_rel") is not None:
+        parts.append(f"in-flight volume {100 * m['volume_rel']:.3g} %")
+    if m.get("velocity_rel") is not None:
+        parts.append(f"jetting velocity {100 * m['velocity_rel']:.3g} %")
+    if m.get("pinchoff_std_us") is not None:
+        parts.append(f"pinch-off {m['pinchoff_std_us']:.3g} us")
+    return ("systematic measurement uncertainty (1 sigma, shared by every sequence of the training campaign, "
+            f"so invisible in residual scatter; in both intervals): {', '.join(parts) or 'none'}; "
+            f"source: {m.get('source') or 'n/a'}")
 
 
 def _model_error(source, key: str, problem: str) -> ModelFileError:
@@ -501,6 +546,24 @@ def _check_intervals(d: dict, source) -> None:
                 dof = _number(v["dof"], source, f"intervals.scatter.{k}.dof", positive=True)
                 if dof != int(dof):
                     raise _model_error(source, f"intervals.scatter.{k}.dof", f"must be an integer, got {dof}")
+    m = iv.get("measurement")
+    if m is not None:
+        if not isinstance(m, dict):
+            raise _model_error(source, "intervals.measurement", f"must be an object, got {type(m).__name__}")
+        for name, v in m.items():
+            if name in ("source", "note"):
+                if v is not None and not isinstance(v, str):
+                    raise _model_error(source, f"intervals.measurement.{name}", "must be a string")
+            elif name in ("volume_rel", "velocity_rel", "pixel_size_rel"):
+                if v is not None:
+                    _number(v, source, f"intervals.measurement.{name}", nonnegative=True, at_most=0.5)
+            elif name == "pinchoff_std_us":
+                if v is not None:
+                    _number(v, source, f"intervals.measurement.{name}", nonnegative=True,
+                            at_most=MODEL_RANGES["dead_time_us"])
+            else:
+                raise _model_error(source, f"intervals.measurement.{name}", "is unknown (expected volume_rel, "
+                                   "velocity_rel, pixel_size_rel, pinchoff_std_us, source)")
     c = iv.get("pinchoff_volume_cross_covariance")
     if c is not None:
         shape = (len(d["pinchoff"]["terms"]), len(d["volume_adjuster"]["terms"]))
@@ -681,15 +744,21 @@ def _cross_covariance(a: PolynomialFit, b: PolynomialFit, u1, u2, ra, rb) -> np.
 
 
 def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
-                   seed: int, notes: list, mc_samples: int = 400) -> dict:
+                   seed: int, notes: list, mc_samples: int = 400, standard_errors: dict | None = None,
+                   measurement: dict | None = None) -> dict:
     """Scatter of individual drops about the model, for `HybridModel.interval_prediction`.
 
     Per output (:data:`INTERVAL_OUTPUTS`):
 
     * ``drop_std``: drop-to-drop scatter: pooled standard deviation of repeated measurements
-      of one (u1, u2) when the data have repeats, else the residual standard deviation of the
-      whole hybrid chain at the training points (residual sum of squares / (n - p), p the
-      coefficients of the output's own polynomial); ``dof`` its degrees of freedom;
+      of one (u1, u2) when the data have repeats; else, where every sequence carries its own
+      standard error (``standard_errors``, :func:`identify.dataset.sequence_standard_errors`:
+      an image-measured campaign), their RMS (source ``sequence_se``): the residuals then also
+      hold the model's lack of fit, which is the same for every drop at one (u1, u2) and goes to
+      ``model_std`` (confidence) instead of being taken for drop scatter; else the residual
+      standard deviation of the whole hybrid chain at the training points (residual sum of
+      squares / (n - p), p the coefficients of the output's own polynomial); ``dof`` its
+      degrees of freedom;
     * ``cv_rmse``: RMS error of the whole chain predicting held-out measured drops in grouped
       K-fold cross-validation (polynomials refitted per fold, ECM kept);
     * ``model_std``: model discrepancy: sqrt(max(0, cv_rmse^2 - drop_std^2 - mean parameter
@@ -697,7 +766,8 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
       the parameter uncertainty (e.g. a bias of the ECM that no polynomial absorbs).
 
     Also ``pinchoff_volume_cross_covariance`` (see
-    :func:`identify.montecarlo.pinchoff_volume_cross_covariance`).
+    :func:`identify.montecarlo.pinchoff_volume_cross_covariance`) and ``measurement`` (the
+    systematic measurement uncertainty, :func:`identify.dataset.measurement_uncertainty`).
     """
     from dataclasses import replace
 
@@ -741,28 +811,51 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         y = np.asarray(measured[k], float)
         resid = y - pred[k].to_numpy()
         p = len(fits[k].terms)
+        se = None if standard_errors is None else standard_errors.get(k)
         if rep_dof >= 2:
             means = np.bincount(inv, weights=y) / counts
             drop_var, dof, source = float(np.sum((y - means[inv]) ** 2) / rep_dof), rep_dof, "repeats"
+        elif se is not None and np.all(np.isfinite(se)):
+            # within-sequence noise; the residual dof keep the Student-t of the prediction modest
+            drop_var, dof, source = float(np.mean(np.asarray(se, float) ** 2)), max(1, n - p), "sequence_se"
         else:
             dof = max(1, n - p)
             drop_var, source = float(resid @ resid) / dof, "residuals"
         e = cv_err[k][np.isfinite(cv_err[k])]
         cv_mse = float(np.mean(e**2)) if e.size else float("nan")
         model_var = max(0.0, cv_mse - drop_var - float(np.mean(var_mc[k]))) if e.size else 0.0
+        if source == "sequence_se":  # lack of fit seen in-sample counts too (at least)
+            model_var = max(model_var, float(resid @ resid) / max(1, n - p) - drop_var)
         out["scatter"][k] = {"drop_std": float(np.sqrt(drop_var)), "dof": int(dof), "source": source,
                              "model_std": float(np.sqrt(model_var)),
                              "cv_rmse": float(np.sqrt(cv_mse)) if e.size else None,
                              "in_sample_rmse": float(np.sqrt(np.mean(resid**2)))}
         if not e.size:
             notes.append(f"{k}: no cross-validation fold could be fitted; model_std set to 0")
+    if measurement is not None:
+        out["measurement"] = dict(measurement)
     return out
+
+
+def _fitted_controls(u1, u2, masks: dict, notes: list) -> np.ndarray:
+    """Distinct (u1, u2) where every polynomial had a usable sequence: the training region of
+    `identify.design` (a control whose only sequences the fits dropped is not part of it)."""
+    every = np.unique(np.column_stack([u1, u2]), axis=0)
+    keep = np.ones(len(every), bool)
+    for m in masks.values():
+        have = {tuple(c) for c in np.column_stack([u1[m], u2[m]])}
+        keep &= np.array([tuple(c) in have for c in every], bool)
+    if not keep.all():
+        eg = ", ".join(f"({a:g}, {b:g})" for a, b in every[~keep][:3])
+        notes.append(f"training region: {int((~keep).sum())} (u1, u2) without a usable sequence for every "
+                     f"polynomial left out of training_controls (e.g. {eg})")
+    return every[keep]
 
 
 def fit_hybrid(
     ds: Dataset, *, orders=DEFAULT_ORDERS, folds: int = 10, seed: int = 0, ecm_method: str = "oe",
     adjuster_reference: str = "ecm", arx: bool = True, arx_ranges: dict | None = None,
-    progress: bool = False,
+    progress: bool = False, measurement: dict | None = None,
 ) -> FitReport:
     """Identify the hybrid model of Eq. (8) from a validated dataset.
 
@@ -776,6 +869,13 @@ def fit_hybrid(
     Irregular campaigns: each fit uses what it can (:func:`identify.dataset.timeseries_runs`,
     :func:`identify.dataset.summary_usable`); ``FitReport.notes`` (and ``notes`` of model.json)
     say what was dropped and why.
+
+    Intervals: ``model.intervals["measurement"]`` is the systematic measurement uncertainty of
+    :func:`identify.dataset.measurement_uncertainty` (dataset.json, the campaign's pixel-size
+    check, or documented defaults), or ``measurement`` when given: a dict like dataset.json's
+    ``measurement_uncertainty`` (``volume_rel`` and ``velocity_rel``, optional
+    ``pinchoff_std_us``, ``source``). Training controls (the region of `identify.design`): only
+    the (u1, u2) where every polynomial had a usable sequence.
     """
     from tqdm import tqdm
 
@@ -844,7 +944,7 @@ def fit_hybrid(
         ecm_coefficients=EcmCoefficients(*c_arr[0]),
         ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
         pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
-        arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=ds.distinct_controls(),
+        arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=_fitted_controls(u1, u2, masks, notes),
         adjuster_reference=adjuster_reference, versions=versions,
         extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
         ecm_level=efit.level, notes=notes,
@@ -853,10 +953,23 @@ def fit_hybrid(
     if not mall.all():
         notes.append(f"intervals: drop scatter and cross-validation from the {int(mall.sum())} of {len(mall)} "
                      "sequences with every summary value")
+    ses = {k: v[mall] for k, v in sequence_standard_errors(ds).items()}
+    if measurement is None:
+        meas = measurement_uncertainty(ds)
+    else:
+        meas = check_measurement_block(measurement, "fit_hybrid(measurement=...)")
+        if "volume_rel" not in meas or "velocity_rel" not in meas:
+            raise ValueError("fit_hybrid(measurement=...): needs volume_rel and velocity_rel")
+        meas.setdefault("pinchoff_std_us", 0.0)
+        meas["source"] = "given to fit_hybrid" + (f": {meas['source']}" if meas.get("source") else "")
+    notes.append(f"intervals: systematic measurement uncertainty volume {100 * meas['volume_rel']:.3g} %, velocity "
+                 f"{100 * meas['velocity_rel']:.3g} %, pinch-off {meas.get('pinchoff_std_us') or 0:.3g} us "
+                 f"({meas['source']})")
     model.intervals = _fit_intervals(model, u1[mall], u2[mall],
                                      {"pinchoff_us": tp[mall], "inflight_volume_nl": inflight[mall],
                                       "jetting_velocity_m_s": jet[mall]}, vol_target[mall], vel_target[mall],
-                                     folds=folds, seed=seed, notes=notes)
+                                     folds=folds, seed=seed, notes=notes, standard_errors=ses,
+                                     measurement=meas)
     training = pd.DataFrame({
         "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,
         "ecm_grown_volume_at_pinchoff_nl": v_ecm, "ecm_flow_velocity_at_max_stroke_m_s": vel_ecm,
@@ -866,4 +979,4 @@ def fit_hybrid(
                      volume_selection=sel_v, velocity_selection=sel_q, training=training, notes=notes)
 
 
-__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS"]
+__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS", "describe_measurement"]

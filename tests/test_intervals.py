@@ -39,3 +39,181 @@ def test_interval_coverage_in_band(cov):
 def test_held_out_points_are_not_training_controls(cov):
     grid = {(a, b) for a in np.linspace(50, 80, 5) for b in np.linspace(20, 35, 5)}
     assert not any((r.u1, r.u2) in grid for r in cov.itertuples())
+
+
+# ---- systematic measurement term (intervals.measurement) ------------------------------------
+
+import json  # noqa: E402
+
+from identify.dataset import (DatasetError, load_dataset, make_synthetic_dataset,  # noqa: E402
+                              measurement_uncertainty)
+from identify.hybrid import HybridModel, ModelFileError, fit_hybrid  # noqa: E402
+from identify.montecarlo import OUTPUTS, MonteCarloResult  # noqa: E402
+
+GRID3 = [(a, b) for a in (55.0, 65.0, 75.0) for b in (20.0, 27.5, 35.0)]
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    d = tmp_path_factory.mktemp("meas") / "ds"
+    make_synthetic_dataset(d, grid=GRID3, noise_percent=0.5, seed=3)
+    return d, fit_hybrid(load_dataset(d), arx=False, orders=[(1, 1)]).model
+
+
+def _constant_mc(model, u1, u2):
+    """A Monte Carlo result without parameter spread (every sample the nominal prediction)."""
+    nom = model.predict(u1, u2)
+    return MonteCarloResult(u1, u2, {k: np.full(200, nom[k]) for k in OUTPUTS}, nom)
+
+
+def test_synthetic_dataset_states_no_systematic_error(small):
+    d, model = small
+    m = model.intervals["measurement"]
+    assert m["volume_rel"] == 0 and m["velocity_rel"] == 0 and m["pinchoff_std_us"] == 0
+    assert "make_synthetic_dataset" in m["source"]
+
+
+def test_measurement_term_widens_by_the_stated_amount(small):
+    _, model = small
+    m = HybridModel.from_dict(model.to_dict())
+    m.intervals["scatter"] = {k: {"drop_std": 0.0, "dof": 5, "model_std": 0.0} for k in m.intervals["scatter"]}
+    m.intervals["measurement"] = {"volume_rel": 0.001, "velocity_rel": 0.002, "pinchoff_std_us": 3.0,
+                                  "source": "test"}
+    iv = m.interval_prediction(65, 27.5, mc=_constant_mc(m, 65, 27.5))
+    for k, rel in (("inflight_volume_nl", 0.001), ("jetting_velocity_m_s", 0.002)):
+        e = iv[k]
+        assert e["measurement_std"] == pytest.approx(rel * e["mean"], rel=1e-12)
+        assert e["confidence_high"] - e["mean"] == pytest.approx(1.959964 * rel * e["mean"], rel=1e-5)
+        assert e["prediction_high"] - e["mean"] >= e["confidence_high"] - e["mean"]
+        assert e["measurement_source"] == "test"
+    assert iv["pinchoff_us"]["confidence_high"] - iv["pinchoff_us"]["mean"] == pytest.approx(1.959964 * 3.0, rel=1e-5)
+    # the term adds in quadrature to the rest
+    m.intervals["scatter"]["inflight_volume_nl"]["model_std"] = 0.01
+    e = m.interval_prediction(65, 27.5, mc=_constant_mc(m, 65, 27.5))["inflight_volume_nl"]
+    assert e["confidence_std"] == pytest.approx(np.hypot(0.01, 0.001 * e["mean"]), rel=1e-12)
+
+
+def test_measurement_round_trip_and_older_models(small, tmp_path):
+    _, model = small
+    m = HybridModel.from_dict(model.to_dict())
+    m.intervals["measurement"] = {"volume_rel": 0.003, "velocity_rel": 0.0022, "pixel_size_rel": 0.00094,
+                                  "pinchoff_std_us": 2.89, "source": "dropvision campaign: ..."}
+    back = HybridModel.from_json(m.save(tmp_path / "model.json"))
+    assert back.intervals["measurement"] == m.intervals["measurement"]
+    d = model.to_dict()
+    del d["intervals"]["measurement"]  # a model written before the term existed
+    old = HybridModel.from_dict(json.loads(json.dumps(d)))
+    e = old.interval_prediction(65, 27.5, mc=_constant_mc(old, 65, 27.5))["jetting_velocity_m_s"]
+    assert e["measurement_std"] == 0.0 and e["measurement_source"] is None
+
+
+@pytest.mark.parametrize("key,value,match", [
+    ("volume_rel", -0.001, "must be >= 0"),
+    ("velocity_rel", float("nan"), "must be finite"),
+    ("volume_rel", "0.1 %", "must be a number"),
+    ("velocity_rel", 3.0, "must be at most 0.5"),
+    ("pinchoff_std_us", -1.0, "must be >= 0"),
+    ("volume_percent", 0.1, "is unknown"),
+])
+def test_measurement_strict_validation(small, key, value, match):
+    _, model = small
+    d = model.to_dict()
+    d["intervals"]["measurement"] = {"volume_rel": 0.001, "velocity_rel": 0.002, key: value}
+    with pytest.raises(ModelFileError, match=f"intervals.measurement.{key} {match}"):
+        HybridModel.from_dict(d)
+
+
+def test_dataset_measurement_uncertainty(small, tmp_path):
+    import shutil
+
+    src, _ = small
+    d = tmp_path / "ds"
+    shutil.copytree(src, d)
+    meta = json.loads((d / "dataset.json").read_text())
+    meta["measurement_uncertainty"] = {"pixel_size_rel": 0.002, "source": "graticule"}
+    (d / "dataset.json").write_text(json.dumps(meta))
+    m = measurement_uncertainty(load_dataset(d))
+    assert m["volume_rel"] == pytest.approx(np.hypot(0.001, 0.006))
+    assert m["velocity_rel"] == pytest.approx(np.hypot(0.002, 0.002))
+    assert "pixel_size_rel 0.2 %" in m["source"]
+    meta.pop("measurement_uncertainty")  # nothing stated, no pixel-size check: documented defaults
+    (d / "dataset.json").write_text(json.dumps(meta))
+    m = measurement_uncertainty(load_dataset(d))
+    assert m["volume_rel"] == pytest.approx(np.hypot(0.001, 0.003))
+    assert m["velocity_rel"] == pytest.approx(np.hypot(0.002, 0.001))
+    assert m["source"].startswith("defaults") and m["pinchoff_std_us"] == pytest.approx(10 / np.sqrt(6))
+    meta["measurement_uncertainty"] = {"volume_rel": -0.1, "velocity_rel": 0.002}
+    (d / "dataset.json").write_text(json.dumps(meta))
+    with pytest.raises(DatasetError, match="measurement_uncertainty.volume_rel must be a finite number >= 0"):
+        load_dataset(d)
+
+
+def test_campaign_pixel_size_check_sets_the_term(small, tmp_path):
+    import shutil
+
+    import pandas as pd
+
+    src, _ = small
+    d = tmp_path / "ds"
+    shutil.copytree(src, d)
+    meta = json.loads((d / "dataset.json").read_text())
+    meta.pop("measurement_uncertainty")
+    (d / "dataset.json").write_text(json.dumps(meta))
+    su = pd.read_parquet(d / "summary.parquet")
+    su["pixel_size_ratio"] = 1.0003
+    su["pixel_size_ratio_uncertainty"] = 0.0004
+    su["inflight_frames"] = 20.0
+    su["inflight_volume_std_nl"] = 0.004
+    su["jetting_velocity_se_m_s"] = 5e-5
+    su.to_parquet(d / "summary.parquet", index=False)
+    ds = load_dataset(d)
+    m = measurement_uncertainty(ds)
+    assert m["pixel_size_rel"] == pytest.approx(0.0005)
+    assert m["volume_rel"] == pytest.approx(np.hypot(0.001, 0.0015))
+    assert "9 sequence(s)" in m["source"]
+    model = fit_hybrid(ds, arx=False, orders=[(1, 1)]).model
+    sc = model.intervals["scatter"]
+    # per-sequence standard errors are the drop scatter; the rest of the residuals is lack of fit
+    assert sc["inflight_volume_nl"]["source"] == "sequence_se"
+    assert sc["inflight_volume_nl"]["drop_std"] == pytest.approx(0.004 / np.sqrt(20))
+    assert sc["jetting_velocity_m_s"]["drop_std"] == pytest.approx(5e-5)
+    assert sc["inflight_volume_nl"]["model_std"] > sc["inflight_volume_nl"]["drop_std"]
+
+
+def test_campaign_shards_give_the_pixel_size_check(small, tmp_path):
+    """A campaign dataset whose summary.parquet has the columns but no values (written by a
+    campaign that does not fill them) reads the checks from the shards' summary.json."""
+    import shutil
+
+    import pandas as pd
+
+    from identify.dataset import campaign_calibration, sequence_standard_errors
+
+    src, _ = small
+    d = tmp_path / "ds"
+    shutil.copytree(src, d)
+    meta = json.loads((d / "dataset.json").read_text())
+    meta.pop("measurement_uncertainty")
+    (d / "dataset.json").write_text(json.dumps(meta))
+    su = pd.read_parquet(d / "summary.parquet")
+    for c in ("pixel_size_ratio", "pixel_size_ratio_uncertainty", "inflight_frames"):
+        su[c] = np.nan
+    su["inflight_volume_std_nl"] = 0.004
+    su.to_parquet(d / "summary.parquet", index=False)
+    seqs = {}
+    for sid in su["sequence_id"]:
+        shard = d / "shards" / f"s{sid}"
+        shard.mkdir(parents=True)
+        (shard / "summary.json").write_text(json.dumps({"inflight_frames": 16, "calibration": {
+            "pixel_size_ratio": 0.9998, "pixel_size_ratio_uncertainty": 0.0009}}))
+        seqs[str(sid)] = {"shard": f"s{sid}", "status": "ok"}
+    seqs[str(su["sequence_id"].iloc[0])]["shard"] = "../../elsewhere"  # never followed out of shards/
+    (d / "manifest.json").write_text(json.dumps({"sequences": seqs}))
+    ds = load_dataset(d)
+    cal = campaign_calibration(ds)
+    assert np.isnan(cal["pixel_size_ratio"].iloc[0]) and (cal["pixel_size_ratio"].iloc[1:] == 0.9998).all()
+    m = measurement_uncertainty(ds)
+    assert m["pixel_size_rel"] == pytest.approx(np.hypot(0.0002, 0.0009))
+    assert "8 sequence(s)" in m["source"]
+    se = sequence_standard_errors(ds)["inflight_volume_nl"]
+    assert np.isnan(se[0]) and se[1:] == pytest.approx(0.001)

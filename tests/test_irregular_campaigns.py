@@ -117,3 +117,24 @@ def test_lies_are_still_refused(base, tmp_path):
     with pytest.raises(DatasetError, match="look swapped"):
         load_dataset(_edit(base, tmp_path, su=lambda s: s.assign(pinchoff_us=s.pinchoff_us.where(
             s.sequence_id == 0, 300.0))))
+
+
+def test_design_region_leaves_out_controls_the_fit_dropped(base, tmp_path):
+    from identify.design import Region, design
+
+    def su_edit(s):  # the corner (80, 35) has no pinch-off: no polynomial was trained there
+        s = s.copy()
+        s.loc[s.sequence_id == 15, ["pinchoff_us", "inflight_volume_nl", "grown_volume_at_pinchoff_nl"]] = np.nan
+        return s
+    rep = fit_hybrid(load_dataset(_edit(base, tmp_path, su=su_edit)), arx=False)
+    ctrl = {tuple(c) for c in rep.model.controls}
+    assert (80.0, 35.0) not in ctrl and len(ctrl) == len(GRID) - 1
+    assert any("training region: 1 (u1, u2)" in n and "(80, 35)" in n for n in rep.notes)
+    region = Region(rep.model.controls)
+    assert not region.inside(80.0, 35.0)[0] and region.inside(80.0, 30.0)[0]
+    assert region.to_dict()["n_controls"] == len(GRID) - 1
+    # the largest volume of the full grid lies at the dropped corner: unreachable now
+    target = rep.model.predict(80.0, 35.0)["inflight_volume_nl"]
+    d = design(rep.model, target, samples=0)
+    assert region.inside(d.u1_um_per_ms, d.u2_um)[0]
+    assert (d.u1_um_per_ms, d.u2_um) != pytest.approx((80.0, 35.0), abs=0.5)

@@ -13,6 +13,23 @@ held-out (u1, u2) drawn uniformly in the range (never on the grid) the model's i
 
     .venv/bin/python tools/interval_coverage.py [--seeds 10] [--points 20] [--grid 5] [--level 0.95]
 
+``--measured``: image-measured campaigns instead (what `make demo` does): per seed, a training
+grid of n x n controls (the paper's range; the grid jittered per seed by up to a quarter step so
+that every seed has its own lack of fit) and ``points`` held-out controls are rendered as image
+sequences (`dropvision.synth`, the demo's small frames: 192 x 640 px, delays 0..1600 us every
+10 us; per seed its own imaging conditions, edge blur 0.6-1.4 px and image noise 0.5-1.5, so
+that the systematic errors of the measurement differ between campaigns; render seed per
+sequence), measured by `dropvision campaign`
+(`run_campaign`) and the training campaign fitted; the confidence interval is compared with the
+noise-free truth of the synthesizer's physics (`identify.physics.drop_history`; pinch-off: the
+first strobe delay at or after the continuous instant, the quantity the images define), the
+prediction interval with the held-out sequences' own measured values. Also printed: the
+coverage without the systematic measurement term (``intervals.measurement``), to show what it
+adds, and with its method part only (no pixel-size part: the synthetic pixel size is exact, so
+this study cannot exercise that part).
+
+    .venv/bin/python tools/interval_coverage.py --measured [--seeds 3] [--points 8] [--grid 4] [--workers 2]
+
 Prints one row per output (pinch-off, in-flight volume, jetting velocity) and the binomial
 95 % band of the coverage for the number of points.
 """
@@ -71,14 +88,103 @@ def coverage(seeds, points: int = 20, grid_n: int = 5, level: float = 0.95, nois
     return pd.DataFrame(rows)
 
 
+#: Rendering of the measured mode: the demo's campaign frames (dropvision/app/demo.py).
+MEASURED_OVERRIDES = {"width_px": 192, "height_px": 640, "tip_row": 40.4, "axis_col": 95.6,
+                      "delays_us": tuple(float(d) for d in range(0, 1601, 10)), "noise": 0.5}
+
+
+def _render(job) -> str:
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    out, u1, u2, seed, imaging = job
+    config = SynthConfig(u1_um_per_ms=u1, u2_um=u2, seed=seed, **{**MEASURED_OVERRIDES, **imaging})
+    return str(write_synthetic_sequence(config, out, progress=False))
+
+
+def _render_and_measure(root: Path, dataset: Path, points, seed0: int, workers: int, imaging: dict):
+    """Render ``points`` as sequences below ``root`` and measure them into ``dataset``."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from dropvision.app.campaign import run_campaign
+    from identify.dataset import load_dataset
+
+    root.mkdir(parents=True)
+    jobs = [(str(root / f"p{i:03d}"), float(a), float(b), seed0 + i, imaging) for i, (a, b) in enumerate(points)]
+    with ProcessPoolExecutor(max_workers=workers) as ex:
+        list(ex.map(_render, jobs))
+    res = run_campaign(root, dataset, workers=workers, progress=False)
+    if res.failed:
+        raise RuntimeError(f"sequences failed: {res.failed}")
+    return load_dataset(dataset, min_controls=1)
+
+
+def measured_coverage(seeds, points: int = 8, grid_n: int = 4, level: float = 0.95, samples: int = 2000,
+                      workers: int = 2) -> pd.DataFrame:
+    """Like :func:`coverage`, on image-measured campaigns (see the module docstring)."""
+    from identify.dataset import METHOD_UNCERTAINTY
+    from identify.physics import SynthPhysics, drop_history
+
+    physics = SynthPhysics()
+    method_rel = {"pinchoff_us": 0.0, "inflight_volume_nl": METHOD_UNCERTAINTY["volume_rel"],
+                  "jetting_velocity_m_s": METHOD_UNCERTAINTY["velocity_rel"]}
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            rng = np.random.default_rng(30_000 + seed)
+            # the imaging conditions of this campaign (the systematic errors differ between campaigns)
+            imaging = {"blur_px": round(float(rng.uniform(0.6, 1.4)), 3),
+                       "noise": round(float(rng.uniform(0.5, 1.5)), 3)}
+            g1, g2 = np.linspace(*U1_RANGE, grid_n), np.linspace(*U2_RANGE, grid_n)
+            j1, j2 = (rng.uniform(-0.25, 0.25, 2) * [(g1[1] - g1[0]), (g2[1] - g2[0])])
+            grid = [(round(float(np.clip(a + j1, *U1_RANGE)), 3), round(float(np.clip(b + j2, *U2_RANGE)), 3))
+                    for a in g1 for b in g2]
+            ds = _render_and_measure(Path(tmp) / f"train{seed}", Path(tmp) / f"train{seed}_ds", grid,
+                                     100_000 * (seed + 1), workers, imaging)
+            model = fit_hybrid(ds, arx=False, seed=0, folds=min(10, len(ds.summary))).model
+            pts = held_out_points(np.random.default_rng(10_000 + seed), points, grid)
+            ho = _render_and_measure(Path(tmp) / f"held{seed}", Path(tmp) / f"held{seed}_ds", pts,
+                                     100_000 * (seed + 1) + 50_000, workers, imaging).summary
+            h = float(ds.sample_interval_us)
+            for i, (u1, u2) in enumerate(pts):
+                row = ho[np.isclose(ho["u1_um_per_ms"], u1) & np.isclose(ho["u2_um"], u2)]
+                dh = drop_history(physics, u1, u2)
+                truth = {"pinchoff_us": float(np.ceil(dh.pinchoff_instant_us / h - 1e-9) * h),
+                         "inflight_volume_nl": dh.inflight_volume_nl, "jetting_velocity_m_s": dh.jetting_velocity_m_s}
+                iv = model.interval_prediction(u1, u2, samples=samples, seed=i, level=level)
+                for k in INTERVAL_OUTPUTS:
+                    e, t = iv[k], truth[k]
+                    y = float(row[k].iloc[0]) if len(row) else float("nan")
+                    half = e["confidence_high"] - e["mean"]
+                    s0 = float(np.sqrt(max(e["confidence_std"] ** 2 - e["measurement_std"] ** 2, 0.0)))
+                    half0 = half * s0 / e["confidence_std"] if e["confidence_std"] > 0 else 0.0
+                    s_m = float(np.hypot(s0, method_rel[k] * e["mean"])) if k != "pinchoff_us" else e["confidence_std"]
+                    half_m = half * s_m / e["confidence_std"] if e["confidence_std"] > 0 else 0.0
+                    rows.append({"seed": seed, **imaging, "u1": u1, "u2": u2, "output": k, "truth": t, "drop": y,
+                                 "mean": e["mean"], "measurement_std": e["measurement_std"],
+                                 "inside_confidence": e["confidence_low"] <= t <= e["confidence_high"],
+                                 "inside_prediction": e["prediction_low"] <= y <= e["prediction_high"],
+                                 "inside_confidence_without_measurement": abs(t - e["mean"]) <= half0,
+                                 "inside_confidence_method_only": abs(t - e["mean"]) <= half_m,
+                                 "z_confidence": (e["mean"] - t) / e["confidence_std"] if e["confidence_std"] > 0
+                                 else float("inf") * np.sign(e["mean"] - t),
+                                 "rel_error_%": 100 * (e["mean"] - t) / t})
+    return pd.DataFrame(rows)
+
+
 def table(df: pd.DataFrame) -> pd.DataFrame:
     g = df.groupby("output", sort=False)
-    return pd.DataFrame({
+    out = pd.DataFrame({
         "seeds": g["seed"].nunique(), "n_points": g.size(),
         "confidence_coverage_%": 100 * g["inside_confidence"].mean(),
         "prediction_coverage_%": 100 * g["inside_prediction"].mean(),
         "rms_z_confidence": g["z_confidence"].apply(lambda z: float(np.sqrt(np.mean(z**2)))),
-    }).reset_index()
+    })
+    if "inside_confidence_without_measurement" in df:
+        out["confidence_without_measurement_%"] = 100 * g["inside_confidence_without_measurement"].mean()
+        out["confidence_method_term_only_%"] = 100 * g["inside_confidence_method_only"].mean()
+        out["mean_error_%"] = g["rel_error_%"].mean()
+        out["rms_error_%"] = g["rel_error_%"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
+    return out.reset_index()
 
 
 def main(argv=None) -> int:
@@ -88,13 +194,29 @@ def main(argv=None) -> int:
     ap.add_argument("--grid", type=int, default=5, help="training grid n x n")
     ap.add_argument("--level", type=float, default=0.95)
     ap.add_argument("--noise-percent", type=float, default=1.0)
+    ap.add_argument("--measured", action="store_true",
+                    help="image-measured campaigns (rendered, measured, fitted); defaults 3 seeds, 8 points, 4x4")
+    ap.add_argument("--workers", type=int, default=2, help="processes for rendering and measuring (--measured)")
+    ap.add_argument("--csv", type=Path, default=None, help="write the per-point rows here")
     args = ap.parse_args(argv)
-    df = coverage(range(args.seeds), args.points, args.grid, args.level, args.noise_percent)
+    if args.measured:
+        seeds = args.seeds if "--seeds" in (argv or sys.argv) else 3
+        pts = args.points if "--points" in (argv or sys.argv) else 8
+        grid = args.grid if "--grid" in (argv or sys.argv) else 4
+        df = measured_coverage(range(seeds), pts, grid, args.level, workers=args.workers)
+        what = (f"image-measured campaigns (demo frames), {seeds} seeds x {pts} held-out points, "
+                f"{grid}x{grid} jittered training grid")
+    else:
+        seeds, pts, grid = args.seeds, args.points, args.grid
+        df = coverage(range(seeds), pts, grid, args.level, args.noise_percent)
+        what = (f"make_synthetic_dataset, {seeds} seeds x {pts} held-out points, {grid}x{grid} training grid, "
+                f"noise {args.noise_percent:g} %")
+    if args.csv:
+        df.to_csv(args.csv, index=False)
     t = table(df)
     n = int(t["n_points"].iloc[0])
     sd = 100 * np.sqrt(args.level * (1 - args.level) / n)
-    print(f"nominal {100 * args.level:g} % intervals, {args.seeds} seeds x {args.points} held-out points, "
-          f"{args.grid}x{args.grid} training grid, noise {args.noise_percent:g} %")
+    print(f"nominal {100 * args.level:g} % intervals: {what}")
     with pd.option_context("display.width", 160, "display.float_format", "{:.2f}".format):
         print(t.to_string(index=False))
     print(f"binomial sd of a coverage over {n} points at {100 * args.level:g} %: {sd:.2f} points of % "

@@ -269,6 +269,9 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
                 "satellites": summary.get("satellites"),
                 "n_frames": len(frames),
                 "n_errors": len(summary.get("errors") or []),
+                "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
+                "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
+                "inflight_frames": summary.get("inflight_frames"),
             }
         )
         metas.append((meta, wf))

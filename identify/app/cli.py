@@ -203,6 +203,7 @@ def cmd_predict(args) -> int:
     summary["pinchoff_us_intervals"] = {f: iv["pinchoff_us"][f] for f in ("mean", *INTERVAL_FIELDS)}
     summary["level"] = args.level
     summary["interval_note"] = INTERVAL_NOTE
+    summary["measurement"] = (m.intervals or {}).get("measurement")
     if args.json:
         print(json.dumps(summary))
         return 0
@@ -224,6 +225,9 @@ def cmd_predict(args) -> int:
         print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['confidence_low'], e['confidence_high']):>30s}   "
               f"{pred:>30s} {OUTPUT_UNITS[k]}")
     print(f"note: {INTERVAL_NOTE}")
+    from identify.hybrid import describe_measurement
+
+    print(f"note: {describe_measurement(m)}")
     if not iv["inflight_volume_nl"]["prediction_available"]:
         print("note: this model file has no drop scatter (fitted before intervals existed): refit it for the "
               "prediction interval", file=sys.stderr)
@@ -231,9 +235,10 @@ def cmd_predict(args) -> int:
 
 
 INTERVAL_FIELDS = ("level", "confidence_low", "confidence_high", "confidence_std", "prediction_low",
-                   "prediction_high", "prediction_std", "prediction_available")
+                   "prediction_high", "prediction_std", "prediction_available", "measurement_std")
 INTERVAL_NOTE = ("confidence = where the mean of many drops lies (parameter uncertainty of the ECM, pinch-off and "
-                 "adjuster fits, plus model discrepancy seen in cross-validation); prediction = where one "
+                 "adjuster fits, plus model discrepancy seen in cross-validation, plus the systematic measurement "
+                 "uncertainty of the training campaign: pixel size, edge bias, strobe grid); prediction = where one "
                  "individual drop lies (confidence + drop-to-drop scatter of the training data)")
 
 

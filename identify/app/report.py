@@ -379,8 +379,18 @@ def _interval_table(intervals: dict) -> pd.DataFrame:
                          "level": e["level"], "confidence_low": e["confidence_low"],
                          "confidence_high": e["confidence_high"],
                          "prediction_low": e["prediction_low"] if e["prediction_available"] else None,
-                         "prediction_high": e["prediction_high"] if e["prediction_available"] else None})
+                         "prediction_high": e["prediction_high"] if e["prediction_available"] else None,
+                         "parameter_std": e.get("parameter_std"), "model_std": e.get("model_std"),
+                         "measurement_std": e.get("measurement_std", 0.0), "drop_std": e.get("drop_std")})
     return pd.DataFrame(rows)
+
+
+def _measurement_text(model) -> str:
+    """One sentence on the systematic measurement term of the intervals and its source."""
+    from identify.hybrid import describe_measurement
+
+    text = describe_measurement(model)
+    return text[:1].upper() + text[1:] + "."
 
 
 def _residual_stats(residuals: pd.DataFrame) -> pd.DataFrame:
@@ -495,8 +505,10 @@ def _page(title, model, ds, figures, tables, cv_source, intervals, residuals, no
              + "</ul>",
              "<h2>Intervals at chosen points</h2>",
              f"<p>{samples} Monte Carlo samples. Confidence: where the mean of many drops lies (parameter "
-             "uncertainty plus model discrepancy seen in cross-validation); prediction: where one individual "
-             "drop lies (confidence plus drop-to-drop scatter of the training data).</p>",
+             "uncertainty, model discrepancy seen in cross-validation and the systematic measurement "
+             "uncertainty); prediction: where one individual drop lies (confidence plus drop-to-drop scatter of "
+             "the training data). Standard deviations of each part in the table.</p>",
+             f"<p id=\"measurement\">{e(_measurement_text(model))}</p>",
              _html_table(_interval_table(intervals), "intervals", f"{100 * level:g} % intervals"),
              *[_figure(_point_name(u1, u2), f"u1 = {u1:g} um/ms, u2 = {u2:g} um") for u1, u2 in intervals],
              "<h2>Measured vs ECM</h2>", _figure(*figures[0]), _figure(*figures[1]),
