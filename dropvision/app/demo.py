@@ -182,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['confidence_low'], e['confidence_high']):>24s} "
               f"{'[%7.3f, %7.3f]' % (e['prediction_low'], e['prediction_high']):>26s} {_fmt(m):>9s} "
               f"{truth[key]:9.3f} {_rel_err(s['mean'], truth[key]):>11s}")
-    print("  confidence: where the mean drop lies (parameters + model discrepancy); "
+    print("  confidence: where the mean drop lies (parameters + model discrepancy + the campaign's measurement uncertainty); "
           "prediction: where one drop lies (+ drop-to-drop scatter)")
     target = round(float(np.mean(ds.summary.inflight_volume_nl)), 1)
     d = design(model, target, samples=2000)
