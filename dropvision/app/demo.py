@@ -182,8 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['confidence_low'], e['confidence_high']):>24s} "
               f"{'[%7.3f, %7.3f]' % (e['prediction_low'], e['prediction_high']):>26s} {_fmt(m):>9s} "
               f"{truth[key]:9.3f} {_rel_err(s['mean'], truth[key]):>11s}")
-    print("  confidence: where the mean drop lies (parameters + model discrepancy + the campaign's measurement uncertainty); "
-          "prediction: where one drop lies (+ drop-to-drop scatter)")
+    print("  confidence: where the mean drop lies (parameters + model discrepancy + the campaign's measurement "
+          "uncertainty); prediction: where one drop lies (+ drop-to-drop scatter)")
     target = round(float(np.mean(ds.summary.inflight_volume_nl)), 1)
     d = design(model, target, samples=2000)
     print(f"\ninverse design for an in-flight volume of {target} nl: u1 = {d.u1_um_per_ms:.2f} um/ms, u2 = {d.u2_um:.2f} um "
