@@ -677,14 +677,28 @@ def find_tip(
 
 
 def interior_level(transmission: np.ndarray, region: np.ndarray, erode_px: int = 4, threshold: float = 0.5) -> float:
-    """Median transmission inside dark bodies of ``region`` (bool), eroded, lens spot excluded."""
+    """Median transmission inside dark bodies of ``region`` (bool), eroded, lens spot excluded
+    (the mode instead when it is above 0.3: low contrast)."""
     t = np.asarray(transmission, np.float32)
     mask = (region & (t < threshold)).astype(np.uint8) * 255
     filled = fill_holes(mask)
     k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * erode_px + 1, 2 * erode_px + 1))
     inner = cv2.erode(filled, k) > 0
     vals = t[inner & (t < threshold)]
-    return float(np.median(vals)) if vals.size >= 20 else float("nan")
+    if vals.size < 20:
+        return float("nan")
+    level = float(np.median(vals))
+    if level > 0.3 and vals.size >= 200:
+        # low contrast: the edge moves by (level error) / slope, and the slope is small, so the
+        # halo of the lens spot must not pull the level up: the mode of the values instead
+        hist, edges = np.histogram(vals, bins=60, range=(float(np.percentile(vals, 1)), float(np.percentile(vals, 99))))
+        hist = np.convolve(hist, np.ones(5) / 5, mode="same")
+        k = int(np.argmax(hist))
+        half = 2.5 * (edges[1] - edges[0])
+        centre = 0.5 * (edges[k] + edges[k + 1])
+        near = vals[np.abs(vals - centre) <= half]
+        level = float(np.mean(near)) if near.size else level
+    return level
 
 
 # ----------------------------------------------------------------------------- calibration

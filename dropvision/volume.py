@@ -215,24 +215,31 @@ def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = Tru
         The body has a top pole (False for liquid joined to the nozzle: its silhouette starts
         at the tip plane).
     """
+    return _blur_correction(edges, sigma_px, closed_top)[0]
+
+
+def _blur_correction(edges: RowEdges, sigma_px: float, closed_top: bool) -> tuple[float, float, float]:
+    """`blur_correction_px3` with the correction's first moments: (volume, sum of volume x row,
+    sum of volume x column), the lost volume of each row placed on that row's axis point."""
     if edges.row.size < 2 or not np.isfinite(sigma_px) or sigma_px <= 0:
-        return 0.0
+        return 0.0, 0.0, 0.0
     order = np.argsort(edges.row, kind="stable")
     rows = edges.row[order]
     uniq, first = np.unique(rows, return_index=True)
     left = np.minimum.reduceat(edges.left_px[order], first)
     right = np.maximum.reduceat(edges.right_px[order], first)
     if uniq.size < 2:
-        return 0.0
+        return 0.0, 0.0, 0.0
     dy = np.diff(uniq).astype(float)
-    total = 0.0
+    w = np.zeros(uniq.size)
     r = 0.5 * (right - left)
     for x, sign in ((right, 1.0), (left, -1.0)):
         phi = np.arctan2(dy, sign * np.diff(x))  # tangent angle of each segment, in (0, pi)
         start = 0.0 if closed_top else phi[0]
         dphi = np.diff(np.concatenate(([start], phi, [np.pi])))
-        total += float(np.sum(r * dphi))
-    return float(np.pi * sigma_px**2 * 0.5 * total)
+        w += r * dphi
+    w *= np.pi * sigma_px**2 * 0.5
+    return float(w.sum()), float(np.sum(w * uniq)), float(np.sum(w * 0.5 * (left + right)))
 
 
 def integrate(
@@ -255,18 +262,24 @@ def integrate(
     """
     a = slice_areas_px2(edges, tilt_rad) * row_weights(edges.row, top_px)
     vol = float(a.sum())
+    m_row = float((a * edges.row).sum())
+    m_col = float((a * edges.centre_px).sum())
     if blur_sigma_px > 0 and vol > 0:
         sel = a > 0
         sub = RowEdges(edges.row[sel], edges.left_px[sel], edges.right_px[sel], edges.touches)
-        vol += blur_correction_px3(sub, blur_sigma_px, closed_top=top_px is None) * float(np.cos(tilt_rad))
+        c_vol, c_row, c_col = _blur_correction(sub, blur_sigma_px, top_px is None)
+        cos_t = float(np.cos(tilt_rad))
+        vol += c_vol * cos_t
+        m_row += c_row * cos_t
+        m_col += c_col * cos_t
     keep = a > 0
     if vol <= 0 or not np.any(keep):
         return BodyVolume(0.0, np.nan, np.nan, np.nan, np.nan, 0.0, 0)
     rows = edges.row[keep]
     return BodyVolume(
         vol,
-        float((a * edges.row).sum() / vol),
-        float((a * edges.centre_px).sum() / vol),
+        m_row / vol,  # the corrected volume's centroid: slices and the blur correction's moments
+        m_col / vol,
         float(rows.min()),
         float(rows.max()),
         float(edges.chord_px[keep].max()),
