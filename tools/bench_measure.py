@@ -1,6 +1,8 @@
 """Speed and memory of `dropvision measure` against a plain scikit-image baseline, per file kind.
 
     python tools/bench_measure.py [--frames 181] [--rounds 3] [--keep DIR] [--kinds pillow,opencv,jpeg,tiff16]
+                                  [--tiers clean,low-contrast,tilted-dusty,watcher-side] [--profile-tier TIER]
+                                  [--no-cli] [--no-rss]
 
 Renders a default synthetic sequence (640 x 1024) and writes it as (a) Pillow-written PNGs
 (adaptive filtering: Sub, Up, Paeth rows), (b) OpenCV-written PNGs (every row Sub), (c) JPEG
@@ -19,6 +21,15 @@ core (one thread), in one process, ``--rounds`` rounds alternating baseline and 
 then the peak resident memory of a run on N and on 3N frames (every frame listed three times)
 in a fresh process, and for (a) the wall time of the command line on 2 workers including
 interpreter start-up.
+
+Realism tiers (issue 12: per-frame cost independent of content): the clean synthetic sequence
+and the synthesizer's rig presets ``low-contrast`` (weak contrast, shot noise, blur, dust),
+``tilted-dusty`` (1.5 deg tilt, 12-bit TIFF, dust, vignetting) and ``watcher-side`` (holder block,
+vignetting, colour JPEG, mist, satellites, tail with a bulb, orifice bead; shrunk to 640 x 1024
+canonical), each decoded once into memory (`dropvision.sequence.sequence_from_arrays`) and
+measured pipeline-only (calibration, per-frame pipeline, assembly; one thread), rounds
+alternated over the tiers; reported: frames/s and the extra time per frame against clean
+(goal <= +20 %). ``--profile-tier`` prints a cProfile of one run of that tier.
 """
 
 from __future__ import annotations
@@ -179,7 +190,7 @@ def _properties(seq: Path, frames: list[dict]) -> str:
     return f"{suffix[1:].upper()}, {size_kb:.0f} KiB/frame"
 
 
-def bench_kind(kind: str, seq: Path, rounds: int, work: Path) -> dict:
+def bench_kind(kind: str, seq: Path, rounds: int, work: Path, rss: bool = True) -> dict:
     """Decode and end-to-end figures for one sequence folder (medians of alternated rounds)."""
     import cv2
     import tifffile
@@ -226,9 +237,85 @@ def bench_kind(kind: str, seq: Path, rounds: int, work: Path) -> dict:
         "decode_ms_library": med(dec_lib), "decode_ms_dropvision": med(dec_ours),
         "baseline_fps": med(base), "dropvision_fps": med(ours), "speedup": med(ours) / med(base),
         "speedup_range": (min(ours) / max(base), max(ours) / min(base)),
-        "peak_rss_mb_n": _peak_rss_mb(seq, 2),
-        "peak_rss_mb_3n": _peak_rss_mb(_tripled(seq, work / f"{kind}_x3"), 2),
+        "peak_rss_mb_n": _peak_rss_mb(seq, 2) if rss else float("nan"),
+        "peak_rss_mb_3n": _peak_rss_mb(_tripled(seq, work / f"{kind}_x3"), 2) if rss else float("nan"),
     }
+
+
+#: Realism tiers: (rig preset of `dropvision.synth.RIGS`, overrides shrinking it to 640 x 1024 canonical)
+TIERS = {
+    "clean": ("clean", {}),
+    "low-contrast": ("low-contrast", {}),
+    "tilted-dusty": ("tilted-dusty", {}),
+    "watcher-side": ("watcher-side", dict(width_px=640, height_px=1024, tip_row=120.4, axis_col=319.6)),
+}
+
+
+def _in_memory(folder: Path):
+    """The sequence in ``folder`` decoded once into an in-memory sequence (canonical frames):
+    measuring it costs the pipeline only, no decoding."""
+    import warnings
+
+    from dropvision.sequence import open_sequence, sequence_from_arrays
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # colour JPEGs of the watcher rig: converted to grey, noted once
+        seq = open_sequence(folder)
+        m = seq.meta
+        images = [seq.read(i).image for i in range(len(seq))]
+        seq.close()
+    return lambda: sequence_from_arrays(
+        images, m.delays_us, pixel_size_um=m.pixel_size_um, orientation="down",
+        nozzle_inner_diameter_um=m.nozzle_inner_diameter_um, nozzle_outer_diameter_um=m.nozzle_outer_diameter_um,
+        nozzle_tip_row=m.nozzle_tip_row, axis_col=m.axis_col, waveform=m.waveform, ink=m.ink,
+        bit_depth=m.bit_depth, name=folder.name)
+
+
+def bench_tiers(tiers: list[str], frames: int, rounds: int, work: Path, profile: str | None = None) -> list[dict]:
+    """Pipeline-only frames/s (frames already in memory, one thread) on the clean tier and on
+    the synthesizer's rig presets, alternated rounds, medians; slow-down vs clean."""
+    import warnings
+
+    from dropvision.config import MeasureConfig
+    from dropvision.measurement import measure_sequence
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    delays = tuple(float(10 * i) for i in range(frames))
+    makers = {}
+    for tier in tiers:
+        rig, overrides = TIERS[tier]
+        folder = work / f"tier_{tier}_{frames}"
+        if not (folder / "sequence.json").exists():
+            write_synthetic_sequence(SynthConfig.for_rig(rig, delays_us=delays, **overrides), folder, progress=False)
+        listed = json.loads((folder / "sequence.json").read_text())["frames"]
+        makers[tier] = (_in_memory(folder), _properties(folder, listed))
+    fps: dict[str, list[float]] = {t: [] for t in tiers}
+    config = MeasureConfig(workers=1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for _ in range(rounds):  # alternated: a load change hits every tier alike
+            for tier in tiers:
+                seq = makers[tier][0]()
+                t = time.perf_counter()
+                measure_sequence(seq, config=config)
+                fps[tier].append(frames / (time.perf_counter() - t))
+        if profile:
+            import cProfile
+            import pstats
+
+            prof = cProfile.Profile()
+            seq = makers[profile][0]()
+            prof.enable()
+            measure_sequence(seq, config=config)
+            prof.disable()
+            print(f"[tier {profile}] cProfile of one pipeline-only run, top functions by own time:")
+            pstats.Stats(prof).sort_stats("tottime").print_stats(20)
+    med = statistics.median
+    # the slow-down is the median over rounds of (time of the tier / time of clean in the same
+    # round): a load change between rounds cancels out
+    return [{"tier": t, "frames": frames, "pipeline_fps": med(fps[t]), "fps_all": fps[t],
+             "slowdown_vs_clean": (med(c / x for c, x in zip(fps["clean"], fps[t])) - 1.0) if "clean" in fps else None,
+             "file": makers[t][1]} for t in tiers]
 
 
 def main(argv=None) -> int:
@@ -237,7 +324,18 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3, help="alternated rounds (medians reported; >= 3)")
     ap.add_argument("--kinds", default="pillow,opencv,jpeg,tiff16", help="file kinds to run (comma-separated)")
     ap.add_argument("--keep", help="render into this folder (reused if it exists)")
+    ap.add_argument("--tiers", default=",".join(TIERS),
+                    help=f"realism tiers for the pipeline-only figures (default {','.join(TIERS)}; '' = none)")
+    ap.add_argument("--profile-tier", default=None, metavar="TIER", help="also cProfile one pipeline-only run of TIER")
+    ap.add_argument("--no-cli", action="store_true", help="skip the command-line wall time")
+    ap.add_argument("--no-rss", action="store_true", help="skip the peak-memory runs")
     args = ap.parse_args(argv)
+    tiers = [t.strip() for t in args.tiers.split(",") if t.strip()]
+    unknown = [t for t in tiers if t not in TIERS]
+    if unknown:
+        ap.error(f"--tiers: unknown {unknown}; known: {', '.join(TIERS)}")
+    if args.profile_tier and args.profile_tier not in tiers:
+        ap.error("--profile-tier must be one of --tiers")
     import cv2
 
     cv2.setNumThreads(1)
@@ -245,25 +343,25 @@ def main(argv=None) -> int:
 
     tmp = tempfile.TemporaryDirectory()
     work = Path(args.keep) if args.keep else Path(tmp.name)
-    seq = work / "opencv_png"
-    if not (seq / "sequence.json").exists():
+    seq = work / f"opencv_png_{args.frames}"
+    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
+    if kinds and not (seq / "sequence.json").exists():
         cfg = SynthConfig(delays_us=tuple(float(10 * i) for i in range(args.frames)))
         write_synthetic_sequence(cfg, seq, progress=False)
-    kinds = [k.strip() for k in args.kinds.split(",") if k.strip()]
-    folders = _write_variants(seq, work, kinds)
+    folders = _write_variants(seq, work, kinds) if kinds else {}
     rows = []
     for kind in kinds:
         if folders[kind] is None:
             print(f"[{kind}] SKIPPED: no JPEG reader registered in dropvision.readers (IMAGE_SUFFIXES has no .jpg)")
             continue
-        rows.append(bench_kind(kind, folders[kind], args.rounds, work))
+        rows.append(bench_kind(kind, folders[kind], args.rounds, work, rss=not args.no_rss))
         r = rows[-1]
         print(f"[{kind}] {r['properties']}")
         print(f"[{kind}] decode ms/frame: library {r['decode_ms_library']:.2f}, dropvision {r['decode_ms_dropvision']:.2f}; "
               f"end to end frames/s: baseline {r['baseline_fps']:.0f}, dropvision {r['dropvision_fps']:.0f}, "
               f"speed-up {r['speedup']:.2f}x ({r['speedup_range'][0]:.2f}-{r['speedup_range'][1]:.2f}); "
               f"peak RSS {r['peak_rss_mb_n']:.0f} MB at N={r['frames']}, {r['peak_rss_mb_3n']:.0f} MB at 3N", flush=True)
-    if "pillow" in folders and folders["pillow"] is not None:
+    if not args.no_cli and "pillow" in folders and folders["pillow"] is not None:
         walls = []
         with tempfile.TemporaryDirectory() as out:
             for i in range(args.rounds):  # CLI wall time on 2 workers, interpreter start-up included
@@ -273,13 +371,26 @@ def main(argv=None) -> int:
                 walls.append(time.perf_counter() - t)
         print(f"[pillow] CLI wall time, 2 workers, start-up included: median {statistics.median(walls):.2f} s "
               f"(runs {', '.join(f'{w:.2f}' for w in walls)})")
-    print()
-    print(f"{'kind':8s} {'frames':>6s} {'dec lib ms':>10s} {'dec ours ms':>11s} {'base fps':>8s} {'ours fps':>8s} "
-          f"{'speed-up':>8s} {'RSS N MB':>8s} {'RSS 3N MB':>9s}  file")
+    if rows:
+        print()
+        print(f"{'kind':8s} {'frames':>6s} {'dec lib ms':>10s} {'dec ours ms':>11s} {'base fps':>8s} {'ours fps':>8s} "
+              f"{'speed-up':>8s} {'RSS N MB':>8s} {'RSS 3N MB':>9s}  file")
     for r in rows:
         print(f"{r['kind']:8s} {r['frames']:6d} {r['decode_ms_library']:10.2f} {r['decode_ms_dropvision']:11.2f} "
               f"{r['baseline_fps']:8.0f} {r['dropvision_fps']:8.0f} {r['speedup']:7.2f}x {r['peak_rss_mb_n']:8.0f} "
               f"{r['peak_rss_mb_3n']:9.0f}  {r['properties']}")
+    if tiers:
+        trows = bench_tiers(tiers, args.frames, args.rounds, work, args.profile_tier)
+        print(f"\nrealism tiers: pipeline only (frames in memory, no decoding, one thread), 640x1024 canonical, "
+              f"{args.frames} frames, medians of {args.rounds} alternated rounds")
+        print(f"{'tier':13s} {'frames/s':>8s} {'vs clean':>8s}  rounds (frames/s); file")
+        for r in trows:
+            vs = f"{100 * r['slowdown_vs_clean']:+7.0f}%" if r["slowdown_vs_clean"] is not None else "       -"
+            print(f"{r['tier']:13s} {r['pipeline_fps']:8.0f} {vs}  {', '.join(f'{x:.0f}' for x in r['fps_all'])}; {r['file']}")
+        print("(vs clean: extra time per frame, median over rounds of the ratio to clean in the same round; "
+              "goal <= +20 %)")
+    load = os.getloadavg()
+    print(f"load average at the end: {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} ({os.cpu_count()} cores)")
     tmp.cleanup()
     return 0
 
