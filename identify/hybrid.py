@@ -26,25 +26,26 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from identify import __version__, schema
-from identify.arx_selection import grid_for_dead_time, select_structure
 from identify.atomic import write_json
-from identify.dataset import Dataset, DatasetError, check_measurement_block, measurement_uncertainty, \
-    sequence_standard_errors, summary_usable, timeseries_runs
-from identify.design import DesignResult, design
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
-from identify.ecm_fit import EcmData, fit_ecm
 from identify.montecarlo import OUTPUTS, ecm_response_at, ecm_response_at_controls, modal_form, run_monte_carlo
 from identify.kfold import grouped_kfold
 from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, PolynomialRankError, \
     design_matrix, fit_polynomial, select_order
 from identify.versions import software_versions
 from identify.waveform import Waveform
+
+if TYPE_CHECKING:  # fitting only: imported where used, so that loading a model and predicting stay light
+    import pandas as pd
+
+    from identify.dataset import Dataset
+    from identify.design import DesignResult
 
 SCHEMA = schema.MODEL.schema
 
@@ -119,6 +120,8 @@ class HybridModel:
 
         Columns: u1_um_per_ms, u2_um and the keys of :meth:`predict`.
         """
+        import pandas as pd
+
         u1, u2 = np.broadcast_arrays(np.atleast_1d(np.asarray(u1, float)), np.atleast_1d(np.asarray(u2, float)))
         if np.any(~np.isfinite(u1) | ~np.isfinite(u2) | (u1 <= 0) | (u2 <= 0)):
             raise ValueError("u1 and u2 must be positive numbers")
@@ -170,7 +173,7 @@ class HybridModel:
         interval equal to the confidence interval and ``prediction_available`` False.
         ``mc``: an already computed :class:`identify.montecarlo.MonteCarloResult`.
         """
-        from scipy import stats
+        from scipy import special  # stdtrit/ndtri: the values of stats.t/norm.ppf, without importing scipy.stats
 
         if not 0 < level < 1:
             raise ValueError(f"level must be in (0, 1), got {level!r}")
@@ -178,7 +181,7 @@ class HybridModel:
         nominal = res.nominal
         scatter = (self.intervals or {}).get("scatter") or {}
         meas = (self.intervals or {}).get("measurement") or {}
-        z = float(stats.norm.ppf(0.5 + level / 2))
+        z = float(special.ndtri(0.5 + level / 2))
         out = {}
         for k in INTERVAL_OUTPUTS:
             x = np.asarray(res.samples[k], float)
@@ -196,7 +199,7 @@ class HybridModel:
                      "confidence_low": mean - z * s_conf, "confidence_high": mean + z * s_conf}
             if s_drop is not None:
                 dof = sc.get("dof")
-                q = float(stats.t.ppf(0.5 + level / 2, dof)) if dof else z
+                q = float(special.stdtrit(dof, 0.5 + level / 2)) if dof else z
                 s_pred = float(np.sqrt(s_conf**2 + float(s_drop) ** 2))
                 entry.update({"drop_std": float(s_drop), "prediction_std": s_pred,
                               "prediction_low": mean - q * s_pred, "prediction_high": mean + q * s_pred,
@@ -289,6 +292,7 @@ class HybridModel:
     def design(self, volume_nl: float, velocity_m_s: float | None = None, **options) -> DesignResult:
         """(u1, u2) inside the training region for a target in-flight volume (nl) and, optionally,
         jetting velocity (m/s); see `identify.design.design` for ``options``."""
+        from identify.design import design
         return design(self, volume_nl, velocity_m_s, **options)
 
     @classmethod
@@ -602,6 +606,7 @@ class FitReport:
 def _sequences(ds: Dataset, notes: list | None = None):
     """Per usable sequence: (summary row, attached rows from delay 0 without gaps, sorted by
     delay; :func:`identify.dataset.timeseries_runs`). What was dropped goes to ``notes``."""
+    from identify.dataset import timeseries_runs
     runs, why = timeseries_runs(ds)
     if notes is not None:
         notes.extend(why)
@@ -671,6 +676,8 @@ def ecm_sequences(ds: Dataset, notes: list | None = None) -> list[dict]:
 
 def _fit_ecm(ds: Dataset, method: str, notes: list):
     """Fit the ECM through :func:`identify.ecm_fit.fit_ecm` (Section 4.3)."""
+    from identify.dataset import DatasetError
+    from identify.ecm_fit import EcmData, fit_ecm
     hyd = _hydraulics_or_none(ds)
     data = [EcmData(**s) for s in ecm_sequences(ds, notes)]
     if not data:
@@ -698,6 +705,7 @@ def _hydraulics_or_none(ds: Dataset):
 
 
 def _arx_select(ds: Dataset, notes: list, ranges: dict | None, folds: int, progress: bool):
+    from identify.arx_selection import grid_for_dead_time, select_structure
     seqs = arx_sequences(ds)  # what was dropped is noted once, by the ECM fit
     if len(seqs) < 2:
         notes.append("ARX structure selection skipped: fewer than 2 sequences start at delay 0")
@@ -877,6 +885,10 @@ def fit_hybrid(
     ``pinchoff_std_us``, ``source``). Training controls (the region of `identify.design`): only
     the (u1, u2) where every polynomial had a usable sequence.
     """
+    import pandas as pd
+
+    from identify.dataset import DatasetError, check_measurement_block, measurement_uncertainty, \
+        sequence_standard_errors, summary_usable
     from tqdm import tqdm
 
     if adjuster_reference not in ("ecm", "measured"):

@@ -54,8 +54,12 @@ if not os.environ.get("NUMBA_CACHE_DIR"):
     if _cache_dir:
         os.environ["NUMBA_CACHE_DIR"] = _cache_dir
 
+from typing import TYPE_CHECKING
+
 import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from identify.ecm import COEFF_NAMES, NL, UM, EcmCoefficients, companion_form, flow_velocity_m_s, foh_step, simulate
 from identify.polynomial import design_matrix  # noqa: E402
@@ -574,6 +578,8 @@ class MonteCarloResult:
         return self.summary()
 
     def to_pandas(self) -> pd.DataFrame:
+        import pandas as pd
+
         return pd.DataFrame(self.samples)
 
 
@@ -636,6 +642,8 @@ def run_monte_carlo(
         vel = flow_velocity_m_s(flow, d_um)
         lo, hi = (np.percentile(vol, [2.5, 97.5], axis=0)) if nb > 1 else (vol[0], vol[0])
         vlo, vhi = (np.percentile(vel, [2.5, 97.5], axis=0)) if nb > 1 else (vel[0], vel[0])
+        import pandas as pd  # only here: predicting needs no pandas
+
         band_df = pd.DataFrame({
             "delay_us": t,
             "volume_nominal_nl": vnom[0], "volume_mean_nl": vol.mean(axis=0), "volume_low_nl": lo, "volume_high_nl": hi,

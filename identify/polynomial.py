@@ -25,10 +25,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-from scipy import stats
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 from identify.kfold import grouped_kfold
 
@@ -161,6 +163,8 @@ class PolynomialFit:
 
     def to_pandas(self) -> pd.DataFrame:
         """One row per term: term, i, j, coefficient, ci95, low, high."""
+        import pandas as pd
+
         return pd.DataFrame({
             "term": term_names(self.terms),
             "i": [t[0] for t in self.terms],
@@ -259,7 +263,9 @@ def fit_polynomial(u1, u2, z, n1: int, n2: int, *, name: str = "z", unit: str = 
     T = _scaled_to_raw(terms, centre, scale)
     coef = T @ q
     cov = T @ cov_q @ T.T
-    tq = stats.t.ppf(0.5 + confidence / 2, dof)
+    from scipy import special  # not scipy.stats (~0.5 s to import): the same values
+
+    tq = special.stdtrit(dof, 0.5 + confidence / 2)
     ci = tq * np.sqrt(np.clip(np.diag(cov), 0, None))
     return PolynomialFit(
         n1=n1, n2=n2, terms=terms, coefficients=coef, covariance=cov, ci95=ci, centre=centre, scale=scale,
@@ -322,6 +328,8 @@ def select_order(
             "train_rmse": float(np.mean(tr)) if ok else np.nan,
             "val_rmse": float(np.sqrt(np.mean(va))) if ok else np.nan,
         })
+    import pandas as pd  # only here: predicting needs no pandas
+
     table = pd.DataFrame(rows)
     valid = table.dropna(subset=["val_rmse"])
     if valid.empty:
