@@ -101,7 +101,8 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
     inside = labels[ya:yb, xa:xb] == label
     if not inside.any():
         return Appearance(float("nan"), float("nan"))
-    t_min = float(np.percentile(t[inside], 2))
+    vals = t[inside]
+    t_min = float(np.partition(vals, vals.size // 50)[vals.size // 50])  # 2nd percentile
     gx = cv2.Sobel(t, cv2.CV_32F, 1, 0, ksize=3)
     gy = cv2.Sobel(t, cv2.CV_32F, 0, 1, ksize=3)
     grad = cv2.magnitude(gx, gy) / 8.0
@@ -111,7 +112,7 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
     g = grad[boundary]
     if g.size < 3:
         return Appearance(t_min, float("nan"))
-    g_med = float(np.median(g))
+    g_med = float(np.partition(g, g.size // 2)[g.size // 2])  # median (upper for even sizes)
     depth = 1.0 - max(t_min, floor)
     spread = depth / (_SQRT_2PI * g_med) if g_med > 0 and depth > 0 else float("inf")
     return Appearance(t_min, spread)

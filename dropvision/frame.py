@@ -97,11 +97,9 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         rec.flags.append(q.NO_NOZZLE)
     else:
         att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
-        app = appearance(roi, ctx.inv_background, seg.labels, nozzle_body.label,
-                         (nozzle_body.x0, nozzle_body.y0, nozzle_body.x1, nozzle_body.y1), rec.gain,
-                         floor=ctx.liquid_level, skip_top_rows=2)
-        rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": app.min_transmission,
-                             "edge_blur_px": app.edge_blur_px}
+        # its appearance is not needed for any decision: not computed per frame (speed)
+        rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": float("nan"),
+                             "edge_blur_px": float("nan")}
         edges.append(att.edges)
         if att.leaves:
             rec.flags.append(q.ATTACHED_LEAVES)
