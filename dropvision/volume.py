@@ -407,11 +407,13 @@ def waist_row(edges: RowEdges, ratio: float = 0.6, max_neck_rows: int = 3, min_l
     n = rows.size
     if n < 2 * min_lobe_rows + 1 or np.any(np.diff(rows) != 1):
         return None
+    above_max = np.maximum.accumulate(width)  # max of width[:i + 1]
+    below_max = np.maximum.accumulate(width[::-1])[::-1]  # max of width[i:]
+    idx = np.arange(min_lobe_rows, n - min_lobe_rows)
+    lobes = np.minimum(above_max[idx - 1], below_max[idx + 1])
     best = None
-    for i in range(min_lobe_rows, n - min_lobe_rows):
-        above, below = width[:i].max(), width[i + 1:].max()
-        if width[i] >= ratio * min(above, below):
-            continue
+    for i in idx[width[idx] < ratio * lobes]:  # usually none: the loop is over waist candidates only
+        above, below = above_max[i - 1], below_max[i + 1]
         narrow = width < ratio * min(above, below)
         j0 = i
         while j0 > 0 and narrow[j0 - 1]:
