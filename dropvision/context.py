@@ -240,18 +240,31 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
     if ctx.noise_t > config.smooth_noise_limit:  # noisy (low-contrast) frames: smooth before the edges
         ctx.smooth_px = float(config.smooth_px)
-        if ctx.sigma_px > 0:
-            ctx.sigma_px = float(math.hypot(ctx.sigma_px, ctx.smooth_px))
+        if ctx.sigma_px > 0:  # the kernel is truncated (`smooth_roi`): its own standard deviation
+            ctx.sigma_px = float(math.hypot(ctx.sigma_px, _kernel_sigma(ctx.smooth_px)))
     _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
     ctx.edge_blur_ref_px = _nozzle_edge_spread(first, ctx)
     return cal, sigma, ctx
 
 
+def _kernel_size(sigma_px: float) -> int:
+    return 2 * int(math.ceil(2.0 * sigma_px)) + 1  # +-2 sigma
+
+
+def _kernel_sigma(sigma_px: float) -> float:
+    """Standard deviation (px) of the truncated Gaussian kernel `smooth_roi` applies."""
+    k = cv2.getGaussianKernel(_kernel_size(sigma_px), sigma_px).ravel()
+    x = np.arange(k.size) - k.size // 2
+    return float(np.sqrt(np.sum(k * x * x)))
+
+
 def smooth_roi(roi: np.ndarray, ctx: FrameContext) -> np.ndarray:
-    """The region of interest, smoothed by ``ctx.smooth_px`` when the frames are noisy."""
+    """The region of interest, smoothed by ``ctx.smooth_px`` (Gaussian truncated at +-2 sigma)
+    when the frames are noisy."""
     if ctx.smooth_px <= 0:
         return roi
-    return cv2.GaussianBlur(np.ascontiguousarray(roi), (0, 0), ctx.smooth_px)
+    size = _kernel_size(ctx.smooth_px)
+    return cv2.GaussianBlur(np.ascontiguousarray(roi), (size, size), ctx.smooth_px)
 
 
 def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
