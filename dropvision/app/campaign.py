@@ -29,6 +29,7 @@ half-written shard. Re-running resumes: a sequence whose shard carries the same 
 from __future__ import annotations
 
 import dataclasses
+import contextlib
 import hashlib
 import io
 import json
@@ -379,62 +380,66 @@ def run_campaign(
     old = manifest.get("sequences", {})
     config_repr = repr(dataclasses.replace(config, workers=0))  # threads do not change results
     entries: dict[str, dict] = {}
-    todo = []
     result = CampaignResult(dataset_dir=dataset_dir)
-    for folder in folders:
-        sid = sequence_id(root, folder)
-        digest = input_hash(folder, config_repr)
-        shard = shard_name(sid)
-        prev = old.get(sid, {})
-        if prev.get("status") == "ok" and prev.get("input_hash") == digest and _shard_is_current(
-            dataset_dir / "shards" / shard, digest
-        ):
-            entries[sid] = prev
-            result.skipped.append(sid)
-            continue
-        entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending", "error": None}
-        todo.append((sid, folder, digest, shard))
     manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
     write_json(manifest_path, manifest)
     if rerun_options is not None:
         rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
         if not rerun_options.enabled:
             rerun_options = None
-    if todo:
-        with make_executor(workers, dask_local=dask_local, scheduler=scheduler) as executor:
-            bar = tqdm(total=len(todo), desc="measuring sequences", unit="seq", disable=not progress)
+    bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
 
-            def record(future, sid: str) -> None:
-                """One finished sequence: into the manifest at once (a kill loses nothing)."""
-                try:
-                    out = future.result()
-                except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
-                    out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
-                entries[sid].update(out)
-                if out["status"] == "ok":
-                    result.measured.append(sid)
-                else:
-                    result.failed[sid] = out["error"]
-                write_json(manifest_path, manifest)
+    def record(future, sid: str) -> None:
+        """One finished sequence: into the manifest at once (a kill loses nothing)."""
+        try:
+            out = future.result()
+        except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
+            out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
+        entries[sid].update(out)
+        if out["status"] == "ok":
+            result.measured.append(sid)
+        else:
+            result.failed[sid] = out["error"]
+        write_json(manifest_path, manifest)
+        bar.update(1)
+
+    # each sequence is submitted as soon as its input hash is known (the workers start measuring
+    # while the main process still hashes the others); the executor starts with the first task
+    with contextlib.ExitStack() as stack:
+        executor = None
+        pending = {}
+        for folder in folders:
+            sid = sequence_id(root, folder)
+            digest = input_hash(folder, config_repr)
+            shard = shard_name(sid)
+            prev = old.get(sid, {})
+            if prev.get("status") == "ok" and prev.get("input_hash") == digest and _shard_is_current(
+                dataset_dir / "shards" / shard, digest
+            ):
+                entries[sid] = prev
+                result.skipped.append(sid)
                 bar.update(1)
-
-            pending = {}
-            for sid, folder, digest, shard in todo:
-                future = executor.submit(
-                    measure_to_shard,
-                    str(folder),
-                    str(dataset_dir / "shards" / shard),
-                    digest,
-                    config,
-                    None if rerun_options is None else rerun_options.for_sequence(sid),
-                )
-                if future.done():  # the serial executor finishes inside submit
-                    record(future, sid)
-                else:
-                    pending[future] = sid
-            for future in as_completed(pending):
-                record(future, pending[future])
-            bar.close()
+                continue
+            entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
+                            "error": None}
+            write_json(manifest_path, manifest)
+            if executor is None:
+                executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
+            future = executor.submit(
+                measure_to_shard,
+                str(folder),
+                str(dataset_dir / "shards" / shard),
+                digest,
+                config,
+                None if rerun_options is None else rerun_options.for_sequence(sid),
+            )
+            if future.done():  # the serial executor finishes inside submit
+                record(future, sid)
+            else:
+                pending[future] = sid
+        for future in as_completed(pending):
+            record(future, pending[future])
+    bar.close()
     assemble_dataset(dataset_dir, entries)
     write_json(manifest_path, manifest)
     return result

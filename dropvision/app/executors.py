@@ -14,6 +14,7 @@ installed raises a clear error.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import os
 import sys
 import threading
@@ -107,6 +108,7 @@ def make_executor(
         dd = _import_dask_distributed()
         if scheduler is not None:
             with dd.Client(scheduler) as client:
+                warming = _warm(client)  # noqa: F841 - kept alive while the executor is in use
                 yield client.get_executor()
         else:
             if dask_local < 1:
@@ -114,6 +116,7 @@ def make_executor(
             with dd.LocalCluster(
                 n_workers=dask_local, threads_per_worker=1, processes=True, dashboard_address=":0",  # any free port
             ) as cluster, dd.Client(cluster) as client:
+                warming = _warm(client)  # noqa: F841 - kept alive while the executor is in use
                 yield client.get_executor()
         return
     n = default_workers() if workers is None else int(workers)
@@ -124,3 +127,15 @@ def make_executor(
         return
     with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
         yield pool
+
+
+def _import_measurement() -> None:
+    importlib.import_module("dropvision.app.campaign")
+
+
+def _warm(client) -> list:
+    """Have every worker import the measurement code now, while the main process hashes the
+    sequences, instead of on its first task (~1 s of imports per fresh worker). Returns the
+    futures, to be kept until the client closes (a released future may be cancelled)."""
+    workers = list(client.scheduler_info().get("workers", {}))
+    return [client.submit(_import_measurement, workers=[w], allow_other_workers=False, pure=False) for w in workers]
