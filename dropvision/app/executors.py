@@ -107,7 +107,11 @@ def make_executor(
     if scheduler is not None or dask_local is not None:
         dd = _import_dask_distributed()
         if scheduler is not None:
-            with dd.Client(scheduler) as client:
+            try:
+                client = dd.Client(scheduler)
+            except (OSError, TimeoutError) as exc:  # name the scheduler, not the campaign's input
+                raise OSError(0, f"cannot reach the Dask scheduler ({exc})", str(scheduler)) from exc
+            with client:
                 warming = _warm(client)  # noqa: F841 - kept alive while the executor is in use
                 yield client.get_executor()
         else:
