@@ -336,8 +336,9 @@ def summary_usable(ds: Dataset, adjuster_reference: str = "ecm") -> tuple[dict, 
 #: disc integration, centroid tracking), from ``tools/accuracy_report.py`` (measured against the
 #: synthesizer's exact truth over its 4-case sweep: 8/12-bit, blur 0.8-1.5 px, noise, dust, tilt,
 #: fall-off, satellites, repeats): in-flight volume errors -0.04..0.00 % (main-drop volume per
-#: frame at most 0.11 %), jetting velocity -0.39..+0.04 % (RMS 0.22 %); rounded up to 0.1 % and
-#: 0.2 %.
+#: frame at most 0.11 %), jetting velocity +0.00..+0.16 % (RMS 0.08 %; it was -0.39..+0.04 % before a
+#: centroid fix, and up to -0.8 % at 1.8 px blur); rounded up to 0.1 % and, for velocity, kept at a
+#: conservative 0.2 % (realism-tier presets reach 0.2 %).
 METHOD_UNCERTAINTY = {"volume_rel": 0.001, "velocity_rel": 0.002}
 #: Pixel-size relative standard uncertainty used when nothing better is known: about what
 #: dropvision's cross-check against the nozzle's outer diameter resolves (0.09 % on a 76 px nozzle).
