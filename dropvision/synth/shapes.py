@@ -119,6 +119,11 @@ class Spheroid:
         return 4.0 / 3.0 * np.pi * self.a_um * self.b_um**2
 
 
+def segment_sphere_radius_um(base_radius_um: float, height_um: float) -> float:
+    """Radius of the sphere of a segment with a flat base of ``base_radius_um`` and ``height_um``."""
+    return (base_radius_um**2 + height_um**2) / (2.0 * height_um)
+
+
 @dataclass(frozen=True)
 class SphericalSegment:
     """Spherical segment below the tip plane (s = 0) pinned on a ring of radius
@@ -129,7 +134,7 @@ class SphericalSegment:
 
     @property
     def sphere_radius_um(self) -> float:
-        return (self.base_radius_um**2 + self.height_um**2) / (2.0 * self.height_um)
+        return segment_sphere_radius_um(self.base_radius_um, self.height_um)
 
     @property
     def center_um(self) -> float:
@@ -198,7 +203,7 @@ class HangingSegment:
 
     @property
     def sphere_radius_um(self) -> float:
-        return (self.base_radius_um**2 + self.height_um**2) / (2.0 * self.height_um)
+        return segment_sphere_radius_um(self.base_radius_um, self.height_um)
 
     @property
     def center_um(self) -> float:
