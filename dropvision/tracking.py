@@ -7,7 +7,8 @@ known (`dropvision.pinchoff.pinchoff_delay`):
   body leaves the field of view or the measured band, overlaps dust, or lies too close to the
   attached liquid;
 - in flight: a trusted main drop that is compact (axial length <= ``compact_ratio``
-  equivalent-sphere diameters: the tail has merged or broken up) without a thin tail at its top;
+  equivalent-sphere diameters: the tail has merged or broken up) without a thin tail at its top,
+  at a delay after the last one whose drop still carries its tail;
 - jetting velocity: least-squares line of ``drop_z_um`` against ``delay_us`` over in-flight
   frames (slope in µm/µs = m/s, with its standard error); trajectory: line of ``drop_x_um``
   against ``drop_z_um``.
@@ -158,6 +159,15 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
                            and not (b.top_chord_ratio < config.tail_chord_ratio))
             if not inflight[k]:
                 flags[k].append(q.TAIL)
+    # a tail merges once: a compact-looking drop before a later delay whose tail is still joined
+    # (a bulb on the tail can pass for a round top) is not yet in flight
+    delays = np.array([r.delay_us for r in records], float)
+    tail = np.array([q.TAIL in fl for fl in flags], bool)
+    if tail.any():
+        early = inflight & (delays < delays[tail].max())
+        for k in np.nonzero(early)[0]:
+            inflight[k] = False
+            flags[k].append(q.TAIL)
     return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight)
 
 
