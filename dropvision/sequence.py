@@ -351,6 +351,12 @@ def _safe_relpath(file, where: str) -> str:
 # Grey conversion
 # ----------------------------------------------------------------------------------------
 
+def _note_colour(name: str, channels: int) -> None:
+    warnings.warn(f"{name}: {channels}-channel image converted to grey (ITU-R BT.601 "
+                  "luminance; noted once per sequence, further colour frames are converted "
+                  "alike)", RGBConvertedWarning, stacklevel=5)
+
+
 def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
     """Collapse a colour image to grey: the ONE rule for every format (docs/FORMAT.md).
 
@@ -364,9 +370,7 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
         raise SequenceError(f"{name}: not a 2-D grey or RGB image (array shape {img.shape})")
     channels = img.shape[2]
     if warn:
-        warnings.warn(f"{name}: {channels}-channel image converted to grey (ITU-R BT.601 "
-                      "luminance; noted once per sequence, further colour frames are converted "
-                      "alike)", RGBConvertedWarning, stacklevel=4)
+        _note_colour(name, channels)
     if channels == 2:  # grey + alpha
         return np.ascontiguousarray(img[:, :, 0])
     if channels == 3:
@@ -492,12 +496,15 @@ class Sequence:
             img = self._decode_native(reader, path, ref)
         except InvalidImage as exc:
             raise SequenceError(str(exc)) from None
-        if warn and img.ndim == 3 and img.shape[2] > 1:
+        as_grey = warn and img.ndim == 2 and not self._colour_noted and reader.colour_as_grey(path)
+        if warn and ((img.ndim == 3 and img.shape[2] > 1) or as_grey):
             with self._lock:  # one note per sequence, however many colour frames follow
                 warn, self._colour_noted = not self._colour_noted, True
         else:
             warn = False
-        img = _to_grey(img, _where(ref), reader.bgr, warn)
+        if as_grey and warn:
+            _note_colour(_where(ref), 3)
+        img = _to_grey(img, _where(ref), reader.bgr, warn and not as_grey)
         if img.dtype not in (np.uint8, np.uint16):
             raise SequenceError(f"{path}{_page_txt(ref)}: unsupported pixel type {img.dtype} "
                                 "(8-bit or 16-bit unsigned grey images are read)")

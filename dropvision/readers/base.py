@@ -148,6 +148,11 @@ class Reader:
         delays. May raise on unreadable files (the caller then assumes the default)."""
         return ImageInfo()
 
+    def colour_as_grey(self, path: Path) -> bool:
+        """True when :meth:`decode` already turned a colour file into grey (by the same rule),
+        so that the sequence still notes the conversion once. The default: never."""
+        return False
+
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode one frame: ``page`` of a paged file (None: the only or first image).
 

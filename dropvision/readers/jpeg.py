@@ -70,13 +70,21 @@ def _walk(data: bytes) -> tuple[int, int, int, int] | None:
 
 
 class JpegReader(Reader):
-    """JPEG files, one frame each (8-bit grey, or colour in BGR order)."""
+    """JPEG files, one frame each (8-bit grey; colour files decoded to their luma Y)."""
 
     suffixes = (".jpg", ".jpeg", ".jpe", ".jfif")
     bgr = True
 
+    def colour_as_grey(self, path: Path) -> bool:
+        """A colour (3- or 4-component) JPEG: `decode` gives its luma."""
+        try:
+            found = _walk(read_file(path, "JPEG", limit=1 << 16))
+        except UnreadableImage:
+            return False
+        return found is not None and found[2] >= 3
+
     def decode(self, path: Path, page: int | None) -> np.ndarray:
-        """Decode with ``cv2.imdecode(..., IMREAD_UNCHANGED)`` (``page`` is ignored)."""
+        """Decode with ``cv2.imdecode`` (``page`` is ignored); colour files to their luma."""
         data = read_file(path, "JPEG")
         found = _walk(data)
         if found is not None and found[1] > 0:  # height 0: a DNL marker, left to the decoder
@@ -85,8 +93,12 @@ class JpegReader(Reader):
         # without an end-of-image marker after its first scan is refused here
         if found is not None and data.rfind(b"\xff\xd9") < found[3]:
             raise UnreadableImage("cannot decode JPEG (truncated file: no end-of-image marker)")
+        # a colour JPEG is decoded straight to its luma: JFIF's Y is the BT.601 luminance of the
+        # grey rule (docs/FORMAT.md), without the chroma upsampling and colour conversion
+        # (2048 x 1536: 6.8 instead of 15.6 ms)
+        flag = cv2.IMREAD_GRAYSCALE if found is not None and found[2] >= 3 else cv2.IMREAD_UNCHANGED
         try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+            img = cv2.imdecode(np.frombuffer(data, np.uint8), flag) if data else None
         except (cv2.error, MemoryError) as exc:
             raise UnreadableImage(f"cannot decode JPEG ({type(exc).__name__}; truncated, "
                                   "corrupt or too large)") from None
