@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 
 from dropvision.segmentation import edge_threshold, fill_holes
+from dropvision.special import erf
 from dropvision.volume import runs, subpixel_edges
 
 
@@ -942,7 +943,6 @@ def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int 
     a curved 50 % edge by ``sigma^2 * curvature / 2``.  Samples at or above
     ``clip_transmission`` (a clipped background) are left out of the fit.
     """
-    from scipy.special import erf
 
     t = np.asarray(transmission, np.float64)
     h, w = t.shape

@@ -15,6 +15,7 @@ import pandas as pd
 
 from dropvision.context import FrameContext
 from dropvision.segmentation import Body, Segmentation
+from dropvision.special import ndtr
 
 #: Darkening (transmission units) every interior gap row must show beyond the ends' blurred
 #: tails for a thread to join two bodies.  The ends' unresolved taper (meniscus cone, tail tip)
@@ -152,8 +153,6 @@ def end_tails_transmission(rows: np.ndarray, e_top: float, e_bot: float, sigma_t
     ndarray
         Transmission (background = 1) at ``rows``.
     """
-    from scipy.special import ndtr  # scipy.special costs ~0.15 s to import: only when needed
-
     rows = np.asarray(rows, float)
     dark = ndtr((e_top - rows) / sigma_top_px) + ndtr((rows - e_bot) / sigma_bot_px)
     return 1.0 - (1.0 - liquid_level) * dark
