@@ -126,11 +126,14 @@ def segment_sphere_radius_um(base_radius_um: float, height_um: float) -> float:
 
 @dataclass(frozen=True)
 class SphericalSegment:
-    """Spherical segment below the tip plane (s = 0) pinned on a ring of radius
-    ``base_radius_um`` with height ``height_um`` (a cap below a hemisphere, a bulb above)."""
+    """Spherical segment whose flat base (radius ``base_radius_um``) lies in the plane
+    s = ``top_um`` (the tip plane by default) and which reaches ``height_um`` below it: a cap
+    below a hemisphere, a bulb above (the meniscus); with ``top_um`` > 0, the bead left on the
+    orifice after pinch-off (`bead_segment`)."""
 
     base_radius_um: float
     height_um: float
+    top_um: float = 0.0
 
     @property
     def sphere_radius_um(self) -> float:
@@ -138,23 +141,25 @@ class SphericalSegment:
 
     @property
     def center_um(self) -> float:
-        return self.height_um - self.sphere_radius_um
+        return self.top_um + self.height_um - self.sphere_radius_um
 
     @property
     def support(self) -> tuple[float, float]:
-        return 0.0, self.height_um
+        return self.top_um, self.top_um + self.height_um
 
     def breakpoints(self) -> tuple[float, ...]:
         c = self.center_um
-        return (0.0, self.height_um) + ((c,) if 0.0 < c < self.height_um else ())
+        lo, hi = self.support
+        return (lo, hi) + ((c,) if lo < c < hi else ())
 
     @property
     def max_radius_um(self) -> float:
-        return self.sphere_radius_um if self.center_um > 0 else self.base_radius_um
+        return self.sphere_radius_um if self.center_um > self.top_um else self.base_radius_um
 
     def r2(self, s):
         R, c = self.sphere_radius_um, self.center_um
-        return np.where((s >= 0.0) & (s <= self.height_um), R * R - (s - c) ** 2, -1.0)
+        lo, hi = self.support
+        return np.where((s >= lo) & (s <= hi), R * R - (s - c) ** 2, -1.0)
 
     def volume_um3(self) -> float:
         """Closed form π h (3 a² + h²) / 6."""
@@ -191,45 +196,8 @@ class QuadraticNeck:
         return np.where((s >= lo) & (s <= hi), r * r, -1.0)
 
 
-@dataclass(frozen=True)
-class HangingSegment:
-    """Spherical segment whose flat base (radius ``base_radius_um``) lies in the plane
-    s = ``top_um`` and which hangs ``height_um`` below it (a bulb when the height exceeds the
-    sphere radius). Used for the bead left on the orifice after pinch-off."""
-
-    top_um: float
-    base_radius_um: float
-    height_um: float
-
-    @property
-    def sphere_radius_um(self) -> float:
-        return segment_sphere_radius_um(self.base_radius_um, self.height_um)
-
-    @property
-    def center_um(self) -> float:
-        return self.top_um + self.height_um - self.sphere_radius_um
-
-    @property
-    def support(self) -> tuple[float, float]:
-        return self.top_um, self.top_um + self.height_um
-
-    def breakpoints(self) -> tuple[float, ...]:
-        c = self.center_um
-        lo, hi = self.support
-        return (lo, hi) + ((c,) if lo < c < hi else ())
-
-    @property
-    def max_radius_um(self) -> float:
-        return self.sphere_radius_um if self.center_um > self.top_um else self.base_radius_um
-
-    def r2(self, s):
-        R, c = self.sphere_radius_um, self.center_um
-        lo, hi = self.support
-        return np.where((s >= lo) & (s <= hi), R * R - (s - c) ** 2, -1.0)
-
-    def volume_um3(self) -> float:
-        """Closed form π h (3 a² + h²) / 6."""
-        return cap_volume_um3(self.base_radius_um, self.height_um)
+#: The bead left on the orifice: a `SphericalSegment` whose base lies below the tip plane.
+HangingSegment = SphericalSegment
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,7 +232,7 @@ def bead_segment(top_um: float, bead_um: float) -> HangingSegment:
     base in the plane s = ``top_um`` (the apex of the residual meniscus)."""
     h = 0.85 * bead_um
     a = bead_um * np.sqrt(0.85 * 0.15)
-    return HangingSegment(float(top_um), float(a), float(h))
+    return SphericalSegment(float(a), float(h), float(top_um))
 
 
 def dumbbell_profile(volume_um3: float) -> Profile:
