@@ -69,7 +69,7 @@ from identify.physics import DropHistory, SynthPhysics
 __all__ = [
     "UM3_PER_NL", "Spheroid", "SphericalSegment", "QuadraticNeck", "Profile", "Body",
     "ShapeParams", "ShapeState", "DropShapeModel", "cap_volume_um3", "cap_height_for_volume_um",
-    "HangingSegment", "TabulatedProfile", "SATELLITE_MODES", "bead_segment", "dumbbell_profile",
+    "TabulatedProfile", "SATELLITE_MODES", "bead_segment", "dumbbell_profile",
     "young_laplace_profile", "PendantShapeModel", "SATELLITE_KINDS",
 ]
 
@@ -196,10 +196,6 @@ class QuadraticNeck:
         return np.where((s >= lo) & (s <= hi), r * r, -1.0)
 
 
-#: The bead left on the orifice: a `SphericalSegment` whose base lies below the tip plane.
-HangingSegment = SphericalSegment
-
-
 @dataclass(frozen=True, eq=False)
 class TabulatedProfile:
     """r²(s) tabulated at increasing ``s_um`` (linear interpolation of r², µm²); used for the
@@ -226,7 +222,7 @@ class TabulatedProfile:
         return np.where((s >= lo) & (s <= hi), v, -1.0)
 
 
-def bead_segment(top_um: float, bead_um: float) -> HangingSegment:
+def bead_segment(top_um: float, bead_um: float) -> SphericalSegment:
     """The bead left on the orifice: a sphere of diameter ``bead_um`` cut 15 % of its
     diameter below its top (segment height 0.85 d, base radius d sqrt(0.85 x 0.15)), its flat
     base in the plane s = ``top_um`` (the apex of the residual meniscus)."""
