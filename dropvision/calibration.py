@@ -115,18 +115,25 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
     return out
 
 
+def darkest_level(image: np.ndarray) -> float:
+    """The darkest grey level of a frame's bodies, however few pixels they cover: the minimum
+    of the frame smoothed over 2 px (against noise), sampled every 2nd pixel."""
+    return float(cv2.GaussianBlur(np.asarray(image, np.float32)[::2, ::2], (0, 0), 1.0).min())
+
+
 def dark_bodies_mask(image: np.ndarray, margin_px: int) -> np.ndarray:
     """Bool mask of dark bodies, holes filled, grown by ``margin_px``.
 
     Dark is below half the bright level (95th percentile).  In a low-contrast frame, whose
-    darkest 0.5 % is above 30 % of the bright level (liquid and nozzle half transparent), half
-    the bright level would miss the bodies themselves: the frame is smoothed (Gaussian, 2 px,
-    against its noise) and dark is below ``1 - (1 - darkest) / 4`` of the bright level.
+    darkest body (`darkest_level`) lies between 30 and 80 % of the bright level (liquid and
+    nozzle half transparent), half the bright level would miss the bodies themselves: the frame
+    is smoothed (Gaussian, 2 px, against its noise) and dark is below ``1 - (1 - darkest) / 4``
+    of the bright level.
     """
     img = np.asarray(image, np.float32)
     level = float(np.percentile(img[::4, ::4], 95))
-    darkest = float(np.percentile(img[::4, ::4], 0.5)) / max(level, 1e-6)
-    if darkest > 0.3:
+    darkest = darkest_level(img) / max(level, 1e-6)
+    if 0.3 < darkest < 0.8:
         img = cv2.GaussianBlur(img, (0, 0), 2.0)
         mask = (img < (1.0 - 0.25 * (1.0 - darkest)) * level).astype(np.uint8) * 255
     else:
@@ -468,7 +475,7 @@ def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int
     face_row = float(max(np.polyval(q, cols[lo]), np.polyval(q, cols[hi])))  # the face's lower end over the nozzle
     r0 = int(np.ceil(face_row + 1.0))
     r1 = int(bottom[lo:hi + 1].max()) + 1
-    if r1 - r0 < 2:
+    if r1 - r0 < 4:  # fewer rows give no usable wall lines
         return None
     return r0, r1, float(-q[0])
 
@@ -734,7 +741,7 @@ class Calibration:
     @property
     def clipped_level(self) -> float:
         """Unclipped background level used where the background is clipped; NaN when not clipped or unknown."""
-        if not self.clipped or not np.isfinite(self.clipped["level"]):
+        if not self.clipped or not self.clipped.get("used", False):
             return float("nan")
         return float(self.clipped["level"])
 
@@ -821,9 +828,11 @@ def calibrate(
         level = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5, expected),
                                 max_value)
         clipped = {"fraction": frac, "level": level,
-                   "method": "background grey level from the nozzle walls' steepest point (2 L_mid - d), used "
-                             "wherever the background model is at the sensor maximum"}
-        if np.isfinite(level) and level > max_value:
+                   "method": "background grey level from the unclipped part of the top body's edge profile "
+                             "(calibration.unclipped_level), used wherever the background model is at the "
+                             "sensor maximum"}
+        clipped["used"] = bool(np.isfinite(level) and level > max_value)
+        if clipped["used"]:
             bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(level),
                                      bg.background).astype(np.float32)
             notes.append(f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
@@ -834,10 +843,10 @@ def calibrate(
                          "estimated (the middle of the nozzle walls' edge is clipped too)")
     t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
-    # first pass at 50 % (at half the way to the darkest 0.5 % in a low-contrast frame, where the
-    # nozzle itself may sit near 50 %), refined with the measured nozzle level
-    darkest = float(np.percentile(t_first[::2, ::2], 0.5))
-    nozzle = find_nozzle(t_first, edge_threshold(darkest) if darkest > 0.3 else 0.5, expected)
+    # first pass at 50 % (half-way to the darkest body in a low-contrast frame, where the nozzle
+    # itself may sit near 50 %), refined with the measured nozzle level
+    darkest = darkest_level(t_first)
+    nozzle = find_nozzle(t_first, edge_threshold(darkest) if 0.3 < darkest < 0.8 else 0.5, expected)
     thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n, expected)
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um

@@ -74,6 +74,7 @@ class FrameContext:
     clipped_level: float = float("nan")
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
+    compact_ratio: float = 2.0  # a compact body: at most this many equivalent diameters long
 
     @classmethod
     def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig) -> "FrameContext":
@@ -118,6 +119,7 @@ class FrameContext:
             sample_rows=sample_rows, sample_cols=sample_cols, min_area_px=config.min_body_area_px,
             gain_tolerance=config.gain_tolerance, saturation_limit=config.saturation_limit,
             mist_blur_factor=config.mist_blur_factor, mist_blur_offset_px=config.mist_blur_offset_px,
+            compact_ratio=config.compact_ratio,
         )
 
     @property

@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -34,7 +35,7 @@ from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
-from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
+from dropvision.volume import NL_PER_UM3, RowEdges, integrate, split_at_row, waist_row
 
 
 @dataclass
@@ -56,7 +57,7 @@ class FrameRecord:
     neck_px: float = float("nan")
     bodies: list[DetachedBody] = field(default_factory=list)
     rejected: list[DetachedBody] = field(default_factory=list)  # out of focus (mist, dust): never liquid
-    attached_body: dict | None = None  # area, centroid, appearance of the attached body (bodies.parquet)
+    attached_body: dict | None = None  # area of the attached body (bodies.parquet; appearance not computed)
     flags: list[str] = field(default_factory=list)
     gain: float = 1.0
     blur_px: float = float("nan")
@@ -143,9 +144,11 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
 def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body: Body, edges: RowEdges) -> None:
     """A satellite touching the main drop (one silhouette with a short waist) is split off it.
 
-    The main drop is then the larger lobe; the smaller one is listed as a touching satellite
-    (not a separate silhouette, so not counted in ``n_satellites``; its volume stays in the
-    detached volume). `dropvision.volume.waist_row` says what a waist is.
+    The main drop is then the larger lobe; the smaller one, when compact (at most
+    ``ctx.compact_ratio`` equivalent diameters long: a tail with a bulb is not split off), is
+    listed as a touching satellite (not a separate silhouette, so not counted in
+    ``n_satellites``; its volume stays in the detached volume). `dropvision.volume.waist_row` says
+    what a waist is.
     """
     row = waist_row(edges)
     if row is None:
@@ -160,6 +163,10 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
         d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
         parts.append(d)
     parts.sort(key=lambda d: -d.volume_nl)
+    small = parts[1]
+    d_eq_um = (6.0 * small.volume_nl / NL_PER_UM3 / math.pi) ** (1.0 / 3.0)
+    if small.length_um > ctx.compact_ratio * d_eq_um:  # a tail (with a bulb), not a satellite
+        return
     parts[1].touching = True
     parts[1].reason = f"touches the main drop (one silhouette, split at its waist, row {row + ctx.r0})"
     rec.bodies[0] = parts[0]

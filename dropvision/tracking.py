@@ -162,7 +162,8 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     # a tail merges once: a compact-looking drop before a later delay whose tail is still joined
     # (a bulb on the tail can pass for a round top) is not yet in flight
     delays = np.array([r.delay_us for r in records], float)
-    tail = np.array([q.TAIL in fl for fl in flags], bool)
+    untrusted = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION, q.NEIGHBOURS)
+    tail = np.array([q.TAIL in fl and not any(f in fl for f in untrusted) for fl in flags], bool)
     if tail.any():
         early = inflight & (delays < delays[tail].max())
         for k in np.nonzero(early)[0]:

@@ -165,3 +165,31 @@ def test_linked_sequence_folders_are_followed_but_links_out_of_a_sequence_are_no
     h1 = input_hash(seq)
     outside.write_bytes(b"secret 2")
     assert input_hash(seq) == h1
+
+
+def test_run_stopped_by_an_error_keeps_every_finished_sequence_in_the_manifest(campaign_root, tmp_path,
+                                                                               monkeypatch):
+    import dropvision.app.campaign as campaign
+
+    root = tmp_path / "root"
+    shutil.copytree(campaign_root, root)
+    ds = tmp_path / "ds"
+    assert len(run_campaign(root, ds, workers=1, progress=False).measured) == 4
+    seqs = sorted(find_sequences(root))
+    for seq in seqs[:2]:  # the first two change and are measured again; the third cannot be read
+        meta = json.loads((seq / "sequence.json").read_text())
+        meta["comment"] = "edited"
+        (seq / "sequence.json").write_text(json.dumps(meta))
+    real_hash = campaign.input_hash
+
+    def failing_hash(folder, config_repr=""):
+        if folder.name == seqs[2].name:
+            raise PermissionError(13, "Permission denied", str(folder))
+        return real_hash(folder, config_repr)
+
+    monkeypatch.setattr(campaign, "input_hash", failing_hash)
+    with pytest.raises(PermissionError):
+        run_campaign(root, ds, workers=2, progress=False)
+    manifest = json.loads((ds / "manifest.json").read_text())["sequences"]
+    assert len(manifest) == 4  # the sequences after the failure keep their earlier entries
+    assert {e["status"] for e in manifest.values()} == {"ok"}  # the two re-measured ones were recorded

@@ -338,3 +338,21 @@ def test_no_readable_suffix_refused():
     for suffix in (".jpg", ".jpeg", ".jpe", ".png", ".tif", ".tiff", ".bmp", ".avi", ".mp4",
                    ".mov", ".pgm", ".ppm"):
         assert suffix in IMAGE_SUFFIXES and reader_for("x" + suffix.upper()) is not None
+
+
+def test_colour_jpeg_exif_orientation_is_ignored(tmp_path):
+    """A colour JPEG is decoded to its luma; its EXIF orientation tag must not turn it (the
+    sequence's `orientation` says how frames are turned)."""
+    from PIL import Image
+
+    from dropvision.readers.jpeg import JpegReader
+
+    rgb = np.zeros((40, 60, 3), np.uint8)
+    rgb[:, :30] = (200, 180, 160)
+    exif = Image.Exif()
+    exif[274] = 6  # rotate 90 degrees when displayed
+    path = tmp_path / "tagged.jpg"
+    Image.fromarray(rgb).save(path, quality=95, exif=exif)
+    grey = JpegReader().decode(path, None)
+    assert grey.shape == (40, 60)
+    assert grey[:, :25].mean() > 150 and grey[:, 35:].mean() < 20

@@ -379,7 +379,10 @@ def run_campaign(
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})
     config_repr = repr(dataclasses.replace(config, workers=0))  # threads do not change results
-    entries: dict[str, dict] = {}
+    # the previous run's entries of the current sequences stay until each is looked at again, so
+    # that a run stopped part-way never loses a finished sequence from the manifest
+    current = [sequence_id(root, f) for f in folders]
+    entries: dict[str, dict] = {sid: old[sid] for sid in current if sid in old}
     result = CampaignResult(dataset_dir=dataset_dir)
     manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
     write_json(manifest_path, manifest)
@@ -408,8 +411,13 @@ def run_campaign(
     with contextlib.ExitStack() as stack:
         executor = None
         pending = {}
-        for folder in folders:
-            sid = sequence_id(root, folder)
+
+        def drain() -> None:
+            for future in as_completed(pending):
+                record(future, pending[future])
+            pending.clear()
+
+        for sid, folder in zip(current, folders):
             digest = input_hash(folder, config_repr)
             shard = shard_name(sid)
             prev = old.get(sid, {})
@@ -425,6 +433,7 @@ def run_campaign(
             write_json(manifest_path, manifest)
             if executor is None:
                 executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
+                stack.callback(drain)  # on an error below too, before the executor closes
             future = executor.submit(
                 measure_to_shard,
                 str(folder),
@@ -437,8 +446,7 @@ def run_campaign(
                 record(future, sid)
             else:
                 pending[future] = sid
-        for future in as_completed(pending):
-            record(future, pending[future])
+        drain()
     bar.close()
     assemble_dataset(dataset_dir, entries)
     write_json(manifest_path, manifest)
