@@ -34,6 +34,7 @@ from dropvision.segmentation import (
     find_nozzle_body,
 )
 from dropvision.volume import (
+    equivalent_diameter_um,
     BodyVolume,
     RowEdges,
     body_edges,
@@ -71,6 +72,10 @@ class DetachedBody:
     edge_blur_px: float = float("nan")
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
     touching: bool = False  # split off the main drop at a waist: not a separate silhouette
+
+    def elongated(self, compact_ratio: float) -> bool:
+        """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
+        return self.length_um > compact_ratio * equivalent_diameter_um(self.volume_nl)
 
 
 @dataclass
@@ -230,9 +235,6 @@ def class_image(seg: Segmentation, nozzle_body: Body | None, bodies: Sequence[De
         half-open), with ``"volume_nl"`` for detached bodies; a split silhouette gives one box
         per part, each around its own pixels.
     """
-    def d_eq_um(volume_nl: float) -> float:  # equivalent-sphere diameter, as dropvision.classify
-        return (6.0 * volume_nl * 1e6 / math.pi) ** (1.0 / 3.0) if volume_nl > 0 else 0.0
-
     parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
     for j, d in enumerate(bodies):
         if d.leaves or d.out_of_band:
@@ -241,7 +243,7 @@ def class_image(seg: Segmentation, nozzle_body: Body | None, bodies: Sequence[De
             cls = CLASS_DROP
         elif d.touching:
             cls = CLASS_TOUCHING
-        elif d.length_um > compact_ratio * d_eq_um(d.volume_nl):
+        elif d.elongated(compact_ratio):
             cls = CLASS_TAIL
         else:
             cls = CLASS_SATELLITE

@@ -145,10 +145,6 @@ def out_of_focus_reason(app: Appearance, ref_px: float, factor: float, offset_px
     return None
 
 
-def _d_eq_um(volume_nl: float) -> float:
-    return (6.0 * volume_nl * 1e6 / math.pi) ** (1.0 / 3.0) if volume_nl > 0 else 0.0
-
-
 def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, compact_ratio: float) -> pd.DataFrame:
     """bodies.parquet: every body of every measured frame with its class and the reason.
 
@@ -200,7 +196,7 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
                 cls, why = "main_drop", "largest in-focus detached body"
             elif b.touching:
                 why = b.reason + ": not counted"
-            elif b.length_um > compact_ratio * _d_eq_um(b.volume_nl):
+            elif b.elongated(compact_ratio):
                 cls, why = "tail", f"in focus, detached, longer than {compact_ratio:g} equivalent diameters"
                 counted = known
             else:

@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import math
 import sys
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -35,7 +34,7 @@ from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
-from dropvision.volume import NL_PER_UM3, RowEdges, integrate, split_at_row, waist_row
+from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
 
 
 @dataclass
@@ -163,9 +162,7 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
         d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
         parts.append(d)
     parts.sort(key=lambda d: -d.volume_nl)
-    small = parts[1]
-    d_eq_um = (6.0 * small.volume_nl / NL_PER_UM3 / math.pi) ** (1.0 / 3.0)
-    if small.length_um > ctx.compact_ratio * d_eq_um:  # a tail (with a bulb), not a satellite
+    if parts[1].elongated(ctx.compact_ratio):  # a tail (with a bulb), not a satellite
         return
     parts[1].touching = True
     parts[1].reason = f"touches the main drop (one silhouette, split at its waist, row {row + ctx.r0})"

@@ -35,7 +35,7 @@ from dropvision.readers import (
     IMAGE_SUFFIXES, VIDEO_SUFFIXES, ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage,
     reader_for,
 )
-from dropvision.readers.base import is_number
+from dropvision.readers.base import ColourLuma, is_number
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
 
 __all__ = [
@@ -496,7 +496,9 @@ class Sequence:
             img = self._decode_native(reader, path, ref)
         except InvalidImage as exc:
             raise SequenceError(str(exc)) from None
-        as_grey = warn and img.ndim == 2 and not self._colour_noted and reader.colour_as_grey(path)
+        as_grey = isinstance(img, ColourLuma)  # the reader applied the grey rule itself
+        if as_grey:
+            img = img.view(np.ndarray)
         if warn and ((img.ndim == 3 and img.shape[2] > 1) or as_grey):
             with self._lock:  # one note per sequence, however many colour frames follow
                 warn, self._colour_noted = not self._colour_noted, True

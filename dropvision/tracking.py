@@ -23,7 +23,6 @@ import numpy as np
 from dropvision import quality as q
 from dropvision.config import MeasureConfig
 from dropvision.frame import FrameRecord
-from dropvision.volume import NL_PER_UM3
 
 
 @dataclass(frozen=True)
@@ -154,8 +153,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             if not sat_bad:
                 det_vol[k] = sum(o.volume_nl for o in r.bodies)
                 nsat[k] = sum(not o.touching for o in others)
-            d_eq_um = (6.0 * b.volume_nl / NL_PER_UM3 / np.pi) ** (1.0 / 3.0)
-            inflight[k] = (b.length_um <= config.compact_ratio * d_eq_um
+            inflight[k] = (not b.elongated(config.compact_ratio)
                            and not (b.top_chord_ratio < config.tail_chord_ratio))
             if not inflight[k]:
                 flags[k].append(q.TAIL)

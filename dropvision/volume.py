@@ -287,6 +287,11 @@ def integrate(
     )
 
 
+def equivalent_diameter_um(volume_nl: float) -> float:
+    """Diameter (µm) of the sphere of ``volume_nl``."""
+    return (6.0 * volume_nl / NL_PER_UM3 / math.pi) ** (1.0 / 3.0) if volume_nl > 0 else 0.0
+
+
 # ----------------------------------------------------------------------------- shape from edges
 def clip_to_tip_plane(edges: RowEdges, tip_row: float, axis_col: float, tilt_rad: float) -> None:
     """Cut the attached liquid's runs at the tip plane (perpendicular to a tilted axis), in place.

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Reader", "ImageInfo", "OpenImage", "UnreadableImage", "InvalidImage", "is_number",
-           "MAX_PIXELS", "MAX_FILE_BYTES", "check_pixels", "check_file_size"]
+__all__ = ["Reader", "ImageInfo", "OpenImage", "UnreadableImage", "InvalidImage", "ColourLuma", "is_number",
+           "MAX_PIXELS", "MAX_FILE_BYTES", "check_pixels", "check_file_size", "imdecode"]
 
 #: Largest frame decoded, in pixels (width x height, any number of channels): 100 megapixels.
 #: Checked from the file header BEFORE decoding; a larger frame is an :class:`UnreadableImage`
@@ -42,6 +42,27 @@ class UnreadableImage(Exception):
 
 class InvalidImage(Exception):
     """A readable image file that cannot be used as asked; the message names the file."""
+
+
+class ColourLuma(np.ndarray):
+    """A colour file that its reader decoded straight to its BT.601 luma (the grey rule of the
+    sequence layer): a 2-D array view that tells the sequence to note the conversion once."""
+
+
+def imdecode(data, kind: str, flags: int | None = None) -> np.ndarray:
+    """``cv2.imdecode`` of a file's bytes (``IMREAD_UNCHANGED`` by default), its failures as
+    :class:`UnreadableImage` naming the format ``kind``."""
+    import cv2
+
+    buf = data if isinstance(data, np.ndarray) else np.frombuffer(data, np.uint8)
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags) if buf.size else None
+    except (cv2.error, MemoryError) as exc:
+        raise UnreadableImage(f"cannot decode {kind} ({type(exc).__name__}; truncated, "
+                              "corrupt or too large)") from None
+    if img is None:
+        raise UnreadableImage(f"cannot decode {kind} (truncated or corrupt file)")
+    return img
 
 
 def is_number(value) -> bool:
@@ -148,15 +169,11 @@ class Reader:
         delays. May raise on unreadable files (the caller then assumes the default)."""
         return ImageInfo()
 
-    def colour_as_grey(self, path: Path) -> bool:
-        """True when :meth:`decode` already turned a colour file into grey (by the same rule),
-        so that the sequence still notes the conversion once. The default: never."""
-        return False
-
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode one frame: ``page`` of a paged file (None: the only or first image).
 
-        Returns the array as stored (2-D grey, or (H, W, C) colour in :attr:`bgr` order;
+        Returns the array as stored (2-D grey, or (H, W, C) colour in :attr:`bgr` order, or a
+        :class:`ColourLuma` when the reader applied the grey rule itself;
         uint8/uint16 for the supported cameras). Raises :class:`UnreadableImage` for a file that
         cannot be decoded and :class:`InvalidImage` for a page that cannot be used.
         """

@@ -1,5 +1,6 @@
 """JPEG reader (``.jpg``, ``.jpeg``, ``.jpe``, ``.jfif``): 8-bit grey and colour, decoded by
-OpenCV's bundled libjpeg-turbo (``cv2.imdecode(..., cv2.IMREAD_UNCHANGED)``).
+OpenCV's bundled libjpeg-turbo (``cv2.imdecode``; a colour file straight to its luma plane,
+JFIF's Y = the BT.601 grey rule, returned as a `ColourLuma`).
 
 Why OpenCV: measured with ``tools/bench_decoders.py`` (one thread, full resolution),
 ``cv2.imdecode`` decodes as fast as simplejpeg and PyTurboJPEG (all three are libjpeg-turbo;
@@ -21,7 +22,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
+from dropvision.readers.base import ColourLuma, Reader, UnreadableImage, check_pixels, imdecode, read_file
 
 __all__ = ["JpegReader", "jpeg_size"]
 
@@ -75,14 +76,6 @@ class JpegReader(Reader):
     suffixes = (".jpg", ".jpeg", ".jpe", ".jfif")
     bgr = True
 
-    def colour_as_grey(self, path: Path) -> bool:
-        """A colour (3- or 4-component) JPEG: `decode` gives its luma."""
-        try:
-            found = _walk(read_file(path, "JPEG", limit=1 << 16))
-        except UnreadableImage:
-            return False
-        return found is not None and found[2] >= 3
-
     def decode(self, path: Path, page: int | None) -> np.ndarray:
         """Decode with ``cv2.imdecode`` (``page`` is ignored); colour files to their luma."""
         data = read_file(path, "JPEG")
@@ -97,13 +90,6 @@ class JpegReader(Reader):
         # grey rule (docs/FORMAT.md), without the chroma upsampling and colour conversion
         # (2048 x 1536: 6.8 instead of 15.6 ms)
         # (any flag but IMREAD_UNCHANGED makes OpenCV apply the EXIF orientation: ignored, as documented)
-        flag = (cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION if found is not None and found[2] >= 3
-                else cv2.IMREAD_UNCHANGED)
-        try:
-            img = cv2.imdecode(np.frombuffer(data, np.uint8), flag) if data else None
-        except (cv2.error, MemoryError) as exc:
-            raise UnreadableImage(f"cannot decode JPEG ({type(exc).__name__}; truncated, "
-                                  "corrupt or too large)") from None
-        if img is None:
-            raise UnreadableImage("cannot decode JPEG (truncated or corrupt file)")
-        return img
+        if found is not None and found[2] >= 3:
+            return imdecode(data, "JPEG", cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION).view(ColourLuma)
+        return imdecode(data, "JPEG")

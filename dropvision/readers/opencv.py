@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
+from dropvision.readers.base import Reader, UnreadableImage, check_pixels, imdecode, read_file
 
 __all__ = ["OpenCVReader"]
 
@@ -73,15 +73,12 @@ class OpenCVReader(Reader):
             _check_pnm_header(head)
         try:
             img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if img is None:  # e.g. a path cv2 cannot open: decode from bytes
-                try:
-                    data = np.fromfile(path, dtype=np.uint8)
-                except OSError as exc:
-                    raise UnreadableImage(f"cannot read file ({exc.strerror})") from None
-                img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-        except (cv2.error, MemoryError) as exc:
-            raise UnreadableImage(f"cannot decode {kind} ({type(exc).__name__}; truncated, "
-                                  "corrupt or too large)") from None
-        if img is None:
-            raise UnreadableImage(f"cannot decode {kind} (truncated or corrupt file)")
+        except (cv2.error, MemoryError):
+            img = None  # imdecode below says why
+        if img is None:  # e.g. a path cv2 cannot open: decode from bytes
+            try:
+                data = np.fromfile(path, dtype=np.uint8)
+            except OSError as exc:
+                raise UnreadableImage(f"cannot read file ({exc.strerror})") from None
+            img = imdecode(data, kind)
         return img

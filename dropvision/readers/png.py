@@ -40,7 +40,7 @@ from imagecodecs import delta_decode
 from isal import isal_zlib
 
 from dropvision.readers import base
-from dropvision.readers.base import Reader, UnreadableImage, check_pixels, read_file
+from dropvision.readers.base import Reader, UnreadableImage, check_pixels, imdecode, read_file
 
 __all__ = ["PngReader", "PngError", "decode_grey_png", "read_png", "png_significant_bits",
            "PNG_SIGNATURE"]
@@ -281,14 +281,7 @@ def read_png(path: Path) -> np.ndarray:
     except PngError as exc:
         raise UnreadableImage(f"cannot decode PNG ({exc})") from None
     if img is None:
-        try:
-            img = (cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-                   if data else None)
-        except (cv2.error, MemoryError) as exc:
-            raise UnreadableImage(f"cannot decode PNG ({type(exc).__name__}; truncated, "
-                                  "corrupt or too large)") from None
-        if img is None:
-            raise UnreadableImage("cannot decode PNG (truncated or corrupt file)")
+        img = imdecode(data, "PNG")
     return img
 
 
