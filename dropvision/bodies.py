@@ -42,6 +42,9 @@ from dropvision.volume import (
     integrate,
     neck_chord_px,
     top_chord_ratio,
+    plane_cut_uncertainty_px3,
+    random_volume_uncertainty_px3,
+    volume_uncertainty_px3,
 )
 
 
@@ -71,7 +74,8 @@ class DetachedBody:
     min_transmission: float = float("nan")
     edge_blur_px: float = float("nan")
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
-    touching: bool = False  # split off the main drop at a waist: not a separate silhouette
+    touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
+    volume_uncertainty_nl: float = float("nan")  # standard uncertainty (`volume.volume_uncertainty_px3`)
 
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
@@ -94,6 +98,13 @@ class AttachedLiquid:
         It reaches the bottom of the frame (its volume is then unknown).
     edges : RowEdges
         Its run edges, cut at the tip plane.
+    volume_uncertainty_nl : float
+        Standard uncertainty of ``volume_nl``: the edges' common error, their noise and the tip
+        plane's place in quadrature (`body_volume_uncertainty_nl`).
+    common_uncertainty_nl, plane_uncertainty_nl : float
+        Its parts from the edges' common error (blur correction included) and from the tip
+        plane: a grown volume, a difference of two attached volumes, keeps only the difference
+        of the first and none of the second.
     """
 
     volume_nl: float
@@ -101,6 +112,9 @@ class AttachedLiquid:
     neck_px: float
     leaves: bool
     edges: RowEdges
+    volume_uncertainty_nl: float = float("nan")
+    common_uncertainty_nl: float = float("nan")
+    plane_uncertainty_nl: float = float("nan")
 
 
 def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body, gain: float) -> AttachedLiquid:
@@ -126,7 +140,24 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
     bv = integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px)
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
-                          neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed)
+                          neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
+                          volume_uncertainty_nl=body_volume_uncertainty_nl(bv, ctx, plane=True),
+                          common_uncertainty_nl=volume_uncertainty_px3(bv, ctx.edge_position_sigma_px,
+                                                                       ctx.tilt_rad) * ctx.nl_per_px3,
+                          plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, ctx.edge_position_sigma_px)
+                          * ctx.nl_per_px3)
+
+
+def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
+    """Standard uncertainty (nl) of a body's volume: the sequence's common edge-position error
+    (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
+    (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
+    (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
+    parts = [volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad),
+             random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
+    if plane:
+        parts.append(plane_cut_uncertainty_px3(volume, ctx.edge_position_sigma_px))
+    return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3
 
 
 def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body,
@@ -195,6 +226,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
         on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
         row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
+        volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
     )
 
 

@@ -62,6 +62,10 @@ class BackgroundModel:
         Pixels with a static attenuation (corrected or opaque).
     falloff : float
         1 - min/max of the smooth illumination over the frame.
+    residual : float
+        Robust spread (1.4826 MAD) of the background pixels' relative departure from the model,
+        averaged over 4 x 4 blocks (the model's misfit more than the pixel noise): how far the
+        local background may be off (transmission units).
     """
 
     background: np.ndarray
@@ -69,6 +73,7 @@ class BackgroundModel:
     n_frames: int
     dust_pixels: int
     falloff: float
+    residual: float = 0.0
 
 
 def _poly_terms(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
@@ -192,7 +197,27 @@ def estimate_background(
             opaque = op
             dust_pixels += int(op.sum())
     falloff = float(1.0 - smooth.min() / smooth.max())
-    return BackgroundModel(background, opaque, len(images), dust_pixels, falloff)
+    return BackgroundModel(background, opaque, len(images), dust_pixels, falloff,
+                           background_residual(mean, valid, background))
+
+
+def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndarray, block: int = 4) -> float:
+    """Robust spread of ``mean / background - 1`` over blocks of ``block`` x ``block`` background pixels.
+
+    Blocks with any pixel that is not background are left out; 0 when fewer than 20 blocks remain.
+    """
+    h, w = mean.shape
+    hb, wb = h // block, w // block
+    if hb == 0 or wb == 0:
+        return 0.0
+    sl = (slice(0, hb * block), slice(0, wb * block))
+    rel = np.where(valid[sl], mean[sl] / np.maximum(background[sl], 1e-6) - 1.0, 0.0)
+    rel = rel.reshape(hb, block, wb, block).mean(axis=(1, 3))
+    ok = valid[sl].reshape(hb, block, wb, block).all(axis=(1, 3))
+    r = rel[ok]
+    if r.size < 20:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(r - np.median(r))))
 
 
 def clipped_fraction(background: np.ndarray, max_value: int | None) -> float:
@@ -333,6 +358,47 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
     if not found:
         return float("nan")
     return float(np.median(found))
+
+
+def clipped_edge_range_px(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> float:
+    """How far outside the half-of-clip crossing an edge may really lie when the level is unknown.
+
+    Against a background clipped at the sensor maximum with an unknown true level ``B >= max``,
+    the edge's 50 % crossing ``(B + d) / 2`` lies between the crossing at ``(max + d) / 2`` and
+    the first clipped sample outside it.  The median over the nozzle's straight wall rows of
+    that distance (px); 1 px when no wall row has a clipped sample within ``half_px``.
+
+    Parameters
+    ----------
+    image : ndarray
+        Raw frame (canonical orientation).
+    nozzle : Nozzle
+        Walls found against the clipped background.
+    max_value : int
+        Sensor maximum.
+    half_px : int
+        Profile half width (px).
+
+    Returns
+    -------
+    float
+        Distance (px), at least 0.5 px (the pixel itself).
+    """
+    img = np.asarray(image, np.float64)
+    w = img.shape[1]
+    clip = 0.98 * max_value
+    dists = []
+    for edges, sign in ((nozzle.left_px, -1), (nozzle.right_px, 1)):
+        for r, e in zip(nozzle.rows, edges):
+            if not np.isfinite(e):
+                continue
+            c = int(round(e))
+            cols = c + sign * np.arange(0, half_px + 1)
+            cols = cols[(cols >= 0) & (cols < w)]
+            sat = np.nonzero(img[int(r), cols] >= clip)[0]
+            if sat.size:
+                dists.append(abs(cols[sat[0]] - e))
+    return float(max(0.5, np.median(dists))) if dists else 1.0
 
 
 # ----------------------------------------------------------------------------- nozzle
@@ -737,12 +803,20 @@ class Calibration:
     pixel_size_ratio_uncertainty: float = float("nan")
     #: A clipped background: ``fraction`` at the sensor maximum, unclipped ``level`` (NaN: unknown), ``method``.
     clipped: dict | None = None
+    #: Parts of the edge-position uncertainty common to a body (px; `dropvision.context.edge_position_terms_px`).
+    edge_position_terms_px: dict = field(default_factory=dict)
+
+    @property
+    def volume_uncertainty_source(self) -> str:
+        """The largest part of the edge-position uncertainty ("edge floor" when none is known)."""
+        terms = self.edge_position_terms_px
+        return max(terms, key=terms.get) if terms else "edge floor"
 
     @property
     def clipped_level(self) -> float:
         """Unclipped background level used where the background is clipped; NaN when not clipped or unknown."""
         if not self.clipped or not self.clipped.get("used", False):
-            return float("nan")
+            return float("nan")  # not clipped
         return float(self.clipped["level"])
 
     @property
@@ -774,8 +848,12 @@ class Calibration:
                 "frames_used": self.background.n_frames,
                 "dust_pixels": self.background.dust_pixels,
                 "illumination_falloff": self.background.falloff,
+                "residual": self.background.residual,
             },
             "clipped_background": None if self.clipped is None else dict(self.clipped),
+            "edge_position_uncertainty_px": float(np.sqrt(sum(v * v for v in self.edge_position_terms_px.values()))),
+            "edge_position_terms_px": dict(self.edge_position_terms_px),
+            "volume_uncertainty_source": self.volume_uncertainty_source,
             "notes": list(self.notes),
         }
 
@@ -831,16 +909,26 @@ def calibrate(
                    "method": "background grey level from the unclipped part of the top body's edge profile "
                              "(calibration.unclipped_level), used wherever the background model is at the "
                              "sensor maximum"}
-        clipped["used"] = bool(np.isfinite(level) and level > max_value)
-        if clipped["used"]:
+        clipped["level_known"] = bool(np.isfinite(level) and level > max_value)
+        clipped["used"] = True
+        if clipped["level_known"]:
             bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(level),
                                      bg.background).astype(np.float32)
             notes.append(f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
                          f"level {level:.0f} (max {max_value}) estimated from the nozzle walls; edges are taken "
                          "below the clip")
         else:
+            # the true level is at or above the clip: the sensor maximum is its lower bound, and the
+            # true edge lies between our crossing and the first clipped pixel outside it
+            clipped["level"] = float(max_value)
+            bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(max_value),
+                                     bg.background).astype(np.float32)
+            nz = find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5, expected)
+            clipped["edge_range_px"] = clipped_edge_range_px(first, nz, max_value)
             notes.append(f"background clipped over {100 * frac:.0f} % of the frame and its level could not be "
-                         "estimated (the middle of the nozzle walls' edge is clipped too)")
+                         f"estimated (the middle of the nozzle walls' edge is clipped too): the sensor maximum "
+                         f"{max_value} is taken as its level (a lower bound); the true edge lies within "
+                         f"{clipped['edge_range_px']:.2f} px outside the measured one (in the uncertainty)")
     t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
     # first pass at 50 % (half-way to the darkest body in a low-contrast frame, where the nozzle

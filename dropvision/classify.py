@@ -17,8 +17,9 @@ class, tried in this order (thresholds in `dropvision.config.MeasureConfig`):
 5. ``main_drop``: the largest remaining body; ``tail``: another body longer than
    ``compact_ratio`` equivalent-sphere diameters (a free ligament); ``satellite``: the others.
    A satellite touching the main drop (one silhouette with a short waist,
-   `dropvision.volume.waist_row`) is split off it at the waist and listed as a satellite that
-   is not counted (it is not a separate silhouette).
+   `dropvision.volume.waist_row`) is split off it at the waist and listed as a counted
+   satellite (a drop of its own, as a person counts it); its volume stays in the frame's
+   ``drop_volume_nl`` (the main drop's silhouette: they coalesce in flight).
 
 ``counted`` is True for satellites and tails of a frame whose ``n_satellites`` is known (the
 frame's main drop and its companions are trusted); ``n_satellites`` of the frames table is the
@@ -125,22 +126,27 @@ def nozzle_edge_spread_px(roi: np.ndarray, inv_background: np.ndarray, labels: n
                       floor=floor, skip_top_rows=2).edge_blur_px
 
 
-def out_of_focus_reason(app: Appearance, ref_px: float, factor: float, offset_px: float) -> str | None:
-    """Why a body is out of focus (its edge spread against the nozzle's), or None if it is not.
+def out_of_focus_reason(app: Appearance, ref_px: float, factor: float, offset_px: float,
+                        ref_name: str = "nozzle walls'") -> str | None:
+    """Why a body is out of focus (its edge spread against the in-focus reference), or None.
 
     Parameters
     ----------
     app : Appearance
     ref_px : float
-        Edge spread of the in-focus nozzle walls (`nozzle_edge_spread_px`); NaN: never.
+        Edge spread of the in-focus reference (`nozzle_edge_spread_px`, or the sharpest detached
+        body when the nozzle is out of focus); NaN: never.
     factor, offset_px : float
-        ``MeasureConfig.mist_blur_factor`` and ``mist_blur_offset_px``.
+        ``MeasureConfig.mist_blur_factor`` (``mist_blur_factor_bodies`` with a body reference)
+        and ``mist_blur_offset_px``.
+    ref_name : str
+        Names the reference in the reason.
     """
     if not (np.isfinite(ref_px) and ref_px > 0):
         return None
     limit = factor * ref_px + offset_px
     if app.edge_blur_px > limit:
-        return (f"edge spread {app.edge_blur_px:.2f} px > {factor:g} x nozzle walls' {ref_px:.2f} px + "
+        return (f"edge spread {app.edge_blur_px:.2f} px > {factor:g} x {ref_name} {ref_px:.2f} px + "
                 f"{offset_px:g} px: out of focus")
     return None
 
@@ -195,7 +201,8 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
             elif j == 0:
                 cls, why = "main_drop", "largest in-focus detached body"
             elif b.touching:
-                why = b.reason + ": not counted"
+                why = b.reason + ": a drop of its own, counted; its volume stays in the main drop's"
+                counted = known
             elif b.elongated(compact_ratio):
                 cls, why = "tail", f"in focus, detached, longer than {compact_ratio:g} equivalent diameters"
                 counted = known

@@ -49,6 +49,11 @@ class MeasureConfig:
         walls' plus ``mist_blur_offset_px`` is out of focus (mist, dust on the optics): listed in
         bodies.parquet, never a drop or a satellite (`dropvision.classify`; chosen on synthetic
         frames: in-focus bodies 0.98-1.1x the walls', bodies blurred a further 3 px or more >= 1.2x).
+    mist_blur_factor_bodies : float
+        ``mist_blur_factor`` when the nozzle walls are out of focus and the reference is the
+        sharpest detached body instead: a minimum over per-body estimates, biased low by their
+        scatter (in-focus drops and satellites of one real JPEG frame: up to 1.33x apart; mist
+        there 2.5x and more).
     smooth_noise_limit, smooth_px : float
         Frames whose background noise (transmission units) exceeds ``smooth_noise_limit`` are
         smoothed by a Gaussian of ``smooth_px`` before segmentation and edges (its blur is
@@ -110,6 +115,7 @@ class MeasureConfig:
     ambiguous_gap_px: float = 1.5
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
+    mist_blur_factor_bodies: float = 1.5
     smooth_noise_limit: float = 0.025
     smooth_px: float = 1.0
     workers: int = 2

@@ -19,7 +19,7 @@ from dropvision import quality as q
 from dropvision.calibration import Calibration, CalibrationError, calibrate, edge_sigma_px, find_nozzle
 from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
-from dropvision.classify import nozzle_edge_spread_px
+from dropvision.classify import appearance, nozzle_edge_spread_px
 from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
 from dropvision.volume import NL_PER_UM3
 
@@ -68,6 +68,10 @@ class FrameContext:
     min_wall_contrast: float = 0.0
     # out-of-focus bodies (`dropvision.classify`): edge spread of the in-focus nozzle and the limit rule
     edge_blur_ref_px: float = float("nan")
+    edge_blur_ref_source: str = "nozzle walls"
+    # standard uncertainty of an edge position common to a body (px)
+    edge_position_sigma_px: float = 0.05
+    edge_noise_px: float = 0.0  # independent noise of one edge (px): noise / edge slope
     # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
     smooth_px: float = 0.0
     # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
@@ -77,7 +81,8 @@ class FrameContext:
     compact_ratio: float = 2.0  # a compact body: at most this many equivalent diameters long
 
     @classmethod
-    def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig) -> "FrameContext":
+    def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig,
+              attached_half_width_px: float = 0.0) -> "FrameContext":
         """Region of interest and its arrays from a calibration.
 
         Parameters
@@ -90,11 +95,15 @@ class FrameContext:
         max_value : int
             Sensor maximum grey level (saturation).
         config : MeasureConfig
+        attached_half_width_px : float
+            Widest reach (px) of the liquid hanging from the nozzle in the calibration frames from
+            the axis (`attached_half_width_px`): the band holds it whole (a pendant drop many
+            nozzle diameters wide), with a margin of a quarter nozzle diameter and 8 px.
         """
         h, w = cal.shape
         r0 = max(0, int(math.floor(cal.tip_row)) - 8)
         half = config.band_half_width * cal.nozzle_outer_diameter_px + abs(math.tan(cal.tilt_rad)) * (h - r0)
-        half = max(half, 48.0)
+        half = max(half, 48.0, attached_half_width_px + 0.25 * cal.nozzle_outer_diameter_px + 8.0)
         c0 = max(0, int(math.floor(cal.axis_col - half)))
         c1 = min(w, int(math.ceil(cal.axis_col + half)) + 1)
         bg = np.ascontiguousarray(cal.background.background[r0:, c0:c1])
@@ -237,7 +246,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     max_value = 2 ** int(meta.bit_depth) - 1
     clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
     sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
-    ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config)
+    reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal) for img in images)
+    ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config, attached_half_width_px=reach)
     ctx.clipped_level = cal.clipped_level
     ctx.noise_t = transmission_noise(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.noise_t)
     if ctx.noise_t > config.smooth_noise_limit:  # noisy (low-contrast) frames: smooth before the edges
@@ -245,8 +255,156 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         if ctx.sigma_px > 0:  # the kernel is truncated (`smooth_roi`): its own standard deviation
             ctx.sigma_px = float(math.hypot(ctx.sigma_px, _kernel_sigma(ctx.smooth_px)))
     _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
-    ctx.edge_blur_ref_px = _nozzle_edge_spread(first, ctx)
+    nozzle_ref = _nozzle_edge_spread(first, ctx)
+    found = detached_appearances(images, ctx)
+    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
+    ctx.edge_blur_ref_px, ctx.edge_blur_ref_source = nozzle_ref, "nozzle walls"
+    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
+    if np.isfinite(body_ref) and not nozzle_ref <= limit:
+        # the nozzle (or the holder block around it) is out of focus: what is in focus is the
+        # jet's plane, so the sharpest detached body is the reference for mist, and the blur
+        # is the walls' scaled to it; the walls no longer judge a frame's blur or contrast
+        scale = body_ref / nozzle_ref if np.isfinite(nozzle_ref) and nozzle_ref > 0 else float("nan")
+        sigma = float(sigma * scale) if np.isfinite(scale) and np.isfinite(sigma) else float(body_ref)
+        ctx.edge_blur_ref_px = body_ref
+        ctx.mist_blur_factor = config.mist_blur_factor_bodies
+        ctx.edge_blur_ref_source = "sharpest detached body (the nozzle walls are out of focus)"
+        ctx.sigma_px = sigma if config.blur_correction else 0.0
+        if ctx.smooth_px > 0 and ctx.sigma_px > 0:
+            ctx.sigma_px = float(math.hypot(ctx.sigma_px, _kernel_sigma(ctx.smooth_px)))
+        ctx.wall_rows = ctx.wall_cols = ctx.wall_inv_background = None
+        ctx.max_frame_blur_px = float("inf")
+        cal.notes.append(f"the nozzle walls are out of focus (edge spread {nozzle_ref:.2f} px against "
+                         f"{body_ref:.2f} px of the sharpest detached body): in-focus and blur judged from the "
+                         "detached bodies, no per-frame blur or contrast from the walls")
+        _tilt_from_bodies(cal, ctx)
+    cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
+    ctx.edge_position_sigma_px = float(math.sqrt(sum(v * v for v in cal.edge_position_terms_px.values())))
+    sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
+    ctx.edge_noise_px = float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig / max(1.0 - cal.liquid_level, 0.05))
     return cal, sigma, ctx
+
+
+def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureConfig) -> dict[str, float]:
+    """The parts (px, standard uncertainties) of an edge-position error common to a whole body.
+
+    - ``edge floor``: ``config.edge_position_floor_px`` (threshold interpolation and blur model);
+    - ``background level``: the background model's local misfit ``dB/B``
+      (`dropvision.calibration.background_residual`) moves the 50 % crossing by
+      ``dB/B / slope``, the edge's slope being ``(1 - T_liquid) / (sqrt(2 pi) sigma)``;
+    - ``clipped background``: against a background clipped at an unknown level the true edge
+      lies up to ``edge_range_px`` outside the measured one: half of it.
+
+    Parameters
+    ----------
+    cal : Calibration
+    sigma_px : float
+        Edge blur (Gaussian sigma, px; at least 0.5 px is used: the pixel box).
+    config : MeasureConfig
+
+    Returns
+    -------
+    dict
+        Term name -> px.
+    """
+    sig = max(float(sigma_px), 0.5) if np.isfinite(sigma_px) else 1.0
+    depth = max(1.0 - float(cal.liquid_level), 0.05)
+    terms = {"edge floor": float(config.edge_position_floor_px),
+             "background level": float(cal.background.residual) * math.sqrt(2.0 * math.pi) * sig / depth}
+    clipped = cal.clipped or {}
+    if clipped.get("used") and not clipped.get("level_known", True):
+        terms["clipped background"] = 0.5 * float(clipped.get("edge_range_px", 1.0))
+    return terms
+
+
+#: Fields of `detached_appearances` (one record per body).
+APPEARANCE_DTYPE = np.dtype([("frame", int), ("row_px", float), ("col_px", float), ("area_px", int),
+                             ("min_transmission", float), ("edge_blur_px", float)])
+
+
+def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np.ndarray:
+    """Detached dark bodies of the calibration frames that look like liquid, with their appearance.
+
+    Bodies of at least ``min_area_px`` pixels, not touching the region's edges, as dark as half
+    the liquid's depth (``1 - T_min >= (1 - T_liquid) / 2``), judged with the same estimator as
+    every body (`dropvision.classify.appearance`).  Mist and dust are never sharper than the
+    liquid in the jet's plane, so the smallest ``edge_blur_px`` is an in-focus body whenever the
+    frames hold one.
+
+    Parameters
+    ----------
+    images : sequence of ndarray
+        Raw calibration frames (canonical orientation).
+    ctx : FrameContext
+    min_area_px : int
+        Smaller bodies are not used (too few boundary pixels for a stable spread).
+
+    Returns
+    -------
+    ndarray of `APPEARANCE_DTYPE`
+        ``row_px``, ``col_px``: the body's pixel centroid (full frame, canonical).
+    """
+    out = []
+    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    for i, img in enumerate(images):
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        hh, ww = seg.labels.shape
+        for b in seg.bodies:
+            if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
+                continue
+            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=ctx.liquid_level)
+            if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
+                rr, cc = np.nonzero(seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label)
+                out.append((i, float(rr.mean()) + b.y0 + ctx.r0, float(cc.mean()) + b.x0 + ctx.c0, b.area_px,
+                            app.min_transmission, app.edge_blur_px))
+    return np.array(out, APPEARANCE_DTYPE)
+
+
+def _tilt_from_bodies(cal: Calibration, ctx: FrameContext) -> None:
+    """The jet's direction when the nozzle walls are out of focus: the image columns (tilt 0, stated).
+
+    A blurred holder's face or walls do not give the jet's axis (a 3 deg tilt on a level jet
+    was measured that way), and the line through a drop and its satellites is not the axis
+    either (satellites drift off it by a few px: 1-4 deg from two bodies).  The volume's error
+    from a tilt ``t`` left out is ``1 - cos t``: 0.14 % at 3 deg.  ``cal`` and ``ctx`` are
+    updated in place.
+    """
+    cal.tilt_rad = ctx.tilt_rad = 0.0
+    cal.tilt_source = "image columns (assumed: the nozzle walls are out of focus)"
+
+
+def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
+    """How far (px) the liquid hanging from the nozzle reaches sideways from the axis in one frame.
+
+    The dark body touching the top edge that holds the axis column, in its rows from 2 px below
+    the tip plane down (a holder block above the tip does not count); 0 when there is none.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        Frame over the background model (canonical orientation).
+    cal : Calibration
+
+    Returns
+    -------
+    float
+        Largest horizontal distance (px) of its pixels from the axis.
+    """
+    mask = (transmission < cal.threshold).astype(np.uint8)
+    _, lab = cv2.connectedComponents(mask, connectivity=8)
+    axis = int(round(min(max(cal.axis_col, 0), transmission.shape[1] - 1)))
+    top = np.unique(lab[0][lab[0] > 0])
+    r = int(math.ceil(cal.tip_row)) + 2
+    below = lab[r:]
+    best = 0.0
+    for k in top:
+        rows, cols = np.nonzero(below == k)
+        if cols.size == 0 or not np.any(np.abs(cols - cal.axis_col) < 2.0) and not (lab[:r, axis] == k).any():
+            continue
+        best = max(best, float(np.max(np.abs(cols - cal.axis_col))))
+    return best
 
 
 def _kernel_size(sigma_px: float) -> int:

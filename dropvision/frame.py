@@ -24,6 +24,7 @@ import numpy as np
 from dropvision import quality as q
 from dropvision.bodies import (
     DetachedBody,
+    body_volume_uncertainty_nl,
     class_image,
     describe_detached,
     find_nozzle_body,
@@ -52,6 +53,9 @@ class FrameRecord:
     delay_us: float
     repeat: int
     attached_volume_nl: float = float("nan")
+    attached_volume_uncertainty_nl: float = float("nan")
+    attached_common_uncertainty_nl: float = float("nan")  # edges' common error: see AttachedLiquid
+    attached_plane_uncertainty_nl: float = float("nan")
     attached_bottom_row: float = float("nan")
     neck_px: float = float("nan")
     bodies: list[DetachedBody] = field(default_factory=list)
@@ -105,6 +109,9 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             rec.flags.append(q.ATTACHED_LEAVES)
         else:
             rec.attached_volume_nl = att.volume_nl
+            rec.attached_volume_uncertainty_nl = att.volume_uncertainty_nl
+            rec.attached_common_uncertainty_nl = att.common_uncertainty_nl
+            rec.attached_plane_uncertainty_nl = att.plane_uncertainty_nl
         rec.attached_bottom_row = att.bottom_row
         rec.neck_px = att.neck_px
         if np.isfinite(rec.attached_bottom_row):
@@ -119,13 +126,17 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         if b.label in threads:  # still joined by a thread thinner than the blur: attached liquid
             if np.isfinite(rec.attached_volume_nl):
                 rec.attached_volume_nl += bv.volume_px3 * ctx.nl_per_px3
+                u = body_volume_uncertainty_nl(bv, ctx)  # the same edge error: added, not in quadrature
+                rec.attached_volume_uncertainty_nl += u
+                rec.attached_common_uncertainty_nl += u
             rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
         app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain,
                          floor=ctx.liquid_level)
         body = describe_detached(ctx, seg, b, ed, bv)
         body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
-        why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px)
+        why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px,
+                                  "nozzle walls'" if ctx.edge_blur_ref_source == "nozzle walls" else "the sharpest body's")
         if why is None:
             rec.bodies.append(body)
             sources[id(body)] = (b, ed)
@@ -145,8 +156,8 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
 
     The main drop is then the larger lobe; the smaller one, when compact (at most
     ``ctx.compact_ratio`` equivalent diameters long: a tail with a bulb is not split off), is
-    listed as a touching satellite (not a separate silhouette, so not counted in
-    ``n_satellites``; its volume stays in the detached volume). `dropvision.volume.waist_row` says
+    listed as a touching satellite (counted in ``n_satellites``: a drop of its own; its volume
+    stays in the main drop's ``drop_volume_nl`` and the detached volume). `dropvision.volume.waist_row` says
     what a waist is.
     """
     row = waist_row(edges)

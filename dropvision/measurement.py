@@ -119,6 +119,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
     bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
     summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
+    summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source
     result = MeasureResult(frames, summary, bodies)
     if logger is not None:
         logger.log_table(frames)

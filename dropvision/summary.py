@@ -89,6 +89,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     flags = [list(r.flags) for r in records]
     notes: list[str] = []
     att_vol = np.array([r.attached_volume_nl for r in records], float)
+    att_u = np.array([r.attached_volume_uncertainty_nl for r in records], float)
+    att_common = np.array([r.attached_common_uncertainty_nl for r in records], float)
+    att_plane = np.array([r.attached_plane_uncertainty_nl for r in records], float)
     has_det = np.array([bool(r.bodies) for r in records], bool)
     dead_time = dead_time_us(meta, config)
     # --- plausibility of the pixel size (issue "hostile and lying input", lie 1) ----------
@@ -102,7 +105,11 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
                      f"({_delays_text(delay[isolated])} us): inconsistent with their neighbours, left out")
     pinch = pinchoff_delay(delay[~isolated], has_det[~isolated]) if (~isolated).any() else float("nan")
     delay_lie = False
-    if np.isfinite(pinch) and pinch < dead_time:
+    has_waveform = bool(getattr(meta, "waveform", None))
+    if not has_waveform:
+        notes.append("no waveform in sequence.json: no waveform-based check (dead time, end of the stroke) is run "
+                     "and the first delay's frames are taken as the meniscus at rest")
+    if has_waveform and np.isfinite(pinch) and pinch < dead_time:
         # the piston has not moved before the dead time: no drop can have separated
         delay_lie = True
         for fl in flags:  # every delay is wrong
@@ -111,7 +118,11 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
                      "shifted or in another unit; pinch-off and velocities not given")
         pinch = float("nan")
     problem = pinchoff_bracket_problem(delay[~isolated], pinch, config.min_pinchoff_frames)
-    if problem is not None:
+    if problem is not None and np.unique(delay).size == 1:
+        # one delay (single frames of a drop watcher, a pendant drop): no series, nothing to flag
+        notes.append("one delay only: no pinch-off (it needs a delay series)")
+        pinch = float("nan")
+    elif problem is not None:
         d_u = np.unique(delay[~isolated])
         before = d_u[d_u < pinch]
         involved = (delay == pinch) | ((delay == before.max()) if before.size else False)
@@ -138,7 +149,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     grown, flow, meniscus, grown_by_delay = grown_and_flow(delay, vol_used, attached, meta.nozzle_inner_diameter_um)
     # The grown volume is relative to the initial meniscus (Section 4.1.1): that needs a frame
     # taken before the piston moves (delay <= dead time). Without one, no grown volume or flow.
-    meniscus_at_rest = bool(m) and float(np.min(delay)) <= dead_time
+    meniscus_at_rest = bool(m) and (float(np.min(delay)) <= dead_time if has_waveform
+                                    else bool(attached[delay == np.min(delay)].all()))
     if not meniscus_at_rest:
         grown[:] = np.nan
         flow[:] = np.nan
@@ -153,6 +165,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         if any(f in UNTRUSTED_INTENSITY_FLAGS for f in flags[k]):
             # untrusted intensities: no number from this frame
             att_vol[k] = grown[k] = drop.drop_volume_nl[k] = drop.detached_volume_nl[k] = np.nan
+            att_u[k] = drop.drop_volume_uncertainty_nl[k] = drop.detached_volume_uncertainty_nl[k] = np.nan
             drop.z_um[k] = drop.x_um[k] = np.nan
             flow[k] = np.nan
             drop.inflight[k] = False
@@ -205,6 +218,10 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         velocity = velocity_se = float("nan")
     if delay_lie:
         velocity = velocity_se = float("nan")
+    terms = cal.edge_position_terms_px
+    total = float(np.sqrt(sum(v * v for v in terms.values()))) if terms else 0.0
+    floor_share = terms.get("edge floor", 0.0) / total if total > 0 else 0.0
+    meniscus_u, grown_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown, floor_share)
     frames = pd.DataFrame({
         "file": [r.file for r in records],
         "page": pd.array([r.page for r in records], dtype="Int64"),
@@ -227,6 +244,12 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "blur_px": np.array([r.blur_px for r in records], float),
         "wall_contrast": np.array([r.wall_contrast for r in records], float),
         "gain": np.array([r.gain for r in records], float),
+        "attached_volume_uncertainty_nl": np.where(np.isfinite(att_vol), att_u, np.nan),
+        "grown_volume_uncertainty_nl": grown_u,
+        "drop_volume_uncertainty_nl": np.where(np.isfinite(drop.drop_volume_nl), drop.drop_volume_uncertainty_nl, np.nan),
+        "detached_volume_uncertainty_nl": np.where(np.isfinite(drop.detached_volume_nl),
+                                                   drop.detached_volume_uncertainty_nl, np.nan),
+        "volume_uncertainty_source": [cal.volume_uncertainty_source] * m,
     }, columns=FRAME_COLUMNS)
     # --- summary -------------------------------------------------------------------------
     last_att = delay[attached & (delay < pinch)] if np.isfinite(pinch) else delay[attached]
@@ -237,6 +260,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         g_pinch = float(np.mean(at_last)) if at_last.size else float("nan")
     inflight = drop.inflight
     inf_vol = drop.drop_volume_nl[inflight]
+    inf_u = drop.drop_volume_uncertainty_nl[inflight]
     traj = fit_line(drop.z_um[inflight], drop.x_um[inflight])
     sats = drop.n_satellites[inflight & np.isfinite(drop.n_satellites)]
     flow_at_max_stroke_m_s = float("nan")
@@ -253,11 +277,17 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "pinchoff_us": pinch,
         "grown_volume_at_pinchoff_nl": g_pinch,
         "initial_meniscus_volume_nl": meniscus,
-        "initial_meniscus_source": (f"attached volume of the first frame(s), delay {float(np.min(delay)):g} us <= dead time "
-                                    f"{dead_time:g} us" if meniscus_at_rest else schema.QUALITY_CODES[q.NO_REST_MENISCUS]),
+        "initial_meniscus_source": (schema.QUALITY_CODES[q.NO_REST_MENISCUS] if not meniscus_at_rest else
+                                    f"attached volume of the first frame(s), delay {float(np.min(delay)):g} us <= dead time "
+                                    f"{dead_time:g} us" if has_waveform else
+                                    f"attached volume of the first delay's frame(s), {float(np.min(delay)):g} us (no "
+                                    "waveform: assumed at rest)"),
         "inflight_volume_nl": float(np.mean(inf_vol)) if inf_vol.size else float("nan"),
         "inflight_volume_std_nl": float(np.std(inf_vol, ddof=1)) if inf_vol.size >= 2 else float("nan"),
         "inflight_frames": int(inf_vol.size),
+        "inflight_volume_uncertainty_nl": inflight_uncertainty(inf_vol, inf_u),
+        "grown_volume_at_pinchoff_uncertainty_nl": _grown_u_before(grown_u, delay, attached, pinch, g_pinch),
+        "initial_meniscus_volume_uncertainty_nl": meniscus_u if meniscus_at_rest else float("nan"),
         "jetting_velocity_m_s": velocity,
         "jetting_velocity_se_m_s": velocity_se,
         "trajectory_angle_mrad": float(1000.0 * np.arctan(traj.slope)) if np.isfinite(traj.slope) else float("nan"),
@@ -273,10 +303,58 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     }
     if length_lie:
         for key in ("grown_volume_at_pinchoff_nl", "initial_meniscus_volume_nl", "inflight_volume_nl",
-                    "inflight_volume_std_nl", "jetting_velocity_m_s", "jetting_velocity_se_m_s",
+                    "inflight_volume_std_nl", "inflight_volume_uncertainty_nl",
+                    "grown_volume_at_pinchoff_uncertainty_nl", "initial_meniscus_volume_uncertainty_nl", "jetting_velocity_m_s", "jetting_velocity_se_m_s",
                     "flow_velocity_at_max_stroke_m_s"):
             summary[key] = float("nan")
     return frames, summary
+
+
+def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl,
+                      grown_nl, floor_share: float = 0.0) -> tuple[float, np.ndarray]:
+    """Standard uncertainties (nl) of the initial meniscus and of every frame's grown volume.
+
+    The meniscus is the mean attached volume at the first delay: its uncertainty is its frames'
+    mean uncertainty and the standard error of their scatter in quadrature.  A grown volume is
+    the difference of two volumes measured with the same edge error and tip plane: of the common
+    edge error only the difference ``|common - common_meniscus|`` is left, of the plane nothing;
+    the edges' own noise of both and the meniscus' scatter add in quadrature.  The edge floor's
+    share of the common error (``floor_share``: sub-pixel interpolation, which changes with the
+    silhouette's shape) is taken as independent between the two frames.
+    """
+    delay = np.asarray(delay, float)
+    first = (delay == np.min(delay)) & np.isfinite(attached_nl) if delay.size else np.zeros(0, bool)
+    if not first.any():
+        return float("nan"), np.full(delay.size, np.nan)
+    n0 = int(first.sum())
+    u0 = float(np.mean(attached_u_nl[first]))
+    se = float(np.std(attached_nl[first], ddof=1) / np.sqrt(n0)) if n0 >= 2 else 0.0
+    rand = np.sqrt(np.maximum(attached_u_nl ** 2 - common_u_nl ** 2 - plane_u_nl ** 2, 0.0))
+    c0, r0 = float(np.mean(common_u_nl[first])), float(np.mean(rand[first]))
+    f2 = floor_share ** 2
+    u_grown = np.sqrt((1.0 - f2) * (common_u_nl - c0) ** 2 + f2 * (common_u_nl ** 2 + c0 ** 2)
+                      + rand ** 2 + r0 ** 2 / n0 + se ** 2)
+    return float(np.hypot(u0, se)), np.where(np.isfinite(grown_nl), u_grown, np.nan)
+
+
+def inflight_uncertainty(volumes_nl: np.ndarray, uncertainties_nl: np.ndarray) -> float:
+    """Standard uncertainty (nl) of the mean in-flight volume: the frames' common edge
+    uncertainty (it does not average out) and the standard error of their scatter, in quadrature."""
+    ok = np.isfinite(volumes_nl) & np.isfinite(uncertainties_nl)
+    if not ok.any():
+        return float("nan")
+    se = float(np.std(volumes_nl[ok], ddof=1) / np.sqrt(ok.sum())) if ok.sum() >= 2 else 0.0
+    return float(np.hypot(np.mean(uncertainties_nl[ok]), se))
+
+
+def _grown_u_before(grown_u, delay, attached, pinch, g_pinch) -> float:
+    """Uncertainty of the grown volume at the last attached delay before the pinch-off (nl)."""
+    if not np.isfinite(g_pinch):
+        return float("nan")
+    last = delay[attached & (delay < pinch) & np.isfinite(grown_u)]
+    if not last.size:
+        return float("nan")
+    return float(np.mean(grown_u[attached & (delay == last.max()) & np.isfinite(grown_u)]))
 
 
 def _delays_text(delays) -> str:

@@ -73,14 +73,16 @@ class DropTrack:
     Attributes
     ----------
     drop_volume_nl, detached_volume_nl : ndarray
-        Main drop volume and all detached liquid (nl); detached 0 in attached frames and frames
-        without a drop.
+        Main drop volume (its whole silhouette: a satellite touching it included) and all
+        detached liquid (nl); detached 0 in attached frames and frames without a drop.
     z_um, x_um : ndarray
         Main drop volume centroid along and across the axis from the tip (µm).
     length_um, diameter_um : ndarray
         Main drop extent along the rows and widest chord (µm).
     n_satellites : ndarray
-        Satellites (float, NaN where unknown; 0 in attached frames).
+        Satellites, touching ones included (float, NaN where unknown; 0 in attached frames).
+    drop_volume_uncertainty_nl, detached_volume_uncertainty_nl : ndarray
+        Standard uncertainties of the two volumes (nl).
     inflight : ndarray of bool
         Main drop compact and trusted.
     """
@@ -93,6 +95,8 @@ class DropTrack:
     diameter_um: np.ndarray
     n_satellites: np.ndarray
     inflight: np.ndarray
+    drop_volume_uncertainty_nl: np.ndarray | None = None
+    detached_volume_uncertainty_nl: np.ndarray | None = None
 
 
 def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: MeasureConfig,
@@ -122,17 +126,19 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     diam = np.full(m, np.nan)
     nsat = np.full(m, np.nan)
     inflight = np.zeros(m, bool)
+    drop_u = np.full(m, np.nan)
+    det_u = np.full(m, np.nan)
     for k, r in enumerate(records):
         b = r.bodies[0] if r.bodies else None
         if attached[k]:
-            det_vol[k] = 0.0
+            det_vol[k] = det_u[k] = 0.0
             nsat[k] = 0
             if np.isfinite(r.neck_px) and r.neck_px < config.ambiguous_gap_px:
                 flags[k].append(q.AMBIGUOUS)
             continue
         if b is None:
             flags[k].append(q.NO_DROP)
-            det_vol[k] = 0.0
+            det_vol[k] = det_u[k] = 0.0
             continue
         bad = []
         if b.leaves:
@@ -147,12 +153,17 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
         others = r.bodies[1:]
         sat_bad = any(o.leaves or o.out_of_band or o.on_dust for o in others)
         if not bad:
-            drop_vol[k] = b.volume_nl
+            # a satellite touching the main drop (one silhouette, split at its waist) is a drop of
+            # its own, counted; its lobe stays in the main drop's volume (they coalesce in flight)
+            drop_vol[k] = b.volume_nl + sum(o.volume_nl for o in others if o.touching)
+            # one edge error for every body of the frame: the uncertainties add up
+            drop_u[k] = b.volume_uncertainty_nl + sum(o.volume_uncertainty_nl for o in others if o.touching)
             drop_z[k], drop_x[k] = b.z_um, b.x_um
             length[k], diam[k] = b.length_um, b.diameter_um
             if not sat_bad:
                 det_vol[k] = sum(o.volume_nl for o in r.bodies)
-                nsat[k] = sum(not o.touching for o in others)
+                det_u[k] = sum(o.volume_uncertainty_nl for o in r.bodies)
+                nsat[k] = len(others)
             inflight[k] = (not b.elongated(config.compact_ratio)
                            and not (b.top_chord_ratio < config.tail_chord_ratio))
             if not inflight[k]:
@@ -167,7 +178,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
         for k in np.nonzero(early)[0]:
             inflight[k] = False
             flags[k].append(q.TAIL)
-    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight)
+    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u)
 
 
 def neighbour_outliers(x, y, sigmas: float, floor: float) -> np.ndarray:

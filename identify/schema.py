@@ -93,11 +93,12 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("attached", "bool", "", "the liquid is still joined to the nozzle", nullable=False),
     F("attached_volume_nl", "float", "nl", "volume of the liquid joined to the nozzle, below the tip plane"),
     F("grown_volume_nl", "float", "nl", "attached volume minus the initial meniscus (until pinch-off)"),
-    F("drop_volume_nl", "float", "nl", "volume of the main detached drop"),
+    F("drop_volume_nl", "float", "nl", "volume of the main detached drop's silhouette (a satellite touching it "
+      "included)"),
     F("detached_volume_nl", "float", "nl", "volume of every detached body (main drop + satellites)"),
     F("drop_z_um", "float", "um", "main-drop centroid along the jetting axis from the tip plane"),
     F("drop_x_um", "float", "um", "main-drop centroid across the axis"),
-    F("n_satellites", "int", "", "satellite drops in the frame"),
+    F("n_satellites", "int", "", "satellite drops in the frame (one touching the main drop included)"),
     F("flow_velocity_m_s", "float", "m/s", "average flow velocity through the nozzle (growth rate / nozzle area)"),
     F("quality", "str", "", "'ok' or the quality codes joined by '; ' (table below)", nullable=False),
     F("drop_length_um", "float", "um", "extent of the main drop along the axis"),
@@ -108,6 +109,13 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("gain", "float", "", "illumination of the frame relative to the background model"),
     F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls"),
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
+    F("attached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of attached_volume_nl (edge position, "
+      "blur correction; dropvision.volume.volume_uncertainty_px3)"),
+    F("grown_volume_uncertainty_nl", "float", "nl", "standard uncertainty of grown_volume_nl"),
+    F("drop_volume_uncertainty_nl", "float", "nl", "standard uncertainty of drop_volume_nl"),
+    F("detached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of detached_volume_nl"),
+    F("volume_uncertainty_source", "str", "", "what dominates the volume uncertainties: edge floor, background "
+      "level, clipped background, blur correction", nullable=False),
 ), "One row per frame, in delay order (repeats kept).")
 
 #: Classes of the bodies table (`dropvision.classify`), in the order the rules are tried.
@@ -158,6 +166,12 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("initial_meniscus_source", "str", "", "which frames gave the initial meniscus"),
     F("inflight_volume_nl", "float", "nl", "mean main-drop volume over the in-flight frames"),
     F("inflight_volume_std_nl", "float", "nl", "its standard deviation"),
+    F("inflight_volume_uncertainty_nl", "float", "nl", "standard uncertainty of inflight_volume_nl: the frames' "
+      "common (edge) uncertainty and the scatter's standard error in quadrature", required=False),
+    F("grown_volume_at_pinchoff_uncertainty_nl", "float", "nl", "standard uncertainty of "
+      "grown_volume_at_pinchoff_nl", required=False),
+    F("initial_meniscus_volume_uncertainty_nl", "float", "nl", "standard uncertainty of "
+      "initial_meniscus_volume_nl", required=False),
     F("inflight_frames", "int", "", "in-flight frames used"),
     F("jetting_velocity_m_s", "float", "m/s", "slope of the main-drop position over the in-flight frames"),
     F("jetting_velocity_se_m_s", "float", "m/s", "its standard error"),

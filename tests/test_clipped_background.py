@@ -67,12 +67,28 @@ def test_clipped_synthetic_sequence_is_measured(soft, exposure):
     assert (f.loc[view, "n_satellites"].astype(int) == truth.loc[view, "n_satellites"]).all()
 
 
-def test_sharp_edges_against_a_clipped_background_are_flagged_not_guessed():
+def test_sharp_edges_against_a_clipped_background_are_measured_with_a_wider_uncertainty():
+    """The level of a background clipped at 255 cannot be read off sharp edges: the sensor
+    maximum is its lower bound, the volumes are measured and their uncertainty says why."""
     cfg, frames, truth = _render(0.8)
     r = _measure(cfg, frames, truth, 1.5)
-    assert r.frames["quality"].str.contains("saturated").all()
-    assert r.frames["attached_volume_nl"].isna().all()
+    f = r.frames
+    assert f["quality"].str.contains("clipped_background").all()
+    assert not f["quality"].str.contains("saturated").any()
     assert any("could not be estimated" in n for n in r.summary["calibration"]["notes"])
+    assert (f["volume_uncertainty_source"] == "clipped background").all()
+    att = truth["attached"].to_numpy()
+    assert f.loc[att, "attached_volume_nl"].notna().all() and att.sum() >= 20
+    err = (f.loc[att, "attached_volume_nl"] - truth.loc[att, "attached_volume_nl"]).abs()
+    u = f.loc[att, "attached_volume_uncertainty_nl"]
+    assert (u > 0).all()
+    assert (err <= 2 * u).mean() >= 0.95
+    both = (f["inflight"] & truth["inflight"]).to_numpy()
+    assert both.sum() >= 5
+    err = (f.loc[both, "drop_volume_nl"] - truth.loc[both, "drop_volume_nl"]).abs()
+    assert (err <= 2 * f.loc[both, "drop_volume_uncertainty_nl"]).mean() >= 0.95
+    s = r.summary
+    assert abs(s["inflight_volume_nl"] - truth.loc[both, "drop_volume_nl"].mean()) <= 2 * s["inflight_volume_uncertainty_nl"]
 
 
 @pytest.mark.skipif(not PENDANT.is_dir(), reason="../shared/realdata not present")

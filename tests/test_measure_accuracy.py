@@ -30,14 +30,27 @@ def test_accuracy_against_synthetic_truth(name, tmp_path):
 
 
 # --- realism tier: the synthesizer's rig presets (issue 11) ---------------------------------------
+#: In-flight frames in view whose drop volume may be NaN: low contrast flags 5 frames (the drop's
+#: edge within the noise of the band's side), each with its quality code.
+REALISM_DROP_NAN = {"low-contrast": 5}
+
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::dropvision.sequence.RGBConvertedWarning")
 @pytest.mark.parametrize("name", list(ar.REALISM))
 def test_realism_tier_against_synthetic_truth(name, tmp_path):
     r = ar.run_realism_case(name, ar.realism_cases()[name], tmp_path)
     assert not r["refused"], r.get("error")
-    for key in ("grown_max_pct", "drop_max_pct"):
-        assert not r[key] > 1.0, (key, r[key])  # NaN where the case has no such frame
+    # NaN only where there is nothing to measure, and the number of frames compared is pinned
+    assert r["grown_nan"] == 0 and r["attached_nan"] == 0 and r["drop_nan"] <= REALISM_DROP_NAN.get(name, 0), r
+    single = name in ("pendant-saturated", "single-frame", "watcher-single")
+    if name != "pendant-saturated":
+        assert r["drop_frames"] >= (1 if single else 10), r["drop_frames"]
+        assert r["drop_max_pct"] <= 1.0, r["drop_max_pct"]
+        assert abs(r["inflight_pct"]) <= 1.0, r["inflight_pct"]  # in-flight volume in every preset
+        assert r["drop_volume_cov_n"] == r["drop_frames"] and r["drop_volume_cov2"] >= 0.95  # +-2 sigma
+    if not single:
+        assert r["grown_frames"] >= 40 and r["grown_max_pct"] <= 1.0, (r["grown_frames"], r["grown_max_pct"])
+        assert abs(r["velocity_pct"]) <= 0.5, r["velocity_pct"]
     if name == "pendant-saturated":  # the attached drop is the measurement
         assert r["attached_pct"] <= 1.0
     assert r["satellites_wrong"] == 0

@@ -208,7 +208,7 @@ def test_dumbbell_profile_volume_is_exact():
     assert prof.volume_um3(0.01) == pytest.approx(2.5e4, rel=1e-12)  # no kink inside a panel
 
 
-@pytest.mark.parametrize("mode,n,visible", [("touching", 1, 0), ("dumbbell", 1, 1), ("mixed", 2, 1),
+@pytest.mark.parametrize("mode,n,visible", [("touching", 1, 1), ("dumbbell", 1, 1), ("mixed", 2, 2),
                                             ("separate", 2, 2)])
 def test_satellite_modes_count_what_is_visible(mode, n, visible):
     cfg = _cfg(satellites=n, delays_us=(1300.0,), noise=0.0, dust=0, shape=ShapeParams(satellite_mode=mode))
@@ -219,8 +219,9 @@ def test_satellite_modes_count_what_is_visible(mode, n, visible):
     sats = [b for b in t.bodies if b.body_class == "satellite"]
     assert len(sats) == n and sum(b.volume_nl for b in sats) == pytest.approx(p.model.v_sat_um3 / 1e6, rel=1e-7)
     assert sum(b.countable for b in sats) == visible
-    if mode in ("touching", "mixed"):
-        assert sats[0].detail == "touching" and not sats[0].countable
+    if mode in ("touching", "mixed"):  # a drop of its own, a lobe of the main drop's silhouette
+        assert sats[0].detail == "touching" and sats[0].countable
+        assert t.drop_volume_nl == pytest.approx((p.model.v_inflight_um3 + sats[0].volume_nl * 1e6) / 1e6, rel=1e-7)
     if mode in ("dumbbell", "mixed"):
         db = sats[-1 if mode == "mixed" else 0]
         assert db.detail == "dumbbell" and db.countable
@@ -314,7 +315,7 @@ def test_watcher_preset_features():
     assert a.shape == (160, 400, 3)  # drops travel right
     classes = {x.body_class for x in ta.bodies}
     assert {"holder", "mist", "tail", "main_drop"} <= classes
-    assert tb.n_satellites == 2 and tb.n_satellites_visible == 1  # touching + dumbbell
+    assert tb.n_satellites == 2 and tb.n_satellites_visible == 2  # touching + dumbbell
     assert any("bead" in x.detail for x in tb.bodies if x.body_class == "attached")
 
 

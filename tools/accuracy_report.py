@@ -121,6 +121,13 @@ def compare_realism(result, seq_dir) -> dict:
     d_err = (inf["drop_volume_nl"] / inf["drop_volume_nl_t"] - 1).abs() * 100
     out["drop_max_pct"] = float(d_err.max()) if len(d_err) else nan
     out["drop_frames"] = int(len(d_err))
+    # NaN only where there is nothing to measure: the truth's attached and in-flight frames in view
+    out["grown_frames"] = int(att["grown_volume_nl"].notna().sum())
+    out["grown_nan"] = int(att["grown_volume_nl"].isna().sum()) if peak > 0 else 0
+    out["attached_nan"] = int(att["attached_volume_nl"].isna().sum())
+    out["drop_nan"] = int((m["inflight_t"] & m["drop_in_view"] & m["drop_volume_nl"].isna()
+                           & ~m["quality"].str.contains(q.DROP_LEAVES)).sum())
+    out.update(uncertainty_coverage(m))
 
     def rel(key_m, key_t):
         t = truth.get(key_t)
@@ -155,6 +162,34 @@ def compare_realism(result, seq_dir) -> dict:
     bad.loc[view.index] |= sat_wrong
     out["false_ok"] = int((bad & (m["quality"] == q.OK)).sum())
     out["not_ok_frames"] = int((f["quality"] != q.OK).sum())
+    return out
+
+
+#: Measured volume columns whose uncertainty is checked against the truth: (name, frames used).
+COVERAGE_COLUMNS = ("attached_volume_nl", "grown_volume_nl", "drop_volume_nl")
+
+
+def uncertainty_coverage(m: pd.DataFrame) -> dict:
+    """Share of frames whose true volume lies within 2 stated standard uncertainties.
+
+    ``m`` is the frames table merged with truth_frames.csv (suffix ``_t``); attached and grown
+    volumes over the truth's attached frames, the drop volume over its in-flight frames in view,
+    wherever both the value and its uncertainty are finite.  Returns ``<column>_cov2`` (share)
+    and ``<column>_cov_n`` (frames compared) per column, and ``coverage_min`` over them.
+    """
+    out, shares = {}, []
+    for col in COVERAGE_COLUMNS:
+        key = col[:-3]
+        sel = m["attached_t"] if col != "drop_volume_nl" else (m["inflight_t"] & m["drop_in_view"])
+        u = m[f"{key}_uncertainty_nl"]
+        ok = sel & m[col].notna() & u.notna() & m[f"{col}_t"].notna()
+        err = (m.loc[ok, col] - m.loc[ok, f"{col}_t"]).abs()
+        n = int(ok.sum())
+        share = float((err <= 2.0 * u[ok]).mean()) if n else float("nan")
+        out[f"{key}_cov2"], out[f"{key}_cov_n"] = share, n
+        if n:
+            shares.append(share)
+    out["coverage_min"] = float(min(shares)) if shares else float("nan")
     return out
 
 
@@ -196,6 +231,7 @@ def compare(result, seq_dir) -> dict:
     sat_frames_ok = bool((view["n_satellites"].astype(int) == view["n_satellites_t"].astype(int)).all())
     dust_ok = bool((m.loc[m["attached_t"], "detached_volume_nl"].fillna(0) == 0).all())
     return {
+        **uncertainty_coverage(m),
         "frames": int(len(f)),
         "attached_frames": int(len(att)),
         "grown_nan": int(att["grown_volume_nl"].isna().sum()),

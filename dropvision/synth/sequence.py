@@ -728,12 +728,14 @@ def _silhouette(body, geom: CameraGeometry, supersample: int):
 
 
 def _satellite_visibility(state: ShapeState, geom: CameraGeometry, supersample: int):
-    """(countable per satellite, number of visible satellites): satellites are grouped with
-    every detached body whose silhouette touches theirs; each group without the main drop
-    is one visible satellite; a satellite is countable when it touches no other body."""
+    """(countable per satellite, number of visible satellites, volume (nl) of the satellites
+    touching the main drop): satellites are grouped with every other satellite whose
+    silhouette touches theirs; each group is one visible satellite, as a person counts drops (a
+    satellite touching the main drop is a drop of its own, a lobe of the drop's silhouette); a
+    satellite is countable when it touches no other satellite."""
     sats = list(state.satellites)
     if not sats:
-        return [], 0
+        return [], 0, 0.0
     bodies = [state.main_body] + sats
     masks = [_silhouette(b, geom, supersample) for b in bodies]
     n = len(bodies)
@@ -746,14 +748,18 @@ def _satellite_visibility(state: ShapeState, geom: CameraGeometry, supersample: 
         return i
 
     touches = [False] * n
+    on_main = 0.0
     for i in range(n):
         for j in range(i + 1, n):
             if (masks[i][1] & masks[j][0]).any():
+                if i == 0:  # touches the main drop: one silhouette with it, still a drop of its own
+                    on_main += bodies[j].volume_nl()
+                    continue
                 touches[i] = touches[j] = True
                 parent[find(i)] = find(j)
     visible_in_view = [masks[k][0].any() for k in range(n)]
-    groups = {find(k) for k in range(1, n) if visible_in_view[k]} - {find(0)}
-    return [not touches[k] and visible_in_view[k] for k in range(1, n)], len(groups)
+    groups = {find(k) for k in range(1, n) if visible_in_view[k]}
+    return [not touches[k] and visible_in_view[k] for k in range(1, n)], len(groups), on_main
 
 
 def _pixel(geom: CameraGeometry, z_um: float, x_um: float) -> tuple[float, float]:
@@ -862,11 +868,12 @@ def synthesize(config: SynthConfig, *, progress: bool | None = None,
             mist = _mist(cfg, p.model, index)
             img = renderer.render(state.bodies, np.random.default_rng([int(cfg.seed), 2, index]),
                                   mist=[m[:5] for m in mist])
-            countable, n_visible = _satellite_visibility(state, p.geometry, cfg.supersample)
+            countable, n_visible, on_main = _satellite_visibility(state, p.geometry, cfg.supersample)
             truth = FrameTruth(
                 file=file, page=page, delay_us=float(delay), repeat=int(rep), attached=state.attached,
                 attached_volume_nl=state.attached_volume_nl, grown_volume_nl=state.grown_volume_nl,
-                drop_volume_nl=state.drop_volume_nl, detached_volume_nl=state.detached_volume_nl,
+                drop_volume_nl=state.drop_volume_nl + on_main if on_main else state.drop_volume_nl,
+                detached_volume_nl=state.detached_volume_nl,
                 drop_z_um=state.drop_z_um, drop_x_um=state.drop_x_um, n_satellites=state.n_satellites,
                 flow_velocity_m_s=state.flow_velocity_m_s, tail_attached=state.tail_attached,
                 inflight=state.inflight, drop_in_view=_in_view(state, p.geometry),
@@ -930,9 +937,11 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
                            "(dropvision.sequence.from_canonical); stored_tip_row/stored_axis_col "
                            "give the tip centre in the stored image",
         "n_satellites": "detached bodies other than the main drop",
-        "n_satellites_visible": "separate silhouettes of detached liquid other than the main drop "
-                                "(silhouettes = pixels with any coverage, touching in the "
-                                "8-neighbourhood are one); a dumbbell is one",
+        "n_satellites_visible": "drops other than the main drop as a person counts them: satellites "
+                                "touching each other are one (silhouettes = pixels with any "
+                                "coverage, touching in the 8-neighbourhood), a satellite touching "
+                                "the main drop is one, a dumbbell is one",
+        "drop_volume_nl": "the main drop's silhouette: satellites touching it included",
         "clipped_fraction": "fraction of the pixels of the stored frame (grey, or BT.601 luma of "
                             "the colour pixels; before JPEG compression) at full scale",
     })

@@ -64,6 +64,21 @@ def encode_jpeg(img: np.ndarray, quality: int) -> bytes:
     return buf.tobytes()
 
 
+def _inflight_with_touching(truth: dict, rows) -> dict:
+    """The in-flight volume as measured: the mean over the in-flight frames of the main drop's
+    silhouette volume, which holds a satellite touching it (frames' ``drop_volume_nl``); the
+    same as the drop's own volume when no satellite touches it."""
+    own = truth.get("inflight_volume_nl")
+    vols = np.array([r.drop_volume_nl for r in rows if r.inflight and np.isfinite(r.drop_volume_nl)], float)
+    if own and np.isfinite(own) and vols.size and np.any(np.abs(vols / own - 1.0) > 1e-9):
+        truth["inflight_volume_nl"] = float(vols.mean())
+        truth["inflight_volume_own_nl"] = own
+        truth["conventions"]["inflight_volume_nl"] = ("mean over the in-flight frames of the main drop's silhouette "
+                                                      "volume (satellites touching it included); "
+                                                      "inflight_volume_own_nl: the drop alone")
+    return truth
+
+
 def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | None = None,
                              overwrite: bool = False) -> Path:
     """Render ``config`` and write the sequence folder with its ground truth.
@@ -105,7 +120,7 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
                     write_image(tmp / truth.file, img)
                 rows.append(truth)
         write_sequence_json(tmp, sequence_metadata(config, p.frames))
-        write_json(tmp / "truth.json", sequence_truth(p))
+        write_json(tmp / "truth.json", _inflight_with_touching(sequence_truth(p), rows))
         write_text(tmp / "truth_frames.csv", frames_table(rows).to_csv(index=False, float_format="%.9g"))
         write_text(tmp / "truth_bodies.csv", bodies_table(rows).to_csv(index=False, float_format="%.9g"))
     return out
