@@ -76,6 +76,7 @@ class DetachedBody:
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
     touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
     volume_uncertainty_nl: float = float("nan")  # standard uncertainty (`volume.volume_uncertainty_px3`)
+    off_path: bool = False  # beside the jet's path (`off_path_reason`): a speck, not liquid of this firing
 
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
@@ -117,6 +118,18 @@ class AttachedLiquid:
     plane_uncertainty_nl: float = float("nan")
 
 
+def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
+    """Standard uncertainty (px^3) of attached liquid next to an out-of-focus nozzle.
+
+    The walls' halo reaches ``3 sigma`` below the tip plane: the liquid's edges there are placed
+    only to about half the walls' blur ``sigma`` (independently from frame to frame), over a band
+    as wide as the top chord ``c``: ``pi c (3 sigma) (sigma / 2)``.
+    """
+    if not (np.isfinite(nozzle_blur_px) and nozzle_blur_px > 0):
+        return 0.0
+    return float(math.pi * volume.top_chord_px * 3.0 * nozzle_blur_px * 0.5 * nozzle_blur_px)
+
+
 def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body, gain: float) -> AttachedLiquid:
     """Edges, volume below the tip plane, bottom and neck of the liquid joined to the nozzle.
 
@@ -139,13 +152,20 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                     ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1))
     clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
     bv = integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px)
+    near = out_of_focus_nozzle_px3(bv, ctx.nozzle_blur_px) * ctx.nl_per_px3
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
-                          volume_uncertainty_nl=body_volume_uncertainty_nl(bv, ctx, plane=True),
+                          volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
                           common_uncertainty_nl=volume_uncertainty_px3(bv, ctx.edge_position_sigma_px,
                                                                        ctx.tilt_rad) * ctx.nl_per_px3,
-                          plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, ctx.edge_position_sigma_px)
-                          * ctx.nl_per_px3)
+                          plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
+                                                                         ctx.tilt_rad) * ctx.nl_per_px3)
+
+
+def _plane_sigma_px(ctx: FrameContext) -> float:
+    """How well the tip plane is placed (px): as an edge, or to the walls' blur when they are out of focus."""
+    nb = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) else 0.0
+    return float(np.hypot(ctx.edge_position_sigma_px, nb))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -156,7 +176,7 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     parts = [volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad),
              random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
     if plane:
-        parts.append(plane_cut_uncertainty_px3(volume, ctx.edge_position_sigma_px))
+        parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3
 
 
@@ -182,6 +202,28 @@ def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Bo
     ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
                     ctx.threshold, gain)
     return ed, integrate(ed, ctx.tilt_rad, None, ctx.sigma_px)
+
+
+def off_path_reason(main: DetachedBody, body: DetachedBody, through_tip: bool = True) -> str | None:
+    """Why an in-focus body beside the jet's path is not a satellite of the main drop, or None.
+
+    Satellites and tail pieces fly on the main drop's path: the line from the tip (x = 0 on the
+    tip plane) through the main drop's centroid, or, when the nozzle is out of focus and its
+    axis not trusted (``through_tip`` False), the line through the main drop along the axis's
+    direction.  A body whose centre is further from that line
+    than the main drop's half-width (at least 10 µm) at its height lies off the path the drop
+    swept: a speck or dust on the optics that a single frame cannot tell from liquid by its look.
+    """
+    size = max(main.diameter_um, main.length_um, 20.0)
+    if not (np.isfinite(main.z_um) and np.isfinite(body.z_um)):
+        return None
+    x_path = main.x_um * body.z_um / main.z_um if through_tip and main.z_um > size else main.x_um
+    off = abs(body.x_um - x_path)
+    if off > 0.5 * max(main.diameter_um, 20.0):
+        line = "the line from the tip through the main drop" if through_tip else "the main drop's line"
+        return (f"{off:.0f} um beside the jet's path ({line}), more than "
+                f"the drop's half-width {0.5 * max(main.diameter_um, 20.0):.0f} um: a speck, not a satellite")
+    return None
 
 
 def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: RowEdges,

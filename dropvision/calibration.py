@@ -227,7 +227,16 @@ def clipped_fraction(background: np.ndarray, max_value: int | None) -> float:
     return float(np.mean(background[::4, ::4] >= 0.99 * max_value))
 
 
-def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> float:
+def _level_se(fit) -> float:
+    """Standard error of the first parameter (the level) of a `least_squares` fit, from its Jacobian."""
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * float(np.mean(fit.fun**2))
+        return float(np.sqrt(max(cov[0, 0], 0.0)))
+    except np.linalg.LinAlgError:
+        return float("inf")
+
+
+def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> tuple[float, float]:
     """Background grey level a clipped frame would have had, from the edges of the top body.
 
     Across an edge the grey level rises from the dark interior ``d`` to the background ``B`` as
@@ -266,8 +275,13 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
 
     Returns
     -------
-    float
+    level : float
         NaN without an estimate.
+    level_se : float
+        Its standard uncertainty: the fits' standard errors and the spread between the walls'
+        estimates (their standard error), whichever is larger; for the steepest-point estimate the
+        spread of the walls' values, at least half their difference from the level's own middle
+        sample (NaN without an estimate).
     """
     from scipy.optimize import least_squares
     from scipy.special import ndtr
@@ -277,7 +291,7 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
     clip = 0.98 * max_value
     offs = np.arange(-half_px, half_px + 1, dtype=float)
     # 1. the straight walls' profiles, averaged over the rows, fitted one wall at a time
-    walls, fitted = [], []
+    walls, fitted, fitted_se = [], [], []
     for edges, sign in ((nozzle.left_px, -1), (nozzle.right_px, 1)):
         profs = []
         for r, e in zip(nozzle.rows, edges):
@@ -299,8 +313,10 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
         b = float(fit.x[0])
         if fit.success and 0.5 * (b + d) < clip and np.sqrt(np.mean(fit.fun**2)) < 0.02 * max_value:
             fitted.append(b)
+            fitted_se.append(_level_se(fit))
     if fitted:
-        return float(np.median(fitted))
+        spread = float(np.std(fitted, ddof=1) / np.sqrt(len(fitted))) if len(fitted) >= 2 else 0.0
+        return float(np.median(fitted)), max(float(np.sqrt(np.mean(np.square(fitted_se)))), spread)
     # 2. pooled outline
     if nozzle.outline_rows is not None and nozzle.outline_rows.size >= 5:
         us, vs, ds, phases = [], [], [], []
@@ -337,14 +353,10 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
                                                                                    half_px / 2]))
                 b = float(fit.x[0])
                 rms = float(np.sqrt(np.mean(fit.fun[rising] ** 2)))
-                try:  # standard error of B from the fit's Jacobian: the lower half alone may not fix it
-                    cov = np.linalg.inv(fit.jac.T @ fit.jac) * float(np.mean(fit.fun**2))
-                    b_se = float(np.sqrt(max(cov[0, 0], 0.0)))
-                except np.linalg.LinAlgError:
-                    b_se = float("inf")
+                b_se = _level_se(fit)  # from the fit's Jacobian: the lower half alone may not fix it
                 if (fit.success and 0.5 * (b + float(np.median(d))) < clip and rms < 0.02 * max_value
                         and b_se < 0.01 * b):
-                    return b
+                    return b, b_se
     # 3. steepest point of the averaged wall profiles
     found = []
     for prof, d in walls:
@@ -356,8 +368,13 @@ def unclipped_level(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px
             mid = float(np.interp(k + 0.5 + off, np.arange(prof.size), prof))
             found.append(2.0 * mid - d)
     if not found:
-        return float("nan")
-    return float(np.median(found))
+        return float("nan"), float("nan")
+    level = float(np.median(found))
+    # the steepest sample locates the middle to about half a sample's rise: that much of the
+    # level (twice the middle), and the walls' spread
+    spread = float(np.std(found, ddof=1) / np.sqrt(len(found))) if len(found) >= 2 else 0.0
+    rise = max((float(np.max(np.diff(prof))) for prof, _ in walls), default=0.0)
+    return level, max(spread, rise)
 
 
 def clipped_edge_range_px(image: np.ndarray, nozzle: "Nozzle", max_value: int, half_px: int = 12) -> float:
@@ -805,6 +822,8 @@ class Calibration:
     clipped: dict | None = None
     #: Parts of the edge-position uncertainty common to a body (px; `dropvision.context.edge_position_terms_px`).
     edge_position_terms_px: dict = field(default_factory=dict)
+    #: The nozzle walls are out of focus (the sharpest detached body is the in-focus reference).
+    nozzle_out_of_focus: bool = False
 
     @property
     def volume_uncertainty_source(self) -> str:
@@ -854,6 +873,7 @@ class Calibration:
             "edge_position_uncertainty_px": float(np.sqrt(sum(v * v for v in self.edge_position_terms_px.values()))),
             "edge_position_terms_px": dict(self.edge_position_terms_px),
             "volume_uncertainty_source": self.volume_uncertainty_source,
+            "nozzle_out_of_focus": self.nozzle_out_of_focus,
             "notes": list(self.notes),
         }
 
@@ -903,9 +923,9 @@ def calibrate(
     expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um else None
     frac = clipped_fraction(bg.background, max_value)
     if frac > clipped_limit:
-        level = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5, expected),
-                                max_value)
-        clipped = {"fraction": frac, "level": level,
+        level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5,
+                                                             expected), max_value)
+        clipped = {"fraction": frac, "level": level, "level_uncertainty": level_se, "max_value": int(max_value),
                    "method": "background grey level from the unclipped part of the top body's edge profile "
                              "(calibration.unclipped_level), used wherever the background model is at the "
                              "sensor maximum"}
@@ -920,7 +940,7 @@ def calibrate(
         else:
             # the true level is at or above the clip: the sensor maximum is its lower bound, and the
             # true edge lies between our crossing and the first clipped pixel outside it
-            clipped["level"] = float(max_value)
+            clipped["level"], clipped["level_uncertainty"] = float(max_value), float("nan")
             bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(max_value),
                                      bg.background).astype(np.float32)
             nz = find_nozzle(np.asarray(first, np.float32) / bg.background, 0.5, expected)
@@ -1041,19 +1061,56 @@ def edge_sigma_px(transmission: np.ndarray, nozzle: Nozzle, half_window_px: int 
     ``clip_transmission`` (a clipped background) are left out of the fit.
     """
 
+    return esf_sigma_px(transmission, nozzle.rows, nozzle.left_px, nozzle.right_px, nozzle.interior_level,
+                        half_window_px, clip_transmission)
+
+
+def esf_sigma_px(transmission: np.ndarray, rows, left_px, right_px, interior_level: float,
+                 half_window_px: int = 8, clip_transmission: float = float("inf")) -> float:
+    """Gaussian sigma (px) of an edge-spread function pooled from the rows of a body's outline.
+
+    Each row's samples within ``half_window_px`` of its sub-pixel left and right edges are
+    placed at their distance from the edge along its normal (the horizontal distance times the
+    cosine of the outline's slope there; rows where the outline is flatter than 45 degrees are
+    left out), scaled from ``interior_level`` (0) to the background (1), and fitted with
+    ``(1 + erf(u / (sqrt(2) sigma))) / 2`` plus a shift (Gauss-Newton).  Straight walls
+    (`edge_sigma_px`) have slope 0.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        Frame over the background model.
+    rows, left_px, right_px : array_like
+        Row and sub-pixel edges of the outline (one entry per row).
+    interior_level : float
+        Transmission inside the body.
+    half_window_px : int
+        Samples taken either side of each edge (px).
+    clip_transmission : float
+        Samples at or above it (a clipped background) are left out.
+
+    Returns
+    -------
+    float
+        NaN without usable rows.
+    """
     t = np.asarray(transmission, np.float64)
     h, w = t.shape
-    lo = nozzle.interior_level
+    lo = interior_level
+    rows = np.asarray(rows, int)
     us, vs = [], []
-    for edges, sign in ((nozzle.left_px, -1.0), (nozzle.right_px, 1.0)):
-        for y, xe in zip(nozzle.rows, edges):
+    for edges, sign in ((np.asarray(left_px, float), -1.0), (np.asarray(right_px, float), 1.0)):
+        slope = np.gradient(edges, rows) if rows.size >= 2 else np.zeros(rows.size)
+        for y, xe, s in zip(rows, edges, slope):
+            if not np.isfinite(xe) or abs(s) > 1.0:
+                continue
             c = int(round(xe))
             c0, c1 = c - half_window_px, c + half_window_px + 1
-            if c0 < 0 or c1 > w:
+            if c0 < 0 or c1 > w or not 0 <= y < h:
                 continue
             x = np.arange(c0, c1)
             keep = t[y, c0:c1] < clip_transmission
-            us.append(sign * (x[keep] - xe))
+            us.append(sign * (x[keep] - xe) / np.hypot(1.0, s))
             vs.append((t[y, c0:c1][keep] - lo) / (1.0 - lo))
     if not us:
         return float("nan")

@@ -16,12 +16,13 @@ import cv2
 import numpy as np
 
 from dropvision import quality as q
-from dropvision.calibration import Calibration, CalibrationError, calibrate, edge_sigma_px, find_nozzle
+from dropvision.calibration import (Calibration, CalibrationError, calibrate, edge_sigma_px, esf_sigma_px,
+                                   find_nozzle)
 from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
 from dropvision.classify import appearance, nozzle_edge_spread_px
 from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
-from dropvision.volume import NL_PER_UM3
+from dropvision.volume import NL_PER_UM3, body_edges
 
 
 @dataclass
@@ -72,6 +73,7 @@ class FrameContext:
     # standard uncertainty of an edge position common to a body (px)
     edge_position_sigma_px: float = 0.05
     edge_noise_px: float = 0.0  # independent noise of one edge (px): noise / edge slope
+    nozzle_blur_px: float = 0.0  # the walls' own blur (px) when they are out of focus, else 0
     # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
     smooth_px: float = 0.0
     # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
@@ -263,9 +265,14 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     if np.isfinite(body_ref) and not nozzle_ref <= limit:
         # the nozzle (or the holder block around it) is out of focus: what is in focus is the
         # jet's plane, so the sharpest detached body is the reference for mist, and the blur
-        # is the walls' scaled to it; the walls no longer judge a frame's blur or contrast
-        scale = body_ref / nozzle_ref if np.isfinite(nozzle_ref) and nozzle_ref > 0 else float("nan")
-        sigma = float(sigma * scale) if np.isfinite(scale) and np.isfinite(sigma) else float(body_ref)
+        # is its outline's edge-spread function; the walls no longer judge a frame's blur or contrast
+        cal.nozzle_out_of_focus = True
+        sharpest = found[int(np.argmin(found["edge_blur_px"]))]
+        walls_sigma = sigma
+        sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
+        # the walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
+        ctx.nozzle_blur_px = float(walls_sigma if np.isfinite(walls_sigma) else
+                                   sigma * nozzle_ref / body_ref if np.isfinite(nozzle_ref) else 3.0 * sigma)
         ctx.edge_blur_ref_px = body_ref
         ctx.mist_blur_factor = config.mist_blur_factor_bodies
         ctx.edge_blur_ref_source = "sharpest detached body (the nozzle walls are out of focus)"
@@ -293,7 +300,12 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
       (`dropvision.calibration.background_residual`) moves the 50 % crossing by
       ``dB/B / slope``, the edge's slope being ``(1 - T_liquid) / (sqrt(2 pi) sigma)``;
     - ``clipped background``: against a background clipped at an unknown level the true edge
-      lies up to ``edge_range_px`` outside the measured one: half of it.
+      lies up to ``edge_range_px`` outside the measured one: half of it; with an estimated level,
+      its standard uncertainty ``level_uncertainty / level`` moves the crossing like a
+      background error, and so does the backlight's variation under the clip, which no pixel
+      shows (the level is read at the nozzle and used everywhere): of the scale of the level's
+      excess over the clip, ``1 - max / level``, taken as uniform within that span (over
+      sqrt(3)).
 
     Parameters
     ----------
@@ -314,12 +326,18 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     clipped = cal.clipped or {}
     if clipped.get("used") and not clipped.get("level_known", True):
         terms["clipped background"] = 0.5 * float(clipped.get("edge_range_px", 1.0))
+    elif clipped.get("used"):
+        level = float(clipped["level"])
+        rel = float(clipped.get("level_uncertainty", float("nan"))) / level
+        span = 1.0 - float(clipped.get("max_value", level)) / level
+        rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
+        terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
     return terms
 
 
 #: Fields of `detached_appearances` (one record per body).
 APPEARANCE_DTYPE = np.dtype([("frame", int), ("row_px", float), ("col_px", float), ("area_px", int),
-                             ("min_transmission", float), ("edge_blur_px", float)])
+                             ("min_transmission", float), ("edge_blur_px", float), ("esf_sigma_px", float)])
 
 
 def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np.ndarray:
@@ -357,8 +375,17 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
                              floor=ctx.liquid_level)
             if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
                 rr, cc = np.nonzero(seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label)
+                # its outline's edge-spread function: the blur of the jet's plane
+                ed = body_edges(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
+                                ctx.threshold)
+                order = np.argsort(ed.row, kind="stable")
+                uniq, first = np.unique(ed.row[order], return_index=True)
+                left = np.minimum.reduceat(ed.left_px[order], first)
+                right = np.maximum.reduceat(ed.right_px[order], first)
+                t = roi.astype(np.float32) * ctx.inv_background
+                sig = esf_sigma_px(t, uniq, left, right, ctx.liquid_level)
                 out.append((i, float(rr.mean()) + b.y0 + ctx.r0, float(cc.mean()) + b.x0 + ctx.c0, b.area_px,
-                            app.min_transmission, app.edge_blur_px))
+                            app.min_transmission, app.edge_blur_px, sig))
     return np.array(out, APPEARANCE_DTYPE)
 
 

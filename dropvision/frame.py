@@ -30,6 +30,7 @@ from dropvision.bodies import (
     find_nozzle_body,
     measure_attached,
     measure_body,
+    off_path_reason,
 )
 from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
@@ -144,6 +145,12 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             body.reason = why
             rec.rejected.append(body)
     rec.bodies.sort(key=lambda d: -d.volume_nl)
+    for body in rec.bodies[1:]:
+        why = off_path_reason(rec.bodies[0], body, ctx.edge_blur_ref_source == "nozzle walls")
+        if why is not None:
+            body.reason, body.off_path = why, True
+            rec.rejected.append(body)
+    rec.bodies = [b for b in rec.bodies if not b.off_path]
     if rec.bodies:
         _split_touching(ctx, seg, rec, *sources[id(rec.bodies[0])])
     if logger is not None:

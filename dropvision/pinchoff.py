@@ -10,6 +10,8 @@ Two rules, one per frame and one per sequence:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pandas as pd
 
@@ -85,6 +87,20 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         c0, c1 = max(0, c - 2), min(ww, c + 3)
         return float((roi[y, c0:c1].astype(np.float32) * ctx.inv_background[y, c0:c1]).min()) / gain
 
+    near, far = int(math.ceil(4.0 * sig)) + 3, int(math.ceil(4.0 * sig)) + 8
+
+    def beside(y: int, xc: float) -> float:  # per row, the mean of the median on each side of the path
+        c = int(round(xc))
+        sides = []
+        for lo, hi in ((c - far, c - near + 1), (c + near, c + far + 1)):
+            lo, hi = max(0, lo), min(ww, hi)
+            if hi > lo:
+                free = labels[y, lo:hi] == 0
+                if free.any():
+                    sides.append(float(np.median(roi[y, lo:hi][free].astype(np.float32)
+                                                 * ctx.inv_background[y, lo:hi][free])) / gain)
+        return float(np.mean(sides)) if sides else float("nan")
+
     for b in seg.bodies:
         if b.nozzle or b.y0 <= yb or b.y0 - yb > 100:
             continue
@@ -100,11 +116,15 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         e_bot = b.y0 - crossing_fraction(t_path[-1], t_path[-2], ctx.threshold)
         expected = end_tails_transmission(rows[1:-1], e_top, e_bot, sig, sig, ctx.liquid_level)
         excess = expected - t_path[1:-1]
+        # a thread darkens the path, not the rows beside it: a darker surround (a blurred holder's
+        # halo the background model misses) darkens both and is no thread
+        t_side = np.array([beside(y, xb + (xt - xb) * (y - yb) / (b.y0 - yb)) for y in rows[1:-1]])
+        local = np.where(np.isfinite(t_side), t_side - t_path[1:-1], np.inf)
         if excess.size >= 3:  # judge the rows not adjacent to an end (their taper is unmodelled)
-            judged, limit = excess[1:-1], interior_margin
+            judged, local, limit = excess[1:-1], local[1:-1], interior_margin
         else:
             judged, limit = excess, margin
-        if float(judged.min()) > limit:
+        if float(judged.min()) > limit and float(local.min()) > limit:
             out.add(b.label)
     return out
 

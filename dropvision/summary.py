@@ -133,6 +133,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         notes.append(problem)
         pinch = float("nan")
     attached = ~has_det & ((delay < pinch) if np.isfinite(pinch) else True)
+    if getattr(cal, "nozzle_out_of_focus", False):
+        for k in np.nonzero(attached)[0]:
+            flags[k].append(q.NOZZLE_OUT_OF_FOCUS)
     # --- attached volumes that disagree with their neighbours (frames of another sequence) ---
     vol_used = att_vol.copy()
     att_ok = attached & np.isfinite(att_vol)
@@ -221,7 +224,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     terms = cal.edge_position_terms_px
     total = float(np.sqrt(sum(v * v for v in terms.values()))) if terms else 0.0
     floor_share = terms.get("edge floor", 0.0) / total if total > 0 else 0.0
-    meniscus_u, grown_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown, floor_share)
+    scatter = frame_scatter_nl(delay, vol_used, attached)
+    meniscus_u, grown_u, att_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown,
+                                                   floor_share, scatter)
     frames = pd.DataFrame({
         "file": [r.file for r in records],
         "page": pd.array([r.page for r in records], dtype="Int64"),
@@ -310,9 +315,27 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     return frames, summary
 
 
+def frame_scatter_nl(delay, volume_nl, use) -> float:
+    """The frames' own random scatter (nl), read off the sequence: the robust spread of the second
+    differences of the volumes in delay order (``v_k - (v_(k-1) + v_(k+1)) / 2``, over
+    sqrt(3/2)), 0 with fewer than 5 frames.  The smooth growth between neighbouring delays
+    hardly enters at the paper's 10 µs steps; repeats at one delay give pure scatter.  A Type A
+    estimate of what no edge model foresees (noise, compression, a strobe's flicker)."""
+    delay = np.asarray(delay, float)
+    ok = np.asarray(use, bool) & np.isfinite(volume_nl)
+    if ok.sum() < 5:
+        return 0.0
+    order = np.argsort(delay[ok], kind="stable")
+    v = np.asarray(volume_nl, float)[ok][order]
+    d2 = v[1:-1] - 0.5 * (v[:-2] + v[2:])
+    return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))
+
+
 def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl,
-                      grown_nl, floor_share: float = 0.0) -> tuple[float, np.ndarray]:
-    """Standard uncertainties (nl) of the initial meniscus and of every frame's grown volume.
+                      grown_nl, floor_share: float = 0.0,
+                      scatter_nl: float = 0.0) -> tuple[float, np.ndarray, np.ndarray]:
+    """Standard uncertainties (nl) of the initial meniscus, of every frame's grown volume and of
+    its attached volume.
 
     The meniscus is the mean attached volume at the first delay: its uncertainty is its frames'
     mean uncertainty and the standard error of their scatter in quadrature.  A grown volume is
@@ -320,21 +343,25 @@ def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl
     edge error only the difference ``|common - common_meniscus|`` is left, of the plane nothing;
     the edges' own noise of both and the meniscus' scatter add in quadrature.  The edge floor's
     share of the common error (``floor_share``: sub-pixel interpolation, which changes with the
-    silhouette's shape) is taken as independent between the two frames.
+    silhouette's shape) is taken as independent between the two frames.  A frame's random part is
+    at least the sequence's own scatter ``scatter_nl`` (`frame_scatter_nl`); the attached
+    volumes' uncertainties are returned with it.
     """
     delay = np.asarray(delay, float)
     first = (delay == np.min(delay)) & np.isfinite(attached_nl) if delay.size else np.zeros(0, bool)
+    model_rand = np.sqrt(np.maximum(attached_u_nl ** 2 - common_u_nl ** 2 - plane_u_nl ** 2, 0.0))
+    rand = np.maximum(model_rand, scatter_nl)
+    attached_u_nl = np.sqrt(np.maximum(attached_u_nl ** 2 - model_rand ** 2, 0.0) + rand ** 2)
     if not first.any():
-        return float("nan"), np.full(delay.size, np.nan)
+        return float("nan"), np.full(delay.size, np.nan), attached_u_nl
     n0 = int(first.sum())
     u0 = float(np.mean(attached_u_nl[first]))
     se = float(np.std(attached_nl[first], ddof=1) / np.sqrt(n0)) if n0 >= 2 else 0.0
-    rand = np.sqrt(np.maximum(attached_u_nl ** 2 - common_u_nl ** 2 - plane_u_nl ** 2, 0.0))
     c0, r0 = float(np.mean(common_u_nl[first])), float(np.mean(rand[first]))
     f2 = floor_share ** 2
     u_grown = np.sqrt((1.0 - f2) * (common_u_nl - c0) ** 2 + f2 * (common_u_nl ** 2 + c0 ** 2)
                       + rand ** 2 + r0 ** 2 / n0 + se ** 2)
-    return float(np.hypot(u0, se)), np.where(np.isfinite(grown_nl), u_grown, np.nan)
+    return float(np.hypot(u0, se)), np.where(np.isfinite(grown_nl), u_grown, np.nan), attached_u_nl
 
 
 def inflight_uncertainty(volumes_nl: np.ndarray, uncertainties_nl: np.ndarray) -> float:

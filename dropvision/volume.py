@@ -342,10 +342,14 @@ def random_volume_uncertainty_px3(volume: BodyVolume, edge_noise_px: float, tilt
     return float(math.pi * edge_noise_px * math.sqrt(0.5 * volume.chord2_px2) * math.cos(tilt_rad))
 
 
-def plane_cut_uncertainty_px3(volume: BodyVolume, plane_sigma_px: float) -> float:
+def plane_cut_uncertainty_px3(volume: BodyVolume, plane_sigma_px: float, tilt_rad: float = 0.0) -> float:
     """Standard uncertainty (px^3) of a volume cut at a plane placed to ``plane_sigma_px``: the
-    slice there, ``pi (c/2)^2`` per px."""
-    return float(math.pi * 0.25 * volume.top_chord_px ** 2 * plane_sigma_px)
+    slice there, ``pi (c/2)^2`` per px.  A tilted plane rises by ``c tan(tilt)`` across the
+    slice it cuts, which the rows resolve only to a row: that span's uniform spread,
+    ``c |tan(tilt)| / sqrt(12)``, adds to the plane's place in quadrature."""
+    c = volume.top_chord_px
+    sigma = math.hypot(plane_sigma_px, c * abs(math.tan(tilt_rad)) / math.sqrt(12.0))
+    return float(math.pi * 0.25 * c * c * sigma)
 
 
 def equivalent_diameter_um(volume_nl: float) -> float:

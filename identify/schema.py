@@ -302,6 +302,7 @@ class Quality:
     PINCHOFF_UNDEFINED = "pinchoff_undefined"
     NEIGHBOURS = "inconsistent_with_neighbours"
     IMPLAUSIBLE = "implausible_physics"
+    NOZZLE_OUT_OF_FOCUS = "nozzle_out_of_focus"
 
 
 #: Quality code -> explanation (docs/FORMAT.md lists them).
@@ -310,7 +311,9 @@ QUALITY_CODES: dict[str, str] = {
     Quality.SATURATED: "too many background pixels at the sensor maximum and their level unknown: volumes not "
                        "trusted",
     Quality.CLIPPED: "background clipped at the sensor maximum; its level was estimated from the nozzle walls "
-                     "and the edges taken below the clip: values kept (a note in the summary gives the level)",
+                     "(or, where their edge is clipped too, the sensor maximum taken as its lower bound) and the "
+                     "edges taken below the clip: values kept, their uncertainty widened (a note in the summary "
+                     "gives the level)",
     Quality.ILLUMINATION: "the strobe intensity differs from the background model: segmentation not trusted",
     Quality.LOW_CONTRAST: "liquid too bright against the background for sub-pixel edges",
     Quality.BLURRED: "edges blurred beyond the limit (focus or motion)",
@@ -335,6 +338,9 @@ QUALITY_CODES: dict[str, str] = {
                         "sequence's own scatter (a frame from another sequence?): left out of the summary",
     Quality.IMPLAUSIBLE: "implausible for the nozzle (drop volume over the limit in nozzle volumes, inner "
                          "diameter >= outer): nozzle dimensions wrong",
+    Quality.NOZZLE_OUT_OF_FOCUS: "the nozzle walls are out of focus (the drops are sharper): the tip plane and "
+                                 "the liquid next to it are located only to the walls' blur; attached and grown "
+                                 "volumes kept with that in their uncertainty",
 }
 
 

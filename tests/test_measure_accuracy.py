@@ -4,6 +4,7 @@
 import importlib.util
 from pathlib import Path
 
+import pandas as pd
 import pytest
 
 _spec = importlib.util.spec_from_file_location(
@@ -27,29 +28,50 @@ def test_accuracy_against_synthetic_truth(name, tmp_path):
     assert r["satellites_ok"]
     assert r["dust_ok"]
     assert abs(r["tip_err_px"]) < 0.1 and abs(r["tilt_err_deg"]) < 0.05
+    assert_uncertainty_covers(r)
+
+
+def assert_uncertainty_covers(r: dict) -> None:
+    """Issue 18: the true error within +-2 stated uncertainties in >= 95 % of the frames compared,
+    for every volume the case has frames of (none compared at all is a failure)."""
+    compared = [c for c in ("attached_volume", "grown_volume", "drop_volume") if r[f"{c}_cov_n"] > 0]
+    assert compared, r
+    for c in compared:
+        assert r[f"{c}_cov2"] >= 0.95, (c, r[f"{c}_cov2"], r[f"{c}_cov_n"])
 
 
 # --- realism tier: the synthesizer's rig presets (issue 11) ---------------------------------------
 #: In-flight frames in view whose drop volume may be NaN: low contrast flags 5 frames (the drop's
 #: edge within the noise of the band's side), each with its quality code.
 REALISM_DROP_NAN = {"low-contrast": 5}
+#: Presets whose nozzle and holder are out of focus (the jet's plane is sharp).
+NOZZLE_OUT_OF_FOCUS = ("watcher-blurred-holder",)
 
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::dropvision.sequence.RGBConvertedWarning")
 @pytest.mark.parametrize("name", list(ar.REALISM))
 def test_realism_tier_against_synthetic_truth(name, tmp_path):
-    r = ar.run_realism_case(name, ar.realism_cases()[name], tmp_path)
+    check_realism(name, ar.run_realism_case(name, ar.realism_cases()[name], tmp_path))
+
+
+def check_realism(name: str, r: dict) -> None:
+    """The realism tier's goals for preset ``name`` (metrics of `accuracy_report.compare_realism`)."""
     assert not r["refused"], r.get("error")
     # NaN only where there is nothing to measure, and the number of frames compared is pinned
     assert r["grown_nan"] == 0 and r["attached_nan"] == 0 and r["drop_nan"] <= REALISM_DROP_NAN.get(name, 0), r
-    single = name in ("pendant-saturated", "single-frame", "watcher-single")
+    single = name in ar.SINGLE_FRAME
     if name != "pendant-saturated":
         assert r["drop_frames"] >= (1 if single else 10), r["drop_frames"]
         assert r["drop_max_pct"] <= 1.0, r["drop_max_pct"]
         assert abs(r["inflight_pct"]) <= 1.0, r["inflight_pct"]  # in-flight volume in every preset
-        assert r["drop_volume_cov_n"] == r["drop_frames"] and r["drop_volume_cov2"] >= 0.95  # +-2 sigma
+        assert r["drop_volume_cov_n"] == r["drop_frames"]
+    assert_uncertainty_covers(r)
     if not single:
-        assert r["grown_frames"] >= 40 and r["grown_max_pct"] <= 1.0, (r["grown_frames"], r["grown_max_pct"])
+        assert r["grown_frames"] >= 40, r["grown_frames"]
+        if name in NOZZLE_OUT_OF_FOCUS:  # the attached liquid is next to a blurred nozzle: flagged, widened
+            assert r["grown_volume_cov2"] >= 0.95 and r["attached_volume_cov2"] >= 0.95, r
+        else:
+            assert r["grown_max_pct"] <= 1.0, r["grown_max_pct"]
         assert abs(r["velocity_pct"]) <= 0.5, r["velocity_pct"]
     if name == "pendant-saturated":  # the attached drop is the measurement
         assert r["attached_pct"] <= 1.0
@@ -59,3 +81,26 @@ def test_realism_tier_against_synthetic_truth(name, tmp_path):
     assert r["false_ok"] == 0
     if name == "tilted-dusty":  # issue 11 item 7: the clean tier's goals
         assert abs(r["inflight_pct"]) <= 0.3 and abs(r["velocity_pct"]) <= 0.5
+
+
+def _nan_everything(res):
+    """What the checks must catch: every volume and count NaN, every frame still "ok"."""
+    f = res.frames
+    for c in ("attached_volume_nl", "grown_volume_nl", "drop_volume_nl", "detached_volume_nl"):
+        f[c] = float("nan")
+    f["n_satellites"] = pd.array([None] * len(f), dtype="Int64")
+    f["quality"] = "ok"
+    for k in ("inflight_volume_nl", "jetting_velocity_m_s"):
+        res.summary[k] = float("nan")
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::dropvision.sequence.RGBConvertedWarning")
+def test_realism_checks_fail_when_the_measurement_is_nan(tmp_path):
+    """The realism assertions cannot pass on NaN (they did: ``not x > 1.0`` is True for NaN and
+    the compared frames were never counted)."""
+    name = "tilted-dusty"
+    r = ar.run_realism_case(name, ar.realism_cases()[name], tmp_path, transform=_nan_everything)
+    with pytest.raises(AssertionError):
+        check_realism(name, r)
+    assert r["grown_nan"] >= 40 and r["drop_frames"] == 0  # what the checks see

@@ -83,7 +83,15 @@ REALISM = {
     # a single drop-watcher frame (no background sequence) without nozzle diameters
     "watcher-single": dict(rig="watcher-side", width_px=640, height_px=1024, tip_row=120.4, axis_col=319.6,
                            delays_us=(1300.0,), write_nozzle_diameters=False, seed=36),
+    # the nozzle and its holder out of focus (issue 18): in-focus judged from the drops
+    "watcher-blurred-holder": dict(width_px=640, height_px=1024, tip_row=160.4, axis_col=319.6, seed=37),
+    "watcher-blurred-single": dict(rig="watcher-blurred-holder", delays_us=(1300.0,), write_nozzle_diameters=False,
+                                   seed=38),
 }
+
+
+#: Realism cases of one frame (no delay series).
+SINGLE_FRAME = ("pendant-saturated", "single-frame", "watcher-single", "watcher-blurred-single")
 
 
 def realism_cases(full: bool = False) -> dict[str, dict]:
@@ -93,7 +101,7 @@ def realism_cases(full: bool = False) -> dict[str, dict]:
         kw = dict(kw)
         if name in ("low-contrast", "tilted-dusty") and not full:
             kw.update(width_px=320, height_px=800)
-        if name not in ("pendant-saturated", "single-frame", "watcher-single"):
+        if name not in SINGLE_FRAME:
             step = 10 if full else 20
             kw["delays_us"] = tuple(float(d) for d in range(0, 1501 if not full else 1801, step))
         out[name] = kw
@@ -174,8 +182,10 @@ def uncertainty_coverage(m: pd.DataFrame) -> dict:
 
     ``m`` is the frames table merged with truth_frames.csv (suffix ``_t``); attached and grown
     volumes over the truth's attached frames, the drop volume over its in-flight frames in view,
-    wherever both the value and its uncertainty are finite.  Returns ``<column>_cov2`` (share)
-    and ``<column>_cov_n`` (frames compared) per column, and ``coverage_min`` over them.
+    wherever both the value and its uncertainty are finite.  Returns ``<column>_cov2`` (share),
+    ``<column>_cov_n`` (frames compared) and ``<column>_z50`` (median |error| / uncertainty:
+    0.67 for a calibrated Gaussian uncertainty, less when it is conservative) per column, and
+    ``coverage_min`` over them.
     """
     out, shares = {}, []
     for col in COVERAGE_COLUMNS:
@@ -187,14 +197,18 @@ def uncertainty_coverage(m: pd.DataFrame) -> dict:
         n = int(ok.sum())
         share = float((err <= 2.0 * u[ok]).mean()) if n else float("nan")
         out[f"{key}_cov2"], out[f"{key}_cov_n"] = share, n
+        out[f"{key}_z50"] = float((err / u[ok]).median()) if n else float("nan")
         if n:
             shares.append(share)
     out["coverage_min"] = float(min(shares)) if shares else float("nan")
     return out
 
 
-def run_realism_case(name: str, kw: dict, workdir) -> dict:
-    """Render the rig preset ``name`` with overrides ``kw`` into ``workdir`` and compare."""
+def run_realism_case(name: str, kw: dict, workdir, transform=None) -> dict:
+    """Render the rig preset ``name`` with overrides ``kw`` into ``workdir`` and compare.
+
+    ``transform``, when given, is applied to the `MeasureResult` before the comparison (a test
+    plants mistakes with it to show that the checks catch them)."""
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
@@ -209,6 +223,8 @@ def run_realism_case(name: str, kw: dict, workdir) -> dict:
     except Exception as exc:  # the report lists a refusal as a result
         return {"refused": True, "error": f"{type(exc).__name__}: {exc}", "render_s": t1 - t0}
     t2 = time.perf_counter()
+    if transform is not None:
+        transform(res)
     out = compare_realism(res, seq)
     out.update(render_s=t1 - t0, measure_s=t2 - t1)
     return out

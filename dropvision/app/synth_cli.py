@@ -32,14 +32,15 @@ def _holder(text: str):
 
 def _rig_names() -> list[str]:
     # the preset names, without importing the synthesizer (kept in step by a test)
-    return ["clean", "watcher-side", "pendant-saturated", "low-contrast", "tilted-dusty", "single-frame"]
+    return ["clean", "watcher-side", "watcher-blurred-holder", "pendant-saturated", "low-contrast", "tilted-dusty",
+            "single-frame"]
 
 
 #: command-line option -> SynthConfig field, for options whose default (None) means "the rig's"
 _REALISM = {"orientation": "orientation", "jpeg_quality": "jpeg_quality", "colour": "colour",
             "exposure": "exposure", "clip_fraction": "clip_fraction", "vignetting": "vignetting",
             "mist": "mist", "path_dust": "path_dust", "holder": "holder",
-            "nozzle_protrusion_um": "nozzle_protrusion_um"}
+            "nozzle_protrusion_um": "nozzle_protrusion_um", "holder_blur_px": "holder_blur_px"}
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -91,6 +92,8 @@ def register(subparsers) -> argparse.ArgumentParser:
                         "or its width in µm")
     r.add_argument("--nozzle-protrusion-um", type=float, default=None,
                    help="nozzle length below the holder face (µm, default 60)")
+    r.add_argument("--holder-blur-px", type=float, default=None,
+                   help="the nozzle and holder out of focus: their extra Gaussian blur (px)")
     r.add_argument("--no-nozzle-diameters", action="store_true", default=None,
                    help="sequence.json without nozzle diameters (pixel size only)")
     p.set_defaults(func=run)

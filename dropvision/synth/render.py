@@ -244,6 +244,10 @@ class Optics:
         quantised and clipped on its own).
     demosaic_blur_px : float
         Extra Gaussian blur of the R and B channels (Bayer-like demosaicing; colour only).
+    static_blur_px : float
+        Extra Gaussian blur of the nozzle and the rig structures (holder block, reflections,
+        wedge, cuvette wall): they lie out of the jet's focal plane (0: in focus, the plain image
+        formation).
     """
 
     blur_sigma_px: float = 0.8
@@ -261,6 +265,7 @@ class Optics:
     exposure: float = 1.0
     colour_gains: tuple | None = None
     demosaic_blur_px: float = 0.0
+    static_blur_px: float = 0.0
 
 
 class Renderer:
@@ -295,6 +300,7 @@ class Renderer:
         if optics.vignetting > 0:
             self.backlight = self.backlight * (1.0 - optics.vignetting * (rho2 ** 1.5))
         self.struct_keep = self.struct_add = None
+        self._nozzle_blurred = None  # the out-of-focus nozzle's transmission (static_blur_px), made once
         self.structure_info = []
         if structures:
             self._init_structures(structures, optics.supersample)
@@ -340,6 +346,12 @@ class Renderer:
                 shadow = shadow * (1.0 - cov * (1.0 - st.transmission))
         self.struct_keep = (1.0 - hcov) * shadow
         self.struct_add = hcov * hmap * shadow
+        if self.optics.static_blur_px > 0:  # out of focus: blurred once, composited after the liquid's blur
+            s = float(np.hypot(self.optics.blur_sigma_px, self.optics.static_blur_px))
+            self.struct_keep = cv2.GaussianBlur(self.struct_keep.astype(np.float32), (0, 0), s,
+                                                borderType=cv2.BORDER_REPLICATE)
+            self.struct_add = cv2.GaussianBlur(self.struct_add.astype(np.float32), (0, 0), s,
+                                               borderType=cv2.BORDER_REPLICATE)
 
     def intensity(self, bodies) -> np.ndarray:
         """Noise-free intensity (fraction of full scale) of a frame with these liquid bodies."""
@@ -351,6 +363,8 @@ class Renderer:
             _paste(spot, spot_mask(b, g), mode="max")
         cov = np.minimum(cov, 1.0)
         t_liq = o.liquid_transmission + (o.spot_transmission - o.liquid_transmission) * spot
+        if o.static_blur_px > 0:
+            return self._intensity_static_blurred(cov, t_liq)
         trans = 1.0 - cov * (1.0 - t_liq) - self.nozzle_cov * (1.0 - o.nozzle_transmission)
         trans = np.clip(trans, 0.0, 1.0)
         if self.struct_keep is not None:
@@ -358,6 +372,23 @@ class Renderer:
         trans = trans.astype(np.float32)
         if o.blur_sigma_px > 0:
             trans = cv2.GaussianBlur(trans, (0, 0), o.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
+        return trans * self.static
+
+    def _intensity_static_blurred(self, cov: np.ndarray, t_liq: np.ndarray) -> np.ndarray:
+        """`intensity` with the nozzle and structures out of focus: the liquid's transmission
+        blurred by ``blur_sigma_px``, times the nozzle's and the structures' blurred further by
+        ``static_blur_px`` (layers in different planes multiply)."""
+        o = self.optics
+        if self._nozzle_blurred is None:
+            s = float(np.hypot(o.blur_sigma_px, o.static_blur_px))
+            t_noz = (1.0 - self.nozzle_cov * (1.0 - o.nozzle_transmission)).astype(np.float32)
+            self._nozzle_blurred = cv2.GaussianBlur(t_noz, (0, 0), s, borderType=cv2.BORDER_REPLICATE)
+        trans = np.clip(1.0 - cov * (1.0 - t_liq), 0.0, 1.0).astype(np.float32)
+        if o.blur_sigma_px > 0:
+            trans = cv2.GaussianBlur(trans, (0, 0), o.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
+        trans = trans * self._nozzle_blurred
+        if self.struct_keep is not None:
+            trans = trans * self.struct_keep + self.struct_add
         return trans * self.static
 
     def render(self, bodies, rng: np.random.Generator, mist=()) -> np.ndarray:

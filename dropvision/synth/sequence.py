@@ -129,6 +129,9 @@ class SynthConfig:
         bright internal reflections and a dark wedge shadow beside it.
     nozzle_protrusion_um : float
         Length of nozzle below the holder face (0: the tip is the face).
+    holder_blur_px : float
+        The nozzle and the holder block lie out of the jet's focal plane: their extra Gaussian
+        blur (px) on top of ``blur_px`` (0: in focus).  The liquid stays sharp.
     vignetting : float
         In [0, 0.95]: radial fall-off to (1 - vignetting) of the light in the corners.
     exposure : float
@@ -187,6 +190,7 @@ class SynthConfig:
     orientation: str = "down"
     holder: bool | float = False
     nozzle_protrusion_um: float = 60.0
+    holder_blur_px: float = 0.0
     vignetting: float = 0.0
     exposure: float = 1.0
     clip_fraction: float | None = None
@@ -220,7 +224,7 @@ class SynthConfig:
             bad("holder", "must be a bool or a width >= 0 (µm)")
         elif self.holder and self.holder <= self.physics.nozzle_outer_diameter_um:
             bad("holder", "a holder block must be wider than the nozzle's outer diameter")
-        for name in ("nozzle_protrusion_um", "demosaic_blur_px"):
+        for name in ("nozzle_protrusion_um", "demosaic_blur_px", "holder_blur_px"):
             if not np.isfinite(getattr(self, name)) or getattr(self, name) < 0:
                 bad(name, "must be >= 0")
         if not 0 <= self.vignetting <= 0.95:
@@ -310,7 +314,7 @@ class SynthConfig:
             supersample=self.supersample, vignetting=float(self.vignetting),
             exposure=float(self.exposure if exposure is None else exposure),
             colour_gains=colour_gains(self.colour_gains) if self.colour else None,
-            demosaic_blur_px=float(self.demosaic_blur_px))
+            demosaic_blur_px=float(self.demosaic_blur_px), static_blur_px=float(self.holder_blur_px))
 
     @property
     def needle_outer_diameter_um(self) -> float:
@@ -394,6 +398,16 @@ RIGS: dict[str, dict] = {
         format="jpeg", jpeg_quality=90, colour=True, demosaic_blur_px=0.5, mist=6,
         satellites=2, blur_px=1.0, dust=2, spot_transmission=0.8,
         shape=dict(satellite_mode="mixed", tail_bulb=True, bead_um=25.0)),
+    # a drop watcher whose holder block is out of focus (the real rigs of issue 18): a wide holder
+    # with the capillary face inside it (no protrusion), nozzle and holder blurred 8 px further
+    # than the jet, small drops in a 2048 x 1536 frame, JPEG at quality 85 on a strongly vignetted
+    # background with sensor noise, mist, two separate satellites behind the drop
+    "watcher-blurred-holder": dict(
+        orientation="right", width_px=1536, height_px=2048, tip_row=160.4, axis_col=767.6,
+        pixel_size_um=4.73, holder=1500.0, nozzle_protrusion_um=0.0, holder_blur_px=8.0, vignetting=0.6,
+        format="jpeg", jpeg_quality=85, colour=True, demosaic_blur_px=0.5, mist=6,
+        satellites=2, blur_px=1.0, dust=2, spot_transmission=0.8,
+        shape=dict(satellite_mode="separate")),
     # pendant-drop tensiometer: a large static pendant drop on a 0.72 mm needle, one frame,
     # 75 % of the background clipped, bright lens spot, a cuvette wall, colour JPEG
     "pendant-saturated": dict(
@@ -777,10 +791,10 @@ def _body_rows(p: SynthPlan, rend: Renderer, state: ShapeState, file: str, delay
                               float(vol), bool(focus), bool(countable), detail))
 
     nan = float("nan")
-    add("nozzle", (cfg.tip_row, cfg.axis_col), nan, True, False,
+    add("nozzle", (cfg.tip_row, cfg.axis_col), nan, cfg.holder_blur_px == 0, False,
         "needle tip centre" if cfg.scene == "pendant" else "tip centre")
     for st, r, c in rend.structure_info:
-        add(st.body_class, (r, c), nan, True, False, st.name)
+        add(st.body_class, (r, c), nan, cfg.holder_blur_px == 0, False, st.name)
     b = state.attached_body
     if b is not None:
         vol = state.attached_volume_nl
