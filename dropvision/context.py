@@ -22,7 +22,7 @@ from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
 from dropvision.classify import appearance, nozzle_edge_spread_px
 from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
-from dropvision.volume import NL_PER_UM3, body_edges
+from dropvision.volume import NL_PER_UM3, body_edges, outline
 
 
 @dataclass
@@ -284,7 +284,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         cal.notes.append(f"the nozzle walls are out of focus (edge spread {nozzle_ref:.2f} px against "
                          f"{body_ref:.2f} px of the sharpest detached body): in-focus and blur judged from the "
                          "detached bodies, no per-frame blur or contrast from the walls")
-        _tilt_from_bodies(cal, ctx)
+        _axis_along_columns(cal, ctx)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
     ctx.edge_position_sigma_px = float(math.sqrt(sum(v * v for v in cal.edge_position_terms_px.values())))
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
@@ -335,9 +335,11 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     return terms
 
 
-#: Fields of `detached_appearances` (one record per body).
-APPEARANCE_DTYPE = np.dtype([("frame", int), ("row_px", float), ("col_px", float), ("area_px", int),
-                             ("min_transmission", float), ("edge_blur_px", float), ("esf_sigma_px", float)])
+#: Fields of `detached_appearances` (one record per body): the calibration frame it is in, its
+#: area (px), darkest transmission, edge spread (`dropvision.classify.appearance`, px) and the
+#: Gaussian sigma of its outline's edge-spread function (px).
+APPEARANCE_DTYPE = np.dtype([("frame", int), ("area_px", int), ("min_transmission", float), ("edge_blur_px", float),
+                             ("esf_sigma_px", float)])
 
 
 def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np.ndarray:
@@ -360,7 +362,6 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
     Returns
     -------
     ndarray of `APPEARANCE_DTYPE`
-        ``row_px``, ``col_px``: the body's pixel centroid (full frame, canonical).
     """
     out = []
     depth_min = 0.5 * (1.0 - ctx.liquid_level)
@@ -368,28 +369,24 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
         roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
         seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
         hh, ww = seg.labels.shape
+        t = None
         for b in seg.bodies:
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
             app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
                              floor=ctx.liquid_level)
             if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
-                rr, cc = np.nonzero(seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label)
                 # its outline's edge-spread function: the blur of the jet's plane
                 ed = body_edges(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
                                 ctx.threshold)
-                order = np.argsort(ed.row, kind="stable")
-                uniq, first = np.unique(ed.row[order], return_index=True)
-                left = np.minimum.reduceat(ed.left_px[order], first)
-                right = np.maximum.reduceat(ed.right_px[order], first)
-                t = roi.astype(np.float32) * ctx.inv_background
-                sig = esf_sigma_px(t, uniq, left, right, ctx.liquid_level)
-                out.append((i, float(rr.mean()) + b.y0 + ctx.r0, float(cc.mean()) + b.x0 + ctx.c0, b.area_px,
-                            app.min_transmission, app.edge_blur_px, sig))
+                if t is None:
+                    t = roi.astype(np.float32) * ctx.inv_background
+                sig = esf_sigma_px(t, *outline(ed), ctx.liquid_level)
+                out.append((i, b.area_px, app.min_transmission, app.edge_blur_px, sig))
     return np.array(out, APPEARANCE_DTYPE)
 
 
-def _tilt_from_bodies(cal: Calibration, ctx: FrameContext) -> None:
+def _axis_along_columns(cal: Calibration, ctx: FrameContext) -> None:
     """The jet's direction when the nozzle walls are out of focus: the image columns (tilt 0, stated).
 
     A blurred holder's face or walls do not give the jet's axis (a 3 deg tilt on a level jet
@@ -427,10 +424,12 @@ def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
     below = lab[r:]
     best = 0.0
     for k in top:
-        rows, cols = np.nonzero(below == k)
-        if cols.size == 0 or not np.any(np.abs(cols - cal.axis_col) < 2.0) and not (lab[:r, axis] == k).any():
+        _, cols = np.nonzero(below == k)
+        if cols.size == 0:
             continue
-        best = max(best, float(np.max(np.abs(cols - cal.axis_col))))
+        holds_axis = bool(np.any(np.abs(cols - cal.axis_col) < 2.0)) or bool((lab[:r, axis] == k).any())
+        if holds_axis:
+            best = max(best, float(np.max(np.abs(cols - cal.axis_col))))
     return best
 
 

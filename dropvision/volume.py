@@ -222,16 +222,22 @@ def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = Tru
     return _blur_correction(edges, sigma_px, closed_top)[0]
 
 
+def outline(edges: RowEdges) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The body's outline: per row (ascending), its outermost left and right edges (px)."""
+    order = np.argsort(edges.row, kind="stable")
+    uniq, first = np.unique(edges.row[order], return_index=True)
+    if uniq.size == 0:
+        return uniq, np.zeros(0), np.zeros(0)
+    return (uniq, np.minimum.reduceat(edges.left_px[order], first),
+            np.maximum.reduceat(edges.right_px[order], first))
+
+
 def _blur_correction(edges: RowEdges, sigma_px: float, closed_top: bool) -> tuple[float, float, float]:
     """`blur_correction_px3` with the correction's first moments: (volume, sum of volume x row,
     sum of volume x column), the lost volume of each row placed on that row's axis point."""
     if edges.row.size < 2 or not np.isfinite(sigma_px) or sigma_px <= 0:
         return 0.0, 0.0, 0.0
-    order = np.argsort(edges.row, kind="stable")
-    rows = edges.row[order]
-    uniq, first = np.unique(rows, return_index=True)
-    left = np.minimum.reduceat(edges.left_px[order], first)
-    right = np.maximum.reduceat(edges.right_px[order], first)
+    uniq, left, right = outline(edges)
     if uniq.size < 2:
         return 0.0, 0.0, 0.0
     dy = np.diff(uniq).astype(float)
