@@ -172,6 +172,21 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
     F("notes", "list", "", "plausibility notes, short sentences: what in the input looks like a lie and what "
       "was done about it (empty when nothing)", required=False),
+    F("orientation", "str", "", "direction the drops travel in the stored images (down, up, left, right)",
+      required=False),
+    F("orientation_source", "str", "", "where the orientation came from: sequence.json, an option (\"command line "
+      "--orientation\"), \"detected in FILE: ...\" (the edge the nozzle or holder touches) or \"default (down): "
+      "not detected ...\" with what was seen at each edge", required=False),
+    F("pixel_size_source", "str", "", "where the pixel size came from: sequence.json, an option, TIFF metadata (ome, "
+      "imagej, tiff-description), or \"nozzle outer diameter D um / W px measured in FILE\"", required=False),
+    F("nozzle_outer_diameter_source", "str", "", "where nozzle_outer_diameter_um came from (null: not given)",
+      required=False),
+    F("nozzle_inner_diameter_source", "str", "", "where nozzle_inner_diameter_um came from (null: not given)",
+      required=False),
+    F("delay_source", "str", "", "where the frames' delays came from (file names, frames list, frame_rate_hz, an "
+      "option, or assumed 0 us for one frame without a delay)", required=False),
+    F("waveform_source", "str", "", "where the waveform came from (null: not given)", required=False),
+    F("bit_depth_source", "str", "", "where the bit depth came from", required=False),
 ), "One per measured sequence; with the versions and the configuration the result is reproducible.")
 
 # ----------------------------------------------------------------------------- campaign dataset
