@@ -1007,7 +1007,8 @@ def _merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Pat
 
 
 def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | None = None,
-                  labels: dict | None = None) -> Sequence:
+                  labels: dict | None = None, ignore_sequence_json: bool = False,
+                  require_pixel_size: bool = True) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
@@ -1029,6 +1030,12 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     labels : dict, optional
         key -> how the user gave it (e.g. ``"command line --pixel-size-um"``), for messages
         and sources; default ``"argument <key>"``.
+    ignore_sequence_json : bool
+        Look at the images alone, as if there were no sequence.json (``dropvision init
+        --overwrite``).
+    require_pixel_size : bool
+        False: a sequence without any pixel size opens with ``pixel_size_um`` NaN (and the
+        nozzle is not measured for one): to describe a folder, not to measure it.
 
     Returns
     -------
@@ -1064,7 +1071,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     json_path = folder / SEQUENCE_JSON
     folder_real = os.path.realpath(folder)
     refused: dict[str, str] = {}
-    json_exists = _is_file(json_path)
+    json_exists = not ignore_sequence_json and _is_file(json_path)
     if json_exists and not allow_outside_links:
         target = _outside(folder_real, json_path)
         if target is not None:
@@ -1158,6 +1165,8 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
             pixel_size_um = _ranged(pixel_size_um, "pixel_size_um",
                                     f"pixel size from the {source} metadata",
                                     str(folder / first_sized))
+        elif not require_pixel_size:
+            pixel_size_um, source = math.nan, None
         elif d_out is None:
             hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
                     "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")

@@ -231,7 +231,10 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
     F("ink", "object", "", "density_kg_m3, viscosity_mPa_s, surface_tension_mN_m", required=False),
     F("nozzle", "object", "", "length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm",
       required=False),
-    F("pixel_size_um", "float", "um", "pixel size of the images", required=False),
+    F("pixel_size_um", "float", "um", "pixel size of the images when every sequence has the same (else null)",
+      required=False),
+    F("pixel_size_um_by_sequence", "object", "um", "sequence id -> its pixel size, when they differ (each "
+      "sequence carries its own scale; the dataset is in physical units)", required=False),
     F("measurement_uncertainty", "object", "", "systematic measurement uncertainty shared by every sequence "
       "(relative standard uncertainties, 1 sigma): volume_rel and velocity_rel (used as given), or "
       "pixel_size_rel (calibration of the pixel size, combined with the method's 0.1 % volume / 0.2 % "

@@ -12,6 +12,7 @@ from identify.atomic import OutputError
 
 #: Modules that contribute sub-commands, in the order they appear in --help.
 COMMAND_MODULES = (
+    "dropvision.app.init_cli",
     "dropvision.app.synth_cli",
     "dropvision.app.measure_cli",
     "dropvision.app.campaign_cli",
