@@ -419,6 +419,7 @@ def run_campaign(
         we did not write (without ``overwrite``).
     """
     check_executor_args(workers, dask_local=dask_local, scheduler=scheduler)  # before touching dataset_dir
+    given = check_overrides(overrides, labels)  # a bad option: refused before any work
     config = config or MeasureConfig()
     if workers != 1 or dask_local is not None or scheduler is not None:
         # one process per core already: no threads inside a worker (no oversubscription)
@@ -434,7 +435,6 @@ def run_campaign(
     manifest_path = dataset_dir / "manifest.json"
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})
-    given = check_overrides(overrides, labels)  # a bad option: refused before any work
     # threads do not change results; options do
     config_repr = repr(dataclasses.replace(config, workers=0)) + (f" {sorted(given.items())!r}" if given else "")
     # the previous run's entries of the current sequences stay until each is looked at again, so
