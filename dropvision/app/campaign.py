@@ -47,6 +47,7 @@ from tqdm import tqdm
 
 from dropvision import __version__
 from dropvision.app.executors import check_executor_args, make_executor
+from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
@@ -187,19 +188,11 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
             "pixel_size_um": meta.pixel_size_um,
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
-        return {"status": "ok", "error": None, "meta": info, "warnings": _warning_texts(caught)}
+        return {"status": "ok", "error": None, "meta": info, "warnings": warning_lines(caught)}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
         return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None,
-                "warnings": _warning_texts(caught)}
+                "warnings": warning_lines(caught)}
 
-
-def _warning_texts(caught) -> list[str]:
-    out = []
-    for w in caught or []:
-        text = " ".join(str(w.message).split())
-        if text not in out:
-            out.append(text)
-    return out
 
 
 # ----------------------------------------------------------------------------- dataset
