@@ -16,6 +16,8 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from dropvision import __version__
 from dropvision.calibration import CalibrationError
 from dropvision.inspection import nozzle_outer_width_px
@@ -39,7 +41,7 @@ class FolderDescription:
     lines : list of str
         A one-screen summary of the folder, for people.
     nozzle_outer_width_px : float or None
-        The nozzle's outer width in the first frame (None: not found).
+        The nozzle's outer width, median over up to 7 frames spread over the folder (None: not found).
     """
 
     folder: Path
@@ -79,21 +81,25 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
     with open_sequence(folder, overrides=given, labels=labels, ignore_sequence_json=True,
                        require_pixel_size=False) as seq:
         meta = seq.meta
-        first = next((fr for fr in (seq.read(i) for i in range(len(seq))) if fr.image is not None), None)
+        n = len(seq)
+        spread = [seq.read(int(i)) for i in np.unique(np.round(np.linspace(0, n - 1, min(n, 7))).astype(int))]
+        frames = [fr for fr in spread if fr.image is not None]
+    first = frames[0] if frames else None
     src = meta.sources
     to_give: list[str] = []
-    width_px, nozzle_note = None, ""
+    width_px, nozzle_note, nozzle_frames = None, "", 0
     if first is not None:
         try:
-            width_px = nozzle_outer_width_px(first.image, max_value=2 ** meta.bit_depth - 1)
+            width_px, nozzle_frames = nozzle_outer_width_px([fr.image for fr in frames],
+                                                            max_value=2 ** meta.bit_depth - 1)
         except CalibrationError as exc:
-            nozzle_note = f"not found in {first.ref.file} ({exc})"
+            nozzle_note = f"not found in {len(frames)} frame(s) from {first.ref.file} ({exc})"
     doc: dict = {}
     if "pixel_size_um" in given:
         doc["pixel_size_um"] = given["pixel_size_um"]
     elif math.isnan(meta.pixel_size_um) and "nozzle_outer_diameter_um" not in given:
         doc["pixel_size_um"] = None
-        implied = "" if width_px is None else f" (the nozzle is {width_px:.1f} px wide in {first.ref.file})"
+        implied = "" if width_px is None else f" (the nozzle is {width_px:.1f} px wide)"
         to_give.append("pixel_size_um (--pixel-size-um), or the nozzle's outer diameter "
                        f"(--nozzle-outer-diameter-um: the pixel size is then that diameter over its width in px){implied}")
     for key in ("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"):
@@ -141,7 +147,8 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         f"  delays     {delays.min():g}" + (f" .. {delays.max():g}" if n > 1 else "") + f" us ({src.get('delay')})",
         f"  images     {w} x {h} px as stored, {meta.bit_depth}-bit ({src.get('bit_depth')})",
         f"  orientation {meta.orientation}: drops travel {meta.orientation} ({src.get('orientation')})",
-        "  nozzle     " + (f"outer width {width_px:.1f} px in the first frame" if width_px is not None
+        "  nozzle     " + (f"outer width {width_px:.1f} px (median over {nozzle_frames} frame"
+                           f"{'s' if nozzle_frames != 1 else ''})" if width_px is not None
                            else nozzle_note or "no readable frame"),
     ]
     if not math.isnan(meta.pixel_size_um):

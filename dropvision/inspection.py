@@ -14,8 +14,10 @@ What a user of a drop watcher does not want to type, read from the frame itself:
   candidate only, along the axis it points to). Otherwise the result says what was seen at
   each edge and the caller keeps its default.
 - `nozzle_outer_width_px`: the nozzle's outer width in pixels, by the measurement's own
-  calibration (`dropvision.calibration.calibrate` on the frame), so that a pixel size can come
-  from a known outer diameter (as OpenDrop and DropPyTension take it from the needle).
+  calibration (`dropvision.calibration.calibrate` on each frame; the median over frames spread
+  over the sequence, as a neck hanging from the nozzle can be narrower than its walls), so that
+  a pixel size can come from a known outer diameter (as OpenDrop and DropPyTension take it
+  from the needle).
 
 This module knows nothing of sequence folders: it looks at arrays (`dropvision.sequence` and
 `dropvision.describe` call it).
@@ -166,26 +168,40 @@ def detect_orientation(image: np.ndarray) -> OrientationGuess:
                             "which one is the nozzle", seen)
 
 
-def nozzle_outer_width_px(image: np.ndarray, *, max_value: int | None = None) -> float:
+def nozzle_outer_width_px(images, *, max_value: int | None = None) -> tuple[float, int]:
     """Outer width of the nozzle in pixels, measured as the calibration measures it.
+
+    Each frame is calibrated alone (`dropvision.calibration.calibrate`: without an expected
+    width the narrowest straight walls of the top body); a neck or a thread of liquid hanging
+    from the nozzle can be narrower than its walls in some frames, so the median over the
+    frames is returned (give frames spread over the sequence).
 
     Parameters
     ----------
-    image : ndarray
-        One frame, 2-D grey, in the canonical orientation (nozzle at the top).
+    images : ndarray or list of ndarray
+        Frames, 2-D grey, in the canonical orientation (nozzle at the top).
     max_value : int, optional
         Sensor maximum (a clipped backlight is then handled as in the measurement).
 
     Returns
     -------
-    float
-        The outer diameter in px (the walls' horizontal width times the cosine of the tilt).
+    width_px : float
+        Median outer diameter in px (the walls' horizontal width times the cosine of the tilt).
+    n_frames : int
+        Frames in which the nozzle was found.
 
     Raises
     ------
     dropvision.calibration.CalibrationError
-        No nozzle found.
+        No nozzle found in any frame (the first frame's reason).
     """
-    # the pixel size does not enter the wall positions: 1 µm/px is a placeholder
-    cal = calibrate(image, [image], 1.0, max_value=max_value)
-    return float(cal.nozzle_outer_diameter_px)
+    images = [images] if isinstance(images, np.ndarray) else list(images)
+    widths, first_error = [], None
+    for image in images:
+        try:  # the pixel size does not enter the wall positions: 1 µm/px is a placeholder
+            widths.append(float(calibrate(image, [image], 1.0, max_value=max_value).nozzle_outer_diameter_px))
+        except CalibrationError as exc:
+            first_error = first_error or exc
+    if not widths:
+        raise first_error or CalibrationError("no frame to measure the nozzle in")
+    return float(np.median(widths)), len(widths)

@@ -24,6 +24,7 @@ import re
 import threading
 import warnings
 from collections import Counter, OrderedDict
+import dataclasses
 from dataclasses import asdict, dataclass, field
 from pathlib import Path, PurePath
 from typing import Iterator
@@ -1237,20 +1238,6 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         sources["bit_depth"] = ("significant bits in the image header" if hint is not None and 8 < hint <= 16
                                 else "16-bit images")
 
-    if pixel_size_um is None:  # from the nozzle's outer diameter, measured in the first frame
-        from dropvision.inspection import nozzle_outer_width_px
-        from dropvision.calibration import CalibrationError
-
-        try:
-            width_px = nozzle_outer_width_px(first_img, max_value=2 ** bit_depth - 1)
-        except CalibrationError as exc:
-            raise SequenceError(f"{first_path}: no pixel size given, and the nozzle's outer width cannot be "
-                                f"measured to take it from nozzle_outer_diameter_um ({exc})") from None
-        pixel_size_um = _ranged(d_out / width_px, "pixel_size_um",
-                                f"pixel size from nozzle_outer_diameter_um {d_out:g} µm over {width_px:.2f} px",
-                                where_of("nozzle_outer_diameter_um"))
-        source = (f"nozzle outer diameter {d_out:g} um / {width_px:.2f} px measured in {first_ref.file} "
-                  f"(diameter from {sources['nozzle_outer_diameter']})")
     sources["pixel_size"] = source
 
     _check_in_image(tip_row, axis_col, original_shape, where_of("nozzle_tip_row", "axis_col"))
@@ -1260,7 +1247,45 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                         None if axis_c is None else float(axis_c),
                         orientation, waveform, ink, tuple(refs), canonical_shape, bit_depth,
                         reordered, extra, source, sources)
-    return Sequence(meta, first_img.dtype, refused)
+    seq = Sequence(meta, first_img.dtype, refused)
+    if pixel_size_um is None:
+        seq.meta = _pixel_size_from_nozzle(seq, first_img, first_ref, where_of("nozzle_outer_diameter_um"))
+    return seq
+
+
+#: Frames spread over a sequence in which the nozzle's outer width is measured.
+_NOZZLE_FRAMES = 7
+
+
+def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef, where: str
+                            ) -> SequenceMeta:
+    """The metadata with the pixel size = nozzle_outer_diameter_um over the nozzle's outer width
+    in px (median over up to 7 frames spread over the sequence)."""
+    from dropvision.calibration import CalibrationError
+    from dropvision.inspection import nozzle_outer_width_px
+
+    meta = seq.meta
+    n = len(meta.frames)
+    images = [first_img]
+    for i in np.unique(np.round(np.linspace(0, n - 1, min(n, _NOZZLE_FRAMES))).astype(int)):
+        if int(i) != first_ref.index:
+            fr = seq.read(int(i))
+            if fr.image is not None:
+                images.append(fr.image)
+    seq.close()
+    d_out = meta.nozzle_outer_diameter_um
+    try:
+        width_px, used = nozzle_outer_width_px(images, max_value=2 ** meta.bit_depth - 1)
+    except CalibrationError as exc:
+        raise SequenceError(f"{meta.path / first_ref.file}: no pixel size given, and the nozzle's outer width "
+                            f"cannot be measured to take it from nozzle_outer_diameter_um ({exc})") from None
+    pixel_size_um = _ranged(d_out / width_px, "pixel_size_um",
+                            f"pixel size from nozzle_outer_diameter_um {d_out:g} µm over {width_px:.2f} px", where)
+    source = (f"nozzle outer diameter {d_out:g} um / {width_px:.2f} px (median over {used} frame"
+              f"{'s' if used != 1 else ''} from {first_ref.file}; diameter from "
+              f"{meta.sources.get('nozzle_outer_diameter')})")
+    return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,
+                               sources={**meta.sources, "pixel_size": source})
 
 
 

@@ -178,7 +178,8 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
       "--orientation\"), \"detected in FILE: ...\" (the edge the nozzle or holder touches) or \"default (down): "
       "not detected ...\" with what was seen at each edge", required=False),
     F("pixel_size_source", "str", "", "where the pixel size came from: sequence.json, an option, TIFF metadata (ome, "
-      "imagej, tiff-description), or \"nozzle outer diameter D um / W px measured in FILE\"", required=False),
+      "imagej, tiff-description), or \"nozzle outer diameter D um / W px (median over N frames ...)\"",
+      required=False),
     F("nozzle_outer_diameter_source", "str", "", "where nozzle_outer_diameter_um came from (null: not given)",
       required=False),
     F("nozzle_inner_diameter_source", "str", "", "where nozzle_inner_diameter_um came from (null: not given)",
