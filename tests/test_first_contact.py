@@ -243,3 +243,16 @@ def test_campaign_options_apply_to_every_sequence(synthetic, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "command line --pixel-size-um: pixel_size_um must be a number > 0" in err and len(err.splitlines()) == 1
     assert not (tmp_path / "ds2").exists()
+
+
+def test_campaign_warnings_are_one_line_once_per_sequence(tmp_path, capsys):
+    root = tmp_path / "root"
+    cfg = SynthConfig(**{**SMALL, "delays_us": tuple(float(d) for d in range(0, 1501, 100))}, format="jpeg",
+                      colour=True)
+    for name in ("a", "b"):
+        write_synthetic_sequence(cfg, root / name, progress=False)
+    assert main(["campaign", str(root), "--out", str(tmp_path / "ds"), "--workers", "1", "--no-progress"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2, err
+    for name, line in zip("ab", err):
+        assert line.startswith(f"dropvision campaign: warning: {name}: ") and "converted to grey" in line

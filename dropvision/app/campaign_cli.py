@@ -50,6 +50,11 @@ def _run_campaign_cmd(args) -> int:
     )
     for sid, err in sorted(res.failed.items()):
         print(f"  failed {sid}: {err}")
+    if args.verbose:
+        for sid in sorted(res.measured):
+            print(f"  measured {sid}")
+        for sid in sorted(res.skipped):
+            print(f"  unchanged {sid}")
     return 0
 
 
