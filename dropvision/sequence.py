@@ -1026,8 +1026,8 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         it gives), pass the same validation (`check_overrides`), and are named in
         ``SequenceMeta.sources``. ``delay_us`` is the delay of a sequence of one frame.
         ``nozzle_outer_diameter_um`` without any pixel size gives the pixel size: that
-        diameter over the nozzle's outer width measured in the first frame
-        (`dropvision.inspection.nozzle_outer_width_px`).
+        diameter over the nozzle's outer width in px, the median over up to 7 frames spread
+        over the sequence (`dropvision.inspection.nozzle_outer_width_px`).
     labels : dict, optional
         key -> how the user gave it (e.g. ``"command line --pixel-size-um"``), for messages
         and sources; default ``"argument <key>"``.
