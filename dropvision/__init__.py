@@ -9,6 +9,7 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
     seq = dropvision.open_sequence(folder)                           # validate, read lazily
     dropvision.synthesize(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
     dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset
+    dropvision.init_sequence("watcher", {"pixel_size_um": 3.0})      # images alone -> sequence.json
 
 Layers: `identify` (models, no images) < `dropvision` (measurement) < `dropvision.app` /
 `identify.app` (command lines, campaigns, demo, Rerun views); see tests/test_layers.py.
@@ -30,6 +31,8 @@ _WHERE = {
     "SynthConfig": ("dropvision.synth.sequence", "SynthConfig"),
     "synthesize": ("dropvision.synth.writer", "write_synthetic_sequence"),
     "run_campaign": ("dropvision.app.campaign", "run_campaign"),
+    "describe_folder": ("dropvision.describe", "describe_folder"),
+    "init_sequence": ("dropvision.describe", "init_sequence"),
 }
 __all__ = ["__version__", *_WHERE]
 

@@ -6,7 +6,7 @@ import os
 
 from dropvision.config import MeasureConfig
 from dropvision.measurement import MeasureResult, measure_sequence
-from dropvision.sequence import sequence_from_arrays
+from dropvision.sequence import OVERRIDE_KEYS, sequence_from_arrays
 
 
 def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = None,
@@ -23,17 +23,25 @@ def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = N
         Also write frames.parquet, per_delay.parquet and summary.json there (atomically; never
         over files we did not write unless ``overwrite``).
     delays_us : array_like of float, optional
-        Frames in memory only: strobe delay of each frame after the trigger (µs).
+        Frames in memory only: strobe delay of each frame after the trigger (µs). (A folder of
+        one frame takes ``delay_us=``, a recording ``frame_rate_hz=``.)
     pixel_size_um : float, optional
-        Frames in memory only: pixel size in µm.
+        Pixel size in µm: required for frames in memory; for a folder it overrides
+        sequence.json (summary.json says so: ``pixel_size_source``).
     config : MeasureConfig, optional
         Measurement knobs (defaults are the documented method).
     progress, csv, overwrite : bool
         Progress bar; also write frames.csv; write into an existing folder of someone else's.
     **metadata
-        Frames in memory only: ``orientation``, ``nozzle_inner_diameter_um``,
+        Keys of sequence.json: ``orientation``, ``nozzle_inner_diameter_um``,
         ``nozzle_outer_diameter_um``, ``nozzle_tip_row``, ``axis_col``, ``waveform``, ``ink``,
-        ``bit_depth``, ``name`` (see `dropvision.sequence.sequence_from_arrays`).
+        ``bit_depth``; for frames in memory also ``name`` (see
+        `dropvision.sequence.sequence_from_arrays`); for a folder also ``delay_us`` (a folder
+        of one frame), ``frame_rate_hz``, ``first_frame_delay_us``, ``trigger_frame``. For a
+        folder they override sequence.json, pass its validation, and are named in
+        summary.json's ``*_source`` keys (`dropvision.sequence.open_sequence` ``overrides``);
+        ``nozzle_outer_diameter_um`` without a pixel size gives the pixel size from the
+        nozzle's measured outer width.
 
     Returns
     -------
@@ -51,11 +59,16 @@ def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = N
     """
     config = config or MeasureConfig()
     if isinstance(source, (str, os.PathLike)):
-        given = [k for k, v in (("delays_us", delays_us), ("pixel_size_um", pixel_size_um)) if v is not None]
-        if given or metadata:
-            raise TypeError(f"measure({source!r}): {', '.join(given + list(metadata))} apply to frames in memory; "
-                            "a folder takes its metadata from sequence.json")
-        return measure_sequence(source, out, config, progress=progress, csv=csv, overwrite=overwrite)
+        if delays_us is not None:
+            raise TypeError(f"measure({source!r}): delays_us applies to frames in memory; a folder of one frame "
+                            "takes delay_us=, a recording frame_rate_hz=")
+        overrides = {"pixel_size_um": pixel_size_um, **metadata}
+        unknown = sorted(set(overrides) - set(OVERRIDE_KEYS))
+        if unknown:
+            raise TypeError(f"measure({source!r}): unknown metadata {', '.join(unknown)} (keys of sequence.json: "
+                            f"{', '.join(OVERRIDE_KEYS)})")
+        return measure_sequence(source, out, config, progress=progress, csv=csv, overwrite=overwrite,
+                                overrides={k: v for k, v in overrides.items() if v is not None})
     if delays_us is None or pixel_size_um is None:
         raise TypeError("measure(frames): delays_us and pixel_size_um are required for frames in memory")
     seq = sequence_from_arrays(source, delays_us, pixel_size_um=pixel_size_um, **metadata)

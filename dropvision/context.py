@@ -241,7 +241,10 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
         )
     except CalibrationError as exc:
-        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}") from exc
+        how = (meta.sources or {}).get("orientation")
+        seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
+                if how and str(exc).startswith("no nozzle") else "")
+        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
     nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)

@@ -30,7 +30,7 @@ from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, stream_frames
-from dropvision.sequence import Sequence, SequenceError, open_sequence
+from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
 from dropvision.output import write_result
 from dropvision.summary import assemble, per_delay
 from identify.atomic import atomic_dir, check_output_dir
@@ -54,8 +54,25 @@ class MeasureResult:
         return {"frames": self.frames.to_dict(orient="list"), "summary": self.summary}
 
 
+def source_keys(meta) -> dict:
+    """summary.json's orientation and ``*_source`` keys: where each value of the sequence's
+    metadata came from (`dropvision.sequence.SequenceMeta.sources`)."""
+    src = meta.sources or {}
+    return {
+        "orientation": meta.orientation,
+        "orientation_source": src.get("orientation"),
+        "pixel_size_source": src.get("pixel_size") or meta.pixel_size_source,
+        "nozzle_outer_diameter_source": src.get("nozzle_outer_diameter"),
+        "nozzle_inner_diameter_source": src.get("nozzle_inner_diameter"),
+        "delay_source": src.get("delay"),
+        "waveform_source": src.get("waveform"),
+        "bit_depth_source": src.get("bit_depth"),
+    }
+
+
 def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfig(), *, progress: bool = False,
-                     logger=None, csv: bool = False, overwrite: bool = False) -> MeasureResult:
+                     logger=None, csv: bool = False, overwrite: bool = False, overrides: dict | None = None,
+                     labels: dict | None = None) -> MeasureResult:
     """Measure a strobe sequence.
 
     Parameters
@@ -77,6 +94,10 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Also write frames.csv.
     overwrite : bool
         Write into an existing ``out_dir`` that holds files we did not write (they are kept).
+    overrides, labels : dict, optional
+        Values of sequence.json keys given outside the file (options), and how they were given;
+        see `dropvision.sequence.open_sequence`. They are named in summary.json's ``*_source``
+        keys.
 
     Returns
     -------
@@ -90,8 +111,10 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     identify.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
     """
-    seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir)
-    inputs = [] if seq.meta.pixel_size_source == "arguments" else [seq.meta.path]  # in memory: no folder
+    if isinstance(seq_dir, Sequence) and overrides:
+        raise TypeError("measure_sequence: overrides apply to a sequence folder, not to an open Sequence")
+    seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir, overrides=overrides, labels=labels)
+    inputs = [] if isinstance(seq, ArraySequence) else [seq.meta.path]  # in memory: no folder
     if out_dir is not None:  # before any work: the output may destroy nothing
         check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
     meta = seq.meta
@@ -117,6 +140,8 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         records.append(rec)
     seq.close()
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
+    summary.update(source_keys(meta))
+    summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
     bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
     summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
     summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source

@@ -24,6 +24,7 @@ import re
 import threading
 import warnings
 from collections import Counter, OrderedDict
+import dataclasses
 from dataclasses import asdict, dataclass, field
 from pathlib import Path, PurePath
 from typing import Iterator
@@ -42,6 +43,7 @@ __all__ = [
     "SCHEMA", "SEQUENCE_JSON", "ORIENTATIONS", "SequenceError", "RGBConvertedWarning",
     "FrameRef", "SequenceMeta", "Frame", "Sequence", "open_sequence", "parse_delay_from_name",
     "to_canonical", "from_canonical", "original_to_canonical", "canonical_to_original",
+    "OVERRIDE_KEYS", "check_overrides",
 ]
 
 #: Value of the ``schema`` key of sequence.json (written by ``dropvision.writers``).
@@ -58,6 +60,13 @@ _KNOWN_KEYS = frozenset({
     "nozzle_tip_row", "axis_col", "orientation", "waveform", "ink", "frames", "bit_depth",
     "video", "frame_rate_hz", "first_frame_delay_us", "trigger_frame",
 })
+#: Keys of sequence.json that options may give or override (`open_sequence` ``overrides``):
+#: the same validation and ranges apply. ``delay_us`` is the delay of a sequence of one frame.
+OVERRIDE_KEYS = (
+    "pixel_size_um", "nozzle_outer_diameter_um", "nozzle_inner_diameter_um", "orientation",
+    "delay_us", "frame_rate_hz", "first_frame_delay_us", "trigger_frame", "waveform",
+    "bit_depth", "nozzle_tip_row", "axis_col", "ink",
+)
 #: Delay in a file name: the last number immediately followed by "us" (or "µs").
 _DELAY_RE = re.compile(r"(?<![\d.])(\d+(?:\.\d+)?)(?:us|µs|μs)(?![a-z])", re.IGNORECASE)
 #: Open multi-frame files (e.g. TIFF stacks) kept by a Sequence.
@@ -146,8 +155,15 @@ class SequenceMeta:
     bit_depth: int
     reordered: bool
     extra: dict = field(default_factory=dict)
-    #: Where the pixel size came from: "sequence.json", "ome" or "imagej" (TIFF metadata).
+    #: Where the pixel size came from: "sequence.json", "ome" or "imagej" (TIFF metadata),
+    #: "arguments" (frames in memory), an option (e.g. "command line --pixel-size-um") or
+    #: the nozzle ("nozzle outer diameter 360 µm / 76.1 px measured (...)").
     pixel_size_source: str = "sequence.json"
+    #: Where each value came from, for summary.json's ``*_source`` keys: ``pixel_size``,
+    #: ``orientation`` ("sequence.json", an option, "detected: ..." or "default ..."),
+    #: ``nozzle_outer_diameter``, ``nozzle_inner_diameter``, ``delay``, ``waveform``,
+    #: ``bit_depth`` (None: not given).
+    sources: dict = field(default_factory=dict)
 
     @property
     def delays_us(self) -> np.ndarray:
@@ -644,12 +660,14 @@ def _probe(reader: Reader, path: Path) -> ImageInfo:
         return ImageInfo()
 
 
-def _delays_of_file(folder: Path, rel: str, refused: dict) -> list[tuple[int | None, float]]:
-    """(page, delay) pairs of one image file of a folder without a frames list."""
+def _delays_of_file(folder: Path, rel: str, refused: dict, lone_ok: bool = False
+                    ) -> list[tuple[int | None, float | None]]:
+    """(page, delay) pairs of one image file of a folder without a frames list; with
+    ``lone_ok`` (the folder's only image) a single frame without a delay gets None."""
     path = folder / rel
     if rel in refused:  # a link outside the folder: never opened, listed to be reported
         from_name = parse_delay_from_name(rel)
-        if from_name is None:
+        if from_name is None and not lone_ok:
             raise SequenceError(f"{path}: {refused[rel]}")
         return [(None, from_name)]
     info = _probe(reader_for(path), path)
@@ -673,6 +691,8 @@ def _delays_of_file(folder: Path, rel: str, refused: dict) -> list[tuple[int | N
         return [(None, from_name)]
     if 0 in page_delays:
         return [(None, _delay_value(page_delays[0], str(path)))]
+    if lone_ok:
+        return [(None, None)]
     raise SequenceError(f"{path}: no delay in the file name (expected e.g. "
                         f"'frame_01150us.png'){cut} and no frames list in sequence.json")
 
@@ -738,10 +758,13 @@ def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: b
 
 
 def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
-                        allow_outside: bool) -> list[_Listed]:
+                        allow_outside: bool, lone_ok: bool = False) -> list[_Listed]:
+    """Frames of a folder without a frames list; with ``lone_ok`` a folder of one single-frame
+    image without a delay lists it with delay None (the caller gives it one)."""
     names = _scan_folder(folder, folder_real, refused, allow_outside)
+    lone_ok = lone_ok and len(names) == 1
     return [_Listed(name, page, delay) for name in names
-            for page, delay in _delays_of_file(folder, name, refused)]
+            for page, delay in _delays_of_file(folder, name, refused, lone_ok)]
 
 
 def _listed_from_rate(folder: Path, video, rate: tuple[float, float, int], json_path: Path,
@@ -901,7 +924,92 @@ def _diameters(d_in, d_out, where: str) -> tuple[float | None, float | None]:
     return d_in, d_out
 
 
-def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
+def check_overrides(overrides, labels=None) -> dict:
+    """Validate values given for sequence.json keys outside the file (options, arguments).
+
+    The same checks and ranges as the file's keys (docs/FORMAT.md, ``RANGES``); a bad value
+    is a :class:`SequenceError` naming the option.
+
+    Parameters
+    ----------
+    overrides : dict
+        sequence.json key (one of ``OVERRIDE_KEYS``) -> value; None values are dropped.
+        ``waveform`` may be partial (its keys replace those of the file's waveform).
+    labels : dict, optional
+        key -> how the user gave it, for messages and sources (default ``"argument <key>"``).
+
+    Returns
+    -------
+    dict
+        The given keys with validated values (orientation lower-case).
+    """
+    labels = labels or {}
+    out = {}
+    for key, value in (overrides or {}).items():
+        if value is None:
+            continue
+        where = labels.get(key, f"argument {key}")
+        if key not in OVERRIDE_KEYS:
+            raise SequenceError(f"{where}: {key} cannot be given as an option (one of {', '.join(OVERRIDE_KEYS)})")
+        if key == "pixel_size_um":
+            value = _ranged(value, key, key, where)
+        elif key in ("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"):
+            value = _ranged(value, "nozzle_diameter_um", key, where)
+        elif key == "frame_rate_hz":
+            value = _ranged(value, key, key, where)
+        elif key in ("delay_us", "first_frame_delay_us"):
+            value = _delay_value(value, where)
+        elif key == "orientation":
+            value = value.strip().lower() if isinstance(value, str) else value
+            if value not in ORIENTATIONS:
+                raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, got {value!r}")
+        elif key == "bit_depth":
+            if not is_number(value) or value not in (8, 12, 16):
+                raise SequenceError(f"{where}: bit_depth must be 8, 12 or 16, got {value!r}")
+            value = int(value)
+        elif key in ("nozzle_tip_row", "axis_col"):
+            value = _finite_or_none(value, key, where)
+        elif key == "trigger_frame":
+            if not isinstance(value, int) or isinstance(value, bool):
+                raise SequenceError(f"{where}: trigger_frame must be an integer frame index, got {value!r}")
+        elif key in ("waveform", "ink") and not isinstance(value, dict):
+            raise SequenceError(f"{where}: {key} must be an object (a dict)")
+        elif key == "ink":
+            value = _validate_ink(value, where)
+        out[key] = value
+    d_in, d_out = out.get("nozzle_inner_diameter_um"), out.get("nozzle_outer_diameter_um")
+    if d_in is not None and d_out is not None:
+        _diameters(d_in, d_out, labels.get("nozzle_outer_diameter_um", "arguments"))
+    return out
+
+
+def _merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Path
+                     ) -> tuple[dict | None, dict]:
+    """sequence.json merged with validated options; returns (doc, key -> where) where
+    ``where`` names the option for overridden keys and the file for the others."""
+    wheres = {}
+    if not given:
+        return doc, wheres
+    merged = dict(doc or {})
+    for key, value in given.items():
+        where = labels.get(key, f"argument {key}")
+        wheres[key] = where
+        if key == "waveform" and isinstance(merged.get("waveform"), dict):
+            value = {**merged["waveform"], **value}
+        if key == "frame_rate_hz" and merged.get("frames") is not None:
+            raise SequenceError(f"{where}: {json_path} has a frames list (delays per frame); "
+                                "frame_rate_hz gives the delays of a recording instead: not both")
+        if key == "delay_us":
+            continue  # applied to the listed frame (one frame only)
+        merged[key] = value
+    if "waveform" in given:
+        _validate_waveform(merged["waveform"], wheres["waveform"])
+    return merged, wheres
+
+
+def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | None = None,
+                  labels: dict | None = None, ignore_sequence_json: bool = False,
+                  require_pixel_size: bool = True) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
@@ -912,6 +1020,23 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
         Read frames and a sequence.json that are symbolic links (or lie under linked folders)
         resolving outside the sequence folder. By default such a frame is skipped and reported
         (``Frame.error``) and such a sequence.json is a :class:`SequenceError`.
+    overrides : dict, optional
+        Values of sequence.json keys (``OVERRIDE_KEYS``) given outside the file (command-line
+        options, arguments): they replace the file's (a partial ``waveform`` replaces the keys
+        it gives), pass the same validation (`check_overrides`), and are named in
+        ``SequenceMeta.sources``. ``delay_us`` is the delay of a sequence of one frame.
+        ``nozzle_outer_diameter_um`` without any pixel size gives the pixel size: that
+        diameter over the nozzle's outer width in px, the median over up to 7 frames spread
+        over the sequence (`dropvision.inspection.nozzle_outer_width_px`).
+    labels : dict, optional
+        key -> how the user gave it (e.g. ``"command line --pixel-size-um"``), for messages
+        and sources; default ``"argument <key>"``.
+    ignore_sequence_json : bool
+        Look at the images alone, as if there were no sequence.json (``dropvision init
+        --overwrite``).
+    require_pixel_size : bool
+        False: a sequence without any pixel size opens with ``pixel_size_um`` NaN (and the
+        nozzle is not measured for one): to describe a folder, not to measure it.
 
     Returns
     -------
@@ -921,10 +1046,20 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
     Raises
     ------
     SequenceError
-        Folder missing or without images, invalid sequence.json, missing/invalid
+        Folder missing or without images, invalid sequence.json or option, missing/invalid
         pixel_size_um, a number outside its accepted range (``RANGES``), unparsable delay,
         listed file missing, sequence.json linked outside the folder, no readable frame.
+
+    Notes
+    -----
+    Without an ``orientation`` (file or option) the orientation is detected from the first
+    frame (`dropvision.inspection.detect_orientation`); a frame that does not tell keeps
+    ``"down"``, and ``sources["orientation"]`` says what was seen at each edge. A folder of
+    ONE image without a delay in its name or metadata gets ``delay_us`` (option) or 0 µs,
+    stated in ``sources["delay"]``.
     """
+    labels = dict(labels or {})
+    given = check_overrides(overrides, labels)
     folder = Path(path)
     if folder.name == SEQUENCE_JSON and folder.is_file():
         folder = folder.parent
@@ -937,56 +1072,88 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
     json_path = folder / SEQUENCE_JSON
     folder_real = os.path.realpath(folder)
     refused: dict[str, str] = {}
-    where = str(json_path)
-    json_exists = _is_file(json_path)
+    json_exists = not ignore_sequence_json and _is_file(json_path)
     if json_exists and not allow_outside_links:
         target = _outside(folder_real, json_path)
         if target is not None:
-            raise SequenceError(f"{where}: {_refusal(target)}")
-    doc = _load_json(json_path) if json_exists else None
+            raise SequenceError(f"{json_path}: {_refusal(target)}")
+    file_doc = _load_json(json_path) if json_exists else None
+    doc, wheres = _merge_overrides(file_doc, given, labels, json_path)
+    sources = {"pixel_size": None, "orientation": None, "nozzle_outer_diameter": None,
+               "nozzle_inner_diameter": None, "delay": None, "waveform": None, "bit_depth": None}
 
+    def where_of(*keys: str) -> str:
+        return next((wheres[k] for k in keys if k in wheres), str(json_path))
+
+    def source_of(key: str) -> str | None:
+        if key in wheres:
+            return wheres[key]
+        return SEQUENCE_JSON if file_doc is not None and file_doc.get(key) is not None else None
+
+    orientation_given = doc is not None and doc.get("orientation") is not None
     if doc is not None:
         schema = doc.get("schema")
         schema = SCHEMA if schema is None else schema  # null means absent
         if schema != SCHEMA:
-            raise SequenceError(f"{where}: unsupported schema {schema!r} (expected {SCHEMA!r})")
+            raise SequenceError(f"{json_path}: unsupported schema {schema!r} (expected {SCHEMA!r})")
         orientation = doc.get("orientation")
         orientation = "down" if orientation is None else orientation  # null means absent
         orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
         if orientation not in ORIENTATIONS:
-            raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, "
+            raise SequenceError(f"{where_of('orientation')}: orientation must be one of {ORIENTATIONS}, "
                                 f"got {doc.get('orientation')!r}")
         bit_depth_key = doc.get("bit_depth")
         if bit_depth_key is not None and (not is_number(bit_depth_key)
                                           or bit_depth_key not in (8, 12, 16)):
-            raise SequenceError(f"{where}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
-        d_in, d_out = _diameters(doc.get("nozzle_inner_diameter_um"),
-                                 doc.get("nozzle_outer_diameter_um"), where)
-        tip_row = _finite_or_none(doc.get("nozzle_tip_row"), "nozzle_tip_row", where)
-        axis_col = _finite_or_none(doc.get("axis_col"), "axis_col", where)
-        waveform = _validate_waveform(doc.get("waveform"), where)
-        ink = _validate_ink(doc.get("ink"), where)
+            raise SequenceError(f"{json_path}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
+        d_in, d_out = _diameters(doc.get("nozzle_inner_diameter_um"), doc.get("nozzle_outer_diameter_um"),
+                                 where_of("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"))
+        tip_row = _finite_or_none(doc.get("nozzle_tip_row"), "nozzle_tip_row", where_of("nozzle_tip_row"))
+        axis_col = _finite_or_none(doc.get("axis_col"), "axis_col", where_of("axis_col"))
+        waveform = _validate_waveform(doc.get("waveform"), where_of("waveform"))
+        ink = _validate_ink(doc.get("ink"), where_of("ink"))
         extra = {k: v for k, v in doc.items() if k not in _KNOWN_KEYS}
     else:
         orientation, bit_depth_key, d_in, d_out = "down", None, None, None
         tip_row = axis_col = waveform = ink = None
         extra = {}
+    sources.update(orientation=source_of("orientation"),
+                   nozzle_outer_diameter=source_of("nozzle_outer_diameter_um"),
+                   nozzle_inner_diameter=source_of("nozzle_inner_diameter_um"),
+                   waveform=source_of("waveform"), bit_depth=source_of("bit_depth"))
 
-    rate = _frame_rate(doc, where) if doc is not None else None
+    rate = _frame_rate(doc, where_of("frame_rate_hz")) if doc is not None else None
     if rate is not None:
         listed = _listed_from_rate(folder, doc.get("video"), rate, json_path, folder_real,
                                    refused, allow_outside_links)
+        sources["delay"] = f"frame_rate_hz ({source_of('frame_rate_hz')})"
     elif doc is not None and doc.get("frames") is not None:
         listed = _listed_from_frames(folder, doc["frames"], json_path, folder_real, refused,
                                      allow_outside_links)
+        sources["delay"] = "sequence.json frames (or the file names they list)"
     else:
-        listed = _listed_from_folder(folder, folder_real, refused, allow_outside_links)
+        listed = _listed_from_folder(folder, folder_real, refused, allow_outside_links,
+                                     lone_ok=True)
+        sources["delay"] = "file names or image metadata"
+    if "delay_us" in given:
+        if len(listed) != 1:
+            raise SequenceError(f"{wheres['delay_us']}: the delay of a single frame, but {folder} has "
+                                f"{len(listed)} frames (their delays come from the file names, a "
+                                "frames list or frame_rate_hz)")
+        listed[0].delay_us = given["delay_us"]
+        sources["delay"] = wheres["delay_us"]
+    elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
+        listed[0].delay_us = 0.0
+        sources["delay"] = ("assumed 0 us: one frame without a delay in its name or metadata "
+                            "(give it with --delay-us or sequence.json frames)")
 
-    # pixel size: sequence.json, else the metadata of the first listed file of a type that
-    # may store it (scientific TIFF)
+    # pixel size: option, sequence.json, else the metadata of the first listed file of a type
+    # that may store it (scientific TIFF), else the nozzle's outer diameter (after the probe)
     pixel_size_um, source = None, "sequence.json"
     if doc is not None and doc.get("pixel_size_um") is not None:
-        pixel_size_um = _ranged(doc["pixel_size_um"], "pixel_size_um", "pixel_size_um", where)
+        pixel_size_um = _ranged(doc["pixel_size_um"], "pixel_size_um", "pixel_size_um",
+                                where_of("pixel_size_um"))
+        source = wheres.get("pixel_size_um", "sequence.json")
     else:
         first_sized = next((item.file for item in listed if item.file not in refused
                             and reader_for(item.file).stores_pixel_size), None)
@@ -995,15 +1162,20 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
                 pixel_size_um, source = reader_for(first_sized).pixel_size(folder / first_sized)
             except InvalidImage as exc:
                 raise SequenceError(str(exc)) from None
-        if pixel_size_um is None:
-            if doc is None:
+        if pixel_size_um is not None:
+            pixel_size_um = _ranged(pixel_size_um, "pixel_size_um",
+                                    f"pixel size from the {source} metadata",
+                                    str(folder / first_sized))
+        elif not require_pixel_size:
+            pixel_size_um, source = math.nan, None
+        elif d_out is None:
+            hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
+                    "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")
+            if file_doc is None:
                 raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
-                                    "the images carry no pixel size")
-            raise SequenceError(f"{where}: pixel_size_um is missing (required: pixel size in "
-                                "µm, a number > 0)")
-        pixel_size_um = _ranged(pixel_size_um, "pixel_size_um",
-                                f"pixel size from the {source} metadata",
-                                str(folder / first_sized))
+                                    f"the images carry no pixel size{hint}")
+            raise SequenceError(f"{json_path}: pixel_size_um is missing (required: pixel size in "
+                                f"µm, a number > 0){hint}")
 
     # processing order: ascending delay, stable (listed order, then page)
     order = sorted(range(len(listed)), key=lambda i: listed[i].delay_us)
@@ -1016,8 +1188,10 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
         refs.append(FrameRef(index, item.file, item.page, item.delay_us, repeats[key], i))
         repeats[key] += 1
 
-    # probe: first readable frame (processing order) gives shape, type, bit depth
-    probe_meta = SequenceMeta(folder, pixel_size_um, d_in, d_out, None, None, orientation,
+    # probe: first readable frame (processing order) gives shape, type, bit depth; without a
+    # given orientation it is probed as stored and the orientation is detected from it
+    probe_meta = SequenceMeta(folder, pixel_size_um or 1.0, d_in, d_out, None, None,
+                              orientation if orientation_given else "down",
                               waveform, ink, tuple(refs), (0, 0), 0, reordered, extra, source)
     probe = Sequence(probe_meta, np.uint8, refused)
     first_img, first_ref, first_error = None, None, None
@@ -1034,6 +1208,17 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
     if first_img is None:
         raise SequenceError(f"{folder}: no readable image among {len(refs)} frame(s) "
                             f"(first problem: {first_error})")
+    if not orientation_given:
+        from dropvision.inspection import detect_orientation  # cv2 work only when needed
+
+        guess = detect_orientation(first_img)
+        if guess.orientation is not None:
+            orientation = guess.orientation
+            sources["orientation"] = f"detected in {first_ref.file}: {guess.reason}"
+        else:
+            sources["orientation"] = (f"default (down): not detected in {first_ref.file}, {guess.reason}"
+                                      + (f" ({guess.edges_text()})" if guess.edges else ""))
+        first_img = to_canonical(first_img, orientation)
     canonical_shape = tuple(int(n) for n in first_img.shape)
     original_shape = (canonical_shape if _ROT90_K[orientation] % 2 == 0
                       else canonical_shape[::-1])
@@ -1041,24 +1226,66 @@ def open_sequence(path, *, allow_outside_links: bool = False) -> Sequence:
     first_path = folder / first_ref.file
     if first_img.dtype == np.uint8:
         if bit_depth_key not in (None, 8):
-            raise SequenceError(f"{where}: bit_depth {bit_depth_key} but {first_path} is 8-bit")
+            raise SequenceError(f"{where_of('bit_depth')}: bit_depth {bit_depth_key} but {first_path} is 8-bit")
         bit_depth = 8
+        sources["bit_depth"] = sources["bit_depth"] or "8-bit images"
     elif bit_depth_key is not None:
         bit_depth = int(bit_depth_key)
     else:
         hint = reader_for(first_path).significant_bits(first_path, first_ref.page)
         bit_depth = hint if hint is not None and 8 < hint <= 16 else 16
         bit_depth = 12 if 8 < bit_depth <= 12 else 16  # report 8, 12 or 16
+        sources["bit_depth"] = ("significant bits in the image header" if hint is not None and 8 < hint <= 16
+                                else "16-bit images")
 
-    _check_in_image(tip_row, axis_col, original_shape, where)
+    sources["pixel_size"] = source
+
+    _check_in_image(tip_row, axis_col, original_shape, where_of("nozzle_tip_row", "axis_col"))
     tip_c, axis_c = original_to_canonical(tip_row, axis_col, orientation, original_shape)
     meta = SequenceMeta(folder, pixel_size_um, d_in, d_out,
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
                         orientation, waveform, ink, tuple(refs), canonical_shape, bit_depth,
-                        reordered, extra, source)
-    return Sequence(meta, first_img.dtype, refused)
+                        reordered, extra, source, sources)
+    seq = Sequence(meta, first_img.dtype, refused)
+    if pixel_size_um is None:
+        seq.meta = _pixel_size_from_nozzle(seq, first_img, first_ref, where_of("nozzle_outer_diameter_um"))
+    return seq
 
+
+#: Frames spread over a sequence in which the nozzle's outer width is measured.
+_NOZZLE_FRAMES = 7
+
+
+def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef, where: str
+                            ) -> SequenceMeta:
+    """The metadata with the pixel size = nozzle_outer_diameter_um over the nozzle's outer width
+    in px (median over up to 7 frames spread over the sequence)."""
+    from dropvision.calibration import CalibrationError
+    from dropvision.inspection import nozzle_outer_width_px
+
+    meta = seq.meta
+    n = len(meta.frames)
+    images = [first_img]
+    for i in np.unique(np.round(np.linspace(0, n - 1, min(n, _NOZZLE_FRAMES))).astype(int)):
+        if int(i) != first_ref.index:
+            fr = seq.read(int(i))
+            if fr.image is not None:
+                images.append(fr.image)
+    seq.close()
+    d_out = meta.nozzle_outer_diameter_um
+    try:
+        width_px, used = nozzle_outer_width_px(images, max_value=2 ** meta.bit_depth - 1)
+    except CalibrationError as exc:
+        raise SequenceError(f"{meta.path / first_ref.file}: no pixel size given, and the nozzle's outer width "
+                            f"cannot be measured to take it from nozzle_outer_diameter_um ({exc})") from None
+    pixel_size_um = _ranged(d_out / width_px, "pixel_size_um",
+                            f"pixel size from nozzle_outer_diameter_um {d_out:g} µm over {width_px:.2f} px", where)
+    source = (f"nozzle outer diameter {d_out:g} um / {width_px:.2f} px (median over {used} frame"
+              f"{'s' if used != 1 else ''} from {first_ref.file}; diameter from "
+              f"{meta.sources.get('nozzle_outer_diameter')})")
+    return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,
+                               sources={**meta.sources, "pixel_size": source})
 
 
 
@@ -1081,7 +1308,7 @@ class ArraySequence(Sequence):
         return Frame(self.meta.frames[index], self._images[index], None)
 
 
-def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation: str = "down",
+def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation: str | None = None,
                          nozzle_inner_diameter_um: float | None = None,
                          nozzle_outer_diameter_um: float | None = None,
                          nozzle_tip_row: float | None = None, axis_col: float | None = None,
@@ -1098,7 +1325,10 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
         Strobe delay of each frame after the firing trigger (µs); any order, repeats allowed.
     pixel_size_um : float
         Pixel size in µm (> 0).
-    orientation, nozzle_inner_diameter_um, nozzle_outer_diameter_um, nozzle_tip_row, axis_col, waveform, ink
+    orientation : str, optional
+        As in sequence.json; None: detected from the first frame in delay order
+        (`dropvision.inspection.detect_orientation`), ``"down"`` when it does not tell.
+    nozzle_inner_diameter_um, nozzle_outer_diameter_um, nozzle_tip_row, axis_col, waveform, ink
         As the keys of sequence.json (docs/FORMAT.md); row/column in the frames as given.
     bit_depth : int, optional
         8, 12 or 16 (default: 8 for uint8 frames, 16 for uint16).
@@ -1130,7 +1360,7 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
         raise SequenceError(f"{where}: pixel_size_um is missing (required, a number > 0)")
     pixel_size_um = _ranged(pixel_size_um, "pixel_size_um", "pixel_size_um", where)
     orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
-    if orientation not in ORIENTATIONS:
+    if orientation is not None and orientation not in ORIENTATIONS:
         raise SequenceError(f"{where}: orientation must be one of {ORIENTATIONS}, got {orientation!r}")
     grey = []
     for i, img in enumerate(frames):
@@ -1142,11 +1372,25 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
     if len({(g.shape, g.dtype) for g in grey}) != 1:
         raise SequenceError(f"{where}: frames differ in size or pixel type "
                             f"({sorted({(g.shape, str(g.dtype)) for g in grey})})")
+    bit_depth_given = bit_depth is not None
     if bit_depth is None:
         bit_depth = 8 if grey[0].dtype == np.uint8 else 16
     if bit_depth not in ((8,) if grey[0].dtype == np.uint8 else (12, 16)):
         raise SequenceError(f"{where}: bit_depth {bit_depth!r} does not fit {grey[0].dtype} frames")
     order = sorted(range(len(grey)), key=lambda i: delays[i])
+    sources = {"pixel_size": "argument pixel_size_um", "orientation": "argument orientation",
+               "nozzle_outer_diameter": None if nozzle_outer_diameter_um is None else "argument nozzle_outer_diameter_um",
+               "nozzle_inner_diameter": None if nozzle_inner_diameter_um is None else "argument nozzle_inner_diameter_um",
+               "delay": "argument delays_us", "waveform": None if waveform is None else "argument waveform",
+               "bit_depth": "argument bit_depth" if bit_depth_given else f"{grey[0].dtype} frames"}
+    if orientation is None:
+        from dropvision.inspection import detect_orientation  # cv2 work only when needed
+
+        guess = detect_orientation(grey[order[0]])
+        orientation = guess.orientation or "down"
+        sources["orientation"] = (f"detected in frame {order[0]}: {guess.reason}" if guess.orientation else
+                                  f"default (down): not detected in frame {order[0]}, {guess.reason}"
+                                  + (f" ({guess.edges_text()})" if guess.edges else ""))
     repeats: Counter = Counter()
     refs, canonical = [], []
     for index, i in enumerate(order):
@@ -1163,5 +1407,5 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                         None if tip_c is None else float(tip_c), None if axis_c is None else float(axis_c),
                         orientation, _validate_waveform(waveform, where), _validate_ink(ink, where),
                         tuple(refs), tuple(int(n) for n in canonical[0].shape), int(bit_depth),
-                        order != list(range(len(grey))), {}, "arguments")
+                        order != list(range(len(grey))), {}, "arguments", sources)
     return ArraySequence(meta, canonical)

@@ -186,6 +186,22 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
     F("notes", "list", "", "plausibility notes, short sentences: what in the input looks like a lie and what "
       "was done about it (empty when nothing)", required=False),
+    F("orientation", "str", "", "direction the drops travel in the stored images (down, up, left, right)",
+      required=False),
+    F("orientation_source", "str", "", "where the orientation came from: sequence.json, an option (\"command line "
+      "--orientation\"), \"detected in FILE: ...\" (the edge the nozzle or holder touches) or \"default (down): "
+      "not detected ...\" with what was seen at each edge", required=False),
+    F("pixel_size_source", "str", "", "where the pixel size came from: sequence.json, an option, TIFF metadata (ome, "
+      "imagej, tiff-description), or \"nozzle outer diameter D um / W px (median over N frames ...)\"",
+      required=False),
+    F("nozzle_outer_diameter_source", "str", "", "where nozzle_outer_diameter_um came from (null: not given)",
+      required=False),
+    F("nozzle_inner_diameter_source", "str", "", "where nozzle_inner_diameter_um came from (null: not given)",
+      required=False),
+    F("delay_source", "str", "", "where the frames' delays came from (file names, frames list, frame_rate_hz, an "
+      "option, or assumed 0 us for one frame without a delay)", required=False),
+    F("waveform_source", "str", "", "where the waveform came from (null: not given)", required=False),
+    F("bit_depth_source", "str", "", "where the bit depth came from", required=False),
 ), "One per measured sequence; with the versions and the configuration the result is reproducible.")
 
 # ----------------------------------------------------------------------------- campaign dataset
@@ -230,7 +246,10 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
     F("ink", "object", "", "density_kg_m3, viscosity_mPa_s, surface_tension_mN_m", required=False),
     F("nozzle", "object", "", "length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm",
       required=False),
-    F("pixel_size_um", "float", "um", "pixel size of the images", required=False),
+    F("pixel_size_um", "float", "um", "pixel size of the images when every sequence has the same (else null)",
+      required=False),
+    F("pixel_size_um_by_sequence", "object", "um", "sequence id -> its pixel size, when they differ (each "
+      "sequence carries its own scale; the dataset is in physical units)", required=False),
     F("measurement_uncertainty", "object", "", "systematic measurement uncertainty shared by every sequence "
       "(relative standard uncertainties, 1 sigma): volume_rel and velocity_rel (used as given), or "
       "pixel_size_rel (calibration of the pixel size, combined with the method's 0.1 % volume / 0.2 % "

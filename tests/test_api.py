@@ -66,5 +66,7 @@ def test_measure_from_memory_refuses_bad_arguments():
         dropvision.measure(frames, delays_us=[0, 10, 20], pixel_size_um=-1)
     with pytest.raises(dropvision.SequenceError, match="differ in size"):
         dropvision.measure([frames[0], frames[0][:, :20]], delays_us=[0, 10], pixel_size_um=4.73)
-    with pytest.raises(TypeError, match="sequence.json"):
-        dropvision.measure(str(ROOT / "sample_frames" / "u55_u30"), pixel_size_um=4.73)
+    with pytest.raises(TypeError, match="delays_us applies to frames in memory"):  # a folder has its delays
+        dropvision.measure(str(ROOT / "sample_frames" / "u55_u30"), delays_us=[0, 10])
+    with pytest.raises(TypeError, match="unknown metadata"):
+        dropvision.measure(str(ROOT / "sample_frames" / "u55_u30"), pixel_size=4.73)

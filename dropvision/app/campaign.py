@@ -36,6 +36,7 @@ import json
 import math
 import os
 import re
+import warnings
 from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,11 +47,12 @@ from tqdm import tqdm
 
 from dropvision import __version__
 from dropvision.app.executors import check_executor_args, make_executor
+from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
 from dropvision.output import write_result
-from dropvision.sequence import open_sequence
+from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from identify import schema
@@ -74,6 +76,8 @@ class CampaignResult:
     measured: list[str] = field(default_factory=list)
     skipped: list[str] = field(default_factory=list)
     failed: dict[str, str] = field(default_factory=dict)
+    #: sequence id -> the warnings its measurement gave (one line each, once per sequence)
+    warnings: dict[str, list[str]] = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         return {
@@ -81,6 +85,7 @@ class CampaignResult:
             "measured": self.measured,
             "skipped": self.skipped,
             "failed": self.failed,
+            "warnings": self.warnings,
         }
 
 
@@ -148,23 +153,31 @@ def input_hash(folder, config_repr: str = "") -> str:
 
 
 # ----------------------------------------------------------------------------- worker
-def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rerun_options=None) -> dict:
+def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rerun_options=None,
+                     overrides: dict | None = None, labels: dict | None = None) -> dict:
     """Measure one sequence and write its shard atomically. Runs in a worker process.
 
-    Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
-    metadata needed for the dataset, and the summary values.
-    """
+    ``overrides`` / ``labels``: values of sequence.json keys given for every sequence (options,
+    see `dropvision.sequence.open_sequence`).
 
+    Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
+    metadata needed for the dataset, the warnings of its measurement (one line each; the
+    caller prints them) and the summary values.
+    """
+    caught: list = []
     try:
-        meta = open_sequence(seq_dir).meta
-        logger = None
-        if rerun_options is not None:
-            logger = RerunLogger(rerun_options)
-        try:
-            result = measure_sequence(seq_dir, config=config or MeasureConfig(), logger=logger)
-        finally:
-            if logger is not None:
-                logger.close()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            meta = open_sequence(seq_dir, overrides=overrides, labels=labels).meta
+            logger = None
+            if rerun_options is not None:
+                logger = RerunLogger(rerun_options)
+            try:
+                result = measure_sequence(seq_dir, config=config or MeasureConfig(), logger=logger,
+                                          overrides=overrides, labels=labels)
+            finally:
+                if logger is not None:
+                    logger.close()
         # shards/ is ours as a whole: an older shard of the same sequence is merged over
         with atomic_dir(shard_dir, inputs=[seq_dir], overwrite=True, kind="campaign-shard") as tmp:
             write_result(result, tmp, extra_summary={"input_hash": digest})
@@ -175,9 +188,11 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
             "pixel_size_um": meta.pixel_size_um,
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
-        return {"status": "ok", "error": None, "meta": info}
+        return {"status": "ok", "error": None, "meta": info, "warnings": warning_lines(caught)}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
-        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None,
+                "warnings": warning_lines(caught)}
+
 
 
 # ----------------------------------------------------------------------------- dataset
@@ -221,18 +236,37 @@ def _timeseries_rows(seq_id: str, u1: float, u2: float, frames: pd.DataFrame) ->
     return out[TIMESERIES_COLUMNS]
 
 
-def _common(values, what: str, tol: float = 1e-9):
-    vals = [v for v in values if v is not None]
-    if not vals:
+def _same(a, b, tol: float) -> bool:
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(a, b, rel_tol=tol, abs_tol=tol)
+    return a == b
+
+
+def _common(values, what: str, tol: float = 1e-9, why: str = "one dataset is one nozzle and one ink"):
+    """The one value the sequences share (None when none gives it).
+
+    ``values``: (sequence id, value) pairs. Sequences that differ are refused, naming the
+    sequences of each value: one dataset is one nozzle and one ink (per-sequence calibration,
+    the pixel size, is not compared here: see `assemble_dataset`).
+    """
+    pairs = [(sid, v) for sid, v in values if v is not None]
+    if not pairs:
         return None
-    first = vals[0]
-    for v in vals[1:]:
-        if isinstance(first, (int, float)) and isinstance(v, (int, float)):
-            if not math.isclose(first, v, rel_tol=tol, abs_tol=tol):
-                raise ValueError(f"sequences disagree on {what}: {first} vs {v}; one dataset needs one nozzle/ink")
-        elif v != first:
-            raise ValueError(f"sequences disagree on {what}: {first!r} vs {v!r}")
-    return first
+    groups: list[tuple[object, list[str]]] = []
+    for sid, v in pairs:
+        for value, names in groups:
+            if _same(value, v, tol):
+                names.append(sid)
+                break
+        else:
+            groups.append((v, [sid]))
+    if len(groups) > 1:
+        def named(names):
+            return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+        shown = "; ".join(f"{value!r} in {named(names)}" for value, names in groups[:4])
+        raise ValueError(f"sequences disagree on {what}: {shown}; {why}")
+    return groups[0][0]
 
 
 def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
@@ -275,7 +309,7 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
                 "inflight_frames": summary.get("inflight_frames"),
             }
         )
-        metas.append((meta, wf))
+        metas.append((seq_id, meta, wf))
     timeseries = (
         pd.concat(ts_parts, ignore_index=True) if ts_parts else pd.DataFrame(columns=TIMESERIES_COLUMNS)
     )
@@ -285,16 +319,26 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
     delays = timeseries.groupby("sequence_id")["delay_us"].apply(lambda d: np.diff(np.sort(d.to_numpy())))
     steps = np.concatenate(delays.to_list()) if len(delays) else np.array([])
     steps = steps[steps > 0]
+    # the dataset is in physical units: each sequence carries its own scale (a refocused camera
+    # changes the pixel size, not the nozzle or the ink), so pixel sizes are listed, not compared
+    pixel_sizes = {sid: m.get("pixel_size_um") for sid, m, _ in metas if m.get("pixel_size_um") is not None}
+    distinct = sorted(set(pixel_sizes.values()))
+    waveform_why = "one dataset is one printhead drive (the model has one dead time, instroke and hold)"
     dataset = {
         "schema": DATASET_SCHEMA,
-        "nozzle_inner_diameter_um": _common([m.get("nozzle_inner_diameter_um") for m, _ in metas], "nozzle_inner_diameter_um"),
-        "ink": _common([m.get("ink") for m, _ in metas], "ink"),
-        "nozzle": _common([m.get("nozzle") for m, _ in metas], "nozzle geometry"),
-        "pixel_size_um": _common([m.get("pixel_size_um") for m, _ in metas], "pixel_size_um", tol=1e-6),
+        "nozzle_inner_diameter_um": _common([(s, m.get("nozzle_inner_diameter_um")) for s, m, _ in metas],
+                                            "nozzle_inner_diameter_um"),
+        "ink": _common([(s, m.get("ink")) for s, m, _ in metas], "ink"),
+        "nozzle": _common([(s, m.get("nozzle")) for s, m, _ in metas], "nozzle geometry"),
+        "pixel_size_um": distinct[0] if len(distinct) == 1 else None,
+        "pixel_size_um_by_sequence": pixel_sizes if len(distinct) > 1 else None,
         "sample_interval_us": float(np.median(steps)) if steps.size else None,
-        "dead_time_us": _common([w.get("dead_time_us", DEAD_TIME_US) for _, w in metas], "waveform dead_time_us"),
-        "u3_um_per_ms": _common([w.get("u3_um_per_ms", U3_PRESET_UM_PER_MS) for _, w in metas], "waveform u3_um_per_ms"),
-        "hold_us": _common([w.get("hold_us", HOLD_PRESET_US) for _, w in metas], "waveform hold_us"),
+        "dead_time_us": _common([(s, w.get("dead_time_us", DEAD_TIME_US)) for s, _, w in metas],
+                                "waveform dead_time_us", why=waveform_why),
+        "u3_um_per_ms": _common([(s, w.get("u3_um_per_ms", U3_PRESET_UM_PER_MS)) for s, _, w in metas],
+                                "waveform u3_um_per_ms", why=waveform_why),
+        "hold_us": _common([(s, w.get("hold_us", HOLD_PRESET_US)) for s, _, w in metas], "waveform hold_us",
+                           why=waveform_why),
         "n_sequences": len(rows),
         "sequences": [r["sequence_id"] for r in rows],
         "failed": {k: e.get("error") for k, e in entries.items() if e.get("status") != "ok"},
@@ -334,6 +378,8 @@ def run_campaign(
     progress: bool = True,
     rerun_options=None,
     overwrite: bool = False,
+    overrides: dict | None = None,
+    labels: dict | None = None,
 ) -> CampaignResult:
     """Measure every sequence below ``root`` into the dataset folder ``dataset_dir``.
 
@@ -355,6 +401,9 @@ def run_campaign(
     overwrite : bool
         Write into an existing ``dataset_dir`` that holds files we did not write (they are
         kept; ours of the same names are replaced).
+    overrides, labels : dict, optional
+        Values of sequence.json keys for every sequence (options; part of each input hash),
+        and how they were given: see `dropvision.sequence.open_sequence`.
 
     Raises
     ------
@@ -363,6 +412,7 @@ def run_campaign(
         we did not write (without ``overwrite``).
     """
     check_executor_args(workers, dask_local=dask_local, scheduler=scheduler)  # before touching dataset_dir
+    given = check_overrides(overrides, labels)  # a bad option: refused before any work
     config = config or MeasureConfig()
     if workers != 1 or dask_local is not None or scheduler is not None:
         # one process per core already: no threads inside a worker (no oversubscription)
@@ -378,7 +428,8 @@ def run_campaign(
     manifest_path = dataset_dir / "manifest.json"
     manifest = _load_manifest(manifest_path)
     old = manifest.get("sequences", {})
-    config_repr = repr(dataclasses.replace(config, workers=0))  # threads do not change results
+    # threads do not change results; options do
+    config_repr = repr(dataclasses.replace(config, workers=0)) + (f" {sorted(given.items())!r}" if given else "")
     # the previous run's entries of the current sequences stay until each is looked at again, so
     # that a run stopped part-way never loses a finished sequence from the manifest
     current = [sequence_id(root, f) for f in folders]
@@ -398,7 +449,9 @@ def run_campaign(
             out = future.result()
         except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
             out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
-        entries[sid].update(out)
+        if out.get("warnings"):
+            result.warnings[sid] = out["warnings"]
+        entries[sid].update({k: v for k, v in out.items() if k != "warnings"})
         if out["status"] == "ok":
             result.measured.append(sid)
         else:
@@ -441,6 +494,8 @@ def run_campaign(
                 digest,
                 config,
                 None if rerun_options is None else rerun_options.for_sequence(sid),
+                given or None,
+                labels,
             )
             if future.done():  # the serial executor finishes inside submit
                 record(future, sid)

@@ -9,6 +9,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from dropvision.app.options import (
+    add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
+    warning_lines,
+)
 from identify.app.errors import UsageError
 from identify.app.rerun_stream import add_rerun_args, options_from_args
 
@@ -23,20 +27,34 @@ def _add_executor_args(p: argparse.ArgumentParser) -> None:
 def _run_campaign_cmd(args) -> int:
     from dropvision.app.campaign import run_campaign  # heavy (numpy, pandas): only when run, not for --help
 
-    try:
-        res = run_campaign(
-            args.root, args.out, workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
-            progress=not args.no_progress and sys.stderr.isatty(),
-            rerun_options=options_from_args(args, "dropvision"), overwrite=args.overwrite,
-        )
-    except (FileNotFoundError, ValueError, RuntimeError) as exc:
-        raise UsageError(str(exc)) from exc
+    overrides, labels = overrides_from_args(args)
+    with captured_warnings() as caught:
+        try:
+            res = run_campaign(
+                args.root, args.out, workers=args.workers, dask_local=args.dask_local, scheduler=args.scheduler,
+                progress=progress_wanted(args), rerun_options=options_from_args(args, "dropvision"),
+                overwrite=args.overwrite, overrides=overrides, labels=labels,
+            )
+        except (FileNotFoundError, ValueError, RuntimeError) as exc:
+            raise UsageError(str(exc)) from exc
+        finally:
+            print_warnings("dropvision campaign", warning_lines(caught), args)
+    # the sequences' own warnings (measured in workers): one line each, once per sequence
+    print_warnings("dropvision campaign", [f"{sid}: {text}" for sid, texts in sorted(res.warnings.items())
+                                           for text in texts], args)
+    if args.quiet:
+        return 0
     print(
         f"campaign: {len(res.measured)} measured, {len(res.skipped)} unchanged (skipped), "
         f"{len(res.failed)} failed -> {res.dataset_dir}"
     )
     for sid, err in sorted(res.failed.items()):
         print(f"  failed {sid}: {err}")
+    if args.verbose:
+        for sid in sorted(res.measured):
+            print(f"  measured {sid}")
+        for sid in sorted(res.skipped):
+            print(f"  unchanged {sid}")
     return 0
 
 
@@ -63,8 +81,9 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     _add_executor_args(p)
+    add_output_args(p)
+    add_metadata_args(p)
     add_rerun_args(p)
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_run_campaign_cmd)
 
     s = subparsers.add_parser("synth-campaign", help="render a synthetic campaign grid with truth")

@@ -6,12 +6,14 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 
 from identify.app.errors import run_command
 from identify.atomic import OutputError
 
 #: Modules that contribute sub-commands, in the order they appear in --help.
 COMMAND_MODULES = (
+    "dropvision.app.init_cli",
     "dropvision.app.synth_cli",
     "dropvision.app.measure_cli",
     "dropvision.app.campaign_cli",
@@ -49,8 +51,16 @@ def main(argv: list[str] | None = None) -> int:
     from dropvision.sequence import SequenceError  # after parsing: --help does not pay for the readers
 
     _quiet_opencv()
-    # one error boundary: input/environment failures exit 2 with one line, bugs exit 1
-    return run_command("dropvision", args, expected=(SequenceError, OutputError))
+    with warnings.catch_warnings():
+        # a warning no command collected itself: one line, without its source line
+        warnings.showwarning = _one_line_warning
+        # one error boundary: input/environment failures exit 2 with one line, bugs exit 1
+        return run_command("dropvision", args, expected=(SequenceError, OutputError))
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """``dropvision: warning: <message>`` on stderr (`warnings.showwarning` of the command line)."""
+    print(f"dropvision: warning: {' '.join(str(message).split())}", file=file or sys.stderr)
 
 
 if __name__ == "__main__":

@@ -1,15 +1,25 @@
 """`dropvision measure SEQ_DIR --out OUT_DIR`: the command over `dropvision.measurement.measure_sequence`.
 
 The library is imported when the command runs, so that ``dropvision --help`` stays fast.
+Options override what sequence.json holds (`dropvision.app.options`); warnings are one line
+each (``dropvision measure: warning: ...``).
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
+from dropvision.app.options import (
+    add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
+    warning_lines,
+)
 from identify.app.errors import UsageError
 from identify.app.rerun_stream import add_rerun_args
+
+_SOURCES = ("orientation", "pixel_size", "delay", "nozzle_outer_diameter", "nozzle_inner_diameter", "waveform",
+            "bit_depth")
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -21,31 +31,46 @@ def _run(args: argparse.Namespace) -> int:
     seq = Path(args.seq_dir)
     if not seq.exists():
         raise UsageError(f"{seq}: no such folder")
+    overrides, labels = overrides_from_args(args)
     config = MeasureConfig(workers=args.workers)
     logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
-    try:
-        res = measure_sequence(seq, args.out, config, progress=args.progress, csv=args.csv, logger=logger,
-                               overwrite=args.overwrite)
-    finally:
-        if logger is not None:
-            logger.close()
+    with captured_warnings() as caught:
+        try:
+            res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
+                                   logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels)
+        finally:
+            if logger is not None:
+                logger.close()
+            print_warnings("dropvision measure", warning_lines(caught), args)
     s = res.summary
+    if args.quiet:
+        return 0
+    if args.verbose:
+        for key in _SOURCES:
+            value = s.get("orientation") if key == "orientation" else s["calibration"].get("pixel_size_um")
+            shown = f" {value}" if key in ("orientation", "pixel_size") else ""
+            print(f"{key}{shown}: {s.get(f'{key}_source') or 'not given'}")
+        for note in s.get("notes") or []:
+            print(f"note: {note}")
     print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; pinch-off {s['pinchoff_us']} us, "
           f"in-flight volume {s['inflight_volume_nl']:.4g} nl, jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
           + (f"; {len(s['errors'])} frame(s) skipped" if s["errors"] else ""))
+    sys.stdout.flush()
     return 0
 
 
 def register(subparsers) -> None:
     """Add the ``measure`` sub-command."""
     p = subparsers.add_parser("measure", help="measure drop volumes, pinch-off and velocities of a strobe sequence")
-    p.add_argument("seq_dir", help="sequence folder (with sequence.json or delay-named frames)")
+    p.add_argument("seq_dir", help="sequence folder (sequence.json and images, or images alone with options such "
+                   "as --pixel-size-um)")
     p.add_argument("--out", required=True, help="output folder (written atomically; never the sequence folder, "
                    "inside it or around it; an existing folder only if it holds an earlier result of ours)")
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
     p.add_argument("--workers", type=int, default=2, help="decoding/measuring threads (default 2)")
-    p.add_argument("--progress", action="store_true", help="progress bar on stderr")
+    add_output_args(p)
+    add_metadata_args(p)
     add_rerun_args(p)
     p.set_defaults(func=_run)

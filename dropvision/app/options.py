@@ -1,0 +1,122 @@
+"""Options shared by the commands that read sequences (`measure`, `campaign`, `init`).
+
+- `add_metadata_args` / `overrides_from_args`: one option per key of sequence.json
+  (docs/FORMAT.md); a given option overrides the file, passes the same validation
+  (`dropvision.sequence.check_overrides`) and is named in summary.json (``*_source``:
+  "command line --pixel-size-um").
+- `add_output_args` / `progress_wanted`: ``--quiet``, ``--verbose``, ``--progress`` /
+  ``--no-progress`` (default: a progress bar when stderr is a terminal).
+- `captured_warnings` / `print_warnings`: library warnings become one line each,
+  ``dropvision measure: warning: <file>: <message>``, without source lines or tracebacks.
+
+Only the standard library is imported here (``dropvision --help`` stays fast).
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import sys
+import warnings
+
+#: (option, sequence.json key, type, help); waveform options are collected into ``waveform``.
+_METADATA_OPTIONS = (
+    ("--pixel-size-um", "pixel_size_um", float, "pixel size in µm (object plane)"),
+    ("--nozzle-outer-diameter-um", "nozzle_outer_diameter_um", float,
+     "nozzle outer diameter in µm; without a pixel size, the pixel size is this diameter over the nozzle's "
+     "outer width measured in the first frame (px)"),
+    ("--nozzle-inner-diameter-um", "nozzle_inner_diameter_um", float, "nozzle inner diameter in µm (flow velocity)"),
+    ("--delay-us", "delay_us", float, "strobe delay of a sequence of ONE frame (µs after the trigger)"),
+    ("--frame-rate-hz", "frame_rate_hz", float, "frame rate of a video or numbered image stack (Hz)"),
+    ("--first-frame-delay-us", "first_frame_delay_us", float, "with --frame-rate-hz: delay of the trigger frame (µs)"),
+    ("--trigger-frame", "trigger_frame", int, "with --frame-rate-hz: index of the frame taken at --first-frame-delay-us"),
+    ("--bit-depth", "bit_depth", int, "significant bits of 16-bit images (8, 12 or 16)"),
+    ("--nozzle-tip-row", "nozzle_tip_row", float, "row of the nozzle-tip centre in the stored image"),
+    ("--axis-col", "axis_col", float, "column of the nozzle-tip centre in the stored image"),
+)
+_METAVAR = {"--pixel-size-um": "UM", "--nozzle-outer-diameter-um": "UM", "--nozzle-inner-diameter-um": "UM",
+            "--delay-us": "US", "--frame-rate-hz": "HZ", "--first-frame-delay-us": "US", "--trigger-frame": "N",
+            "--bit-depth": "BITS", "--nozzle-tip-row": "PX", "--axis-col": "PX"}
+_WAVEFORM_OPTIONS = (
+    ("--u1-um-per-ms", "u1_um_per_ms", "waveform stroke velocity u1 (µm/ms)"),
+    ("--u2-um", "u2_um", "waveform stroke u2 (µm)"),
+    ("--u3-um-per-ms", "u3_um_per_ms", "waveform instroke velocity u3 (µm/ms, default 2)"),
+    ("--hold-us", "hold_us", "waveform hold time (µs, default 20)"),
+    ("--dead-time-us", "dead_time_us", "trigger-to-piston dead time (µs, default 220)"),
+)
+
+
+def add_metadata_args(p: argparse.ArgumentParser) -> None:
+    """Add one option per key of sequence.json (they override the file)."""
+    g = p.add_argument_group("sequence metadata", "what sequence.json holds (docs/FORMAT.md); an option overrides "
+                             "the file and summary.json names it as the source")
+    for opt, key, typ, text in _METADATA_OPTIONS:
+        g.add_argument(opt, dest=f"meta_{key}", type=typ, default=None, metavar=_METAVAR[opt], help=text)
+    g.add_argument("--orientation", dest="meta_orientation", choices=("down", "up", "left", "right"), default=None,
+                   help="direction the drops travel in the stored images (default: sequence.json, else detected "
+                        "from the edge the nozzle or holder touches)")
+    for opt, key, text in _WAVEFORM_OPTIONS:
+        g.add_argument(opt, dest=f"wave_{key}", type=float, default=None,
+                       metavar="UM_PER_MS" if key.endswith("per_ms") else key.rsplit("_", 1)[1].upper(), help=text)
+
+
+def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
+    """(overrides, labels) for `dropvision.sequence.open_sequence` from the parsed options."""
+    overrides, labels = {}, {}
+    for opt, key, _, _ in (*_METADATA_OPTIONS, ("--orientation", "orientation", str, "")):
+        value = getattr(args, f"meta_{key}", None)
+        if value is not None:
+            overrides[key] = value
+            labels[key] = f"command line {opt}"
+    wave = {key: getattr(args, f"wave_{key}") for _, key, _ in _WAVEFORM_OPTIONS
+            if getattr(args, f"wave_{key}", None) is not None}
+    if wave:
+        overrides["waveform"] = wave
+        labels["waveform"] = "command line " + " ".join(opt for opt, key, _ in _WAVEFORM_OPTIONS if key in wave)
+    return overrides, labels
+
+
+def add_output_args(p: argparse.ArgumentParser) -> None:
+    """``--quiet``, ``--verbose``, ``--progress`` / ``--no-progress``."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (no warnings, no progress)")
+    g.add_argument("-v", "--verbose", action="store_true",
+                   help="also print where each value came from and the measurement's notes")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar on stderr (default: when stderr is a terminal)")
+
+
+def progress_wanted(args: argparse.Namespace) -> bool:
+    """The progress bar: as asked, else on a terminal unless ``--quiet``."""
+    if getattr(args, "quiet", False):
+        return bool(getattr(args, "progress", None))
+    if getattr(args, "progress", None) is not None:
+        return bool(args.progress)
+    return sys.stderr.isatty()
+
+
+@contextlib.contextmanager
+def captured_warnings():
+    """Collect the library's warnings (a list of `warnings.WarningMessage`) instead of
+    printing them with their source lines."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield caught
+
+
+def warning_lines(caught) -> list[str]:
+    """The distinct messages of captured warnings, in order (one line each)."""
+    out = []
+    for w in caught:
+        text = " ".join(str(getattr(w, "message", w)).split())
+        if text not in out:
+            out.append(text)
+    return out
+
+
+def print_warnings(prog: str, lines, args: argparse.Namespace | None = None) -> None:
+    """``<prog>: warning: <message>`` on stderr, one line each (nothing with ``--quiet``)."""
+    if args is not None and getattr(args, "quiet", False):
+        return
+    for text in lines:
+        print(f"{prog}: warning: {text}", file=sys.stderr)
