@@ -5,7 +5,7 @@ grid, 1 % noise), 3 outputs -> 120 interval checks per kind at nominal 95 %. Bin
 coverage over 120 independent checks is 2.0 points of %, so 3 sd gives 89-100 %; the points
 of one seed share one fit (correlated), so the band asserted is wider, 85-100 %, per kind.
 Too wide intervals (coverage 100 %, e.g. the pinch-off jitter counted twice) are caught by
-the RMS of (mean - truth) / confidence_std, which must be near 1 (0.6-1.5).
+the RMS of (mean - truth) / mean_drop_std, which must be near 1 (0.6-1.5).
 """
 
 import sys
@@ -83,14 +83,14 @@ def test_measurement_term_widens_by_the_stated_amount(small):
     for k, rel in (("inflight_volume_nl", 0.001), ("jetting_velocity_m_s", 0.002)):
         e = iv[k]
         assert e["measurement_std"] == pytest.approx(rel * e["mean"], rel=1e-12)
-        assert e["confidence_high"] - e["mean"] == pytest.approx(1.959964 * rel * e["mean"], rel=1e-5)
-        assert e["prediction_high"] - e["mean"] >= e["confidence_high"] - e["mean"]
+        assert e["mean_drop_high"] - e["mean"] == pytest.approx(1.959964 * rel * e["mean"], rel=1e-5)
+        assert e["one_drop_high"] - e["mean"] >= e["mean_drop_high"] - e["mean"]
         assert e["measurement_source"] == "test"
-    assert iv["pinchoff_us"]["confidence_high"] - iv["pinchoff_us"]["mean"] == pytest.approx(1.959964 * 3.0, rel=1e-5)
+    assert iv["pinchoff_us"]["mean_drop_high"] - iv["pinchoff_us"]["mean"] == pytest.approx(1.959964 * 3.0, rel=1e-5)
     # the term adds in quadrature to the rest
     m.intervals["scatter"]["inflight_volume_nl"]["model_std"] = 0.01
     e = m.interval_prediction(65, 27.5, mc=_constant_mc(m, 65, 27.5))["inflight_volume_nl"]
-    assert e["confidence_std"] == pytest.approx(np.hypot(0.01, 0.001 * e["mean"]), rel=1e-12)
+    assert e["mean_drop_std"] == pytest.approx(np.hypot(0.01, 0.001 * e["mean"]), rel=1e-12)
 
 
 def test_measurement_round_trip_and_older_models(small, tmp_path):

@@ -179,8 +179,8 @@ def main(argv: list[str] | None = None) -> int:
     for key in ("inflight_volume_nl", "jetting_velocity_m_s"):
         s, e = summ[key], iv[key]
         m = float(meas[key].mean()) if len(meas) else float("nan")
-        print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['confidence_low'], e['confidence_high']):>24s} "
-              f"{'[%7.3f, %7.3f]' % (e['prediction_low'], e['prediction_high']):>26s} {_fmt(m):>9s} "
+        print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['mean_drop_low'], e['mean_drop_high']):>24s} "
+              f"{'[%7.3f, %7.3f]' % (e['one_drop_low'], e['one_drop_high']):>26s} {_fmt(m):>9s} "
               f"{truth[key]:9.3f} {_rel_err(s['mean'], truth[key]):>11s}")
     print("  confidence: where the mean drop lies (parameters + model discrepancy + the campaign's measurement "
           "uncertainty); prediction: where one drop lies (+ drop-to-drop scatter)")
