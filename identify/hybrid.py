@@ -863,7 +863,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
     """
     from dataclasses import replace
 
-    from identify.discrepancy import LIKELIHOOD_RATIO_THRESHOLD, fit_discrepancy, smooth_scatter_variance
+    from identify.discrepancy import SCATTER_LIKELIHOOD_RATIO_THRESHOLD, fit_discrepancy, smooth_scatter_variance
 
     fits = {"pinchoff_us": model.pinchoff, "inflight_volume_nl": model.volume_adjuster,
             "jetting_velocity_m_s": model.velocity_adjuster}
@@ -916,7 +916,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
             drop_var, source = float(resid @ resid) / dof, "residuals"
             est = smooth_scatter_variance(u1, u2, resid, design_matrix(*fits[k].normalised(u1, u2), fits[k].terms),
                                           seed=seed)
-            if est is not None and est[2] >= LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
+            if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
                 drop_var, source = est[0], "smooth_scatter"
         e = cv_err[k]
         ok = np.isfinite(e)
