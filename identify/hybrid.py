@@ -360,6 +360,22 @@ def local_model_std(scatter: dict, u1: float, u2: float) -> tuple[float, str]:
     return glob, ("global" if glob > 0 else "none")
 
 
+def widening_reason(output: str, e: dict) -> str | None:
+    """A sentence saying why the mean-drop interval of ``output`` is wider than the parameters-only
+    band, when the model discrepancy or the measurement term dominates it (else None)."""
+    term = e.get("mean_drop_dominant_term")
+    share = (e.get("variance_shares") or {}).get(term, 0.0)
+    if term == "model_discrepancy":
+        where = ("near these controls cross-validation saw the polynomials miss the data (local estimate)"
+                 if e.get("model_std_source") == "local" else "cross-validation saw the polynomials miss the data")
+        return (f"{output}: the mean-drop interval is widened mostly by model discrepancy (std {e['model_std']:.3g}, "
+                f"{100 * share:.0f} % of the one-drop variance): {where}")
+    if term == "measurement":
+        return (f"{output}: the mean-drop interval is widened mostly by the systematic measurement uncertainty "
+                f"(std {e['measurement_std']:.3g}, {100 * share:.0f} % of the one-drop variance)")
+    return None
+
+
 #: Key of ``intervals["measurement"]`` per output and whether it is relative to the mean.
 MEASUREMENT_TERMS = {"pinchoff_us": ("pinchoff_std_us", False), "inflight_volume_nl": ("volume_rel", True),
                      "jetting_velocity_m_s": ("velocity_rel", True)}
@@ -1138,4 +1154,5 @@ def fit_hybrid(
                      volume_selection=sel_v, velocity_selection=sel_q, training=training, notes=notes)
 
 
-__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS", "describe_measurement"]
+__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS", "describe_measurement",
+           "widening_reason", "local_model_std"]

@@ -61,6 +61,31 @@ def test_misfit_family_coverage_in_band(curved):
     assert np.all(np.isfinite(curved["rel_error_%"])) and curved["rel_error_%"].abs().max() < 3.0
 
 
+def test_local_model_std_and_the_widening_sentence(small):
+    """The local term replaces the global one near a misfit the Gaussian process holds, not far
+    from it; the prediction output names the dominant term."""
+    from identify.discrepancy import fit_discrepancy
+    from identify.hybrid import local_model_std, widening_reason
+
+    g1, g2 = np.meshgrid(np.linspace(50, 80, 5), np.linspace(20, 35, 5), indexing="ij")
+    u1, u2 = g1.ravel(), g2.ravel()
+    bump = np.exp(-(((u1 - 72.5) / 15) ** 2 + ((u2 - 23.75) / 7.5) ** 2) / 0.5)
+    e = 4.0 * bump + np.random.default_rng(5).standard_normal(u1.size)
+    sc = {"model_std": 1.5, "drop_std": 1.0, "local": fit_discrepancy(u1, u2, e)}
+    near, src_near = local_model_std(sc, 72.5, 23.75)
+    far, src_far = local_model_std(sc, 52.0, 34.0)
+    assert src_near == "local" and near > 2.5 and src_far == "global" and far == 1.5  # exact misfit: 4, 0
+    assert local_model_std({"model_std": 0.0}, 65, 27.5) == (0.0, "none")
+    _, model = small
+    m = HybridModel.from_dict(model.to_dict())
+    m.intervals["scatter"]["jetting_velocity_m_s"].update({"model_std": 0.05, "local": None})
+    e = m.interval_prediction(65, 27.5, mc=_constant_mc(m, 65, 27.5))["jetting_velocity_m_s"]
+    assert e["mean_drop_dominant_term"] == "model_discrepancy" and e["model_std_source"] == "global"
+    assert e["mean_drop_std"] == pytest.approx(0.05) and e["variance_shares"]["model_discrepancy"] > 0.5
+    assert "model discrepancy" in widening_reason("jetting_velocity_m_s", e)
+    assert widening_reason("pinchoff_us", {"mean_drop_dominant_term": "parameters"}) is None
+
+
 def test_pinchoff_off_by_one_delay_family(tmp_path):
     grid = [(a, b) for a in (55.0, 65.0, 75.0) for b in (20.0, 27.5, 35.0)] * 3
     base = family_dataset(tmp_path / "a", "exponential", grid, 1.0, 4).summary

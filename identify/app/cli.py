@@ -229,6 +229,8 @@ def cmd_predict(args) -> int:
               f"{pred:>30s} {OUTPUT_UNITS[k]:3s} {e['mean_drop_dominant_term']} / {e['one_drop_dominant_term']}")
     for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
                    ("jetting_velocity_m_s", "jetting_velocity_m_s")):
+        from identify.hybrid import widening_reason
+
         why = widening_reason(k, summary[key])
         if why:
             print(f"note: {why}")
@@ -246,22 +248,6 @@ INTERVAL_FIELDS = ("level", "mean_drop_low", "mean_drop_high", "mean_drop_std", 
                    "one_drop_high", "one_drop_std", "one_drop_available", "parameter_std", "model_std",
                    "model_std_source", "measurement_std", "drop_std", "mean_drop_dominant_term",
                    "one_drop_dominant_term", "variance_shares")
-
-
-def widening_reason(output: str, e: dict) -> str | None:
-    """A sentence saying why the mean-drop interval of ``output`` is wider than the parameters-only
-    band, when the model discrepancy or the measurement term dominates it (else None)."""
-    term = e.get("mean_drop_dominant_term")
-    share = (e.get("variance_shares") or {}).get(term, 0.0)
-    if term == "model_discrepancy":
-        where = ("near these controls cross-validation saw the polynomials miss the data (local estimate)"
-                 if e.get("model_std_source") == "local" else "cross-validation saw the polynomials miss the data")
-        return (f"{output}: the mean-drop interval is widened mostly by model discrepancy (std {e['model_std']:.3g}, "
-                f"{100 * share:.0f} % of the one-drop variance): {where}")
-    if term == "measurement":
-        return (f"{output}: the mean-drop interval is widened mostly by the systematic measurement uncertainty "
-                f"(std {e['measurement_std']:.3g}, {100 * share:.0f} % of the one-drop variance)")
-    return None
 INTERVAL_NOTE = ("parameters only = the parameter Monte Carlo band alone (not an interval of the mean drop); "
                  "mean drop (confidence) = where the mean of many drops lies (parameter uncertainty of the ECM, pinch-off and "
                  "adjuster fits, plus model discrepancy seen in cross-validation, plus the systematic measurement "
