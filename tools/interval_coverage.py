@@ -301,14 +301,15 @@ def table(df: pd.DataFrame) -> pd.DataFrame:
         out["rms_error_%"] = g["rel_error_%"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
         out["median_mean_drop_half_width_%"] = g["mean_drop_half_width_%"].median()
         out["discrepancy_dominant_%"] = 100 * g["mean_drop_dominant"].apply(lambda d: float(np.mean(d == "model_discrepancy")))
-    if "family" in df:
-        out["family"] = df["family"].iloc[0]
     if "inside_confidence_without_measurement" in df:
         out["confidence_without_measurement_%"] = 100 * g["inside_confidence_without_measurement"].mean()
         out["confidence_method_term_only_%"] = 100 * g["inside_confidence_method_only"].mean()
         out["mean_error_%"] = g["rel_error_%"].mean()
         out["rms_error_%"] = g["rel_error_%"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
-    return out.reset_index()
+    out = out.reset_index()
+    if "family" in df:
+        out.insert(0, "family", df["family"].iloc[0])
+    return out
 
 
 def main(argv=None) -> int:
