@@ -798,6 +798,7 @@ def make_synthetic_dataset(
     repeats: int = 1,
     sample_interval_us: float = SAMPLE_INTERVAL_US,
     tail_samples: int = 3,
+    noise_draw=None,
 ) -> Dataset:
     """Write a synthetic dataset with exactly known truth and return it.
 
@@ -811,11 +812,16 @@ def make_synthetic_dataset(
     Noise: every volume, velocity and pinch-off value gets independent Gaussian noise of
     ``noise_percent`` % of its own magnitude (time series: of the sequence's peak volume /
     velocity). The truth is written to ``truth.json``.
+
+    ``noise_draw``: another scatter of the same size, a function ``(rng, size)`` returning
+    draws of zero mean and unit variance (``size`` None: one float), e.g. a scaled Student t
+    for heavier tails (`tools/interval_coverage.py`); default ``rng.standard_normal``.
     """
     physics = physics or default_physics()
     grid = paper_grid() if grid is None else [(float(a), float(b)) for a, b in grid]
     rng = np.random.default_rng(seed)
     sigma = noise_percent / 100.0
+    draw = (lambda r, size=None: r.standard_normal(size)) if noise_draw is None else noise_draw
     d_um = physics.nozzle_inner_diameter_um
     h = float(sample_interval_us)
     ts_rows, su_rows, truth_rows = [], [], []
@@ -833,10 +839,10 @@ def make_synthetic_dataset(
                            "inflight_volume_nl": inflight, "jetting_velocity_m_s": jet,
                            "flow_velocity_at_max_stroke_m_s": v_max})
         for _ in range(repeats):
-            tp_meas = t_p * (1 + sigma * rng.standard_normal())
+            tp_meas = t_p * (1 + sigma * draw(rng))
             attached = t < tp_meas
-            vn = vol + sigma * np.abs(vol).max() * rng.standard_normal(n)
-            fn = vel + sigma * np.abs(vel).max() * rng.standard_normal(n)
+            vn = vol + sigma * np.abs(vol).max() * draw(rng, n)
+            fn = vel + sigma * np.abs(vel).max() * draw(rng, n)
             vn[~attached] = np.nan
             fn[~attached] = np.nan
             ts_rows.append(pd.DataFrame({
@@ -845,10 +851,10 @@ def make_synthetic_dataset(
             }))
             su_rows.append({
                 "sequence_id": sid, "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp_meas,
-                "grown_volume_at_pinchoff_nl": v_p * (1 + sigma * rng.standard_normal()),
-                "inflight_volume_nl": inflight * (1 + sigma * rng.standard_normal()),
-                "jetting_velocity_m_s": jet * (1 + sigma * rng.standard_normal()),
-                "flow_velocity_at_max_stroke_m_s": v_max * (1 + sigma * rng.standard_normal()),
+                "grown_volume_at_pinchoff_nl": v_p * (1 + sigma * draw(rng)),
+                "inflight_volume_nl": inflight * (1 + sigma * draw(rng)),
+                "jetting_velocity_m_s": jet * (1 + sigma * draw(rng)),
+                "flow_velocity_at_max_stroke_m_s": v_max * (1 + sigma * draw(rng)),
             })
             sid += 1
     ts = pd.concat(ts_rows, ignore_index=True)

@@ -33,7 +33,7 @@ class DesignResult:
 
     ``feasible``: the target is met within tolerance inside the region; ``u1_um_per_ms``,
     ``u2_um``: the proposal (the nearest achievable point when infeasible); ``predicted``:
-    nominal predictions there; ``spread``: Monte Carlo {"mean","std","low","high"} per output;
+    nominal predictions there; ``spread``: Monte Carlo {"mean", "std", "parameters_only_low", "parameters_only_high"} per output;
     ``error_percent``: {"volume": ..., "velocity": ...} relative errors of the nominal model.
     """
 

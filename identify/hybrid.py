@@ -144,21 +144,31 @@ class HybridModel:
 
     def interval_prediction(self, u1: float, u2: float, samples: int = 10_000, seed: int | None = 0,
                             level: float = 0.95, mc=None) -> dict:
-        """Confidence and prediction intervals of each output at (u1, u2).
+        """The three intervals of each output at (u1, u2), named for what they cover.
 
         Per output of :data:`INTERVAL_OUTPUTS` a dict with ``mean`` (Monte Carlo mean: the point
         prediction), ``nominal``, ``level`` and
 
-        * ``confidence_low/high``: interval of the *mean* drop (parameter uncertainty): the
-          spread of the parameter Monte Carlo (ECM coefficient covariance, pinch-off and both
-          adjuster polynomials, pinch-off and volume adjuster drawn jointly) plus, where the
-          cross-validation found it, the model-discrepancy scatter ``model_std``, plus the
-          systematic measurement uncertainty ``measurement_std`` (below); ``confidence_std`` is
-          its standard deviation;
-        * ``prediction_low/high``: interval of an *individual drop*: the confidence variance
-          plus the drop-to-drop scatter ``drop_std`` estimated from the training data (repeats
-          where present, else the sequences' own standard errors, else the residuals of the
-          fit), Student-t with the scatter's degrees of freedom; ``prediction_std``.
+        * ``parameters_only_low/high``: the (1 - level)/2 and (1 + level)/2 percentiles of the
+          parameter Monte Carlo alone (ECM coefficient covariance, pinch-off and both adjuster
+          polynomials, pinch-off and volume adjuster drawn jointly); ``parameter_std`` its
+          standard deviation. Narrowest: it ignores model discrepancy and measurement error,
+          so it is *not* an interval of the mean drop;
+        * ``mean_drop_low/high`` (the confidence interval): where the *mean* of many drops at
+          (u1, u2) lies: the parameter variance plus the model discrepancy ``model_std`` (the
+          misfit cross-validation sees beyond noise and parameter uncertainty, locally in
+          (u1, u2) where the training data say so, see :func:`local_model_std`) plus the
+          systematic measurement uncertainty ``measurement_std`` (below); ``mean_drop_std``;
+        * ``one_drop_low/high`` (the prediction interval): where *one individual drop* lies:
+          the mean-drop variance plus the drop-to-drop scatter ``drop_std`` estimated from the
+          training data (repeats where present, else the sequences' own standard errors, else
+          the residuals of the fit), Student-t with the scatter's degrees of freedom;
+          ``one_drop_std``.
+
+        ``mean_drop_dominant_term`` and ``one_drop_dominant_term`` name the largest variance
+        term of each interval ("parameters", "model_discrepancy", "measurement", "drop_scatter");
+        ``variance_shares`` gives every term's share of the one-drop variance, and
+        ``model_std_source`` whether the discrepancy is the global or the local estimate.
 
         Measurement term (``intervals["measurement"]`` of the model, from
         :func:`identify.dataset.measurement_uncertainty`): what every sequence of the training
@@ -169,8 +179,8 @@ class HybridModel:
         where the figures come from. Models without it (older files) add nothing
         (``measurement_std`` 0, source None).
 
-        A model without ``intervals`` (fitted before they existed) gives the prediction
-        interval equal to the confidence interval and ``prediction_available`` False.
+        A model without ``intervals`` (fitted before they existed) gives the one-drop interval
+        equal to the mean-drop interval and ``one_drop_available`` False.
         ``mc``: an already computed :class:`identify.montecarlo.MonteCarloResult`.
         """
         from scipy import special  # stdtrit/ndtri: the values of stats.t/norm.ppf, without importing scipy.stats
@@ -187,26 +197,33 @@ class HybridModel:
             x = np.asarray(res.samples[k], float)
             mean = float(np.mean(x))
             s_mc = float(np.std(x, ddof=1)) if x.size > 1 else 0.0
+            lo, hi = (np.percentile(x, [50 * (1 - level), 50 * (1 + level)]) if x.size > 1 else (mean, mean))
             sc = scatter.get(k) or {}
-            s_model = float(sc.get("model_std") or 0.0)
+            s_model, model_source = local_model_std(sc, u1, u2)
             s_drop = sc.get("drop_std")
             s_meas = _measurement_std(meas, k, mean)
             s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))
+            terms = {"parameters": s_mc**2, "model_discrepancy": s_model**2, "measurement": s_meas**2}
             entry = {"mean": mean, "nominal": float(nominal[k]), "level": float(level),
-                     "parameter_std": s_mc, "model_std": s_model, "measurement_std": s_meas,
-                     "measurement_source": meas.get("source") if meas else None,
-                     "confidence_std": s_conf,
-                     "confidence_low": mean - z * s_conf, "confidence_high": mean + z * s_conf}
+                     "parameters_only_low": float(lo), "parameters_only_high": float(hi),
+                     "parameter_std": s_mc, "model_std": s_model, "model_std_source": model_source,
+                     "measurement_std": s_meas, "measurement_source": meas.get("source") if meas else None,
+                     "mean_drop_std": s_conf, "mean_drop_low": mean - z * s_conf, "mean_drop_high": mean + z * s_conf,
+                     "mean_drop_dominant_term": _dominant(terms)}
             if s_drop is not None:
                 dof = sc.get("dof")
                 q = float(special.stdtrit(dof, 0.5 + level / 2)) if dof else z
                 s_pred = float(np.sqrt(s_conf**2 + float(s_drop) ** 2))
-                entry.update({"drop_std": float(s_drop), "prediction_std": s_pred,
-                              "prediction_low": mean - q * s_pred, "prediction_high": mean + q * s_pred,
-                              "prediction_available": True})
+                terms["drop_scatter"] = float(s_drop) ** 2
+                entry.update({"drop_std": float(s_drop), "one_drop_std": s_pred,
+                              "one_drop_low": mean - q * s_pred, "one_drop_high": mean + q * s_pred,
+                              "one_drop_available": True})
             else:
-                entry.update({"drop_std": None, "prediction_std": s_conf, "prediction_low": entry["confidence_low"],
-                              "prediction_high": entry["confidence_high"], "prediction_available": False})
+                entry.update({"drop_std": None, "one_drop_std": s_conf, "one_drop_low": entry["mean_drop_low"],
+                              "one_drop_high": entry["mean_drop_high"], "one_drop_available": False})
+            total = sum(terms.values())
+            entry["one_drop_dominant_term"] = _dominant(terms)
+            entry["variance_shares"] = {t: (v / total if total > 0 else 0.0) for t, v in terms.items()}
             out[k] = entry
         return out
 
@@ -307,6 +324,56 @@ class HybridModel:
         except RecursionError:
             raise ModelFileError(f"{path}: invalid JSON (nested too deeply)") from None
         return cls.from_dict(d, source=str(path))
+
+
+def _dominant(terms: dict) -> str:
+    """Name of the largest variance term (the first on ties)."""
+    return max(terms, key=lambda t: terms[t])
+
+
+def local_model_std(scatter: dict, u1: float, u2: float) -> tuple[float, str]:
+    """Model-discrepancy standard deviation of one output at (u1, u2) and where it comes from.
+
+    ``scatter`` is ``model.intervals["scatter"][output]`` (`fit_hybrid`). The global
+    ``model_std`` holds everywhere. Where the fit stored the Gaussian process of the
+    cross-validation errors (``local``, :func:`identify.discrepancy.fit_discrepancy`), the
+    expected squared misfit at (u1, u2), μ(u)² + v(u)
+    (:func:`identify.discrepancy.discrepancy_variance`), replaces the global value where
+    larger: near the controls where cross-validation saw the misfit concentrate, and, far from
+    every training control, the discrepancy's prior variance.
+
+    Returns
+    -------
+    model_std : float
+        In the unit of the output.
+    source : str
+        "none" (no discrepancy), "global" or "local".
+    """
+    from identify.discrepancy import discrepancy_variance
+
+    glob = float(scatter.get("model_std") or 0.0)
+    loc = scatter.get("local")
+    if loc:
+        v = float(discrepancy_variance(loc, u1, u2)[0])
+        if v > glob**2:
+            return float(np.sqrt(v)), "local"
+    return glob, ("global" if glob > 0 else "none")
+
+
+def widening_reason(output: str, e: dict) -> str | None:
+    """A sentence saying why the mean-drop interval of ``output`` is wider than the parameters-only
+    band, when the model discrepancy or the measurement term dominates it (else None)."""
+    term = e.get("mean_drop_dominant_term")
+    share = (e.get("variance_shares") or {}).get(term, 0.0)
+    if term == "model_discrepancy":
+        where = ("near these controls cross-validation saw the polynomials miss the data (local estimate)"
+                 if e.get("model_std_source") == "local" else "cross-validation saw the polynomials miss the data")
+        return (f"{output}: the mean-drop interval is widened mostly by model discrepancy (std {e['model_std']:.3g}, "
+                f"{100 * share:.0f} % of the one-drop variance): {where}")
+    if term == "measurement":
+        return (f"{output}: the mean-drop interval is widened mostly by the systematic measurement uncertainty "
+                f"(std {e['measurement_std']:.3g}, {100 * share:.0f} % of the one-drop variance)")
+    return None
 
 
 #: Key of ``intervals["measurement"]`` per output and whether it is relative to the mean.
@@ -529,6 +596,27 @@ def _check_model_dict(d: dict, source) -> None:
     _check_intervals(d, source)
 
 
+def _check_local(loc, source, key: str) -> None:
+    """The Gaussian process of the cross-validation errors (`identify.discrepancy.fit_discrepancy`)."""
+    if not isinstance(loc, dict):
+        raise _model_error(source, key, f"must be an object, got {type(loc).__name__}")
+    missing = [k for k in ("u1_um_per_ms", "u2_um", "cv_error", "centre", "scale", "lengthscale",
+                           "discrepancy_variance", "scatter_variance") if k not in loc]
+    if missing:
+        raise _model_error(source, key, f"misses {', '.join(missing)}")
+    n = len(_array(loc["cv_error"], source, f"{key}.cv_error", (None,)))
+    for k in ("u1_um_per_ms", "u2_um"):
+        _array(loc[k], source, f"{key}.{k}", (n,))
+    _array(loc["centre"], source, f"{key}.centre", (2,))
+    for k in ("scale", "lengthscale"):
+        if np.any(_array(loc[k], source, f"{key}.{k}", (2,)) <= 0):
+            raise _model_error(source, f"{key}.{k}", "must be > 0")
+    _number(loc["discrepancy_variance"], source, f"{key}.discrepancy_variance", nonnegative=True)
+    _number(loc["scatter_variance"], source, f"{key}.scatter_variance", positive=True)
+    if loc.get("likelihood_ratio") is not None:
+        _number(loc["likelihood_ratio"], source, f"{key}.likelihood_ratio", nonnegative=True)
+
+
 def _check_intervals(d: dict, source) -> None:
     """The optional ``intervals`` object (`fit_hybrid`): scatter per output, cross-covariance."""
     iv = d.get("intervals")
@@ -550,6 +638,8 @@ def _check_intervals(d: dict, source) -> None:
                 dof = _number(v["dof"], source, f"intervals.scatter.{k}.dof", positive=True)
                 if dof != int(dof):
                     raise _model_error(source, f"intervals.scatter.{k}.dof", f"must be an integer, got {dof}")
+            if v.get("local") is not None:
+                _check_local(v["local"], source, f"intervals.scatter.{k}.local")
     m = iv.get("measurement")
     if m is not None:
         if not isinstance(m, dict):
@@ -726,12 +816,13 @@ def _param_dict(fit) -> dict | None:
     pd_ = p.to_dict() if hasattr(p, "to_dict") else dict(p)
     out = {}
     for k, v in pd_.items():
-        entry = {"value": float(v), "low": None, "high": None}
+        # the parameter's own 95 % interval (named, no bare low/high: issue 19)
+        entry = {"value": float(v), "ci95_low": None, "ci95_high": None}
         c = ci.get(k)
         if c is not None and np.ndim(c) == 1 and len(c) == 2:  # (low, high)
-            entry["low"], entry["high"] = float(c[0]), float(c[1])
+            entry["ci95_low"], entry["ci95_high"] = float(c[0]), float(c[1])
         elif c is not None and np.ndim(c) == 0:  # half-width
-            entry["low"], entry["high"] = float(v) - float(c), float(v) + float(c)
+            entry["ci95_low"], entry["ci95_high"] = float(v) - float(c), float(v) + float(c)
         out[k] = entry
     return out
 
@@ -765,19 +856,30 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
       hold the model's lack of fit, which is the same for every drop at one (u1, u2) and goes to
       ``model_std`` (confidence) instead of being taken for drop scatter; else the residual
       standard deviation of the whole hybrid chain at the training points (residual sum of
-      squares / (n - p), p the coefficients of the output's own polynomial); ``dof`` its
-      degrees of freedom;
+      squares / (n - p), p the coefficients of the output's own polynomial; source
+      ``residuals``), unless those residuals hold a smooth departure from the chosen polynomial
+      (a law it lacks): then the scatter about polynomial + smooth departure
+      (:func:`identify.discrepancy.smooth_scatter_variance`, restricted maximum likelihood,
+      kept only where the likelihood ratio says so; source ``smooth_scatter``), so that the
+      misfit is not taken for drop scatter, which would leave the mean-drop interval too narrow
+      where the laws are not polynomials of the chosen order; ``dof`` its degrees of freedom;
     * ``cv_rmse``: RMS error of the whole chain predicting held-out measured drops in grouped
-      K-fold cross-validation (polynomials refitted per fold, ECM kept);
+      K-fold cross-validation (polynomials of the chosen orders refitted per fold, ECM kept);
     * ``model_std``: model discrepancy: sqrt(max(0, cv_rmse^2 - drop_std^2 - mean parameter
       variance at the training controls)): what cross-validation sees beyond the noise and
-      the parameter uncertainty (e.g. a bias of the ECM that no polynomial absorbs).
+      the parameter uncertainty (e.g. a bias of the ECM or a law no polynomial holds);
+    * ``local``: a Gaussian process of the cross-validation errors over (u1, u2)
+      (:func:`identify.discrepancy.fit_discrepancy`, only where its discrepancy variance is not
+      zero), so that `local_model_std` widens the interval where the misfit concentrates (a
+      corner, a feature of the law) rather than spreading it evenly.
 
     Also ``pinchoff_volume_cross_covariance`` (see
     :func:`identify.montecarlo.pinchoff_volume_cross_covariance`) and ``measurement`` (the
     systematic measurement uncertainty, :func:`identify.dataset.measurement_uncertainty`).
     """
     from dataclasses import replace
+
+    from identify.discrepancy import SCATTER_LIKELIHOOD_RATIO_THRESHOLD, fit_discrepancy, smooth_scatter_variance
 
     fits = {"pinchoff_us": model.pinchoff, "inflight_volume_nl": model.volume_adjuster,
             "jetting_velocity_m_s": model.velocity_adjuster}
@@ -787,7 +889,8 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
     r_v = vol_target - model.volume_adjuster.predict(u1, u2)
     cross = _cross_covariance(model.pinchoff, model.volume_adjuster, u1, u2, r_p, r_v) \
         if model.adjuster_reference == "ecm" else np.zeros((len(model.pinchoff.terms), len(model.volume_adjuster.terms)))
-    out = {"method": "confidence: parameter Monte Carlo + model_std; prediction: confidence + drop_std",
+    out = {"method": "mean drop (confidence): parameter Monte Carlo + model_std (local where cross-validation "
+                     "sees uneven misfit) + measurement; one drop (prediction): mean drop + drop_std",
            "pinchoff_volume_cross_covariance": cross.tolist(), "scatter": {}}
     model.intervals = {"pinchoff_volume_cross_covariance": out["pinchoff_volume_cross_covariance"]}
     # grouped K-fold CV of the whole chain
@@ -805,15 +908,13 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         for k in INTERVAL_OUTPUTS:
             cv_err[k][idx] = g[k].to_numpy() - measured[k][idx]
     # parameter variance at the training controls
-    ctrl = np.unique(groups, axis=0)
-    var_mc = {k: [] for k in INTERVAL_OUTPUTS}
-    for a, b in ctrl:
+    ctrl, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
+    inv = np.asarray(inv).ravel()
+    var_mc = {k: np.empty(len(ctrl)) for k in INTERVAL_OUTPUTS}
+    for j, (a, b) in enumerate(ctrl):
         res = model.monte_carlo(a, b, samples=mc_samples, seed=seed)
         for k in INTERVAL_OUTPUTS:
-            var_mc[k].append(np.var(res.samples[k], ddof=1))
-    # repeats
-    _, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
-    inv = np.asarray(inv).ravel()
+            var_mc[k][j] = np.var(res.samples[k], ddof=1)
     rep_dof = int(np.sum(counts - 1))
     for k in INTERVAL_OUTPUTS:
         y = np.asarray(measured[k], float)
@@ -829,20 +930,81 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         else:
             dof = max(1, n - p)
             drop_var, source = float(resid @ resid) / dof, "residuals"
-        e = cv_err[k][np.isfinite(cv_err[k])]
-        cv_mse = float(np.mean(e**2)) if e.size else float("nan")
-        model_var = max(0.0, cv_mse - drop_var - float(np.mean(var_mc[k]))) if e.size else 0.0
+            est = smooth_scatter_variance(u1, u2, resid, design_matrix(*fits[k].normalised(u1, u2), fits[k].terms),
+                                          seed=seed)
+            if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
+                drop_var, source = est[0], "smooth_scatter"
+        e = cv_err[k]
+        ok = np.isfinite(e)
+        cv_mse = float(np.mean(e[ok] ** 2)) if ok.any() else float("nan")
+        model_var = max(0.0, cv_mse - drop_var - float(np.mean(var_mc[k]))) if ok.any() else 0.0
         if source == "sequence_se":  # lack of fit seen in-sample counts too (at least)
             model_var = max(model_var, float(resid @ resid) / max(1, n - p) - drop_var)
-        out["scatter"][k] = {"drop_std": float(np.sqrt(drop_var)), "dof": int(dof), "source": source,
-                             "model_std": float(np.sqrt(model_var)),
-                             "cv_rmse": float(np.sqrt(cv_mse)) if e.size else None,
-                             "in_sample_rmse": float(np.sqrt(np.mean(resid**2)))}
-        if not e.size:
+        entry = {"drop_std": float(np.sqrt(drop_var)), "dof": int(dof), "source": source,
+                 "model_std": float(np.sqrt(model_var)),
+                 "cv_rmse": float(np.sqrt(cv_mse)) if ok.any() else None,
+                 "in_sample_rmse": float(np.sqrt(np.mean(resid**2)))}
+        gp = fit_discrepancy(u1[ok], u2[ok], e[ok], seed=seed) if ok.sum() >= 6 else None
+        if gp is not None and gp["discrepancy_variance"] > 0:
+            entry["local"] = gp
+        out["scatter"][k] = entry
+        if not ok.any():
             notes.append(f"{k}: no cross-validation fold could be fitted; model_std set to 0")
     if measurement is not None:
         out["measurement"] = dict(measurement)
+    notes.extend(_interval_notes(out["scatter"], fits))
     return out
+
+
+def _order_note(sel: OrderSelection) -> str:
+    """What `select_order` chose and why, with the misfit in mind."""
+    t = sel.table.dropna(subset=["val_rmse"])
+    chosen = t[t.selected].iloc[0]
+    best = t.sort_values("val_rmse").iloc[0]
+    text = (f"{sel.name}: order {sel.selected} ({int(chosen.n_terms)} terms) chosen by {len(sel.table)}-candidate "
+            f"cross-validation: validation RMSE {chosen.val_rmse:.4g}")
+    if (int(best.n1), int(best.n2)) == sel.selected:
+        return text + ", the least of all candidates"
+    return (text + f" within 5 % of the least, {best.val_rmse:.4g} of order ({int(best.n1)}, {int(best.n2)}) with "
+            f"{int(best.n_terms)} terms: the fewer terms are preferred (stabler coefficients, the paper's rule); the "
+            "misfit they may leave is what the intervals' model discrepancy carries (below)")
+
+
+def _interval_notes(scatter: dict, fits: dict) -> list:
+    """One sentence per output: the chosen order, the drop scatter, the discrepancy and why."""
+    lines = []
+    for k, sc in scatter.items():
+        f = fits[k]
+        why = {"repeats": "pooled over repeated controls",
+               "sequence_se": "the sequences' own standard errors",
+               "smooth_scatter": "the scatter about the chosen polynomial plus a smooth (Gaussian-process) "
+                                 "departure that the residuals show (restricted maximum likelihood), so that the "
+                                 "misfit of the chosen order is not taken for drop scatter",
+               "residuals": "residuals of the fit"}[sc["source"]]
+        loc = sc.get("local")
+        uneven = ""
+        if loc:
+            hot = _local_hotspots(sc)
+            uneven = (f"; the cross-validated misfit is uneven: the mean-drop interval widens locally near "
+                      f"{hot}" if hot else "; the cross-validated misfit is even over the training controls "
+                      "(no local widening)")
+        lines.append(f"intervals {k} (polynomial order ({f.n1}, {f.n2})): drop scatter {sc['drop_std']:.3g} from {why}; "
+                     f"model discrepancy {sc['model_std']:.3g} (cross-validation RMSE {sc['cv_rmse'] or float('nan'):.3g} "
+                     f"beyond drop scatter and parameter uncertainty){uneven}")
+    return lines
+
+
+def _local_hotspots(scatter: dict, top: int = 3) -> str:
+    """Training controls where `local_model_std` exceeds the global model_std, as text."""
+    loc = scatter["local"]
+    pts = sorted({(a, b) for a, b in zip(loc["u1_um_per_ms"], loc["u2_um"])})
+    rows = []
+    for a, b in pts:
+        s, src = local_model_std(scatter, a, b)
+        if src == "local":
+            rows.append((s, a, b))
+    rows.sort(reverse=True)
+    return ", ".join(f"({a:g}, {b:g})" for _, a, b in rows[:top]) + (f" and {len(rows) - top} more" if len(rows) > top else "")
 
 
 def _fitted_controls(u1, u2, masks: dict, notes: list) -> np.ndarray:
@@ -942,6 +1104,7 @@ def fit_hybrid(
     bar.update(1)
     sel_q = select_order(u1[mq], u2[mq], vel_target[mq], name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
+    notes.extend(_order_note(sel) for sel in (sel_p, sel_v, sel_q))
     bar.close()
     versions = software_versions()
     versions["identify"] = __version__
@@ -991,4 +1154,5 @@ def fit_hybrid(
                      volume_selection=sel_v, velocity_selection=sel_q, training=training, notes=notes)
 
 
-__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS", "describe_measurement"]
+__all__ = ["HybridModel", "FitReport", "fit_hybrid", "ModelFileError", "OUTPUTS", "describe_measurement",
+           "widening_reason", "local_model_std"]

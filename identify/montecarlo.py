@@ -544,13 +544,20 @@ OUTPUTS = ("pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "
 
 
 def summarise(x: np.ndarray, band=(2.5, 97.5)) -> dict:
-    """{"mean", "std", "low", "high"} of samples (low/high: percentiles of ``band``)."""
+    """{"mean", "std", "parameters_only_low", "parameters_only_high"} of Monte Carlo samples.
+
+    The low/high pair are the percentiles ``band`` of the samples: an interval of the
+    *parameter* uncertainty only (no model discrepancy, measurement error or drop scatter), hence
+    the name; the interval of the mean drop and of one drop are in
+    `identify.hybrid.HybridModel.interval_prediction` (``mean_drop_*``, ``one_drop_*``).
+    """
     x = np.asarray(x, dtype=float)
     if x.size == 1:
         v = float(x[0])
-        return {"mean": v, "std": 0.0, "low": v, "high": v}
+        return {"mean": v, "std": 0.0, "parameters_only_low": v, "parameters_only_high": v}
     lo, hi = np.percentile(x, band)
-    return {"mean": float(np.mean(x)), "std": float(np.std(x, ddof=1)), "low": float(lo), "high": float(hi)}
+    return {"mean": float(np.mean(x)), "std": float(np.std(x, ddof=1)), "parameters_only_low": float(lo),
+            "parameters_only_high": float(hi)}
 
 
 @dataclass
@@ -571,7 +578,7 @@ class MonteCarloResult:
     extra: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
-        """One {"mean","std","low","high"} dict per output."""
+        """One {"mean", "std", "parameters_only_low", "parameters_only_high"} dict per output (:func:`summarise`)."""
         return {k: summarise(self.samples[k], self.percentiles) for k in OUTPUTS}
 
     def to_dict(self) -> dict:

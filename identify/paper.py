@@ -260,7 +260,7 @@ def _poly_samples(rng, poly, eb, u1, u2, n_const, n_coef):
 
 def _stats(x) -> dict:
     x = np.asarray(x, dtype=float)
-    return {"mean": float(x.mean()), "std": float(x.std()), "low": float(x.min()), "high": float(x.max())}
+    return {"mean": float(x.mean()), "std": float(x.std()), "parameters_only_low": float(x.min()), "parameters_only_high": float(x.max())}
 
 
 def pair_stats(a, b) -> dict:
@@ -274,15 +274,15 @@ def pair_stats(a, b) -> dict:
     Returns
     -------
     dict
-        ``{"mean", "std", "low", "high"}`` of all sums a_i + b_j (unit of the inputs); std
+        ``{"mean", "std", "parameters_only_low", "parameters_only_high"}`` of all sums a_i + b_j (unit of the inputs); std
         is the population standard deviation.
     """
     a, b = np.asarray(a, float), np.asarray(b, float)
     return {
         "mean": float(a.mean() + b.mean()),
         "std": float(np.sqrt(a.var() + b.var())),
-        "low": float(a.min() + b.min()),
-        "high": float(a.max() + b.max()),
+        "parameters_only_low": float(a.min() + b.min()),
+        "parameters_only_high": float(a.max() + b.max()),
     }
 
 
@@ -345,11 +345,11 @@ def paper_expectation(
         mean_adj, adj = adjuster(poly, eb)
         x = ecm + adj
         lo, hi = np.percentile(x, [2.5, 97.5])
-        return {"mean": float(np.mean(ecm) + mean_adj), "std": float(np.std(x)), "low": float(lo), "high": float(hi)}
+        return {"mean": float(np.mean(ecm) + mean_adj), "std": float(np.std(x)), "parameters_only_low": float(lo), "parameters_only_high": float(hi)}
 
     def stats_(x):
         lo, hi = np.percentile(x, [2.5, 97.5])
-        return {"mean": float(np.mean(x)), "std": float(np.std(x)), "low": float(lo), "high": float(hi)}
+        return {"mean": float(np.mean(x)), "std": float(np.std(x)), "parameters_only_low": float(lo), "parameters_only_high": float(hi)}
 
     return {
         "u1_um_per_ms": float(u1),

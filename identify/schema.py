@@ -277,9 +277,12 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
     F("velocity_adjuster", "object", "", "velocity adjuster polynomial, m/s"),
     F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter"),
     F("versions", "object", "", "software versions", required=False),
-    F("intervals", "object", "", "drop scatter for the prediction interval: per output (pinchoff_us, "
-      "inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source (repeats|sequence_se|residuals), "
-      "model_std, cv_rmse, in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); measurement "
+    F("intervals", "object", "", "what the mean-drop (confidence) and one-drop (prediction) intervals need beyond "
+      "the parameters: per output (pinchoff_us, inflight_volume_nl, jetting_velocity_m_s) drop_std, dof, source "
+      "(repeats|sequence_se|smooth_scatter|residuals), model_std (global model discrepancy), local (optional: "
+      "Gaussian process of the cross-validation errors for the local model discrepancy: u1_um_per_ms, u2_um, "
+      "cv_error, centre, scale, lengthscale, discrepancy_variance, scatter_variance, likelihood_ratio), cv_rmse, "
+      "in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); measurement "
       "(systematic measurement uncertainty in both intervals: volume_rel, velocity_rel, pixel_size_rel, pinchoff_std_us, source; absent "
       "in older models: no term); absent in older models", required=False),
     F("notes", "list", "", "what the fit dropped or changed and why (irregular campaigns, ECM level); absent in "

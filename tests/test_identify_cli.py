@@ -12,6 +12,16 @@ GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]
 KEYS = {"pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s"}
 
 
+def _bare_low_high(doc, path="") -> list:
+    """Paths of every bare "low"/"high" key in a JSON document (issue 19 item 5: none allowed)."""
+    if isinstance(doc, dict):
+        return [f"{path}.{k}" for k in doc if k in ("low", "high")] + \
+            [p for k, v in doc.items() for p in _bare_low_high(v, f"{path}.{k}")]
+    if isinstance(doc, list):
+        return [p for i, v in enumerate(doc) for p in _bare_low_high(v, f"{path}[{i}]")]
+    return []
+
+
 @pytest.fixture(scope="module")
 def fitted(tmp_path_factory):
     root = tmp_path_factory.mktemp("cli")
@@ -32,23 +42,33 @@ def test_fit_predict_design(fitted, capsys):
     assert isinstance(res["pinchoff_us"], float) and isinstance(res["grown_volume_at_pinchoff_nl"], float)
     for k in ("inflight_volume_nl", "jetting_velocity_m_s", "pinchoff_us_mc", "grown_volume_at_pinchoff_mc_nl"):
         v = res[k]
-        assert {"mean", "std", "low", "high"} <= set(v) and v["low"] <= v["mean"] <= v["high"]
-    assert res["pinchoff_us_mc"]["low"] <= res["pinchoff_us"] <= res["pinchoff_us_mc"]["high"]
+        assert {"mean", "std", "parameters_only_low", "parameters_only_high"} <= set(v) and v["parameters_only_low"] <= v["mean"] <= v["parameters_only_high"]
+    assert res["pinchoff_us_mc"]["parameters_only_low"] <= res["pinchoff_us"] <= res["pinchoff_us_mc"]["parameters_only_high"]
     assert 15 < res["inflight_volume_nl"]["mean"] < 23
+    # issue 19 item 5: every interval named for what it covers, no bare low/high anywhere in the JSON
+    assert not _bare_low_high(res), _bare_low_high(res)
+    for k in ("inflight_volume_nl", "jetting_velocity_m_s", "pinchoff_us_intervals"):
+        v = res[k]
+        assert v["parameters_only_low"] < v["mean"] < v["parameters_only_high"]
+        assert v["mean_drop_std"] >= v["parameter_std"] > 0
+        assert v["mean_drop_dominant_term"] in ("parameters", "model_discrepancy", "measurement")
+        assert v["one_drop_dominant_term"] in ("parameters", "model_discrepancy", "measurement", "drop_scatter")
+        assert sum(v["variance_shares"].values()) == pytest.approx(1.0)
     # issue 13: two intervals, named, with their level; prediction wider than confidence, none degenerate
     assert res["level"] == 0.95 and "prediction" in res["interval_note"]
     for k in ("inflight_volume_nl", "jetting_velocity_m_s", "pinchoff_us_intervals"):
         v = res[k]
-        assert v["prediction_available"] and v["level"] == 0.95
-        assert v["prediction_low"] < v["confidence_low"] < v["mean"] < v["confidence_high"] < v["prediction_high"]
-        assert v["confidence_high"] - v["confidence_low"] > 1e-4 * abs(v["mean"])
+        assert v["one_drop_available"] and v["level"] == 0.95
+        assert v["one_drop_low"] < v["mean_drop_low"] < v["mean"] < v["mean_drop_high"] < v["one_drop_high"]
+        assert v["mean_drop_high"] - v["mean_drop_low"] > 1e-4 * abs(v["mean"])
     assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500"]) == 0
     text = capsys.readouterr().out
-    assert "confidence 95 % (mean drop)" in text and "prediction 95 % (one drop)" in text
+    assert "mean drop 95 % (confidence)" in text and "one drop 95 % (prediction)" in text
     assert main(["predict", str(model), "--u1", "70", "--u2", "25", "--samples", "500"]) == 0
     assert "inflight_volume_nl" in capsys.readouterr().out
     assert main(["design", str(model), "--volume-nl", str(res["inflight_volume_nl"]["mean"]), "--samples", "200", "--json"]) == 0
     des = json.loads(capsys.readouterr().out)
+    assert not _bare_low_high(des), _bare_low_high(des)
     assert des["feasible"] and abs(des["error_percent"]["volume"]) < 1
     assert main(["design", str(model), "--volume-nl", "900"]) == 1
     assert "infeasible" in capsys.readouterr().out
@@ -86,6 +106,7 @@ def test_paper_command(capsys):
     assert main(["paper", "--u1", "70", "--u2", "25", "--samples", "2000", "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert set(res) == KEYS | {"estimate"} and res["estimate"] == "expectation"
+    assert not _bare_low_high(res), _bare_low_high(res)
     assert main(["paper", "--u1", "70", "--u2", "25", "--scheme-draw", "--samples", "2000", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["estimate"] == "scheme_draw"
 

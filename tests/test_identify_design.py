@@ -22,7 +22,7 @@ def test_volume_and_velocity_target_recovers_controls(model):
     r = design(model, p["inflight_volume_nl"], p["jetting_velocity_m_s"], tolerance_percent=0.2, samples=500)
     assert r.feasible
     assert r.u1_um_per_ms == pytest.approx(62.0, abs=0.5) and r.u2_um == pytest.approx(31.0, abs=0.5)
-    assert r.spread["inflight_volume_nl"]["low"] < r.spread["inflight_volume_nl"]["high"]
+    assert r.spread["inflight_volume_nl"]["parameters_only_low"] < r.spread["inflight_volume_nl"]["parameters_only_high"]
 
 
 def test_volume_only(model):

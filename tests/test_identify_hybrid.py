@@ -78,7 +78,7 @@ def test_tables_and_json_roundtrip(report, tmp_path):
     assert set(d["ecm"]["coefficients"]) == {"A3", "A2", "A1", "A0", "B1", "B0"}
     assert np.asarray(d["ecm"]["coefficient_covariance"]).shape == (6, 6)
     assert d["dead_time_us"] == 220.0 and d["nozzle_area_m2"] == pytest.approx(np.pi * 1e-8)
-    assert {"value", "low", "high"} <= set(d["ecm"]["parameters"]["Ra"])
+    assert {"value", "ci95_low", "ci95_high"} <= set(d["ecm"]["parameters"]["Ra"])
     assert "numpy" in d["versions"] and "identify" in d["versions"]
     m2 = HybridModel.from_json(path)
     assert m2.predict(63.0, 27.0) == pytest.approx(m.predict(63.0, 27.0), rel=1e-12)
@@ -93,7 +93,7 @@ def test_monte_carlo(report):
     s = r.summary()
     nom = m.predict(70.0, 25.0)
     for k, v in s.items():
-        assert v["low"] < v["mean"] < v["high"]
+        assert v["parameters_only_low"] < v["mean"] < v["parameters_only_high"]
         assert v["mean"] == pytest.approx(nom[k], abs=3 * v["std"] / np.sqrt(4000) + 1e-3 * abs(nom[k]))
     # pinch-off polynomial is linear in its coefficients: sample std equals the delta-method std
     assert s["pinchoff_us"]["std"] == pytest.approx(float(m.pinchoff.predict_std(70.0, 25.0)), rel=0.05)
@@ -125,13 +125,13 @@ def test_intervals_stored_and_used(report, tmp_path):
     iv = m2.interval_prediction(70.0, 25.0, samples=2000, seed=0)
     for k in ("inflight_volume_nl", "jetting_velocity_m_s"):
         e = iv[k]
-        assert e["prediction_low"] < e["confidence_low"] < e["mean"] < e["confidence_high"] < e["prediction_high"]
-        assert e["confidence_std"] > 0
+        assert e["one_drop_low"] < e["mean_drop_low"] < e["mean"] < e["mean_drop_high"] < e["one_drop_high"]
+        assert e["mean_drop_std"] > 0
     d = json.loads(path.read_text())
     d.pop("intervals")
     old = HybridModel.from_dict(d)
     e = old.interval_prediction(70.0, 25.0, samples=2000, seed=0)["inflight_volume_nl"]
-    assert not e["prediction_available"] and e["prediction_low"] == e["confidence_low"]
+    assert not e["one_drop_available"] and e["one_drop_low"] == e["mean_drop_low"]
     bad = json.loads(path.read_text())
     bad["intervals"]["scatter"]["inflight_volume_nl"]["drop_std"] = -1
     with pytest.raises(ModelFileError, match="drop_std"):

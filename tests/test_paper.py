@@ -88,8 +88,8 @@ def test_paper_prediction_structure_and_figures():
     assert r["pinchoff_us"] == 910.0  # ceil(90.6) x 10 µs from the trigger
     assert r["samples"] == 10000
     for key in ("inflight_volume_nl", "jetting_velocity_m_s"):
-        assert set(r[key]) == {"mean", "std", "low", "high"}
-        assert r[key]["low"] < r[key]["mean"] < r[key]["high"]
+        assert set(r[key]) == {"mean", "std", "parameters_only_low", "parameters_only_high"}
+        assert r[key]["parameters_only_low"] < r[key]["mean"] < r[key]["parameters_only_high"]
     assert r["grown_volume_at_pinchoff_mc_nl"]["mean"] == pytest.approx(16.47, abs=0.15)
     assert r["flow_velocity_at_max_stroke_mc_m_s"]["mean"] == pytest.approx(1.077, abs=0.02)
     # MC adjuster means scatter by ~0.36 nl / 0.05 m/s (10 draws per coefficient).
@@ -110,7 +110,7 @@ def test_pair_stats_equal_brute_force():
     got = pair_stats(a, b)
     assert got["mean"] == pytest.approx(s.mean())
     assert got["std"] == pytest.approx(s.std())
-    assert got["low"] == pytest.approx(s.min()) and got["high"] == pytest.approx(s.max())
+    assert got["parameters_only_low"] == pytest.approx(s.min()) and got["parameters_only_high"] == pytest.approx(s.max())
 
 
 def test_pinchoff_and_adjusters_eqs_15_17():

@@ -118,9 +118,9 @@ def test_report_links_existing_figures_and_holds_the_models_numbers(fitted, tmp_
     iv = res.intervals[(65.0, 27.5)]["inflight_volume_nl"]
     rows = page.tables["intervals"]
     i = _column(rows, "output").index("inflight_volume_nl")
-    for key in ("mean", "confidence_low", "confidence_high", "prediction_low", "prediction_high"):
+    for key in ("mean", "mean_drop_low", "mean_drop_high", "one_drop_low", "one_drop_high"):
         assert _close(_column(rows, key)[i], iv[key])
-    assert iv["prediction_low"] < iv["confidence_low"] < iv["mean"] < iv["confidence_high"] < iv["prediction_high"]
+    assert iv["one_drop_low"] < iv["mean_drop_low"] < iv["mean"] < iv["mean_drop_high"] < iv["one_drop_high"]
     assert "versions" in page.tables
 
 

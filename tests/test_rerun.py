@@ -558,13 +558,14 @@ def test_identification_view_prediction(identification_rrd):
             df = rrd.series(f"{b}/{kind}", "Scalars:scalars")
             ends = (df["delay_ns"].to_numpy() / 1000.0 if output == "pinchoff_us"
                     else np.concatenate(df["value"].to_numpy()))
-            np.testing.assert_allclose(sorted(ends), [e[f"{kind}_low"], e[f"{kind}_high"]], atol=1e-3)
-        assert e["prediction_low"] <= e["confidence_low"] <= e["mean"] <= e["confidence_high"] <= e["prediction_high"]
+            key = {"confidence": "mean_drop", "prediction": "one_drop"}[kind]
+            np.testing.assert_allclose(sorted(ends), [e[f"{key}_low"], e[f"{key}_high"]], atol=1e-3)
+        assert e["one_drop_low"] <= e["mean_drop_low"] <= e["mean"] <= e["mean_drop_high"] <= e["one_drop_high"]
     pred = rrd.static["/identify/controls/prediction"]
     assert [tuple(p) for p in pred["Points2D:positions"]] == [(70.0, 25.0)]
     assert "prediction u1=70 u2=25" in pred["Points2D:labels"][0]
     table = rrd.static["/identify/prediction/table"]["TextDocument:text"][0]
-    assert "| inflight_volume_nl |" in table and "prediction high" in table
+    assert "| inflight_volume_nl |" in table and "one drop (prediction) high" in table and "parameters only low" in table
 
 
 def _view_kinds(rrd: Rrd) -> list:

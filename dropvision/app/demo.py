@@ -32,7 +32,7 @@ from identify.app.rerun_stream import RerunOptions
 from identify.atomic import OutputError, check_output_dir, claim_dir
 from identify.dataset import load_dataset
 from identify.design import design
-from identify.hybrid import fit_hybrid
+from identify.hybrid import fit_hybrid, widening_reason
 from identify.physics import SynthPhysics, drop_history
 
 REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> repository root
@@ -174,16 +174,20 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\n== 5. prediction at u1 = {u1:g} um/ms, u2 = {u2:g} um (10,000 Monte Carlo samples) ==")
     meas = ds.summary[np.isclose(ds.summary.u1_um_per_ms, u1) & np.isclose(ds.summary.u2_um, u2)]
     iv = model.interval_prediction(u1, u2, mc=mc)
-    print(f"  {'quantity':28s} {'predicted':>9s} {'confidence 95 % (mean)':>24s} {'prediction 95 % (1 drop)':>26s} "
+    print(f"  {'quantity':28s} {'predicted':>9s} {'mean drop 95 % (conf.)':>24s} {'one drop 95 % (pred.)':>26s} "
           f"{'measured':>9s} {'truth':>9s} {'pred. error':>11s}")
     for key in ("inflight_volume_nl", "jetting_velocity_m_s"):
         s, e = summ[key], iv[key]
         m = float(meas[key].mean()) if len(meas) else float("nan")
-        print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['confidence_low'], e['confidence_high']):>24s} "
-              f"{'[%7.3f, %7.3f]' % (e['prediction_low'], e['prediction_high']):>26s} {_fmt(m):>9s} "
+        print(f"  {key:28s} {s['mean']:9.3f} {'[%7.3f, %7.3f]' % (e['mean_drop_low'], e['mean_drop_high']):>24s} "
+              f"{'[%7.3f, %7.3f]' % (e['one_drop_low'], e['one_drop_high']):>26s} {_fmt(m):>9s} "
               f"{truth[key]:9.3f} {_rel_err(s['mean'], truth[key]):>11s}")
-    print("  confidence: where the mean drop lies (parameters + model discrepancy + the campaign's measurement "
-          "uncertainty); prediction: where one drop lies (+ drop-to-drop scatter)")
+    print("  mean drop (confidence): where the mean of many drops lies (parameters + model discrepancy + the "
+          "campaign's measurement uncertainty); one drop (prediction): where one drop lies (+ drop-to-drop scatter)")
+    for key in ("inflight_volume_nl", "jetting_velocity_m_s"):
+        why = widening_reason(key, iv[key])
+        if why:
+            print(f"  {why}")
     target = round(float(np.mean(ds.summary.inflight_volume_nl)), 1)
     d = design(model, target, samples=2000)
     print(f"\ninverse design for an in-flight volume of {target} nl: u1 = {d.u1_um_per_ms:.2f} um/ms, u2 = {d.u2_um:.2f} um "

@@ -59,7 +59,8 @@ def _print_summary(summary: dict, header: str) -> None:
     print(header)
     for k, s in summary.items():
         if isinstance(s, dict):
-            print(f"  {k:30s} mean {s['mean']:.4g}  std {s['std']:.3g}  95% [{s['low']:.4g}, {s['high']:.4g}] {OUTPUT_UNITS.get(k, '')}")
+            print(f"  {k:30s} mean {s['mean']:.4g}  std {s['std']:.3g}  parameters only 95% "
+                  f"[{s['parameters_only_low']:.4g}, {s['parameters_only_high']:.4g}] {OUTPUT_UNITS.get(k, '')}")
         else:
             print(f"  {k:30s} {s:.4g} {OUTPUT_UNITS.get(k, '')}")
 
@@ -196,11 +197,13 @@ def cmd_predict(args) -> int:
         "grown_volume_at_pinchoff_mc_nl": mc["grown_volume_at_pinchoff_nl"],
     }
     _check_finite(summary, args.model)
-    # two intervals per measured output (HybridModel.interval_prediction): confidence of the
-    # mean drop, prediction of one drop; "low"/"high" stay the raw parameter Monte Carlo band.
+    # three intervals per measured output, named for what they cover (HybridModel.interval_prediction):
+    # parameters_only_* (the parameter Monte Carlo band), mean_drop_* (confidence: the mean of many
+    # drops), one_drop_* (prediction: one individual drop); *_dominant_term says which term widens them.
     for k in ("inflight_volume_nl", "jetting_velocity_m_s"):
         summary[k] = {**summary[k], **{f: iv[k][f] for f in INTERVAL_FIELDS}}
-    summary["pinchoff_us_intervals"] = {f: iv["pinchoff_us"][f] for f in ("mean", *INTERVAL_FIELDS)}
+    summary["pinchoff_us_intervals"] = {f: iv["pinchoff_us"][f] for f in ("mean", "parameters_only_low",
+                                                                          "parameters_only_high", *INTERVAL_FIELDS)}
     summary["level"] = args.level
     summary["interval_note"] = INTERVAL_NOTE
     summary["measurement"] = (m.intervals or {}).get("measurement")
@@ -216,29 +219,39 @@ def cmd_predict(args) -> int:
     print(f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
     print(f"  {'pinchoff_us':30s} {nominal['pinchoff_us']:.4g} us (nominal)")
     print(f"  {'grown_volume_at_pinchoff_nl':30s} {nominal['grown_volume_at_pinchoff_nl']:.4g} nl (nominal)")
-    print(f"  {'quantity':30s} {'mean':>9s}   {'confidence ' + pct + ' (mean drop)':>30s}   "
-          f"{'prediction ' + pct + ' (one drop)':>30s}")
+    print(f"  {'quantity':30s} {'mean':>9s}   {'mean drop ' + pct + ' (confidence)':>30s}   "
+          f"{'one drop ' + pct + ' (prediction)':>30s}   widest term (mean drop / one drop)")
     for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
                    ("jetting_velocity_m_s", "jetting_velocity_m_s")):
         e = summary[key]
-        pred = f"[{e['prediction_low']:.5g}, {e['prediction_high']:.5g}]" if e["prediction_available"] else "n/a"
-        print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['confidence_low'], e['confidence_high']):>30s}   "
-              f"{pred:>30s} {OUTPUT_UNITS[k]}")
+        pred = f"[{e['one_drop_low']:.5g}, {e['one_drop_high']:.5g}]" if e["one_drop_available"] else "n/a"
+        print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['mean_drop_low'], e['mean_drop_high']):>30s}   "
+              f"{pred:>30s} {OUTPUT_UNITS[k]:3s} {e['mean_drop_dominant_term']} / {e['one_drop_dominant_term']}")
+    for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
+                   ("jetting_velocity_m_s", "jetting_velocity_m_s")):
+        from identify.hybrid import widening_reason
+
+        why = widening_reason(k, summary[key])
+        if why:
+            print(f"note: {why}")
     print(f"note: {INTERVAL_NOTE}")
     from identify.hybrid import describe_measurement
 
     print(f"note: {describe_measurement(m)}")
-    if not iv["inflight_volume_nl"]["prediction_available"]:
+    if not iv["inflight_volume_nl"]["one_drop_available"]:
         print("note: this model file has no drop scatter (fitted before intervals existed): refit it for the "
               "prediction interval", file=sys.stderr)
     return 0
 
 
-INTERVAL_FIELDS = ("level", "confidence_low", "confidence_high", "confidence_std", "prediction_low",
-                   "prediction_high", "prediction_std", "prediction_available", "measurement_std")
-INTERVAL_NOTE = ("confidence = where the mean of many drops lies (parameter uncertainty of the ECM, pinch-off and "
+INTERVAL_FIELDS = ("level", "mean_drop_low", "mean_drop_high", "mean_drop_std", "one_drop_low",
+                   "one_drop_high", "one_drop_std", "one_drop_available", "parameter_std", "model_std",
+                   "model_std_source", "measurement_std", "drop_std", "mean_drop_dominant_term",
+                   "one_drop_dominant_term", "variance_shares")
+INTERVAL_NOTE = ("parameters only = the parameter Monte Carlo band alone (not an interval of the mean drop); "
+                 "mean drop (confidence) = where the mean of many drops lies (parameter uncertainty of the ECM, pinch-off and "
                  "adjuster fits, plus model discrepancy seen in cross-validation, plus the systematic measurement "
-                 "uncertainty of the training campaign: pixel size, edge bias, strobe grid); prediction = where one "
+                 "uncertainty of the training campaign: pixel size, edge bias, strobe grid); one drop (prediction) = where one "
                  "individual drop lies (confidence + drop-to-drop scatter of the training data)")
 
 

@@ -268,10 +268,10 @@ def _fig7(plt, path, ds, model, mc, iv, u1, u2, truth_fn=None):
         e = iv[out_key]
         x = float(mc.nominal["pinchoff_us"]) + 60
         pct = f"{100 * e['level']:g} %"
-        ax.errorbar([x], [e["mean"]], yerr=[[e["mean"] - e["confidence_low"]], [e["confidence_high"] - e["mean"]]],
+        ax.errorbar([x], [e["mean"]], yerr=[[e["mean"] - e["mean_drop_low"]], [e["mean_drop_high"] - e["mean"]]],
                     fmt="ro", capsize=4, label=f"hybrid model: mean, confidence {pct} (mean drop)")
         ax.errorbar([x + 25], [e["mean"]],
-                    yerr=[[e["mean"] - e["prediction_low"]], [e["prediction_high"] - e["mean"]]],
+                    yerr=[[e["mean"] - e["one_drop_low"]], [e["one_drop_high"] - e["mean"]]],
                     fmt="bs", ms=4, capsize=4, label=f"prediction {pct} (one drop)")
         if truth_fn is not None:
             ax.axhline(truth_fn(u1, u2)[out_key], color="g", ls=":", label="synthetic truth")
@@ -376,10 +376,10 @@ def _interval_table(intervals: dict) -> pd.DataFrame:
         for key, (label, unit) in OUTPUT_LABELS.items():
             e = iv[key]
             rows.append({"u1_um_per_ms": u1, "u2_um": u2, "output": key, "unit": unit, "mean": e["mean"],
-                         "level": e["level"], "confidence_low": e["confidence_low"],
-                         "confidence_high": e["confidence_high"],
-                         "prediction_low": e["prediction_low"] if e["prediction_available"] else None,
-                         "prediction_high": e["prediction_high"] if e["prediction_available"] else None,
+                         "level": e["level"], "mean_drop_low": e["mean_drop_low"],
+                         "mean_drop_high": e["mean_drop_high"],
+                         "one_drop_low": e["one_drop_low"] if e["one_drop_available"] else None,
+                         "one_drop_high": e["one_drop_high"] if e["one_drop_available"] else None,
                          "parameter_std": e.get("parameter_std"), "model_std": e.get("model_std"),
                          "measurement_std": e.get("measurement_std", 0.0), "drop_std": e.get("drop_std")})
     return pd.DataFrame(rows)

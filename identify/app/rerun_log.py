@@ -791,10 +791,11 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
     else:
         iv = {}
         for k, v in mc.summary().items():
-            iv[k] = {"mean": v["mean"], "confidence_low": v["low"], "confidence_high": v["high"],
-                     "prediction_low": math.nan, "prediction_high": math.nan}
+            iv[k] = {"mean": v["mean"], "parameters_only_low": v["parameters_only_low"],
+                     "parameters_only_high": v["parameters_only_high"], "mean_drop_low": math.nan,
+                     "mean_drop_high": math.nan, "one_drop_low": math.nan, "one_drop_high": math.nan}
         lo_p, hi_p = getattr(mc, "percentiles", (2.5, 97.5))
-        how = f"Monte Carlo {lo_p:g} / {hi_p:g} % percentiles (no model: no prediction interval)"
+        how = f"Monte Carlo {lo_p:g} / {hi_p:g} % percentiles, parameters only (no model: no mean-drop or one-drop interval)"
     grown = np.asarray(mc.samples.get("grown_volume_at_pinchoff_nl", [math.nan]), dtype=float)
     v_at = float(np.mean(grown)) if grown.size else math.nan
     t_p = float(iv["pinchoff_us"]["mean"]) if "pinchoff_us" in iv else math.nan
@@ -807,8 +808,10 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
         if e is None or not math.isfinite(at):
             continue
         base = f"/identify/monte_carlo/{qpart}/{npart}/{output}"
-        for kind, colour, width in (("prediction", _PREDICTION, 6.0), ("confidence", _CONFIDENCE, 3.0)):
-            lo, hi = float(e[f"{kind}_low"]), float(e[f"{kind}_high"])
+        # entity names stay confidence / prediction; the keys name what they cover (mean drop / one drop)
+        for kind, key, colour, width in (("prediction", "one_drop", _PREDICTION, 6.0),
+                                         ("confidence", "mean_drop", _CONFIDENCE, 3.0)):
+            lo, hi = float(e[f"{key}_low"]), float(e[f"{key}_high"])
             if not (math.isfinite(lo) and math.isfinite(hi)):
                 continue
             _style(rec, f"{base}/{kind}", f"{output} {kind} interval", colour, points=False, width=width)
@@ -853,11 +856,12 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
         [[(lo[0] - half[0], u2), (hi[0] + half[0], u2)], [(u1, lo[1] - half[1]), (u1, hi[1] + half[1])]],
         colors=[(255, 255, 255, 110)], radii=-0.75), static=True)
     lines = [f"## Prediction at {name}", "", how, "",
-             "| output | mean | confidence low | confidence high | prediction low | prediction high |",
-             "|---|---|---|---|---|---|"]
+             "| output | mean | parameters only low | parameters only high | mean drop (confidence) low | "
+             "mean drop (confidence) high | one drop (prediction) low | one drop (prediction) high |",
+             "|---|---|---|---|---|---|---|---|"]
     for k, e in iv.items():
-        cells = [e.get(c, math.nan) for c in ("mean", "confidence_low", "confidence_high",
-                                              "prediction_low", "prediction_high")]
+        cells = [e.get(c, math.nan) for c in ("mean", "parameters_only_low", "parameters_only_high", "mean_drop_low",
+                                              "mean_drop_high", "one_drop_low", "one_drop_high")]
         lines.append(f"| {k} | " + " | ".join("" if not math.isfinite(float(x)) else f"{float(x):.4g}"
                                              for x in cells) + " |")
     rec.log("/identify/prediction/table", rr.TextDocument("\n".join(lines), media_type="text/markdown"),

@@ -1,0 +1,78 @@
+"""identify.discrepancy: the local model discrepancy and the drop scatter set apart from a smooth misfit
+(issue 23), against independent references: the known noise of simulated data and the exact
+squared misfit of a known law."""
+
+import numpy as np
+import pytest
+
+from identify.discrepancy import LIKELIHOOD_RATIO_THRESHOLD, SCATTER_LIKELIHOOD_RATIO_THRESHOLD, \
+    discrepancy_variance, fit_discrepancy, smooth_scatter_variance
+from identify.polynomial import design_matrix, poly_terms
+
+G1, G2 = np.meshgrid(np.linspace(50, 80, 5), np.linspace(20, 35, 5), indexing="ij")
+U1, U2 = G1.ravel(), G2.ravel()
+X1, X2 = (U1 - 65) / 15, (U2 - 27.5) / 7.5
+
+
+def _bump(x1, x2):
+    return np.exp(-((x1 - 0.5) ** 2 + (x2 + 0.5) ** 2) / 0.5)
+
+
+def test_no_structure_no_discrepancy():
+    """Independent scatter alone: the likelihood ratio stays below the threshold in most draws,
+    and then no local term is kept (variance exactly 0 everywhere)."""
+    kept = 0
+    for seed in range(10):
+        e = np.random.default_rng(seed).standard_normal(U1.size)
+        gp = fit_discrepancy(U1, U2, e, seed=0)
+        assert gp is not None and gp["likelihood_ratio"] >= 0
+        if gp["discrepancy_variance"] > 0:
+            kept += 1
+            assert gp["likelihood_ratio"] >= LIKELIHOOD_RATIO_THRESHOLD
+        else:
+            assert discrepancy_variance(gp, 65.0, 27.5)[0] == 0.0
+    assert kept <= 4, kept  # without the likelihood-ratio gate most draws keep a small τ²
+
+
+def test_local_discrepancy_where_the_misfit_is():
+    """Cross-validation errors = a bump of height 4 + unit noise: the expected squared misfit is
+    large at the bump (exact value there 16) and small far from it (exact 0)."""
+    rng = np.random.default_rng(5)
+    at_bump, far = [], []
+    for seed in range(4):
+        e = 4.0 * _bump(X1, X2) + rng.standard_normal(U1.size)
+        gp = fit_discrepancy(U1, U2, e, seed=seed)
+        assert gp["discrepancy_variance"] > 0
+        v = discrepancy_variance(gp, [72.5, 53.0], [23.75, 33.0])
+        at_bump.append(v[0])
+        far.append(v[1])
+    assert 4.0 < np.median(at_bump) < 30.0, at_bump
+    assert np.median(far) < 1.0 and np.median(at_bump) > 5 * np.median(far), (at_bump, far)
+
+
+def test_smooth_scatter_sets_the_misfit_apart():
+    """A linear polynomial fitted to linear + bump + noise (sd 1): its residual variance holds
+    the bump; the REML scatter about polynomial + smooth departure is near the true 1."""
+    X = design_matrix(X1, X2, poly_terms(1, 1))
+    ratios_ols, ratios_reml = [], []
+    for seed in range(5):
+        rng = np.random.default_rng(100 + seed)
+        y = 2 + X1 - X2 + 5.0 * _bump(X1, X2) + rng.standard_normal(U1.size)
+        q, *_ = np.linalg.lstsq(X, y, rcond=None)
+        r = y - X @ q
+        s2, dof, lr = smooth_scatter_variance(U1, U2, r, X, seed=0)
+        assert dof == U1.size - 3 and lr >= 0
+        ratios_ols.append(float(r @ r) / dof)
+        ratios_reml.append(s2)
+    assert np.median(ratios_ols) > 1.4, ratios_ols  # 1.85 here: the bump counted as scatter
+    assert 0.6 < np.median(ratios_reml) < 1.4 and np.median(ratios_reml) < np.median(ratios_ols) - 0.3, ratios_reml
+
+
+def test_smooth_scatter_without_misfit_is_the_residual_variance():
+    X = design_matrix(X1, X2, poly_terms(1, 1))
+    y = 2 + X1 - X2 + np.random.default_rng(3).standard_normal(U1.size)
+    r = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    s2, dof, lr = smooth_scatter_variance(U1, U2, r, X, seed=0)
+    if lr < SCATTER_LIKELIHOOD_RATIO_THRESHOLD:
+        assert s2 == pytest.approx(float(r @ r) / dof, rel=1e-12)
+    assert smooth_scatter_variance(U1[:6], U2[:6], r[:6], X[:6]) is None  # n - p < 4
