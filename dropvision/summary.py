@@ -133,7 +133,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         notes.append(problem)
         pinch = float("nan")
     attached = ~has_det & ((delay < pinch) if np.isfinite(pinch) else True)
-    if getattr(cal, "nozzle_out_of_focus", False):
+    if cal.nozzle_out_of_focus:
         for k in np.nonzero(attached)[0]:
             flags[k].append(q.NOZZLE_OUT_OF_FOCUS)
     # --- attached volumes that disagree with their neighbours (frames of another sequence) ---
@@ -251,7 +251,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "gain": np.array([r.gain for r in records], float),
         "attached_volume_uncertainty_nl": np.where(np.isfinite(att_vol), att_u, np.nan),
         "grown_volume_uncertainty_nl": grown_u,
-        "drop_volume_uncertainty_nl": np.where(np.isfinite(drop.drop_volume_nl), drop.drop_volume_uncertainty_nl, np.nan),
+        "drop_volume_uncertainty_nl": np.where(np.isfinite(drop.drop_volume_nl), drop.drop_volume_uncertainty_nl,
+                                               np.nan),
         "detached_volume_uncertainty_nl": np.where(np.isfinite(drop.detached_volume_nl),
                                                    drop.detached_volume_uncertainty_nl, np.nan),
         "volume_uncertainty_source": [cal.volume_uncertainty_source] * m,
@@ -309,8 +310,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     if length_lie:
         for key in ("grown_volume_at_pinchoff_nl", "initial_meniscus_volume_nl", "inflight_volume_nl",
                     "inflight_volume_std_nl", "inflight_volume_uncertainty_nl",
-                    "grown_volume_at_pinchoff_uncertainty_nl", "initial_meniscus_volume_uncertainty_nl", "jetting_velocity_m_s", "jetting_velocity_se_m_s",
-                    "flow_velocity_at_max_stroke_m_s"):
+                    "grown_volume_at_pinchoff_uncertainty_nl", "initial_meniscus_volume_uncertainty_nl",
+                    "jetting_velocity_m_s", "jetting_velocity_se_m_s", "flow_velocity_at_max_stroke_m_s"):
             summary[key] = float("nan")
     return frames, summary
 

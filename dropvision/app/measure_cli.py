@@ -53,8 +53,9 @@ def _run(args: argparse.Namespace) -> int:
         for note in s.get("notes") or []:
             print(f"note: {note}")
     print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; pinch-off {s['pinchoff_us']} us, "
-          f"in-flight volume {s['inflight_volume_nl']:.4g} +- {s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} "
-          f"nl, jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
+          f"in-flight volume {s['inflight_volume_nl']:.4g} +- "
+          f"{s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} nl, "
+          f"jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
           + (f"; {len(s['errors'])} frame(s) skipped" if s["errors"] else ""))
     sys.stdout.flush()
     return 0
