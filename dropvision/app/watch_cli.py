@@ -38,7 +38,7 @@ def _run(args: argparse.Namespace) -> int:
             raise UsageError(f"--{name.replace('_', '-')}: must be > 0, got {value:g}")
     overrides, labels = overrides_from_args(args)
     options = WatchOptions(frames=args.frames, idle_s=args.idle_s, settle_s=args.settle_s,
-                           config=MeasureConfig(workers=1), csv=args.csv, overwrite=args.overwrite,
+                           config=MeasureConfig(workers=args.workers), csv=args.csv, overwrite=args.overwrite,
                            overrides=overrides, labels=labels)
     logger = logger_from_args(args, "dropvision", recording_name=folder.resolve().name)
 
@@ -88,6 +88,8 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
+    p.add_argument("--workers", type=int, default=2, help="decoding/measuring threads of the final measurement "
+                   "(default 2, as dropvision measure; frames are measured live one at a time)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
     g.add_argument("-v", "--verbose", action="store_true", help="also print one line per frame as it is measured")
