@@ -30,6 +30,7 @@ import math
 import os
 import queue
 import shutil
+import statistics
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
@@ -108,8 +109,8 @@ class WatchResult:
     n_resumed : int
         Frames found in the journal of an earlier run (not measured again).
     latency_ms : list of float
-        Per frame measured live: from the file's completion (its last modification time) to
-        its row on disk (ms).
+        Per frame written while watching and measured live: from the file's completion (its
+        last modification time, on the kernel's coarse clock) to its row on disk (ms).
     left_out : list of str
         Files still being written when the sequence ended (not in the final tables).
     """
@@ -229,14 +230,28 @@ def _is_frame_name(name: str) -> bool:
             and not name.lower().startswith("truth"))
 
 
-def _expected_frames(folder: Path) -> int | None:
-    """The length of sequence.json's frames list, if it has one."""
-    try:
-        doc = json.loads((folder / SEQUENCE_JSON).read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError):
-        return None
-    frames = doc.get("frames") if isinstance(doc, dict) else None
-    return len(frames) if isinstance(frames, list) and frames else None
+class _ListedCount:
+    """The length of sequence.json's frames list, if it has one (read again when it changes)."""
+
+    def __init__(self, folder: Path):
+        self.path = folder / SEQUENCE_JSON
+        self._key, self._count = None, None
+
+    def count(self) -> int | None:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return None
+        key = (st.st_size, st.st_mtime_ns)
+        if key != self._key:
+            self._key = key
+            try:
+                doc = json.loads(self.path.read_text(encoding="utf-8"))
+            except (OSError, ValueError, RecursionError):
+                doc = None
+            frames = doc.get("frames") if isinstance(doc, dict) else None
+            self._count = len(frames) if isinstance(frames, list) and frames else None
+        return self._count
 
 
 #: watchdog event types that say a file was written (not opened or read: our own reads are events too)
@@ -321,12 +336,14 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
         if _is_frame_name(p.name):
             pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
     state = _LiveState(folder, opts, logger)
+    listed = _ListedCount(folder)
     latency: list[float] = []
+    n_live, started_ns = 0, time.time_ns()
     last_frame_at = time.monotonic()
     ended_by = "interrupt"
     try:
         while True:
-            expected = opts.frames if opts.frames is not None else _expected_frames(folder)
+            expected = opts.frames if opts.frames is not None else listed.count()
             if expected is not None and len(measured) >= expected and not pending:
                 ended_by = "frames"
                 break
@@ -338,13 +355,15 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
             if not ready:
                 continue
             for row, file_stat in state.measure(ready, done, pending):
+                done[row["file"]] = file_stat  # first: a frame in the journal is in the final tables
+                measured.add((row["file"], row["page"]))
                 row["size"], row["mtime_ns"] = file_stat
                 row["row_unix_s"] = time.time()
                 row["latency_ms"] = (row["row_unix_s"] - file_stat[1] / 1e9) * 1e3
                 journal.append(row)
-                done[row["file"]] = file_stat
-                measured.add((row["file"], row["page"]))
-                latency.append(row["latency_ms"])
+                n_live += 1
+                if file_stat[1] >= started_ns:  # written while watching (not there before)
+                    latency.append(row["latency_ms"])
                 last_frame_at = time.monotonic()
                 if report is not None:
                     report(row)
@@ -357,8 +376,10 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
     observer.join()
     left_out = sorted(pending)
     result = _finish(folder, out, opts, logger, done, left_out,
-                     {"ended_by": ended_by, "n_live": len(latency), "n_resumed": n_resumed})
-    return WatchResult(result, ended_by, len(latency), n_resumed, latency, left_out)
+                     {"ended_by": ended_by, "n_live": n_live, "n_resumed": n_resumed,
+                      "latency_ms_median": statistics.median(latency) if latency else None,
+                      "latency_ms_max": max(latency) if latency else None})
+    return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out)
 
 
 def _drain(events: queue.Queue, pending: dict, wait_s: float) -> None:
@@ -520,6 +541,8 @@ def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, lef
     """The final tables: `measure_sequence` over the complete frames (the whole folder when none
     is left out: the batch measurement itself), written as ``dropvision measure`` writes them,
     with the journal kept."""
+    if not done:
+        raise SequenceError(f"{folder}: no complete frame arrived (the watch ended by {stats['ended_by']})")
     # the complete files: with every frame complete, the same listing as the folder's own
     seq = open_sequence(folder, overrides=opts.overrides, labels=opts.labels, only_files=set(done))
     result = measure_sequence(seq, None, opts.config, logger=logger)

@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
     def report(row: dict) -> None:
         if args.verbose:
             print(f"{row['file']}: delay {row['delay_us']:g} us, attached {row['attached_volume_nl'] or 0:.4g} nl, "
-                  f"{row['n_detached']} detached, row on disk {row['latency_ms']:.0f} ms after the file"
+                  f"{row['n_detached']} detached, row on disk {row['latency_ms']:.0f} ms after the file's last change"
                   + (f"; {row['error']}" if row.get("error") else ""), flush=True)
 
     previous = signal.signal(signal.SIGTERM, _interrupt)
@@ -63,7 +63,8 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     s = res.result.summary
     lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
-           "after each file was complete" if res.latency_ms else "no frame measured live")
+           f"after each of the {len(res.latency_ms)} frames written while watching was complete"
+           if res.latency_ms else "no frame written while watching")
     print(f"watched {s['n_measured']} of {s['n_frames']} frames ({res.n_live} live, {res.n_resumed} from the "
           f"journal; ended by {res.ended_by}) -> {args.out}; {lat}; pinch-off {s['pinchoff_us']} us, in-flight "
           f"volume {s['inflight_volume_nl']:.4g} nl"
