@@ -22,9 +22,11 @@ import pandas as pd
 import pytest
 
 from dropvision.app.cli import main
-from dropvision.app.watch import JOURNAL, WatchOptions, read_journal, replay_sequence, watch_sequence
+from dropvision.app.watch import (JOURNAL, WATCH_JSON, WatchOptions, journal_table, read_journal, replay_sequence,
+                                  watch_sequence)
 from dropvision.measurement import measure_sequence
 from dropvision.sequence import open_sequence
+from identify import schema
 from identify.atomic import MARKER, to_json
 
 DELAYS_US = tuple(float(d) for d in range(0, 1401, 70))  # 21 frames: meniscus, growth, pinch-off, flight
@@ -76,6 +78,9 @@ def test_live_rows_and_final_tables_equal_batch(rendered, tmp_path):
     names = _frame_names(rendered)
     rows = read_journal(out)
     assert sorted(r["file"] for r in rows) == sorted(names) and res.n_live == len(names)
+    assert list(rows[0]) == schema.LIVE_FRAMES.column_names
+    schema.check_table(journal_table(out), schema.LIVE_FRAMES, out / JOURNAL)
+    schema.check_document(json.loads((out / WATCH_JSON).read_text()), schema.WATCH, out / WATCH_JSON)
     # completion (the writer closed the file) to the row on disk
     latency_ms = [(r["row_unix_s"] - completed[r["file"]]) * 1e3 for r in rows]
     print(f"\nwatch: {len(rows)} frames at 20 frames/s, completion to row on disk: median "
@@ -85,11 +90,11 @@ def test_live_rows_and_final_tables_equal_batch(rendered, tmp_path):
     # nothing written into the watched folder: exactly what the writer put there
     assert sorted(p.name for p in watched.iterdir()) == sorted(["sequence.json", *names])
     assert sorted(p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()) == [
-        MARKER, "bodies.parquet", "frames.parquet", JOURNAL, "live/watch.json", "per_delay.parquet", "summary.json"]
+        MARKER, "bodies.parquet", "frames.parquet", JOURNAL, WATCH_JSON, "per_delay.parquet", "summary.json"]
     batch = measure_sequence(watched)
     pd.testing.assert_frame_equal(res.result.frames, batch.frames)
     _assert_same(out, batch)
-    assert json.loads((out / "live/watch.json").read_text())["ended_by"] == "frames"
+    assert json.loads((out / WATCH_JSON).read_text())["ended_by"] == "frames"
 
 
 def test_sigkill_keeps_rows_and_restart_completes(rendered, tmp_path, capsys):
@@ -146,7 +151,7 @@ def test_interrupt_writes_final_tables_of_the_frames_so_far(rendered, tmp_path):
 def test_idle_end_and_frames_already_there(rendered, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["watch", str(rendered), "--out", str(out), "--frames", "100", "--idle-s", "0.3", "-q"]) == 0
-    assert json.loads((out / "live/watch.json").read_text())["ended_by"] == "idle"
+    assert json.loads((out / WATCH_JSON).read_text())["ended_by"] == "idle"
     _assert_same(out, measure_sequence(rendered))
 
 

@@ -44,14 +44,16 @@ from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.output import write_result
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
+from identify import schema
 from identify.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
 
-__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "read_journal"]
+__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "read_journal", "journal_table",
+           "replay_sequence"]
 
-#: The journal of live rows, relative to OUT (JSON lines, one per measured frame).
-JOURNAL = "live/frames.jsonl"
-#: What the watch did (sequence, end, latencies), relative to OUT; written with the final tables.
-WATCH_JSON = "live/watch.json"
+#: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `identify.schema.LIVE_FRAMES`).
+JOURNAL = schema.LIVE_FRAMES.file
+#: What the watch did (sequence, end, latencies), relative to OUT (`identify.schema.WATCH`).
+WATCH_JSON = schema.WATCH.file
 
 
 @dataclass
@@ -154,6 +156,30 @@ def read_journal(out_dir) -> list[dict]:
     return rows
 
 
+def journal_table(out_dir):
+    """The journal as a table: `read_journal`'s rows with the columns and types of
+    `identify.schema.LIVE_FRAMES` (null numbers as NaN, ``page`` nullable integer).
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The watch's output folder.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    import pandas as pd
+
+    table = pd.DataFrame(read_journal(out_dir), columns=schema.LIVE_FRAMES.column_names)
+    for col in schema.LIVE_FRAMES.columns:
+        if col.dtype == "int":
+            table[col.name] = table[col.name].astype("Int64")
+        elif col.dtype == "float":
+            table[col.name] = pd.to_numeric(table[col.name]).astype(float)
+    return table
+
+
 def _live_row(rec: FrameRecord, cal_frames: int) -> dict:
     """A frame's provisional row: its own measurement, before the sequence-level analysis
     (volumes nl, positions µm along (z) and across (x) the axis, delays µs)."""
@@ -210,7 +236,7 @@ def _start_out(out: Path, folder: Path, overwrite: bool) -> list[dict]:
     with atomic_dir(out, inputs=[folder], overwrite=overwrite, kind="live measurement") as tmp:
         (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
         (tmp / JOURNAL).write_bytes(b"")
-        write_json(tmp / WATCH_JSON, {"sequence": str(folder), "state": "watching"})
+        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "watching"})
     return []
 
 
@@ -551,8 +577,8 @@ def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, lef
         write_result(result, tmp, csv=opts.csv)
         (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(journal, tmp / JOURNAL)
-        write_json(tmp / WATCH_JSON, {"sequence": str(folder), "state": "finished", **stats,
-                                      "left_out": left_out})
+        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "finished",
+                                      **stats, "left_out": left_out})
     return result
 
 
