@@ -121,7 +121,8 @@ def test_sigkill_keeps_rows_and_restart_completes(rendered, tmp_path, capsys):
         fh.write(b'{"file": "f_00')
     for name in names[half:]:  # the rest of the sequence, written while nothing watched
         (watched / name).write_bytes((rendered / name).read_bytes())
-    assert main(["watch", str(watched), "--out", str(out)]) == 0
+    (watched / "zz_extra.png").write_bytes((rendered / names[0]).read_bytes())  # not in sequence.json: no frame
+    assert main(["watch", str(watched), "--out", str(out), "--idle-s", "20"]) == 0
     assert f"({len(names) - half} live, {half} from the journal; ended by frames)" in capsys.readouterr().out
     rows = read_journal(out)
     assert sorted(r["file"] for r in rows) == sorted(names)  # every frame once: none measured twice

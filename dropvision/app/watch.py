@@ -377,7 +377,7 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
                 ended_by = "idle"
                 break
             _drain(events, pending, opts.poll_s)
-            ready = _settled(folder, pending, done, opts)
+            ready = _settled(folder, pending, done, state.unlisted, opts)
             if not ready:
                 continue
             for row, file_stat in state.measure(ready, done, pending):
@@ -428,9 +428,10 @@ def _drain(events: queue.Queue, pending: dict, wait_s: float) -> None:
             return
 
 
-def _settled(folder: Path, pending: dict, done: dict, opts: WatchOptions) -> list[str]:
+def _settled(folder: Path, pending: dict, done: dict, unlisted: dict, opts: WatchOptions) -> list[str]:
     """Pending files whose size and modification time stayed unchanged ``settle_s`` (or that
-    their writer closed since their last change): ready to be decoded."""
+    their writer closed since their last change): ready to be decoded. Those measured already,
+    or that are no frame of the sequence (``unlisted``), are dropped while unchanged."""
     now = time.monotonic()
     ready = []
     for name in sorted(pending):
@@ -441,7 +442,7 @@ def _settled(folder: Path, pending: dict, done: dict, opts: WatchOptions) -> lis
             del pending[name]
             continue
         key = (st.st_size, st.st_mtime_ns)
-        if done.get(name) == key:  # measured already (an earlier run, or an event after the row)
+        if key in (done.get(name), unlisted.get(name)):  # measured already (an earlier run), or no frame
             del pending[name]
             continue
         if key != (p.size, p.mtime_ns):
@@ -468,6 +469,8 @@ class _LiveState:
         self.arrived = 0  # arrival order: the Rerun "frame" timeline
         self.error_since: float | None = None
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dropvision-calibrate")
+        #: image files that are no frame of the sequence (not in sequence.json's frames list) -> (size, mtime_ns)
+        self.unlisted: dict[str, tuple[int, int]] = {}
         self._refining: Future | None = None
 
     def close(self) -> None:
@@ -522,6 +525,9 @@ class _LiveState:
             elif n_complete >= 2 * self.cal_frames and self._refining is None:
                 self._refining = self._pool.submit(self._calibrated, frozenset(set(done) | set(ready)))
             wanted = set(ready)
+            for name in wanted - {ref.file for ref in seq.meta.frames}:
+                p = pending.pop(name)
+                self.unlisted[name] = (p.size, p.mtime_ns)
             for i, ref in enumerate(seq.meta.frames):
                 if ref.file not in wanted:
                     continue
