@@ -8,7 +8,10 @@ it) to its row on disk in ``OUT/live/frames.jsonl``: median, 90th percentile, ma
 first frame (which waits for the first calibration) apart. Finally it checks that the final
 tables equal ``dropvision measure`` of the same folder.
 
-    python tools/bench_watch.py [--source SEQ_DIR] [--rate-hz 20] [--frames N] [--keep DIR]
+``--synth`` replays a synthetic sequence of the default camera instead (181 frames of 640 x 1024 px,
+`dropvision.synth.SynthConfig()`, rendered first).
+
+    python tools/bench_watch.py [--source SEQ_DIR | --synth] [--rate-hz 20] [--frames N] [--keep DIR]
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--source", type=Path, default=ROOT / "sample_frames" / "colour_ink_u70_u25",
                     help="a complete sequence folder to replay")
+    ap.add_argument("--synth", action="store_true",
+                    help="replay a synthetic sequence of 181 frames of 640 x 1024 px (rendered first) instead")
     ap.add_argument("--rate-hz", type=float, default=20.0, help="frames per second (default 20)")
     ap.add_argument("--frames", type=int, default=None, help="replay only the first N frames")
     ap.add_argument("--keep", type=Path, default=None, help="work in this (new) folder and keep it")
@@ -46,6 +51,10 @@ def main(argv: list[str] | None = None) -> int:
         work = args.keep or Path(tmp)
         watched, out = work / "watched", work / "out"
         watched.mkdir(parents=True)
+        if args.synth:
+            from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+            args.source = write_synthetic_sequence(SynthConfig(), work / "synth", progress=False)
         cmd = [sys.executable, "-m", "dropvision.app.cli", "watch", str(watched), "--out", str(out), "-q"]
         if args.frames is not None:
             cmd += ["--frames", str(args.frames)]
@@ -67,7 +76,8 @@ def main(argv: list[str] | None = None) -> int:
         first = next(iter(completed))
         rest = np.array([v for k, v in lat.items() if k != first])
         n = len(completed)
-        print(f"dropvision watch, {n} frames of {args.source.name} written at {args.rate_hz:g} frames/s "
+        shape = "x".join(str(v) for v in open_sequence(args.source).meta.shape[::-1])
+        print(f"dropvision watch, {n} frames of {args.source.name} ({shape} px, width x height) written at {args.rate_hz:g} frames/s "
               f"({written_s:.1f} s), load average {load0:.1f} -> {os.getloadavg()[0]:.1f}")
         print(f"rows on disk: {len(rows)}; completion to row on disk: median {statistics.median(lat.values()):.1f} ms, "
               f"p90 {np.percentile(list(lat.values()), 90):.1f} ms, max {max(lat.values()):.1f} ms; "
