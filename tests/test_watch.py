@@ -149,6 +149,29 @@ def test_interrupt_writes_final_tables_of_the_frames_so_far(rendered, tmp_path):
     _assert_same(out, measure_sequence(open_sequence(watched, only_files=names[:8])))
 
 
+def test_frames_renamed_into_place(rendered, tmp_path):
+    """A writer that writes each frame under a temporary name and renames it into place."""
+    watched, out = tmp_path / "watched", tmp_path / "out"
+    watched.mkdir()
+    names = _frame_names(rendered)[:6]
+
+    def write():
+        (watched / "sequence.json").write_bytes((rendered / "sequence.json").read_bytes())
+        for name in names:
+            (watched / f".{name}.part").write_bytes((rendered / name).read_bytes())
+            os.replace(watched / f".{name}.part", watched / name)
+            time.sleep(0.02)
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    try:
+        res = watch_sequence(watched, out, WatchOptions(frames=6, idle_s=20.0))
+    finally:
+        writer.join()
+    assert res.ended_by == "frames" and sorted(r["file"] for r in read_journal(out)) == sorted(names)
+    _assert_same(out, measure_sequence(open_sequence(watched, only_files=names)))
+
+
 def test_idle_end_and_frames_already_there(rendered, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["watch", str(rendered), "--out", str(out), "--frames", "100", "--idle-s", "0.3", "-q"]) == 0

@@ -293,7 +293,7 @@ def _write_event_types() -> list:
 
 def _event_handler(events: queue.Queue):
     """A watchdog handler queueing (name, closed) for each written entry of the folder:
-    ``closed`` when its writer closed it."""
+    ``closed`` when its writer closed it or renamed it into place."""
     from watchdog.events import FileSystemEventHandler
 
     class Handler(FileSystemEventHandler):
@@ -301,7 +301,8 @@ def _event_handler(events: queue.Queue):
             if event.is_directory or event.event_type not in _WRITE_EVENTS:
                 return
             path = event.dest_path if event.event_type == "moved" else event.src_path
-            events.put((os.path.basename(os.fsdecode(path)), event.event_type == "closed"))
+            # closed by its writer, or renamed into place (written under another name): complete
+            events.put((os.path.basename(os.fsdecode(path)), event.event_type in ("closed", "moved")))
 
     return Handler()
 
