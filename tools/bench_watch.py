@@ -76,12 +76,14 @@ def main(argv: list[str] | None = None) -> int:
         first = next(iter(completed))
         rest = np.array([v for k, v in lat.items() if k != first])
         n = len(completed)
-        shape = "x".join(str(v) for v in open_sequence(args.source).meta.shape[::-1])
-        print(f"dropvision watch, {n} frames of {args.source.name} ({shape} px, width x height) written at {args.rate_hz:g} frames/s "
-              f"({written_s:.1f} s), load average {load0:.1f} -> {os.getloadavg()[0]:.1f}")
+        with open_sequence(args.source) as src:
+            shape = "x".join(str(v) for v in src.meta.shape[::-1])
+        print(f"dropvision watch, {n} frames of {args.source.name} ({shape} px, width x height) written at "
+              f"{args.rate_hz:g} frames/s ({written_s:.1f} s), load average {load0:.1f} -> {os.getloadavg()[0]:.1f}")
         print(f"rows on disk: {len(rows)}; completion to row on disk: median {statistics.median(lat.values()):.1f} ms, "
               f"p90 {np.percentile(list(lat.values()), 90):.1f} ms, max {max(lat.values()):.1f} ms; "
-              f"first frame (first calibration) {lat[first]:.0f} ms, the others max {rest.max() if rest.size else 0:.1f} ms")
+              f"first frame (first calibration) {lat[first]:.0f} ms, "
+              f"the others max {rest.max() if rest.size else 0:.1f} ms")
         seq = open_sequence(watched, only_files=set(completed)) if args.frames else watched
         batch = measure_sequence(seq)
         final = pd.read_parquet(out / "frames.parquet")
