@@ -192,3 +192,35 @@ def test_refuses_outputs_it_does_not_own(rendered, tmp_path, capsys):
     assert not (rendered / "out").exists()
     assert main(["watch", str(tmp_path / "none"), "--out", str(tmp_path / "o")]) == 2
     assert "no such folder" in capsys.readouterr().err
+
+
+def test_sequences_one_after_the_other(rendered, tmp_path, capsys):
+    """--sequences: a sub-folder per sequence; each ends when the next one appears (or idle)."""
+    root, out = tmp_path / "root", tmp_path / "out"
+    root.mkdir()
+    meta = json.loads((rendered / "sequence.json").read_text())
+    del meta["frames"]  # delays from the file names: a batch measure of the folder as it is then
+    names = _frame_names(rendered)
+
+    def write():
+        for seq, picked in (("seq_a", names[:5]), ("seq_b", names[5:10])):
+            (root / seq).mkdir()
+            (root / seq / "sequence.json").write_text(json.dumps(meta))
+            for name in picked:
+                (root / seq / name).write_bytes((rendered / name).read_bytes())
+                time.sleep(0.03)
+            time.sleep(0.3)
+
+    writer = threading.Thread(target=write)
+    writer.start()
+    try:
+        assert main(["watch", str(root), "--out", str(out), "--sequences", "--idle-s", "1.5"]) == 0
+    finally:
+        writer.join()
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split(":")[0] for line in lines] == ["seq_a", "seq_b"]
+    assert "watched 5 of 5 frames (5 live, 0 from the journal; ended by next sequence)" in lines[0]
+    assert "watched 5 of 5 frames (5 live, 0 from the journal; ended by idle)" in lines[1]
+    for seq in ("seq_a", "seq_b"):
+        _assert_same(out / seq, measure_sequence(root / seq))
+    assert sorted(p.name for p in root.iterdir()) == ["seq_a", "seq_b"]  # nothing written there

@@ -47,8 +47,8 @@ from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
 from identify import schema
 from identify.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
 
-__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "read_journal", "journal_table",
-           "replay_sequence"]
+__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences",
+           "read_journal", "journal_table", "replay_sequence"]
 
 #: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `identify.schema.LIVE_FRAMES`).
 JOURNAL = schema.LIVE_FRAMES.file
@@ -105,7 +105,8 @@ class WatchResult:
     result : MeasureResult
         The final tables (as `dropvision.measurement.measure_sequence` gives them).
     ended_by : str
-        ``"frames"`` (the expected count), ``"idle"`` (``idle_s``) or ``"interrupt"`` (Ctrl-C).
+        ``"frames"`` (the expected count), ``"idle"`` (``idle_s``), ``"interrupt"`` (Ctrl-C) or
+        ``"next sequence"`` (``stop``: the drop watcher began the next sequence).
     n_live : int
         Frames measured live by this run.
     n_resumed : int
@@ -310,7 +311,7 @@ def _event_handler(events: queue.Queue):
 # --- the loop --------------------------------------------------------------------------------------
 
 def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, logger=None,
-                   report=None) -> WatchResult:
+                   report=None, stop=None) -> WatchResult:
     """Measure a sequence folder while its frames are written; write the final tables at its end.
 
     Parameters
@@ -327,6 +328,9 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
         then the final measurement.
     report : callable, optional
         Called with each live row once it is on disk (e.g. a line on the terminal).
+    stop : callable, optional
+        ``stop() -> bool``, asked while no frame is being written: True ends the sequence
+        (``ended_by`` ``"next sequence"``; `watch_sequences` asks whether the next one began).
 
     Returns
     -------
@@ -376,6 +380,9 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
                 break
             if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
                 ended_by = "idle"
+                break
+            if stop is not None and not pending and stop():
+                ended_by = "next sequence"
                 break
             _drain(events, pending, opts.poll_s)
             ready = _settled(folder, pending, done, state.unlisted, opts)
@@ -587,6 +594,110 @@ def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, lef
         write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "finished",
                                       **stats, "left_out": left_out})
     return result
+
+
+# --- one sequence after the other ---------------------------------------------------------------
+
+def _sequence_folders(root: Path) -> list[Path]:
+    """The sub-folders of ``root`` (not hidden), in name order."""
+    try:
+        entries = [e for e in os.scandir(root) if e.is_dir(follow_symlinks=False) and not e.name.startswith(".")]
+    except OSError as exc:
+        raise SequenceError(f"{root}: cannot list the folder ({exc.strerror or exc})") from None
+    return [Path(e.path) for e in sorted(entries, key=lambda e: e.name)]
+
+
+def _finished(out: Path) -> bool:
+    """An earlier watch of this sequence ended by itself (not interrupted): its tables are final."""
+    try:
+        doc = json.loads((out / WATCH_JSON).read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and doc.get("state") == "finished" and doc.get("ended_by") != "interrupt"
+
+
+def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, logger_for=None, report=None,
+                    announce=None) -> tuple[list[WatchResult], dict[str, str]]:
+    """Watch a folder in which a drop watcher writes one sequence per sub-folder, one after the other.
+
+    Each sub-folder (in name order) is watched with `watch_sequence` into ``OUT_ROOT/<name>``;
+    it ends at its expected frame count, after ``options.idle_s`` without a new frame, or
+    when a later sub-folder appears while none of its frames is being written. The watch ends
+    ``options.idle_s`` after the last sequence ended without a new sub-folder (never, when
+    None), or on Ctrl-C. Sequences an earlier watch finished are not watched again; one it
+    was interrupted in is resumed.
+
+    Parameters
+    ----------
+    root : str or Path
+        The folder the sequence folders appear in (never written to).
+    out_root : str or Path
+        One output folder per sequence inside it (a folder of ours, `identify.atomic.claim_dir`:
+        never replaced as a whole).
+    options : WatchOptions
+        For every sequence.
+    logger_for : callable, optional
+        ``logger_for(name)``: a Rerun logger for the sequence (or None), closed after it.
+    report : callable, optional
+        Called with each live row (see `watch_sequence`).
+    announce : callable, optional
+        Called with ``(name, WatchResult)`` when a sequence is finished, ``(name, SequenceError)``
+        when it could not be measured (the watch goes on with the next).
+
+    Returns
+    -------
+    results : list of WatchResult
+        The sequences watched by this run, in order.
+    failed : dict
+        Sequence name -> why it could not be measured.
+    """
+    from identify.atomic import claim_dir
+
+    root, out_root = Path(root).absolute(), Path(out_root)
+    if not root.is_dir():
+        raise SequenceError(f"{root}: no such folder")
+    claim_dir(out_root, inputs=[root], overwrite=options.overwrite, kind="live measurements")
+    results: list[WatchResult] = []
+    failed: dict[str, str] = {}
+    watched: set[str] = set()
+    last_end = time.monotonic()
+    try:
+        while True:
+            todo = [f for f in _sequence_folders(root) if f.name not in watched]
+            if not todo:
+                if options.idle_s is not None and time.monotonic() - last_end >= options.idle_s:
+                    break
+                time.sleep(options.poll_s)
+                continue
+            folder = todo[0]
+            watched.add(folder.name)
+            out = out_root / folder.name
+            if _finished(out):
+                continue
+
+            def later_began(name=folder.name) -> bool:
+                return any(f.name > name for f in _sequence_folders(root))
+
+            logger = logger_for(folder.name) if logger_for is not None else None
+            try:
+                res = watch_sequence(folder, out, options, logger=logger, report=report, stop=later_began)
+            except SequenceError as exc:  # this sequence cannot be measured: the others can
+                res = exc
+            finally:
+                if logger is not None:
+                    logger.close()
+            if announce is not None:
+                announce(folder.name, res)
+            last_end = time.monotonic()
+            if isinstance(res, SequenceError):
+                failed[folder.name] = str(res)
+                continue
+            results.append(res)
+            if res.ended_by == "interrupt":
+                break
+    except KeyboardInterrupt:  # between two sequences
+        pass
+    return results, failed
 
 
 # --- a drop watcher, replayed ------------------------------------------------------------------

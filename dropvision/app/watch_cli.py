@@ -40,8 +40,6 @@ def _run(args: argparse.Namespace) -> int:
     options = WatchOptions(frames=args.frames, idle_s=args.idle_s, settle_s=args.settle_s,
                            config=MeasureConfig(workers=args.workers), csv=args.csv, overwrite=args.overwrite,
                            overrides=overrides, labels=labels)
-    logger = logger_from_args(args, "dropvision", recording_name=folder.resolve().name)
-
     def report(row: dict) -> None:
         if args.verbose:
             print(f"{row['file']}: delay {row['delay_us']:g} us, attached {row['attached_volume_nl'] or 0:.4g} nl, "
@@ -52,25 +50,55 @@ def _run(args: argparse.Namespace) -> int:
     try:
         with captured_warnings() as caught:
             try:
-                res = watch_sequence(folder, args.out, options, logger=logger, report=report)
+                if args.sequences:
+                    return _run_sequences(args, folder, options, report)
+                logger = logger_from_args(args, "dropvision", recording_name=folder.resolve().name)
+                try:
+                    res = watch_sequence(folder, args.out, options, logger=logger, report=report)
+                finally:
+                    if logger is not None:
+                        logger.close()
             finally:
-                if logger is not None:
-                    logger.close()
                 print_warnings("dropvision watch", warning_lines(caught), args)
     finally:
         signal.signal(signal.SIGTERM, previous)
-    if args.quiet:
-        return 0
+    if not args.quiet:
+        print(_summary_line(res, args.out), flush=True)
+    return 0
+
+
+def _summary_line(res, out) -> str:
+    """One line: frames, how the sequence ended, latency, the main results."""
     s = res.result.summary
     lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
            f"after each of the {len(res.latency_ms)} frames written while watching was complete"
            if res.latency_ms else "no frame written while watching")
-    print(f"watched {s['n_measured']} of {s['n_frames']} frames ({res.n_live} live, {res.n_resumed} from the "
-          f"journal; ended by {res.ended_by}) -> {args.out}; {lat}; pinch-off {s['pinchoff_us']} us, in-flight "
-          f"volume {s['inflight_volume_nl']:.4g} nl"
-          + (f"; still being written, left out: {', '.join(res.left_out)}" if res.left_out else ""))
-    sys.stdout.flush()
-    return 0
+    return (f"watched {s['n_measured']} of {s['n_frames']} frames ({res.n_live} live, {res.n_resumed} from the "
+            f"journal; ended by {res.ended_by}) -> {out}; {lat}; pinch-off {s['pinchoff_us']} us, in-flight "
+            f"volume {s['inflight_volume_nl']:.4g} nl"
+            + (f"; still being written, left out: {', '.join(res.left_out)}" if res.left_out else ""))
+
+
+def _run_sequences(args: argparse.Namespace, root: Path, options, report) -> int:
+    """``--sequences``: one sequence per sub-folder, one after the other, into OUT/<name>."""
+    from dropvision.app.rerun_log import RerunLogger
+    from dropvision.app.watch import watch_sequences
+    from identify.app.rerun_stream import options_from_args
+
+    rerun = options_from_args(args, "dropvision")
+    if rerun is not None:
+        rerun = rerun.start_viewer()  # a viewer that cannot start: warned, work goes on
+    logger_for = None if rerun is None or not rerun.enabled else (lambda name: RerunLogger(rerun.for_sequence(name)))
+
+    def announce(name: str, res) -> None:
+        if isinstance(res, Exception):
+            print(f"dropvision watch: error: {res}", file=sys.stderr, flush=True)
+        elif not args.quiet:
+            print(f"{name}: {_summary_line(res, Path(args.out) / name)}", flush=True)
+
+    _results, failed = watch_sequences(root, args.out, options, logger_for=logger_for, report=report,
+                                       announce=announce)
+    return 2 if failed else 0
 
 
 def register(subparsers) -> None:
@@ -79,6 +107,10 @@ def register(subparsers) -> None:
     p.add_argument("folder", help="sequence folder being written (never written to)")
     p.add_argument("--out", required=True, help="output folder: live/frames.jsonl grows as frames are measured, "
                    "the tables of `dropvision measure` at the end; an earlier watch of the same folder is resumed")
+    p.add_argument("--sequences", action="store_true",
+                   help="FOLDER receives one sequence per sub-folder, one after the other: each is watched in turn "
+                        "into OUT/<name> (it ends at its frame count, --idle-s without a frame, or when a later "
+                        "sub-folder appears); the watch ends --idle-s after the last one, or on Ctrl-C")
     p.add_argument("--frames", type=int, default=None, metavar="N",
                    help="end after N frames (default: the length of sequence.json's frames list, if any)")
     p.add_argument("--idle-s", type=float, default=None, metavar="S",
