@@ -323,7 +323,8 @@ WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
     F("schema", "str", "", "document id"),
     F("sequence", "str", "", "the watched sequence folder"),
     F("state", "str", "", "watching (a restart on the same output resumes) or finished"),
-    F("ended_by", "str", "", "frames (the expected count), idle (--idle-s) or interrupt (Ctrl-C, SIGTERM)",
+    F("ended_by", "str", "", "frames (the expected count), idle (--idle-s), interrupt (Ctrl-C, SIGTERM) or next "
+      "sequence (--sequences: the next sub-folder appeared)",
       required=False),
     F("n_live", "int", "", "frames measured live by the last run", required=False),
     F("n_resumed", "int", "", "frames found in the journal of an earlier run", required=False),
