@@ -732,9 +732,10 @@ def _frame_rate(doc: dict, where: str) -> tuple[float, float, int] | None:
     return fps, first, trigger
 
 
-def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: bool
-                 ) -> list[str]:
-    """Image files of a folder (natural order), links outside the folder noted in refused."""
+def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: bool,
+                 only: frozenset | None = None) -> list[str]:
+    """Image files of a folder (natural order), links outside the folder noted in refused;
+    with ``only``, those among these names alone."""
     try:
         entries = list(folder.iterdir())
     except OSError as exc:
@@ -742,7 +743,7 @@ def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: b
     names = []
     for p in entries:
         if (p.suffix.lower() not in IMAGE_SUFFIXES or p.name.startswith(".")
-                or p.name.lower().startswith("truth")):
+                or p.name.lower().startswith("truth") or (only is not None and p.name not in only)):
             continue
         target = None if allow_outside else _outside(folder_real, p)
         if target is not None:
@@ -758,17 +759,19 @@ def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: b
 
 
 def _listed_from_folder(folder: Path, folder_real: str, refused: dict,
-                        allow_outside: bool, lone_ok: bool = False) -> list[_Listed]:
+                        allow_outside: bool, lone_ok: bool = False, only: frozenset | None = None
+                        ) -> list[_Listed]:
     """Frames of a folder without a frames list; with ``lone_ok`` a folder of one single-frame
     image without a delay lists it with delay None (the caller gives it one)."""
-    names = _scan_folder(folder, folder_real, refused, allow_outside)
+    names = _scan_folder(folder, folder_real, refused, allow_outside, only)
     lone_ok = lone_ok and len(names) == 1
     return [_Listed(name, page, delay) for name in names
             for page, delay in _delays_of_file(folder, name, refused, lone_ok)]
 
 
 def _listed_from_rate(folder: Path, video, rate: tuple[float, float, int], json_path: Path,
-                      folder_real: str, refused: dict, allow_outside: bool) -> list[_Listed]:
+                      folder_real: str, refused: dict, allow_outside: bool,
+                      only: frozenset | None = None) -> list[_Listed]:
     """Frames of a high-speed recording: the ``video`` file, else every image file of the
     folder in natural name order (each page of a multi-page file in turn); frame i (0-based,
     in that order) gets delay ``first_frame_delay_us + (i - trigger_frame) * 1e6 /
@@ -788,7 +791,7 @@ def _listed_from_rate(folder: Path, video, rate: tuple[float, float, int], json_
             raise SequenceError(f"{path}: named by 'video' in sequence.json but missing")
         names = [rel]
     else:
-        names = _scan_folder(folder, folder_real, refused, allow_outside)
+        names = _scan_folder(folder, folder_real, refused, allow_outside, only)
         videos = [n for n in names if PurePath(n).suffix.lower() in VIDEO_SUFFIXES]
         if videos and len(names) > 1:
             raise SequenceError(f"{folder}: {len(names)} files ({', '.join(names[:4])}"
@@ -823,7 +826,8 @@ def _listed_from_rate(folder: Path, video, rate: tuple[float, float, int], json_
 
 
 def _listed_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
-                        refused: dict, allow_outside: bool) -> list[_Listed]:
+                        refused: dict, allow_outside: bool, only: frozenset | None = None
+                        ) -> list[_Listed]:
     if not isinstance(frames, list) or not frames:
         raise SequenceError(f"{json_path}: 'frames' must be a non-empty list")
     out, seen, stored_delays = [], set(), {}
@@ -832,6 +836,8 @@ def _listed_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
         if not isinstance(entry, dict):
             raise SequenceError(f"{where}: must be an object with 'file' and 'delay_us'")
         rel = _safe_relpath(entry.get("file"), where)
+        if only is not None and rel not in only:  # not (yet) complete: left out
+            continue
         path = folder / rel
         where = f"{path}"
         reader = reader_for(path)
@@ -1009,7 +1015,7 @@ def _merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Pat
 
 def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | None = None,
                   labels: dict | None = None, ignore_sequence_json: bool = False,
-                  require_pixel_size: bool = True) -> Sequence:
+                  require_pixel_size: bool = True, only_files=None) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
@@ -1037,6 +1043,10 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     require_pixel_size : bool
         False: a sequence without any pixel size opens with ``pixel_size_um`` NaN (and the
         nozzle is not measured for one): to describe a folder, not to measure it.
+    only_files : collection of str, optional
+        List only these files (paths relative to the folder): the frames of a folder that a
+        writer is still filling (``dropvision watch``). A frames-list entry or an image of the
+        folder not among them is left out, not an error. None: every file.
 
     Returns
     -------
@@ -1122,18 +1132,19 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                    nozzle_inner_diameter=source_of("nozzle_inner_diameter_um"),
                    waveform=source_of("waveform"), bit_depth=source_of("bit_depth"))
 
+    only = None if only_files is None else frozenset(str(f) for f in only_files)
     rate = _frame_rate(doc, where_of("frame_rate_hz")) if doc is not None else None
     if rate is not None:
         listed = _listed_from_rate(folder, doc.get("video"), rate, json_path, folder_real,
-                                   refused, allow_outside_links)
+                                   refused, allow_outside_links, only)
         sources["delay"] = f"frame_rate_hz ({source_of('frame_rate_hz')})"
     elif doc is not None and doc.get("frames") is not None:
         listed = _listed_from_frames(folder, doc["frames"], json_path, folder_real, refused,
-                                     allow_outside_links)
+                                     allow_outside_links, only)
         sources["delay"] = "sequence.json frames (or the file names they list)"
     else:
         listed = _listed_from_folder(folder, folder_real, refused, allow_outside_links,
-                                     lone_ok=True)
+                                     lone_ok=True, only=only)
         sources["delay"] = "file names or image metadata"
     if "delay_us" in given:
         if len(listed) != 1:

@@ -296,8 +296,50 @@ OUTPUT_MARKER = Document("output_marker", ".dropvision-output.json", "dropvision
     F("files", "list", "", "files we wrote there (a folder is replaced only if it holds nothing else)"),
 ), "Ownership marker of every folder we write.")
 
-TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY)}
-DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER)}
+# ----------------------------------------------------------------------------- live measurement
+LIVE_FRAMES = Table("live_frames", "live/frames.jsonl", "dropvision.live-frames/1", (
+    F("file", "str", "", "image file (relative to the sequence folder)", nullable=False),
+    F("page", "int", "", "page of a multi-page TIFF (null for single images)"),
+    F("delay_us", "float", "us", "strobe delay after the firing trigger", nullable=False),
+    F("repeat", "int", "", "index among the frames complete so far at the same delay", nullable=False),
+    F("attached_volume_nl", "float", "nl", "volume of the liquid joined to the nozzle, below the tip plane"),
+    F("attached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of attached_volume_nl"),
+    F("n_detached", "int", "", "in-focus detached bodies (main drop, satellites, tails)", nullable=False),
+    F("drop_volume_nl", "float", "nl", "volume of the largest in-focus detached body"),
+    F("drop_z_um", "float", "um", "its centroid along the jetting axis from the tip plane"),
+    F("drop_x_um", "float", "um", "its centroid across the axis"),
+    F("quality", "str", "", "the frame's own quality codes ('ok' when none)", nullable=False),
+    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls"),
+    F("gain", "float", "", "illumination of the frame relative to the background model"),
+    F("error", "str", "", "why the frame could not be read (null when it was measured)"),
+    F("calibration_frames", "int", "", "complete frames the calibration it was measured with was made from",
+      nullable=False),
+    F("size", "int", "bytes", "file size when it was measured (a restart skips it while unchanged)", nullable=False),
+    F("mtime_ns", "int", "ns", "file modification time when it was measured (Unix epoch)", nullable=False),
+    F("row_unix_s", "float", "s", "when the row was written (Unix epoch)", nullable=False),
+    F("latency_ms", "float", "ms", "from the file's last modification to its row", nullable=False),
+), "`dropvision watch`: one JSON line per frame as it is measured, before the sequence-level analysis "
+   "(provisional: pinch-off, grown volume, tracking and the final quality codes are in frames.parquet at the "
+   "end). Appended one whole line at a time; read with `dropvision.app.watch.read_journal`.")
+
+WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
+    F("schema", "str", "", "document id"),
+    F("sequence", "str", "", "the watched sequence folder"),
+    F("state", "str", "", "watching (a restart on the same output resumes) or finished"),
+    F("ended_by", "str", "", "frames (the expected count), idle (--idle-s), interrupt (Ctrl-C, SIGTERM) or next "
+      "sequence (--sequences: the next sub-folder appeared)",
+      required=False),
+    F("n_live", "int", "", "frames measured live by the last run", required=False),
+    F("n_resumed", "int", "", "frames found in the journal of an earlier run", required=False),
+    F("latency_ms_median", "float", "ms", "median time from a file's completion to its row, over the frames "
+      "written while watching", required=False),
+    F("latency_ms_max", "float", "ms", "the longest of those times", required=False),
+    F("left_out", "list", "", "files still being written when the watch ended (not in the tables)",
+      required=False),
+), "`dropvision watch`: what the watch of a sequence folder did.")
+
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH)}
 
 class Quality:
     """Quality codes of the frames table (``quality`` column: ``"ok"`` or codes joined by

@@ -61,3 +61,8 @@ def test_bench_montecarlo_tiny():
 def test_bench_decoders_tiny():
     out, _ = _run("bench_decoders.py", "--repeats", "5", "--inner", "1")
     assert "cv2.imdecode" in out
+
+
+def test_bench_watch_tiny():
+    out, _ = _run("bench_watch.py", "--frames", "6", "--rate-hz", "50")
+    assert "completion to row on disk: median" in out and "equal to dropvision measure: yes" in out

@@ -17,6 +17,7 @@ COMMAND_MODULES = (
     "dropvision.app.synth_cli",
     "dropvision.app.measure_cli",
     "dropvision.app.campaign_cli",
+    "dropvision.app.watch_cli",
 )
 
 

@@ -1,0 +1,746 @@
+"""Live measurement: measure a sequence folder while a drop watcher writes its frames into it.
+
+`watch_sequence` runs the loop behind ``dropvision watch FOLDER --out OUT``:
+
+1. A file-system observer (watchdog) reports what changes in FOLDER; a frame is taken once it
+   is complete: its size and modification time unchanged for ``settle_s`` (or its writer
+   closed it), and it decodes. A decode failure of a file that is still changing is "not yet";
+   one that stays unreadable and unchanged for ``unreadable_after_s`` is reported, as the batch
+   measurement reports it.
+2. The sequence is calibrated (`dropvision.context.calibrate_sequence`) on the complete frames
+   as soon as there is one, and again each time their number has doubled; every new frame is
+   measured with the newest context (`dropvision.frame.measure_frame`) and its row appended to
+   the journal ``OUT/live/frames.jsonl`` (one ``write`` of one line per frame, so a kill leaves
+   whole rows; a cut last line, which only a power loss could leave, is dropped on resume).
+   These rows are provisional: the frame's own measurement, before the sequence-level analysis.
+3. When the sequence ends (the expected number of frames, ``idle_s`` without a new frame, or
+   Ctrl-C) the final tables are measured by `dropvision.measurement.measure_sequence` over the
+   complete frames and written by `dropvision.output.write_result`: with every frame complete
+   they equal ``dropvision measure FOLDER`` exactly. The journal is kept in the result.
+
+Nothing is ever written into FOLDER. OUT follows `identify.atomic`: refused when it holds files
+we did not write (without ``overwrite``); a restart on the same OUT resumes from its journal
+(frames already there and unchanged are not measured again).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import shutil
+import statistics
+import time
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from dropvision import quality as q
+from dropvision.config import MeasureConfig
+from dropvision.context import calibrate_sequence
+from dropvision.frame import FrameRecord, measure_frame
+from dropvision.measurement import MeasureResult, measure_sequence
+from dropvision.output import write_result
+from dropvision.readers import IMAGE_SUFFIXES
+from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
+from identify import schema
+from identify.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
+
+__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences",
+           "read_journal", "journal_table", "replay_sequence"]
+
+#: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `identify.schema.LIVE_FRAMES`).
+JOURNAL = schema.LIVE_FRAMES.file
+#: What the watch did (sequence, end, latencies), relative to OUT (`identify.schema.WATCH`).
+WATCH_JSON = schema.WATCH.file
+
+
+@dataclass
+class WatchOptions:
+    """How `watch_sequence` watches and when it stops.
+
+    Attributes
+    ----------
+    frames : int or None
+        Expected number of frames: the sequence ends when that many are measured. None: the
+        length of sequence.json's ``frames`` list when it has one, else no count.
+    idle_s : float or None
+        End after this many seconds without a new complete frame (None: never).
+    settle_s : float
+        A frame is complete when its size and modification time stayed unchanged this long
+        (or its writer closed it) and it decodes.
+    unreadable_after_s : float
+        A file that does not decode and stays unchanged this long is reported as unreadable
+        (``summary.json["errors"]``), as ``dropvision measure`` reports it.
+    poll_s : float
+        Longest wait for a file-system event before the files are looked at again.
+    config : MeasureConfig
+    csv : bool
+        Also write frames.csv.
+    overwrite : bool
+        Write into an OUT that holds files we did not write (they are kept).
+    overrides, labels : dict, optional
+        sequence.json keys given as options (`dropvision.sequence.open_sequence`).
+    """
+
+    frames: int | None = None
+    idle_s: float | None = None
+    settle_s: float = 0.05
+    unreadable_after_s: float = 2.0
+    poll_s: float = 0.02
+    config: MeasureConfig = field(default_factory=MeasureConfig)
+    csv: bool = False
+    overwrite: bool = False
+    overrides: dict | None = None
+    labels: dict | None = None
+
+
+@dataclass
+class WatchResult:
+    """What `watch_sequence` did.
+
+    Attributes
+    ----------
+    result : MeasureResult
+        The final tables (as `dropvision.measurement.measure_sequence` gives them).
+    ended_by : str
+        ``"frames"`` (the expected count), ``"idle"`` (``idle_s``), ``"interrupt"`` (Ctrl-C) or
+        ``"next sequence"`` (``stop``: the drop watcher began the next sequence).
+    n_live : int
+        Frames measured live by this run.
+    n_resumed : int
+        Frames found in the journal of an earlier run (not measured again).
+    latency_ms : list of float
+        Per frame written while watching and measured live: from the file's completion (its
+        last modification time, on the kernel's coarse clock) to its row on disk (ms).
+    left_out : list of str
+        Files still being written when the sequence ended (not in the final tables).
+    """
+
+    result: MeasureResult
+    ended_by: str
+    n_live: int
+    n_resumed: int
+    latency_ms: list[float]
+    left_out: list[str]
+
+
+# --- the journal -------------------------------------------------------------------------------
+
+def read_journal(out_dir) -> list[dict]:
+    """Rows of ``OUT/live/frames.jsonl`` (whole lines only; a cut last line is left out).
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The watch's output folder.
+
+    Returns
+    -------
+    list of dict
+        One per frame measured live, in the order they were measured.
+    """
+    path = Path(out_dir) / JOURNAL
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return []
+    rows = []
+    for line in data.split(b"\n")[:-1]:  # the part after the last newline is cut: left out
+        try:
+            row = json.loads(line)
+        except ValueError:
+            continue
+        if isinstance(row, dict) and isinstance(row.get("file"), str):
+            rows.append(row)
+    return rows
+
+
+def journal_table(out_dir):
+    """The journal as a table: `read_journal`'s rows with the columns and types of
+    `identify.schema.LIVE_FRAMES` (null numbers as NaN, ``page`` nullable integer).
+
+    Parameters
+    ----------
+    out_dir : str or Path
+        The watch's output folder.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    import pandas as pd
+
+    table = pd.DataFrame(read_journal(out_dir), columns=schema.LIVE_FRAMES.column_names)
+    for col in schema.LIVE_FRAMES.columns:
+        if col.dtype == "int":
+            table[col.name] = table[col.name].astype("Int64")
+        elif col.dtype == "float":
+            table[col.name] = pd.to_numeric(table[col.name]).astype(float)
+    return table
+
+
+def _live_row(rec: FrameRecord, cal_frames: int) -> dict:
+    """A frame's provisional row: its own measurement, before the sequence-level analysis
+    (volumes nl, positions µm along (z) and across (x) the axis, delays µs)."""
+    main = rec.bodies[0] if rec.bodies else None
+    return {
+        "file": rec.file, "page": rec.page, "delay_us": rec.delay_us, "repeat": rec.repeat,
+        "attached_volume_nl": rec.attached_volume_nl,
+        "attached_volume_uncertainty_nl": rec.attached_volume_uncertainty_nl,
+        "n_detached": len(rec.bodies),
+        "drop_volume_nl": main.volume_nl if main else math.nan,
+        "drop_z_um": main.z_um if main else math.nan,
+        "drop_x_um": main.x_um if main else math.nan,
+        "quality": q.join(rec.flags), "blur_px": rec.blur_px, "gain": rec.gain, "error": rec.error,
+        "calibration_frames": cal_frames,
+    }
+
+
+class _Journal:
+    """Append-only JSON lines: one ``os.write`` of one whole line per row."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+
+    def append(self, row: dict) -> None:
+        from identify.atomic import to_json
+
+        line = to_json(row, indent=None).encode("utf-8")  # ends with "\n"
+        view = memoryview(line)
+        while view:  # a regular file takes it in one write; a short write is continued
+            view = view[os.write(self._fd, view):]
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+
+def _start_out(out: Path, folder: Path, overwrite: bool) -> list[dict]:
+    """Check OUT before any work and make it ours; the journal rows of an earlier watch of the
+    same folder when OUT holds one (resume), else an empty journal."""
+    mode = check_output_dir(out, inputs=[folder], overwrite=overwrite)
+    journal, state = out / JOURNAL, out / WATCH_JSON
+    if mode != "new" and journal.is_file() and JOURNAL not in foreign_files(out):
+        try:
+            same = json.loads(state.read_text(encoding="utf-8")).get("sequence") == str(folder)
+        except (OSError, ValueError, AttributeError):
+            same = False
+        if same:
+            rows = read_journal(out)
+            if not journal.read_bytes().endswith(b"\n") and journal.stat().st_size:  # a cut last line
+                write_text(journal, "".join(json.dumps(r) + "\n" for r in rows))
+            return rows
+    with atomic_dir(out, inputs=[folder], overwrite=overwrite, kind="live measurement") as tmp:
+        (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / JOURNAL).write_bytes(b"")
+        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "watching"})
+    return []
+
+
+# --- completeness --------------------------------------------------------------------------------
+
+@dataclass
+class _Pending:
+    size: int = -1
+    mtime_ns: int = -1
+    changed_at: float = 0.0  # monotonic time of the last change seen
+    closed: bool = False  # the writer closed it after its last change
+    failed: str | None = None  # the last decode failure
+
+
+def _is_frame_name(name: str) -> bool:
+    return (Path(name).suffix.lower() in IMAGE_SUFFIXES and not name.startswith(".")
+            and not name.lower().startswith("truth"))
+
+
+class _ListedCount:
+    """The length of sequence.json's frames list, if it has one (read again when it changes)."""
+
+    def __init__(self, folder: Path):
+        self.path = folder / SEQUENCE_JSON
+        self._key, self._count = None, None
+
+    def count(self) -> int | None:
+        try:
+            st = self.path.stat()
+        except OSError:
+            return None
+        key = (st.st_size, st.st_mtime_ns)
+        if key != self._key:
+            self._key = key
+            try:
+                doc = json.loads(self.path.read_text(encoding="utf-8"))
+            except (OSError, ValueError, RecursionError):
+                doc = None
+            frames = doc.get("frames") if isinstance(doc, dict) else None
+            self._count = len(frames) if isinstance(frames, list) and frames else None
+        return self._count
+
+
+#: watchdog event types that say a file was written (not opened or read: our own reads are events too)
+_WRITE_EVENTS = frozenset({"created", "modified", "moved", "closed"})
+
+
+def _write_event_types() -> list:
+    """The watchdog event classes of writes (the observer then leaves reads, ours included, unreported)."""
+    from watchdog.events import FileClosedEvent, FileCreatedEvent, FileModifiedEvent, FileMovedEvent
+
+    return [FileCreatedEvent, FileModifiedEvent, FileMovedEvent, FileClosedEvent]
+
+
+def _event_handler(events: queue.Queue):
+    """A watchdog handler queueing (name, closed) for each written entry of the folder:
+    ``closed`` when its writer closed it or renamed it into place."""
+    from watchdog.events import FileSystemEventHandler
+
+    class Handler(FileSystemEventHandler):
+        def dispatch(self, event) -> None:
+            if event.is_directory or event.event_type not in _WRITE_EVENTS:
+                return
+            path = event.dest_path if event.event_type == "moved" else event.src_path
+            # closed by its writer, or renamed into place (written under another name): complete
+            events.put((os.path.basename(os.fsdecode(path)), event.event_type in ("closed", "moved")))
+
+    return Handler()
+
+
+# --- the loop --------------------------------------------------------------------------------------
+
+def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, logger=None,
+                   report=None, stop=None) -> WatchResult:
+    """Measure a sequence folder while its frames are written; write the final tables at its end.
+
+    Parameters
+    ----------
+    folder : str or Path
+        The sequence folder a drop watcher writes into (never written to).
+    out_dir : str or Path
+        Output folder: ``live/frames.jsonl`` (rows as they are measured), then the files of
+        ``dropvision measure`` (frames.parquet, bodies.parquet, per_delay.parquet, summary.json)
+        and ``live/watch.json``. An OUT of an earlier watch of the same folder is resumed.
+    options : WatchOptions
+    logger : object, optional
+        Rerun logger (`dropvision.app.rerun_log.RerunLogger`): each frame as it is measured,
+        then the final measurement.
+    report : callable, optional
+        Called with each live row once it is on disk (e.g. a line on the terminal).
+    stop : callable, optional
+        ``stop() -> bool``, asked while no frame is being written: True ends the sequence
+        (``ended_by`` ``"next sequence"``; `watch_sequences` asks whether the next one began).
+
+    Returns
+    -------
+    WatchResult
+
+    Raises
+    ------
+    dropvision.sequence.SequenceError
+        FOLDER missing, or a sequence that cannot be measured (as ``dropvision measure``).
+    identify.atomic.OutputError
+        OUT overlaps FOLDER or holds files we did not write (without ``overwrite``).
+    """
+    from watchdog.observers import Observer  # the command's own dependency, imported when it runs
+
+    folder = Path(folder).absolute()
+    out = Path(out_dir)
+    if not folder.is_dir():
+        raise SequenceError(f"{folder}: no such folder")
+    opts = options
+    rows = _start_out(out, folder, opts.overwrite)
+    n_resumed = len(rows)
+    done: dict[str, tuple[int, int]] = {}  # complete file -> (size, mtime_ns) it was taken at
+    measured = set()  # (file, page) of the rows
+    for r in rows:
+        done[r["file"]] = (int(r.get("size") or -1), int(r.get("mtime_ns") or -1))
+        measured.add((r["file"], r.get("page")))
+    journal = _Journal(out / JOURNAL)
+    events: queue.Queue = queue.Queue()
+    observer = Observer()
+    observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
+    observer.start()  # before the first look at the folder: nothing written meanwhile is missed
+    pending: dict[str, _Pending] = {}
+    for p in folder.iterdir():
+        if _is_frame_name(p.name):
+            pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
+    state = _LiveState(folder, opts, logger)
+    listed = _ListedCount(folder)
+    latency: list[float] = []
+    n_live, started_ns = 0, time.time_ns()
+    last_frame_at = time.monotonic()
+    ended_by = "interrupt"
+    try:
+        while True:
+            expected = opts.frames if opts.frames is not None else listed.count()
+            if expected is not None and len(measured) >= expected and not pending:
+                ended_by = "frames"
+                break
+            if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
+                ended_by = "idle"
+                break
+            if stop is not None and not pending and stop():
+                ended_by = "next sequence"
+                break
+            _drain(events, pending, opts.poll_s)
+            ready = _settled(folder, pending, done, state.unlisted, opts)
+            if not ready:
+                continue
+            for row, file_stat in state.measure(ready, done, pending):
+                done[row["file"]] = file_stat  # first: a frame in the journal is in the final tables
+                measured.add((row["file"], row["page"]))
+                row["size"], row["mtime_ns"] = file_stat
+                row["row_unix_s"] = time.time()
+                row["latency_ms"] = (row["row_unix_s"] - file_stat[1] / 1e9) * 1e3
+                journal.append(row)
+                n_live += 1
+                if file_stat[1] >= started_ns:  # written while watching (not there before)
+                    latency.append(row["latency_ms"])
+                last_frame_at = time.monotonic()
+                if report is not None:
+                    report(row)
+    except KeyboardInterrupt:
+        ended_by = "interrupt"
+    finally:
+        observer.stop()
+        journal.close()
+        state.close()
+    observer.join()
+    left_out = sorted(pending)
+    result = _finish(folder, out, opts, logger, done, left_out,
+                     {"ended_by": ended_by, "n_live": n_live, "n_resumed": n_resumed,
+                      "latency_ms_median": statistics.median(latency) if latency else None,
+                      "latency_ms_max": max(latency) if latency else None})
+    return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out)
+
+
+def _drain(events: queue.Queue, pending: dict, wait_s: float) -> None:
+    """Take the queued file-system events in order (waiting up to ``wait_s`` for the first): a
+    write makes a file pending, its writer closing it makes it ready to be decoded."""
+    try:
+        item = events.get(timeout=wait_s)
+    except queue.Empty:
+        return
+    while True:
+        name, closed = item
+        if _is_frame_name(name):
+            p = pending.setdefault(name, _Pending(changed_at=time.monotonic()))
+            p.closed = closed
+            if not closed:
+                p.failed = None  # written again: worth another try
+        try:
+            item = events.get_nowait()
+        except queue.Empty:
+            return
+
+
+def _settled(folder: Path, pending: dict, done: dict, unlisted: dict, opts: WatchOptions) -> list[str]:
+    """Pending files whose size and modification time stayed unchanged ``settle_s`` (or that
+    their writer closed since their last change): ready to be decoded. Those measured already,
+    or that are no frame of the sequence (``unlisted``), are dropped while unchanged."""
+    now = time.monotonic()
+    ready = []
+    for name in sorted(pending):
+        p = pending[name]
+        try:
+            st = os.stat(folder / name)
+        except OSError:  # gone (renamed away, deleted)
+            del pending[name]
+            continue
+        key = (st.st_size, st.st_mtime_ns)
+        if key in (done.get(name), unlisted.get(name)):  # measured already (an earlier run), or no frame
+            del pending[name]
+            continue
+        if key != (p.size, p.mtime_ns):
+            p.size, p.mtime_ns, p.changed_at, p.failed = key[0], key[1], now, None
+        if p.failed is not None and now - p.changed_at < opts.unreadable_after_s:
+            continue  # did not decode: tried again when it changes, or reported when it does not
+        if st.st_size > 0 and (p.closed or now - p.changed_at >= opts.settle_s):
+            ready.append(name)
+    return ready
+
+
+class _LiveState:
+    """The live calibration and the frames measured with it.
+
+    The first calibration is made before the first frame is measured; each refinement (when
+    the complete frames have doubled) runs in a background thread while the frames go on being
+    measured with the current context, which it replaces once ready.
+    """
+
+    def __init__(self, folder: Path, opts: WatchOptions, logger):
+        self.folder, self.opts, self.logger = folder, opts, logger
+        self.ctx = None
+        self.cal_frames = 0  # frames the context was calibrated on (their number, not the picks)
+        self.arrived = 0  # arrival order: the Rerun "frame" timeline
+        self.error_since: float | None = None
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="dropvision-calibrate")
+        #: image files that are no frame of the sequence (not in sequence.json's frames list) -> (size, mtime_ns)
+        self.unlisted: dict[str, tuple[int, int]] = {}
+        self._refining: Future | None = None
+
+    def close(self) -> None:
+        """Stop refining (a calibration under way is finished and dropped)."""
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+    def _calibrated(self, files: frozenset) -> tuple:
+        """(cal, ctx, number of frames) of the complete ``files`` (run in the background)."""
+        with open_sequence(self.folder, overrides=self.opts.overrides, labels=self.opts.labels,
+                           only_files=files) as seq:
+            cal, _sigma, ctx = calibrate_sequence(seq, self.opts.config)
+            return cal, ctx, len(seq)
+
+    def _take_refinement(self) -> None:
+        if self._refining is None or not self._refining.done():
+            return
+        future, self._refining = self._refining, None
+        try:
+            cal, ctx, n = future.result()
+        except SequenceError:  # the context it has is kept; the final measurement reports what is wrong
+            self.cal_frames *= 2
+            return
+        self.ctx, self.cal_frames = ctx, n
+        if self.logger is not None:
+            self.logger.log_calibration(cal, shape=cal.shape)
+
+    def measure(self, ready: list[str], done: dict, pending: dict):
+        """Decode and measure the ready files; yield (row, (size, mtime_ns)) for each frame
+        on disk complete, leave the not-yet-complete ones pending."""
+        opts = self.opts
+        now = time.monotonic()
+        try:
+            seq = open_sequence(self.folder, overrides=opts.overrides, labels=opts.labels,
+                                only_files=set(done) | set(ready))
+        except SequenceError:
+            # a ready file that was not complete after all (its delay or size unreadable yet),
+            # or a sequence that cannot be measured: retried; raised when nothing changes
+            if self.error_since is None:
+                self.error_since = now
+            if now - self.error_since >= opts.unreadable_after_s:
+                raise
+            for name in ready:
+                pending[name].changed_at = now
+                pending[name].closed = False
+            return
+        self.error_since = None
+        try:
+            n_complete = len(seq)
+            self._take_refinement()
+            if self.ctx is None:
+                self._calibrate(seq)
+            elif n_complete >= 2 * self.cal_frames and self._refining is None:
+                self._refining = self._pool.submit(self._calibrated, frozenset(set(done) | set(ready)))
+            wanted = set(ready)
+            for name in wanted - {ref.file for ref in seq.meta.frames}:
+                p = pending.pop(name)
+                self.unlisted[name] = (p.size, p.mtime_ns)
+            for i, ref in enumerate(seq.meta.frames):
+                if ref.file not in wanted:
+                    continue
+                p = pending.get(ref.file)
+                fr = seq.read(i)
+                st = os.stat(self.folder / ref.file)
+                file_stat = (st.st_size, st.st_mtime_ns)
+                if fr.image is None:
+                    changed = p is not None and file_stat != (p.size, p.mtime_ns)
+                    if p is not None and (changed or now - p.changed_at < opts.unreadable_after_s):
+                        p.failed, p.closed = fr.error, False  # not yet: retried on its next change
+                        if changed:
+                            p.size, p.mtime_ns, p.changed_at = file_stat[0], file_stat[1], now
+                        continue
+                    rec = FrameRecord(ref.index, ref.file, ref.page, ref.delay_us, ref.repeat, error=fr.error)
+                elif self.ctx is None:  # no calibration yet: measured once one is possible
+                    if p is not None:
+                        p.changed_at, p.closed = now, False
+                    continue
+                else:
+                    rec = measure_frame(fr.image, self.ctx, replace(ref, index=self.arrived), self.logger)
+                self.arrived += 1
+                pending.pop(ref.file, None)
+                yield _live_row(rec, self.cal_frames), file_stat
+        finally:
+            seq.close()
+
+    def _calibrate(self, seq) -> None:
+        try:
+            cal, _sigma, ctx = calibrate_sequence(seq, self.opts.config)
+        except SequenceError:
+            # not yet (e.g. only unreadable frames): tried again with more frames; the final
+            # measurement reports what stays wrong
+            self.cal_frames = len(seq)
+            return
+        self.ctx, self.cal_frames = ctx, len(seq)
+        if self.logger is not None:
+            self.logger.log_calibration(cal, shape=cal.shape)
+
+
+def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, left_out: list[str],
+            stats: dict) -> MeasureResult:
+    """The final tables: `measure_sequence` over the complete frames (the whole folder when none
+    is left out: the batch measurement itself), written as ``dropvision measure`` writes them,
+    with the journal kept."""
+    if not done:
+        raise SequenceError(f"{folder}: no complete frame arrived (the watch ended by {stats['ended_by']})")
+    # the complete files: with every frame complete, the same listing as the folder's own
+    seq = open_sequence(folder, overrides=opts.overrides, labels=opts.labels, only_files=set(done))
+    result = measure_sequence(seq, None, opts.config, logger=logger)
+    journal = out / JOURNAL
+    with atomic_dir(out, inputs=[folder], overwrite=opts.overwrite, kind="measurement") as tmp:
+        write_result(result, tmp, csv=opts.csv)
+        (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(journal, tmp / JOURNAL)
+        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "finished",
+                                      **stats, "left_out": left_out})
+    return result
+
+
+# --- one sequence after the other ---------------------------------------------------------------
+
+def _sequence_folders(root: Path) -> list[Path]:
+    """The sub-folders of ``root`` (not hidden), in name order."""
+    try:
+        entries = [e for e in os.scandir(root) if e.is_dir(follow_symlinks=False) and not e.name.startswith(".")]
+    except OSError as exc:
+        raise SequenceError(f"{root}: cannot list the folder ({exc.strerror or exc})") from None
+    return [Path(e.path) for e in sorted(entries, key=lambda e: e.name)]
+
+
+def _finished(out: Path) -> bool:
+    """An earlier watch of this sequence ended by itself (not interrupted): its tables are final."""
+    try:
+        doc = json.loads((out / WATCH_JSON).read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return False
+    return isinstance(doc, dict) and doc.get("state") == "finished" and doc.get("ended_by") != "interrupt"
+
+
+def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, logger_for=None, report=None,
+                    announce=None) -> tuple[list[WatchResult], dict[str, str]]:
+    """Watch a folder in which a drop watcher writes one sequence per sub-folder, one after the other.
+
+    Each sub-folder (in name order) is watched with `watch_sequence` into ``OUT_ROOT/<name>``;
+    it ends at its expected frame count, after ``options.idle_s`` without a new frame, or
+    when a later sub-folder appears while none of its frames is being written. The watch ends
+    ``options.idle_s`` after the last sequence ended without a new sub-folder (never, when
+    None), or on Ctrl-C. Sequences an earlier watch finished are not watched again; one it
+    was interrupted in is resumed.
+
+    Parameters
+    ----------
+    root : str or Path
+        The folder the sequence folders appear in (never written to).
+    out_root : str or Path
+        One output folder per sequence inside it (a folder of ours, `identify.atomic.claim_dir`:
+        never replaced as a whole).
+    options : WatchOptions
+        For every sequence.
+    logger_for : callable, optional
+        ``logger_for(name)``: a Rerun logger for the sequence (or None), closed after it.
+    report : callable, optional
+        Called with each live row (see `watch_sequence`).
+    announce : callable, optional
+        Called with ``(name, WatchResult)`` when a sequence is finished, ``(name, SequenceError)``
+        when it could not be measured (the watch goes on with the next).
+
+    Returns
+    -------
+    results : list of WatchResult
+        The sequences watched by this run, in order.
+    failed : dict
+        Sequence name -> why it could not be measured.
+    """
+    from identify.atomic import claim_dir
+
+    root, out_root = Path(root).absolute(), Path(out_root)
+    if not root.is_dir():
+        raise SequenceError(f"{root}: no such folder")
+    claim_dir(out_root, inputs=[root], overwrite=options.overwrite, kind="live measurements")
+    results: list[WatchResult] = []
+    failed: dict[str, str] = {}
+    watched: set[str] = set()
+    last_end = time.monotonic()
+    try:
+        while True:
+            todo = [f for f in _sequence_folders(root) if f.name not in watched]
+            if not todo:
+                if options.idle_s is not None and time.monotonic() - last_end >= options.idle_s:
+                    break
+                time.sleep(options.poll_s)
+                continue
+            folder = todo[0]
+            watched.add(folder.name)
+            out = out_root / folder.name
+            if _finished(out):
+                continue
+
+            def later_began(name=folder.name) -> bool:
+                return any(f.name > name for f in _sequence_folders(root))
+
+            logger = logger_for(folder.name) if logger_for is not None else None
+            try:
+                res = watch_sequence(folder, out, options, logger=logger, report=report, stop=later_began)
+            except SequenceError as exc:  # this sequence cannot be measured: the others can
+                res = exc
+            finally:
+                if logger is not None:
+                    logger.close()
+            if announce is not None:
+                announce(folder.name, res)
+            last_end = time.monotonic()
+            if isinstance(res, SequenceError):
+                failed[folder.name] = str(res)
+                continue
+            results.append(res)
+            if res.ended_by == "interrupt":
+                break
+    except KeyboardInterrupt:  # between two sequences
+        pass
+    return results, failed
+
+
+# --- a drop watcher, replayed ------------------------------------------------------------------
+
+def replay_sequence(src, dst, *, rate_hz: float = 20.0, pause_s: float = 0.01, stop_after: int | None = None
+                    ) -> dict[str, float]:
+    """Write a sequence folder's frames into ``dst`` as a drop watcher would: sequence.json
+    first, then one frame every ``1 / rate_hz`` s, each in two writes ``pause_s`` apart (so a
+    reader can find it half-written). For trying ``dropvision watch`` and measuring it.
+
+    Parameters
+    ----------
+    src : str or Path
+        A complete sequence folder (frames in sequence.json's list order, else natural name order).
+    dst : str or Path
+        The folder to fill (created).
+    rate_hz : float
+        Frames per second.
+    pause_s : float
+        Pause between the two halves of each file.
+    stop_after : int, optional
+        Write only this many frames.
+
+    Returns
+    -------
+    dict
+        File name -> when it was complete (``time.time()`` after it was closed, s).
+    """
+    src, dst = Path(src), Path(dst)
+    with open_sequence(src, require_pixel_size=False) as seq:  # the listed order
+        names = list(dict.fromkeys(r.file for r in sorted(seq.meta.frames, key=lambda r: r.listed_index)))
+    dst.mkdir(parents=True, exist_ok=True)
+    if (src / SEQUENCE_JSON).is_file():
+        shutil.copyfile(src / SEQUENCE_JSON, dst / SEQUENCE_JSON)
+    complete: dict[str, float] = {}
+    t0 = time.monotonic()
+    for k, name in enumerate(names[:stop_after]):
+        time.sleep(max(0.0, t0 + k / rate_hz - time.monotonic()))
+        data = (src / name).read_bytes()
+        with open(dst / name, "wb") as fh:
+            fh.write(data[:len(data) // 2])
+            fh.flush()
+            time.sleep(pause_s)
+            fh.write(data[len(data) // 2:])
+        complete[name] = time.time()
+    return complete
