@@ -97,6 +97,9 @@ def test_waist_row_hand_cases():
     assert vo.waist_row(_two_lobes(neck_rows=3)) == 106  # the narrowest interior row, first on a tie
     assert vo.waist_row(_two_lobes(neck_rows=4)) is None  # a long thin part is a tail, no waist
     assert vo.waist_row(_two_lobes(top_rows=2)) is None  # a lobe of 2 rows is too short
+    assert vo.waist_row(_two_lobes(top_rows=3)) == 103  # 3 rows are enough (min_lobe_rows)
+    assert vo.waist_row(_two_lobes(bottom_rows=3)) == 106
+    assert vo.waist_row(_two_lobes(bottom_rows=2)) is None
     assert vo.waist_row(_two_lobes(waist=6.0)) is None  # 0.6 x the smaller lobe (10) is no waist
     assert vo.waist_row(_two_lobes(waist=5.9)) == 106
     ed = _two_lobes()
