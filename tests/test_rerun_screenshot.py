@@ -235,6 +235,12 @@ def test_a_viewer_exiting_at_start(tmp_path, monkeypatch, stderr, kind):
         shot.Viewer(tmp_path / "v", timeout=20)
 
 
+def test_the_tool_exits_1_on_a_broken_viewer(fake_viewer, monkeypatch, measurement_rrd, tmp_path, capsys):
+    monkeypatch.setattr(fake_viewer, "rc", 3)
+    assert shot.main([str(measurement_rrd), "--out", str(tmp_path)]) == 1
+    assert "the Rerun viewer is broken here: the viewer exited with status 3" in capsys.readouterr().err
+
+
 def test_require_viewer_turns_the_skip_into_a_failure(monkeypatch):
     monkeypatch.setattr(shot, "_PROBE", (False, "no Vulkan driver"))
     monkeypatch.delenv("DROPVISION_REQUIRE_VIEWER", raising=False)
