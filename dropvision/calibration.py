@@ -464,20 +464,6 @@ class Nozzle:
         return self.axis_a + self.axis_b * row
 
 
-def _longest_true_run(flags: np.ndarray) -> tuple[int, int]:
-    """(start, stop) of the longest run of True; (0, 0) if none."""
-    best = (0, 0)
-    start = None
-    for i, f in enumerate(np.append(flags, False)):
-        if f and start is None:
-            start = i
-        elif not f and start is not None:
-            if i - start > best[1] - best[0]:
-                best = (start, i)
-            start = None
-    return best
-
-
 def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
     """(start, stop) of the nozzle's straight part: a run of rows of constant width.
 

@@ -8,8 +8,8 @@ body of revolution whose axis is tilted by ``tilt`` from the image columns is ``
 longer than the true diameter, and the horizontal slice of a locally cylindrical body is an
 ellipse of area ``pi r^2 / cos(tilt)``; both together give ``pi (c/2)^2 cos(tilt)`` per unit
 row height (exact for a cylinder; for a sphere the relative error is ``1 - cos(tilt)``,
-3.4e-4 at 1.5 deg; see tests/test_measure_volume.py for the numerical check against
-resampling along the axis).
+3.4e-4 at 1.5 deg; see tests/test_measure_frame.py::test_tilted_slices_cos_factor_vs_resampling
+for the numerical check against resampling along the axis).
 
 Coordinates: pixel centres are integers; a row ``i`` covers ``[i - 0.5, i + 0.5)``.
 

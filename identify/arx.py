@@ -63,7 +63,6 @@ from dataclasses import dataclass
 from math import comb
 
 import numpy as np
-import pandas as pd
 import scipy.linalg
 from scipy.signal import lfilter
 
@@ -336,10 +335,6 @@ class ArxModel:
     @property
     def is_stable(self) -> bool:
         return bool(np.all(np.abs(self.poles()) < 1.0))
-
-    def parameters_table(self) -> pd.DataFrame:
-        """Columns ``name, value, standard_error``."""
-        return pd.DataFrame({"name": self.parameter_names, "value": self.theta, "standard_error": self.standard_errors})
 
     # -- use -------------------------------------------------------------------------
     def simulate(self, u) -> np.ndarray:

@@ -73,12 +73,6 @@ class EcmCoefficients:
         """θ of Eq. (10): [A2/A3, A1/A3, A0/A3, B1/A3, B0/A3]."""
         return np.array([self.A2, self.A1, self.A0, self.B1, self.B0]) / self.A3
 
-    @classmethod
-    def from_ratios(cls, theta, A3: float = 1.0) -> "EcmCoefficients":
-        """Build coefficients from the ratios θ of Eq. (10) and a scale A3."""
-        a2, a1, a0, b1, b0 = np.asarray(theta, dtype=float) * A3
-        return cls(A3=A3, A2=a2, A1=a1, A0=a0, B1=b1, B0=b0)
-
     def volume_tf(self) -> tuple[np.ndarray, np.ndarray]:
         """(num, den) of Y_vol/U in SI units, highest power first."""
         return np.array([-self.B1, -self.B0]), np.array([self.A3, self.A2, self.A1, self.A0])

@@ -1,14 +1,18 @@
 """tools/rerun_screenshot.py: Rerun recordings opened in the real (headless) Rerun viewer.
 
 The image checks and the reading of a recording run everywhere. The viewer tests need a
-graphics adapter the viewer can use; on a machine without one (CI, containers) they skip with
-the install line (``apt-get install -y mesa-vulkan-drivers``, a software Vulkan driver).
+graphics adapter the viewer can use; on a machine without one (CI, containers), or when the
+viewer does not answer in time, they skip with the install line (``apt-get install -y
+mesa-vulkan-drivers``, a software Vulkan driver).  Any other failure of the probe (a broken
+wrapper, a Rerun API change, a non-zero exit) fails them, and ``DROPVISION_REQUIRE_VIEWER=1``
+turns the skip into a failure too (on a machine that is meant to have a viewer).
 """
 
 from __future__ import annotations
 
 import importlib.util
 import math
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -157,15 +161,115 @@ def test_no_viewer_is_reported_with_the_install_line(monkeypatch):
     monkeypatch.setattr(shot, "_PROBE", None)
 
 
+class _FakeViewer:
+    """Stands in for `Viewer` in the probe: a screenshot (or an exception) and an exit status."""
+
+    shot: object = b"\x89PNG fake"
+    rc = 0
+
+    def __init__(self, tmp, **kwargs):
+        self.client = self
+
+    def take_screenshot(self, max_size):
+        if isinstance(self.shot, Exception):
+            raise self.shot
+        return self.shot
+
+    def stderr(self):
+        return "wgpu adapter: llvmpipe (LLVM 15.0.7, 256 bits)"
+
+    def quit(self):
+        return self.rc
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return None
+
+
+@pytest.fixture
+def fake_viewer(monkeypatch):
+    """A probe that finds an executable and a Vulkan driver and starts `_FakeViewer`."""
+    monkeypatch.setattr(shot, "_PROBE", None)
+    monkeypatch.setattr(shot, "rerun_executable", lambda: "/bin/true")
+    monkeypatch.setattr(shot, "vulkan_icds", lambda: ["lvp_icd.json"])
+    monkeypatch.setattr(shot, "Viewer", _FakeViewer)
+    return _FakeViewer  # monkeypatch restores the class, the cached probe and the module
+
+
+def test_probe_with_a_working_viewer(fake_viewer):
+    assert shot.probe() == (True, "llvmpipe (LLVM 15.0.7, 256 bits)")
+
+
+@pytest.mark.parametrize("error", [TimeoutError("screenshot"), RuntimeError("request timed out after 60 s")])
+def test_a_viewer_timeout_is_no_viewer(fake_viewer, monkeypatch, error):
+    monkeypatch.setattr(fake_viewer, "shot", error)
+    ok, why = shot.probe()
+    assert not ok and "timed out" in why
+
+
+@pytest.mark.parametrize("problem", ["api", "no png", "exit status"])
+def test_a_broken_viewer_is_a_failure_not_a_skip(fake_viewer, monkeypatch, problem):
+    if problem == "api":  # e.g. a Rerun API change under the wrapper
+        monkeypatch.setattr(fake_viewer, "shot", AttributeError("'ViewerClient' object has no attribute 'take_screenshot'"))
+    elif problem == "no png":
+        monkeypatch.setattr(fake_viewer, "shot", b"")
+    else:
+        monkeypatch.setattr(fake_viewer, "rc", 3)
+    with pytest.raises(shot.ViewerBroken):
+        shot.probe()
+    with pytest.raises(shot.ViewerBroken):  # cached: the second probe says the same
+        viewer_or_skip()
+
+
+@pytest.mark.parametrize("stderr, kind", [("wgpu: No graphics adapter found", "ViewerUnavailable"),
+                                          ("Traceback: ImportError: libfoo.so", "ViewerBroken")])
+def test_a_viewer_exiting_at_start(tmp_path, monkeypatch, stderr, kind):
+    """Exiting at start is "no viewer" only when the viewer says it found no adapter."""
+    exe = tmp_path / "rerun"
+    exe.write_text(f"#!/bin/sh\necho '{stderr}' >&2\nexit 1\n")
+    exe.chmod(0o755)
+    monkeypatch.setattr(shot, "rerun_executable", lambda: str(exe))
+    with pytest.raises(getattr(shot, kind)):
+        shot.Viewer(tmp_path / "v", timeout=20)
+
+
+def test_the_tool_exits_1_on_a_broken_viewer(fake_viewer, monkeypatch, measurement_rrd, tmp_path, capsys):
+    monkeypatch.setattr(fake_viewer, "rc", 3)
+    assert shot.main([str(measurement_rrd), "--out", str(tmp_path)]) == 1
+    assert "the Rerun viewer is broken here: the viewer exited with status 3" in capsys.readouterr().err
+
+
+def test_require_viewer_turns_the_skip_into_a_failure(monkeypatch):
+    monkeypatch.setattr(shot, "_PROBE", (False, "no Vulkan driver"))
+    monkeypatch.delenv("DROPVISION_REQUIRE_VIEWER", raising=False)
+    with pytest.raises(pytest.skip.Exception):
+        viewer_or_skip()
+    monkeypatch.setenv("DROPVISION_REQUIRE_VIEWER", "1")
+    with pytest.raises(pytest.fail.Exception, match="DROPVISION_REQUIRE_VIEWER=1: no Rerun viewer"):
+        viewer_or_skip()
+    monkeypatch.setattr(shot, "_PROBE", None)
+
+
 # --- with a viewer ----------------------------------------------------------------------------
+
+
+def viewer_or_skip() -> str:
+    """The probe's adapter line; skip when there is no viewer (no adapter, a timeout) unless
+    ``DROPVISION_REQUIRE_VIEWER=1``; a broken viewer (`ViewerBroken`) raises: a failure."""
+    ok, why = shot.probe()
+    if not ok:
+        msg = f"no Rerun viewer can render here: {why} (install: {shot.INSTALL_HINT})"
+        if os.environ.get("DROPVISION_REQUIRE_VIEWER") == "1":
+            pytest.fail(f"DROPVISION_REQUIRE_VIEWER=1: {msg}")
+        pytest.skip(msg)
+    return why
 
 
 @pytest.fixture(scope="module")
 def viewer_ok():
-    ok, why = shot.probe()
-    if not ok:
-        pytest.skip(f"no Rerun viewer can render here: {why} (install: {shot.INSTALL_HINT})")
-    return why
+    return viewer_or_skip()
 
 
 def test_measurement_recording_in_the_viewer(viewer_ok, measurement_rrd, tmp_path):

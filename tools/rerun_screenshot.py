@@ -49,7 +49,11 @@ Needs a graphics adapter the viewer can use. On a machine without a GPU::
     apt-get install -y mesa-vulkan-drivers     # lavapipe: software Vulkan, CPU only
 
 The viewer finds the driver by itself (``VK_ICD_FILENAMES`` is honoured when set). Without one the
-tool says so and exits 2 (``probe()`` gives the reason; the tests skip on it).
+tool says so and exits 2 (``probe()`` gives the reason; the tests skip on it).  Only a missing
+graphics adapter and a viewer that does not answer in time are "no viewer": any other failure of
+the probe (no rerun executable, the viewer exiting with an error of its own, a Rerun API change,
+a screenshot that is no PNG) raises :class:`ViewerBroken`, exit status 1 here and a failure in
+the tests.
 
 Usage::
 
@@ -107,7 +111,19 @@ _ANSI = re.compile(r"\x1b\[[0-9;]*m")
 
 
 class ViewerUnavailable(RuntimeError):
-    """No Rerun viewer can render here (no executable, no graphics adapter)."""
+    """No Rerun viewer can render here: no graphics adapter, or the viewer does not answer in time."""
+
+
+class ViewerBroken(RuntimeError):
+    """The viewer is there but fails (a broken install or wrapper, a Rerun API change): an error,
+    never a reason to skip."""
+
+
+#: what the viewer writes when it finds no graphics adapter (wgpu / Vulkan loader messages)
+_NO_ADAPTER = re.compile(r"no (suitable |graphics |compatible )?adapter|failed to find an? (appropriate |suitable )?adapter"
+                         r"|ERROR_INCOMPATIBLE_DRIVER|vkCreateInstance|no vulkan", re.IGNORECASE)
+#: an exception that says it timed out
+_TIMED_OUT = re.compile(r"timed? ?out|deadline exceeded", re.IGNORECASE)
 
 
 # --- environment -------------------------------------------------------------------------------
@@ -172,7 +188,7 @@ class Viewer:
     def __init__(self, tmp: Path, *, window_size: str = "1600x1000", timeout: float = 60.0) -> None:
         exe = rerun_executable()
         if exe is None:
-            raise ViewerUnavailable("no rerun executable (pip install rerun-sdk==0.41.*)")
+            raise ViewerBroken("no rerun executable (pip install rerun-sdk==0.41.*)")
         self.tmp = Path(tmp)
         self.tmp.mkdir(parents=True, exist_ok=True)
         self.port = _free_port()
@@ -193,8 +209,10 @@ class Viewer:
         while time.monotonic() < deadline:
             if self.proc.poll() is not None:
                 self.returncode = self.proc.returncode
-                raise ViewerUnavailable(f"the viewer exited with status {self.proc.returncode} at start: "
-                                        f"{_tail(self.stderr_path, 600)}")
+                why = f"the viewer exited with status {self.proc.returncode} at start: {_tail(self.stderr_path, 600)}"
+                if _NO_ADAPTER.search(_tail(self.stderr_path, 100_000)):
+                    raise ViewerUnavailable(why)
+                raise ViewerBroken(why)
             try:
                 client = ViewerClient(f"rerun+http://127.0.0.1:{self.port}/proxy")
                 client.get_state()
@@ -240,39 +258,59 @@ class Viewer:
             self.quit()
 
 
-_PROBE: tuple[bool, str] | None = None
+_PROBE: tuple[bool, str] | ViewerBroken | None = None
 
 
 def probe(timeout: float = 60.0) -> tuple[bool, str]:
     """Whether a headless viewer can start and paint here: ``(True, adapter line)`` or
-    ``(False, reason)``; the reason names the install line. Cached per process."""
+    ``(False, reason)`` when there is no graphics adapter or the viewer does not answer in time
+    (the reason names the install line). Cached per process.
+
+    Raises
+    ------
+    ViewerBroken
+        Any other failure: no rerun executable, the viewer exiting with an error that is not a
+        missing adapter, a screenshot that is no PNG, a non-zero exit status, an unexpected
+        exception (a broken wrapper, a Rerun API change).
+    """
     global _PROBE
+    if isinstance(_PROBE, ViewerBroken):
+        raise _PROBE
     if _PROBE is not None:
         return _PROBE
+    try:
+        _PROBE = _probe(timeout)
+    except ViewerBroken as exc:
+        _PROBE = exc
+        raise
+    return _PROBE
+
+
+def _probe(timeout: float) -> tuple[bool, str]:
+    """`probe` without the cache."""
     if rerun_executable() is None:
-        _PROBE = (False, "no rerun executable (pip install rerun-sdk==0.41.*)")
-        return _PROBE
+        raise ViewerBroken("no rerun executable (pip install rerun-sdk==0.41.*)")
     if platform.system() == "Linux" and not vulkan_icds():
-        _PROBE = (False, f"no Vulkan driver (no ICD manifest in {', '.join(ICD_DIRS)}); "
-                         f"install one: {INSTALL_HINT}")
-        return _PROBE
+        return (False, f"no Vulkan driver (no ICD manifest in {', '.join(ICD_DIRS)}); install one: {INSTALL_HINT}")
     with tempfile.TemporaryDirectory(prefix="rrshot-probe-") as tmp:
         try:
             with Viewer(Path(tmp), window_size="320x240", timeout=timeout) as viewer:
                 png = viewer.client.take_screenshot(max_size=64)
                 adapter = next((ln for ln in viewer.stderr().splitlines() if "adapter" in ln), "")
                 rc = viewer.quit()
-            if not png.startswith(b"\x89PNG"):
-                _PROBE = (False, f"the viewer painted no PNG; install: {INSTALL_HINT}")
-            elif rc != 0:
-                _PROBE = (False, f"the viewer exited with status {rc}")
-            else:
-                _PROBE = (True, adapter.split(": ", 1)[-1].strip())
+        except ViewerBroken:
+            raise
         except ViewerUnavailable as exc:
-            _PROBE = (False, f"{exc}; install a Vulkan driver: {INSTALL_HINT}")
-        except Exception as exc:  # noqa: BLE001 - e.g. a screenshot timeout
-            _PROBE = (False, f"{type(exc).__name__}: {exc}; install a Vulkan driver: {INSTALL_HINT}")
-    return _PROBE
+            return (False, f"{exc}; install a Vulkan driver: {INSTALL_HINT}")
+        except Exception as exc:  # noqa: BLE001 - a timeout is "no viewer", anything else is broken
+            if isinstance(exc, TimeoutError) or _TIMED_OUT.search(str(exc)):
+                return (False, f"the viewer timed out ({type(exc).__name__}: {exc})")
+            raise ViewerBroken(f"the viewer probe failed: {type(exc).__name__}: {exc}") from exc
+    if not isinstance(png, bytes) or not png.startswith(b"\x89PNG"):
+        raise ViewerBroken(f"the viewer's screenshot is no PNG: {png[:16]!r}")
+    if rc != 0:
+        raise ViewerBroken(f"the viewer exited with status {rc}")
+    return (True, adapter.split(": ", 1)[-1].strip())
 
 
 # --- what the recording holds (read with rerun.chunk.RrdReader) -------------------------------
@@ -508,7 +546,8 @@ def check_recording(path: Path, out_dir: Path, *, times_us: Sequence[float] | No
                     window_size: str = "1600x1000", timeout: float = 120.0, oneshot: bool = True,
                     tmp: Path | None = None) -> Result:
     """Open ``path`` in a fresh headless viewer, save the screenshots into ``out_dir`` and check
-    them (module docstring). Raises :class:`ViewerUnavailable` when no viewer can start."""
+    them (module docstring). Raises :class:`ViewerUnavailable` when no graphics adapter or no
+    answer in time lets a viewer start, :class:`ViewerBroken` when it starts and fails."""
     path = Path(path).resolve()
     out_dir = Path(out_dir).resolve()
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -695,7 +734,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("rerun_screenshot: no recordings (run `make demo` for out/*.rrd)", file=sys.stderr)
         return 2
     out = args.out or Path("out/screenshots")
-    ok, why = probe()
+    try:
+        ok, why = probe()
+    except ViewerBroken as exc:
+        print(f"rerun_screenshot: the Rerun viewer is broken here: {exc}", file=sys.stderr)
+        return 1
     if not ok:
         print(f"rerun_screenshot: no Rerun viewer can render here: {why}", file=sys.stderr)
         return 2
