@@ -373,8 +373,8 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     for k in range(1, int(shots) + 1):
         goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
         last = (records[-1]["u1_um_per_ms"], records[-1]["u2_um"]) if records else None  # move as little as needed
-        d = design(model, goal["volume"], goal["velocity"], tolerance_percent=volume_tolerance_percent, samples=0,
-                   near=last)
+        # design's own default tolerance: shot 1 is exactly what `identify design` proposes
+        d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
         u1, u2 = d.u1_um_per_ms, d.u2_um
         iv = model.interval_prediction(u1, u2, samples=samples, seed=seed + k, level=level)
         positions.append((u1 / span[0], u2 / span[1]))
