@@ -14,7 +14,8 @@ the shots, shrunk towards 0 by the prior), with its standard error. The next pro
 the model stays, only the bias learns.
 
 The loop stops when a measured drop is within the tolerance of the target (volume, and velocity
-when a velocity target is given) or when the shot budget is spent. Shot 1 is the open-loop
+when a velocity target is given), when the shot budget is spent, or when an infeasible corrected
+target proposes the same nearest point twice (:func:`stuck`). Shot 1 is the open-loop
 proposal of ``identify design`` (the bias is still 0), so its error is the open-loop error on
 this rig.
 
@@ -298,6 +299,15 @@ def file_sha256(path) -> str:
     return h.hexdigest()
 
 
+def stuck(records: list) -> bool:
+    """The last two proposals were infeasible and the same point: another shot would learn nothing
+    the run can use (the corrected target lies outside the printable region)."""
+    if len(records) < 2 or records[-1]["feasible"] or records[-2]["feasible"]:
+        return False
+    a, b = records[-1], records[-2]
+    return abs(a["u1_um_per_ms"] - b["u1_um_per_ms"]) < 1e-3 and abs(a["u2_um"] - b["u2_um"]) < 1e-3
+
+
 def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, shots: int = 5,
          volume_tolerance_percent: float = 0.5, velocity_tolerance_percent: float = 1.0,
          prior_bias_percent: float = 5.0, bias_lengthscale: float | None = 0.25, samples: int = 2000,
@@ -424,6 +434,8 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
         if within:
             converged = True
             break
+        if stuck(records):
+            break
     last = records[-1]
     what = f"{volume_nl:g} nl" + ("" if velocity_m_s is None else f" at {velocity_m_s:g} m/s")
     if converged:
@@ -436,6 +448,8 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
                f"{last['measured_volume_nl']:.3f} nl ({last['volume_error_percent']:+.2f} %)")
         if not last["feasible"]:
             msg += "; the corrected target lies outside the printable region"
+            if stuck(records):
+                msg += f" (the nearest point was proposed again: stopped after {len(records)} of {int(shots)} shots)"
     meta = {"seed": int(seed), "shot_budget": int(shots), "prior_bias_percent": float(prior_bias_percent),
             "bias_lengthscale": bias_lengthscale,
             "prior_std_percent": {o: 100.0 * v for o, v in prior.items()}, "samples": int(samples),

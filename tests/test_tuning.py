@@ -96,6 +96,10 @@ def test_velocity_target_and_budget(demo_model):
     # a budget of one shot that cannot meet the target: not converged, the message says so
     one = tune(demo_model, _plant(demo_model), 20.0, shots=1)
     assert not one.converged and len(one.shots) == 1 and "not met" in one.message
+    # a target outside the printable region: the nearest point twice, then it stops
+    far = tune(demo_model, _plant(demo_model), 60.0, shots=5)
+    assert not far.converged and len(far.shots) == 2 and not far.shots[-1]["feasible"]
+    assert "outside the printable region" in far.message and "stopped after 2 of 5 shots" in far.message
 
 
 def test_rig_answers_are_checked(demo_model):
