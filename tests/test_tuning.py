@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import subprocess
 import sys
@@ -163,6 +164,12 @@ def test_cli_tune_simulated_and_errors(demo_model_path, tmp_path):
     back = read_tuning(out)
     assert back.meta["rig_options"]["viscosity_factor"] == 1.2 and back.converged
     assert math.isfinite(back.shots[-1]["measured_volume_nl"])
+    # --json: one document, NaN as null; a budget spent off target exits 1
+    r = _cli("tune", demo_model_path, "--volume-nl", 20, "--rig", "simulated", "--viscosity-factor", 1.2,
+             "--shots", 1, "--samples", 300, "--json", "--out", tmp_path / "one")
+    doc = json.loads(r.stdout)
+    assert r.returncode == 1 and doc["converged"] is False and doc["shots"][0]["design_target_velocity_m_s"] is None
+    assert doc["shots"][0]["volume_error_percent"] > 4
     # errors: one line, exit 2
     for args, msg in (
         (("--rig", "nosuch"), "unknown rig"),

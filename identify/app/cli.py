@@ -300,7 +300,9 @@ def cmd_tune(args) -> int:
                progress=None if args.json else show)
     write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
     if args.json:
-        print(json.dumps({**res.to_dict(), "shots": res.shots}, default=float))
+        from identify.atomic import to_json
+
+        print(to_json({**res.to_dict(), "shots": res.shots}, indent=None), end="")  # NaN as null
     else:
         print(res.message)
         print(f"wrote {args.out}/tuning.parquet and tuning.json")
