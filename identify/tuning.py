@@ -312,7 +312,7 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
          volume_tolerance_percent: float = 0.5, velocity_tolerance_percent: float = 1.0,
          prior_bias_percent: float = 5.0, bias_lengthscale: float | None = 0.25, samples: int = 2000,
          level: float = 0.95, seed: int = 0,
-         model_path=None, progress: Callable[[dict], None] | None = None) -> TuningResult:
+         model_path=None, progress: Callable[["TuningResult"], None] | None = None) -> TuningResult:
     """Tune (u1, u2) on a rig until the measured drop meets the target (see the module docstring).
 
     Parameters
@@ -343,7 +343,9 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     model_path : path, optional
         The model file: its name and SHA-256 go into ``meta``.
     progress : callable, optional
-        Called with each shot's record as soon as it is measured.
+        Called after every shot with the run so far (a :class:`TuningResult` whose last record
+        is that shot; message "in progress: ..." until the run ends), e.g. to print the shot and
+        write a snapshot (`identify tune` does both, so an interrupted run keeps its shots).
 
     Returns
     -------
@@ -380,6 +382,36 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     bias = {k: BiasEstimate(0.0, float("nan"), 0) for k in outputs}
     records: list[dict] = []
     converged = False
+    what = f"{volume_nl:g} nl" + ("" if velocity_m_s is None else f" at {velocity_m_s:g} m/s")
+    meta = {"seed": int(seed), "shot_budget": int(shots), "prior_bias_percent": float(prior_bias_percent),
+            "bias_lengthscale": bias_lengthscale, "prior_std_percent": {}, "samples": int(samples),
+            "level": float(level), "rig": str(getattr(rig, "name", type(rig).__name__)),
+            "rig_options": dict(getattr(rig, "options", {}) or {}),
+            "model_file": None if model_path is None else str(model_path),
+            "model_sha256": None if model_path is None else file_sha256(model_path),
+            "versions": software_versions()}
+
+    def result(records: list, converged: bool, final: bool) -> TuningResult:
+        last = records[-1]
+        measured = (f"u1 = {last['u1_um_per_ms']:.2f} um/ms, u2 = {last['u2_um']:.2f} um measured "
+                    f"{last['measured_volume_nl']:.3f} nl ({last['volume_error_percent']:+.2f} %)")
+        if converged:
+            msg = f"target {what} met in {len(records)} shot(s): {measured}"
+        elif not final:
+            msg = f"in progress: {len(records)} of at most {int(shots)} shot(s) fired; last: {measured}"
+        else:
+            msg = f"target {what} not met within {volume_tolerance_percent:g} % in {len(records)} shot(s); last: {measured}"
+            if not last["feasible"]:
+                msg += "; the corrected target lies outside the printable region"
+                if stuck(records):
+                    msg += f" (the nearest point was proposed again: stopped after {len(records)} of {int(shots)} shots)"
+        meta["prior_std_percent"] = {o: 100.0 * v for o, v in prior.items()}
+        return TuningResult(shots=list(records), target_volume_nl=float(volume_nl),
+                            target_velocity_m_s=None if velocity_m_s is None else float(velocity_m_s),
+                            volume_tolerance_percent=float(volume_tolerance_percent),
+                            velocity_tolerance_percent=float(velocity_tolerance_percent),
+                            converged=converged, message=msg, meta=dict(meta))
+
     for k in range(1, int(shots) + 1):
         goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
         last = (records[-1]["u1_um_per_ms"], records[-1]["u2_um"]) if records else None  # move as little as needed
@@ -430,39 +462,13 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
         rec.update({f"rig_{x}": v for x, v in measured.extra.items()})
         records.append(rec)
         if progress is not None:
-            progress(rec)
+            progress(result(records, bool(within), final=False))
         if within:
             converged = True
             break
         if stuck(records):
             break
-    last = records[-1]
-    what = f"{volume_nl:g} nl" + ("" if velocity_m_s is None else f" at {velocity_m_s:g} m/s")
-    if converged:
-        msg = (f"target {what} met in {len(records)} shot(s): u1 = {last['u1_um_per_ms']:.2f} um/ms, "
-               f"u2 = {last['u2_um']:.2f} um measured {last['measured_volume_nl']:.3f} nl "
-               f"({last['volume_error_percent']:+.2f} %)")
-    else:
-        msg = (f"target {what} not met within {volume_tolerance_percent:g} % in {len(records)} shot(s); last: "
-               f"u1 = {last['u1_um_per_ms']:.2f} um/ms, u2 = {last['u2_um']:.2f} um measured "
-               f"{last['measured_volume_nl']:.3f} nl ({last['volume_error_percent']:+.2f} %)")
-        if not last["feasible"]:
-            msg += "; the corrected target lies outside the printable region"
-            if stuck(records):
-                msg += f" (the nearest point was proposed again: stopped after {len(records)} of {int(shots)} shots)"
-    meta = {"seed": int(seed), "shot_budget": int(shots), "prior_bias_percent": float(prior_bias_percent),
-            "bias_lengthscale": bias_lengthscale,
-            "prior_std_percent": {o: 100.0 * v for o, v in prior.items()}, "samples": int(samples),
-            "level": float(level), "rig": str(getattr(rig, "name", type(rig).__name__)),
-            "rig_options": dict(getattr(rig, "options", {}) or {}),
-            "model_file": None if model_path is None else str(model_path),
-            "model_sha256": None if model_path is None else file_sha256(model_path),
-            "versions": software_versions()}
-    return TuningResult(shots=records, target_volume_nl=float(volume_nl),
-                        target_velocity_m_s=None if velocity_m_s is None else float(velocity_m_s),
-                        volume_tolerance_percent=float(volume_tolerance_percent),
-                        velocity_tolerance_percent=float(velocity_tolerance_percent),
-                        converged=converged, message=msg, meta=meta)
+    return result(records, converged, final=True)
 
 
 def write_tuning(result: TuningResult, out_dir, *, inputs=(), overwrite: bool = False) -> Path:

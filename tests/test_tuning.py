@@ -103,6 +103,20 @@ def test_velocity_target_and_budget(demo_model):
     assert "outside the printable region" in far.message and "stopped after 2 of 5 shots" in far.message
 
 
+def test_an_interrupted_run_keeps_its_shots(demo_model, tmp_path):
+    plant = _plant(demo_model)
+
+    def fire(u1, u2, shot):
+        if shot == 2:
+            raise OSError("camera lost")
+        return plant(u1, u2)
+
+    with pytest.raises(OSError, match="camera lost"):
+        tune(demo_model, fire, 20.0, progress=lambda so_far: write_tuning(so_far, tmp_path / "run"))
+    back = read_tuning(tmp_path / "run")
+    assert len(back.shots) == 1 and back.message.startswith("in progress: 1 of at most 5") and not back.converged
+
+
 def test_rig_answers_are_checked(demo_model):
     with pytest.raises(ValueError, match=r"^rig lab: shot 1: no in-flight volume measured"):
         tune(demo_model, CallableRig(lambda u1, u2, shot: (float("nan"), 1.0), name="lab"), 20.0)

@@ -284,7 +284,11 @@ def cmd_tune(args) -> int:
     rig = load_rig(args.rig, viscosity_factor=args.viscosity_factor, nozzle_diameter_factor=args.nozzle_diameter_factor,
                    seed=args.seed, rig_folder=args.rig_folder, rig_timeout_s=args.rig_timeout_s)
 
-    def show(r):
+    def show(so_far):
+        write_tuning(so_far, args.out, inputs=[args.model], overwrite=args.overwrite)  # every shot kept
+        if args.json:
+            return
+        r = so_far.shots[-1]
         line = (f"shot {r['shot']}: u1 = {r['u1_um_per_ms']:.3f} um/ms, u2 = {r['u2_um']:.3f} um; volume predicted "
                 f"{r['corrected_volume_nl']:.3f} nl [{r['volume_one_drop_low_nl']:.3f}, {r['volume_one_drop_high_nl']:.3f}], "
                 f"measured {r['measured_volume_nl']:.3f} nl ({r['volume_error_percent']:+.2f} %)")
@@ -297,7 +301,7 @@ def cmd_tune(args) -> int:
                volume_tolerance_percent=args.volume_tolerance_percent,
                velocity_tolerance_percent=args.velocity_tolerance_percent, prior_bias_percent=args.prior_bias_percent,
                bias_lengthscale=args.bias_lengthscale, samples=args.samples, seed=args.seed, model_path=args.model,
-               progress=None if args.json else show)
+               progress=show)
     write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
     if args.json:
         from identify.atomic import to_json
