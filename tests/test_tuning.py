@@ -207,3 +207,25 @@ def test_read_tuning_names_the_bad_file(demo_model, tmp_path):
     df.to_parquet(tmp_path / "run" / "tuning.parquet")
     with pytest.raises(SchemaError, match=r"tuning.parquet: missing column 'measured_volume_nl'"):
         read_tuning(tmp_path / "run")
+
+
+def test_rerun_view_of_a_run(demo_model, tmp_path):
+    from identify.app import rerun_log as irl
+    from identify.app.rerun_stream import RerunOptions
+    from rrdtools import Rrd
+
+    res = tune(demo_model, _plant(demo_model), 20.0)
+    rec = irl.open_identify_recording(RerunOptions(path=tmp_path / "tune.rrd", application_id="dv_test"))
+    try:
+        irl.log_tuning(rec, res, model=demo_model)
+    finally:
+        irl.close_recording(rec)
+    rrd = Rrd(tmp_path / "tune.rrd")
+    assert {"/identify/tuning/volume_nl/measured", "/identify/tuning/volume_nl/target",
+            "/identify/tuning/volume_nl/one_drop_low", "/identify/tuning/controls/path",
+            "/identify/tuning/table"} <= rrd.entities()
+    batch = rrd.temporal["/identify/tuning/volume_nl/measured"][0]
+    assert batch.column("shot").to_pylist() == [s["shot"] for s in res.shots]
+    assert [v[0] for v in batch.column("Scalars:scalars").to_pylist()] == pytest.approx(
+        [s["measured_volume_nl"] for s in res.shots])
+    assert res.message in rrd.static["/identify/tuning/table"]["TextDocument:text"][0]

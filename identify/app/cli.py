@@ -5,7 +5,7 @@
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
     identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
-    identify tune model.json --volume-nl V [--velocity-m-s W] --rig simulated|folder|module:function --out DIR
+    identify tune model.json --volume-nl V [--velocity-m-s W] --rig simulated|folder|module:function --out DIR [--rerun F.rrd]
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -303,6 +303,7 @@ def cmd_tune(args) -> int:
                bias_lengthscale=args.bias_lengthscale, samples=args.samples, seed=args.seed, model_path=args.model,
                progress=show)
     write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
+    _with_recording(args, lambda rec, lg: lg.log_tuning(rec, res, model=m))
     if args.json:
         from identify.atomic import to_json
 
@@ -426,6 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     t.add_argument("--json", action="store_true")
+    add_rerun_args(t)
     t.set_defaults(func=cmd_tune)
 
     r = sub.add_parser("paper", help="published colour-ink model of the paper")
