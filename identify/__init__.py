@@ -8,6 +8,7 @@ The public API (loaded on first use, so ``import identify`` stays cheap)::
     model.predict(u1=70, u2=25)                        # {"inflight_volume_nl": ..., ...}
     model.design(volume_nl=18.9)                       # (u1, u2) for a target volume
     model.save("model.json"); identify.load_model("model.json")
+    identify.tune(model, rig, volume_nl=20)            # closed loop on a rig (identify.tuning)
 """
 
 import importlib
@@ -26,6 +27,9 @@ _WHERE = {
     "FitReport": "identify.hybrid",
     "Waveform": "identify.waveform",
     "paper_prediction": "identify.paper",
+    "tune": "identify.tuning",
+    "read_tuning": "identify.tuning",
+    "CallableRig": "identify.tuning",
 }
 __all__ = ["__version__", *_WHERE]
 

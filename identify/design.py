@@ -10,7 +10,9 @@ refines. Objective: relative squared error of the volume (+ of the velocity when
 
 With a volume target only, the solutions form a curve; among the candidates matching the
 volume within the tolerance, the one closest to the centre of the training region
-(normalised units) is returned: it is the least extrapolating choice.
+(normalised units) is returned: it is the least extrapolating choice. ``near`` replaces the
+centre by another point (closed-loop tuning, `identify.tuning`: the last shot, so that a
+corrected target moves the proposal as little as possible).
 
 A target that cannot be met within ``tolerance_percent`` inside the region is reported as
 infeasible, together with the nearest achievable point and a message.
@@ -98,10 +100,13 @@ class Region:
 
 def design(
     model, volume_nl: float, velocity_m_s: float | None = None, *, tolerance_percent: float = 1.0,
-    grid_points: int = 81, samples: int = 2000, seed: int | None = 0,
+    grid_points: int = 81, samples: int = 2000, seed: int | None = 0, near: tuple[float, float] | None = None,
 ) -> DesignResult:
     """Find (u1, u2) in the printable region whose predicted in-flight volume (and jetting
-    velocity) match the targets. See the module docstring."""
+    velocity) match the targets. See the module docstring.
+
+    ``near``: (u1 µm/ms, u2 µm) to stay closest to along a volume-only solution curve (default:
+    the centre of the training region)."""
     if not np.isfinite(volume_nl) or volume_nl <= 0:
         raise ValueError(f"--volume-nl must be a positive number, got {volume_nl!r}")
     if velocity_m_s is not None and (not np.isfinite(velocity_m_s) or velocity_m_s <= 0):
@@ -126,7 +131,7 @@ def design(
     ev, eq = rel_err(pred["inflight_volume_nl"].to_numpy(), pred["jetting_velocity_m_s"].to_numpy())
     cost = ev**2 + eq**2
     tol = tolerance_percent / 100
-    centre = (region.lo + region.hi) / 2
+    centre = (region.lo + region.hi) / 2 if near is None else np.asarray(near, float)
     dist = np.hypot((U1 - centre[0]) / region.span[0], (U2 - centre[1]) / region.span[1])
     if velocity_m_s is None:
         ok = np.abs(ev) <= tol / 4

@@ -15,8 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
-    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "Quality", "QUALITY_CODES",
-    "check_table", "check_document", "markdown",
+    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "Quality",
+    "QUALITY_CODES", "check_table", "check_document", "markdown",
 ]
 
 
@@ -338,8 +338,64 @@ WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
       required=False),
 ), "`dropvision watch`: what the watch of a sequence folder did.")
 
-TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES)}
-DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH)}
+# ----------------------------------------------------------------------------- closed-loop tuning
+TUNING_COLUMNS_PER_OUTPUT = (("volume", "nl", "in-flight volume"), ("velocity", "m_s", "jetting velocity"))
+
+
+def _tuning_columns() -> tuple:
+    cols = [F("shot", "int", "", "shot number, 1 = the open-loop `identify design` proposal", nullable=False),
+            F("u1_um_per_ms", "float", "um/ms", "proposed stroke velocity", nullable=False),
+            F("u2_um", "float", "um", "proposed stroke", nullable=False),
+            F("feasible", "bool", "", "the corrected target lies inside the printable region", nullable=False)]
+    for o, unit, what in TUNING_COLUMNS_PER_OUTPUT:
+        u = unit.replace("_", "/")
+        cols += [
+            F(f"design_target_{o}_{unit}", "float", u, f"{what} asked of the model: the target / (1 + bias before the "
+              "shot); NaN without a target"),
+            F(f"predicted_{o}_{unit}", "float", u, f"the model's nominal {what} at (u1, u2)"),
+            F(f"corrected_{o}_{unit}", "float", u, f"predicted x (1 + bias before the shot)"),
+            F(f"{o}_one_drop_low_{unit}", "float", u, f"one-drop (prediction) interval of the corrected {what}: "
+              "the model's one-drop interval and the bias's standard error"),
+            F(f"{o}_one_drop_high_{unit}", "float", u, "upper end of that interval"),
+            F(f"measured_{o}_{unit}", "float", u, f"{what} the rig measured (NaN: not measured)"),
+            F(f"measured_{o}_uncertainty_{unit}", "float", u, "its standard uncertainty as the rig gives it (NaN: none)"),
+            F(f"{o}_error_percent", "float", "%", f"measured / target - 1 (NaN without a target)"),
+            F(f"{o}_bias_percent", "float", "%", f"relative bias of the rig against the model after this shot "
+              "(posterior mean)"),
+            F(f"{o}_bias_se_percent", "float", "%", "its posterior standard error"),
+        ]
+    cols.append(F("within_tolerance", "bool", "", "the measured drop meets the targets within the tolerances",
+                  nullable=False))
+    return tuple(cols)
+
+
+TUNING = Table("tuning", "tuning.parquet", "identify.tuning/1", _tuning_columns(),
+               "Closed-loop tuning (`identify tune`): one row per shot, in order; a rig may add scalar "
+               "`rig_*` columns (the simulated printhead: its truth).")
+
+TUNING_RUN = Document("tuning_run", "tuning.json", "identify.tuning-run/1", (
+    F("schema", "str", "", "document id"),
+    F("target_volume_nl", "float", "nl", "target in-flight volume"),
+    F("target_velocity_m_s", "float", "m/s", "target jetting velocity (null: none)"),
+    F("volume_tolerance_percent", "float", "%", "a measured volume within this of the target ends the loop"),
+    F("velocity_tolerance_percent", "float", "%", "the same for the velocity (with a velocity target)"),
+    F("converged", "bool", "", "the last shot met the targets"),
+    F("shots_fired", "int", "", "rows of tuning.parquet"),
+    F("message", "str", "", "one-line outcome"),
+    F("seed", "int", "", "seed of the Monte Carlo draws and the rig"),
+    F("shot_budget", "int", "", "most shots allowed"),
+    F("prior_bias_percent", "float", "%", "prior standard deviation of the rig's bias beyond the model's interval"),
+    F("prior_std_percent", "object", "%", "the prior standard deviation of each output's bias"),
+    F("rig", "str", "", "the rig (name or module:function)"),
+    F("rig_options", "object", "", "the rig's settings (the simulated printhead: physics factors, frames, delays)"),
+    F("model_file", "str", "", "the model file (null: a model in memory)"),
+    F("model_sha256", "str", "", "SHA-256 of the model file's bytes"),
+    F("versions", "object", "", "software versions"),
+), "What a tuning run was run for (`identify tune`); the shots are tuning.parquet.")
+
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN)}
+
 
 class Quality:
     """Quality codes of the frames table (``quality`` column: ``"ok"`` or codes joined by

@@ -39,6 +39,18 @@ REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> reposito
 SAMPLE_FRAMES = REPO / "sample_frames"
 
 
+#: Frames of the demo's calibration campaign (`dropvision.synth.SynthConfig` keys); nominal ink.
+CAMPAIGN_OVERRIDES = {"width_px": 192, "height_px": 640, "tip_row": 40.4, "axis_col": 95.6,
+                      "delays_us": tuple(float(d) for d in range(0, 1601, 10)), "noise": 0.5}
+
+
+def campaign_grid(quick: bool) -> tuple[list[float], list[float]]:
+    """The demo campaign's u1 (µm/ms) and u2 (µm) values: 3 x 3 with ``quick``, else 4 x 4."""
+    if quick:
+        return [55.0, 65.0, 75.0], [20.0, 27.5, 35.0]
+    return [50.0, 60.0, 70.0, 80.0], [20.0, 25.0, 30.0, 35.0]
+
+
 def _rel_err(measured, truth) -> str:
     if measured is None or truth is None or not np.isfinite(measured) or not np.isfinite(truth) or truth == 0:
         return "   n/a"
@@ -124,10 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     print_sample_report(rows)
 
     # 2-3. campaign -> dataset
-    u1_grid = [55.0, 65.0, 75.0] if args.quick else [50.0, 60.0, 70.0, 80.0]
-    u2_grid = [20.0, 27.5, 35.0] if args.quick else [20.0, 25.0, 30.0, 35.0]
-    overrides = {"width_px": 192, "height_px": 640, "tip_row": 40.4, "axis_col": 95.6,
-                 "delays_us": tuple(float(d) for d in range(0, 1601, 10)), "noise": 0.5}
+    u1_grid, u2_grid = campaign_grid(args.quick)
+    overrides = CAMPAIGN_OVERRIDES
     print(f"\n== 2. rendering a {len(u1_grid)} x {len(u2_grid)} synthetic campaign (u1 {u1_grid}, u2 {u2_grid}) ==")
     t0 = time.perf_counter()
     synth_campaign(out / "campaign", u1_grid, u2_grid, workers=args.workers, progress=progress, overrides=overrides,

@@ -5,6 +5,7 @@
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
     identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
+    identify tune model.json --volume-nl V [--velocity-m-s W] --rig simulated|folder|module:function --out DIR [--rerun F.rrd]
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -271,6 +272,48 @@ def cmd_design(args) -> int:
     return 0 if r.feasible else 1
 
 
+def cmd_tune(args) -> int:
+    from identify.atomic import check_output_dir
+    from identify.tuning import load_rig, tune, write_tuning
+
+    _check_samples(args.samples)
+    if args.shots < 1:
+        raise UsageError(f"--shots must be >= 1, got {args.shots}")
+    check_output_dir(args.out, inputs=[args.model], overwrite=args.overwrite)  # refused before any shot
+    m = _load_model(args.model)
+    rig = load_rig(args.rig, viscosity_factor=args.viscosity_factor, nozzle_diameter_factor=args.nozzle_diameter_factor,
+                   seed=args.seed, rig_folder=args.rig_folder, rig_timeout_s=args.rig_timeout_s)
+
+    def show(so_far):
+        write_tuning(so_far, args.out, inputs=[args.model], overwrite=args.overwrite)  # every shot kept
+        if args.json:
+            return
+        r = so_far.shots[-1]
+        line = (f"shot {r['shot']}: u1 = {r['u1_um_per_ms']:.3f} um/ms, u2 = {r['u2_um']:.3f} um; volume predicted "
+                f"{r['corrected_volume_nl']:.3f} nl [{r['volume_one_drop_low_nl']:.3f}, {r['volume_one_drop_high_nl']:.3f}], "
+                f"measured {r['measured_volume_nl']:.3f} nl ({r['volume_error_percent']:+.2f} %)")
+        if args.velocity_m_s is not None:
+            line += f"; velocity measured {r['measured_velocity_m_s']:.3f} m/s ({r['velocity_error_percent']:+.2f} %)"
+        line += f"; bias now {r['volume_bias_percent']:+.2f} +/- {r['volume_bias_se_percent']:.2f} %"
+        print(line, flush=True)
+
+    res = tune(m, rig, args.volume_nl, args.velocity_m_s, shots=args.shots,
+               volume_tolerance_percent=args.volume_tolerance_percent,
+               velocity_tolerance_percent=args.velocity_tolerance_percent, prior_bias_percent=args.prior_bias_percent,
+               bias_lengthscale=args.bias_lengthscale, samples=args.samples, seed=args.seed, model_path=args.model,
+               progress=show)
+    write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
+    _with_recording(args, lambda rec, lg: lg.log_tuning(rec, res, model=m))
+    if args.json:
+        from identify.atomic import to_json
+
+        print(to_json({**res.to_dict(), "shots": res.shots}, indent=None), end="")  # NaN as null
+    else:
+        print(res.message)
+        print(f"wrote {args.out}/tuning.parquet and tuning.json")
+    return 0 if res.converged else 1
+
+
 def cmd_paper(args) -> int:
     from identify.paper import EXPECTATION_SAMPLES, paper_expectation, paper_prediction
 
@@ -356,6 +399,36 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_design)
+
+    t = sub.add_parser("tune", help="closed loop: propose (u1, u2), fire a rig, measure, correct, until on target")
+    t.add_argument("model")
+    t.add_argument("--volume-nl", type=_positive("--volume-nl"), required=True, help="target in-flight volume (nl)")
+    t.add_argument("--velocity-m-s", type=_positive("--velocity-m-s"), default=None, help="target jetting velocity")
+    t.add_argument("--rig", required=True,
+                   help="simulated (a synthetic printhead, measured from rendered frames), folder (waits for "
+                        "the operator's sequence folders in --rig-folder) or module:function (your own hardware)")
+    t.add_argument("--out", required=True, help="folder for tuning.parquet and tuning.json")
+    t.add_argument("--shots", type=int, default=5, help="shot budget (default 5)")
+    t.add_argument("--volume-tolerance-percent", type=_positive("--volume-tolerance-percent"), default=0.5)
+    t.add_argument("--velocity-tolerance-percent", type=_positive("--velocity-tolerance-percent"), default=1.0)
+    t.add_argument("--prior-bias-percent", type=_positive("--prior-bias-percent"), default=5.0,
+                   help="prior standard deviation of the rig's bias beyond the model's interval (default 5 %%)")
+    t.add_argument("--bias-lengthscale", type=_positive("--bias-lengthscale"), default=0.25,
+                   help="correlation length of the rig's bias over (u1, u2), in training-region spans (default 0.25)")
+    t.add_argument("--viscosity-factor", type=_positive("--viscosity-factor"), default=1.0,
+                   help="simulated rig: ink viscosity x this")
+    t.add_argument("--nozzle-diameter-factor", type=_positive("--nozzle-diameter-factor"), default=1.0,
+                   help="simulated rig: nozzle diameters x this")
+    t.add_argument("--rig-folder", default=None, help="folder rig: where shot_01/, shot_02/ ... appear")
+    t.add_argument("--rig-timeout-s", type=_positive("--rig-timeout-s"), default=3600.0,
+                   help="folder rig: wait this long for a shot's sequence.json")
+    t.add_argument("--samples", type=int, default=2000, help="Monte Carlo samples of each proposal's interval")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--overwrite", action="store_true",
+                   help="write into an existing --out that holds other files (those are kept)")
+    t.add_argument("--json", action="store_true")
+    add_rerun_args(t)
+    t.set_defaults(func=cmd_tune)
 
     r = sub.add_parser("paper", help="published colour-ink model of the paper")
     r.add_argument("--u1", type=_positive("--u1"), required=True)

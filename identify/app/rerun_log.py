@@ -173,6 +173,7 @@ class _State:
     model: Any = None
     #: (view title, path part, (camera position, look target) in the view's space)
     surfaces: list[tuple[str, str, Any]] = field(default_factory=list)
+    tuning: bool = False
 
 
 _STATES: dict[int, _State] = {}
@@ -303,10 +304,13 @@ def close_recording(rec: rr.RecordingStream) -> None:
         rmse = np.array([q.rmse_nl for q in order], dtype=float)
         rec.log("/identify/fit/rmse_nl", rr.BarChart(np.nan_to_num(rmse, nan=0.0), color=(230, 80, 60),
                                                      abscissa=np.arange(1, rmse.size + 1)), static=True)
-    rec.send_blueprint(identify_blueprint([(f"{q.rmse_nl:.2g} nl: {q.name}", q.part) for q in order],
-                                          prediction=st.prediction or st.training or bool(st.bands),
-                                          surfaces=st.surfaces),
-                       make_active=True, make_default=True)
+    if st.tuning and not order:
+        blueprint = tuning_blueprint()
+    else:
+        blueprint = identify_blueprint([(f"{q.rmse_nl:.2g} nl: {q.name}", q.part) for q in order],
+                                       prediction=st.prediction or st.training or bool(st.bands),
+                                       surfaces=st.surfaces)
+    rec.send_blueprint(blueprint, make_active=True, make_default=True)
     close_stream(rec)
 
 
@@ -867,3 +871,80 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
     rec.log("/identify/prediction/table", rr.TextDocument("\n".join(lines), media_type="text/markdown"),
             static=True)
     st.prediction = True
+
+
+# --- closed-loop tuning (identify tune) --------------------------------------------------------
+
+_TUNING_OUTPUTS = (("volume", "nl", "in-flight volume [nl]"), ("velocity", "m_s", "jetting velocity [m/s]"))
+
+
+def tuning_blueprint() -> rrb.Blueprint:
+    """Layout of a tuning recording: per output the measured drop, the target and the model's
+    bias-corrected prediction with its one-drop interval against the shot; the path of the
+    proposals in the (u1, u2) plane among the training points; the shot table."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Vertical(*[rrb.TimeSeriesView(name=f"{title}: measured (points), target, corrected prediction "
+                                                   "and its one-drop interval", origin=f"/identify/tuning/{o}_{u}")
+                           for o, u, title in _TUNING_OUTPUTS]),
+            rrb.Vertical(
+                rrb.Spatial2DView(name="(u1 right, u2 down): proposals shot by shot among the training points",
+                                  origin="/identify/tuning/controls"),
+                rrb.TextDocumentView(name="shots", origin="/identify/tuning/table"),
+            ),
+            column_shares=[1, 1],
+        ),
+        rrb.TimePanel(timeline="shot", state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        collapse_panels=False,
+    )
+
+
+def log_tuning(rec: rr.RecordingStream, result: Any, *, model: Any = None) -> None:
+    """Log a closed-loop tuning run (:class:`identify.tuning.TuningResult`) on the ``shot`` timeline.
+
+    * ``/identify/tuning/volume_nl`` and ``/identify/tuning/velocity_m_s``: ``measured``,
+      ``target``, ``corrected`` (the model's prediction x (1 + bias before the shot)) and the
+      corrected prediction's one-drop interval ``one_drop_low``/``one_drop_high``;
+    * ``/identify/tuning/controls``: the proposals' path in (u1, u2) and, with ``model``, its
+      training points;
+    * ``/identify/tuning/table``: the shots as a markdown table.
+    """
+    import rerun as rr
+
+    df = result.to_pandas()
+    shots = df["shot"].to_numpy(dtype=np.int64)
+    targets = {"volume": result.target_volume_nl, "velocity": result.target_velocity_m_s}
+    for o, u, title in _TUNING_OUTPUTS:
+        base = f"/identify/tuning/{o}_{u}"
+        series = {"measured": df[f"measured_{o}_{u}"], "corrected": df[f"corrected_{o}_{u}"],
+                  "one_drop_low": df[f"{o}_one_drop_low_{u}"], "one_drop_high": df[f"{o}_one_drop_high_{u}"]}
+        if targets[o] is not None:
+            series["target"] = np.full(len(df), float(targets[o]))
+        for name, values in series.items():
+            v = np.asarray(values, dtype=float)
+            keep = np.isfinite(v)
+            if not keep.any():
+                continue
+            colour = {"measured": _PREDICTION_POINT, "target": (80, 200, 120), "corrected": _PREDICTION}.get(
+                name, _CONFIDENCE)
+            _style(rec, f"{base}/{name}", f"{o} {name.replace('_', ' ')}", colour, points=name == "measured",
+                   marker_size=5.0)
+            rec.send_columns(f"{base}/{name}", indexes=[rr.TimeColumn("shot", sequence=shots[keep])],
+                             columns=rr.Scalars.columns(scalars=v[keep]))
+    path = df[["u1_um_per_ms", "u2_um"]].to_numpy(dtype=float)
+    if model is not None and getattr(model, "controls", None) is not None:
+        c = np.asarray(model.controls, dtype=float).reshape(-1, 2)
+        rec.log("/identify/tuning/controls/training", rr.Points2D(c, colors=[(120, 120, 120)], radii=0.6), static=True)
+    rec.log("/identify/tuning/controls/path", rr.LineStrips2D([path], colors=[_PREDICTION], radii=-1.0), static=True)
+    rec.log("/identify/tuning/controls/shots", rr.Points2D(
+        path, colors=[(80, 200, 120) if w else _PREDICTION_POINT for w in df["within_tolerance"]], radii=0.5,
+        labels=[f"shot {k}" for k in shots], show_labels=True), static=True)
+    cols = ["shot", "u1_um_per_ms", "u2_um", "corrected_volume_nl", "measured_volume_nl", "volume_error_percent",
+            "volume_bias_percent", "volume_bias_se_percent", "within_tolerance"]
+    rec.log("/identify/tuning/table", rr.TextDocument(
+        _markdown(df[cols].set_index("shot"), f"Tuning: {result.message}"), media_type="text/markdown"), static=True)
+    _state(rec).tuning = True
