@@ -31,9 +31,11 @@ from identify.app.rerun_log import close_recording, log_model_fit, log_predictio
 from identify.app.rerun_stream import RerunOptions
 from identify.atomic import OutputError, check_output_dir, claim_dir
 from identify.dataset import load_dataset
+from dropvision.app.rigs import SimulatedPrinthead
 from identify.design import design
 from identify.hybrid import fit_hybrid, widening_reason
 from identify.physics import SynthPhysics, drop_history
+from identify.tuning import tune
 
 REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> repository root
 SAMPLE_FRAMES = REPO / "sample_frames"
@@ -206,6 +208,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  synthetic truth there: in-flight volume {td['inflight_volume_nl']:.3f} nl "
           f"({_rel_err(td['inflight_volume_nl'], target).strip()} from the target), "
           f"jetting velocity {td['jetting_velocity_m_s']:.3f} m/s")
+    # the lab loop: the same target on a printhead whose ink is 1.2x as viscous as the model's
+    run = tune(model, SimulatedPrinthead(physics=physics, viscosity_factor=1.2, seed=0), target, shots=5, seed=0)
+    print(f"\nclosed-loop tuning to {target} nl on a printhead with 1.2x the ink viscosity (identify tune):")
+    for s in run.shots:
+        print(f"  shot {s['shot']}: u1 = {s['u1_um_per_ms']:.2f} um/ms, u2 = {s['u2_um']:.2f} um -> measured "
+              f"{s['measured_volume_nl']:.3f} nl ({s['volume_error_percent']:+.2f} %), rig bias "
+              f"{s['volume_bias_percent']:+.2f} +- {s['volume_bias_se_percent']:.2f} %")
+    print(f"  {run.message}")
 
     # 6. the report (figures and index.html) and the identification recording
     report = write_report(out / "report", model, ds, fit_report=rep, at=[(u1, u2)], mc={(u1, u2): mc},
