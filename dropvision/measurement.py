@@ -124,6 +124,12 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     errors: list[dict] = []
     decoded: dict = {}
     cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
+    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
+        # the scale would come from walls that are out of focus: a blurred holder's width, not the nozzle's
+        seq.close()
+        raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
+                            f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
+                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
     if logger is not None:
         logger.log_calibration(cal, shape=cal.shape)
     seq_flags = []

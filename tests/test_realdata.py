@@ -45,3 +45,17 @@ def test_real_frame_meets_its_rules(folder):
         # a single frame of a foreign rig: no waveform, no delay series, so no flag of either kind
         assert row["quality"] == "ok", row["quality"]
     assert math.isfinite(u) and 0 < u < 0.03 * v, (v, u)
+
+
+def test_no_scale_from_an_out_of_focus_nozzle(tmp_path):
+    """A real drop watcher's holder is out of focus: its width is no nozzle diameter, so a pixel size
+    derived from --nozzle-outer-diameter-um is refused with a message saying what to give instead."""
+    from dropvision.sequence import SequenceError
+
+    src = REALDATA / "watcher-dod" / "V1--86_V2-12_V3--30_w1-26_w2-11_w3-25_d1-5_d2-6" / "frame.jpg"
+    (tmp_path / "w").mkdir()
+    (tmp_path / "w" / "frame.jpg").write_bytes(src.read_bytes())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(SequenceError, match="nozzle walls are out of focus.*--pixel-size-um"):
+            measure_sequence(tmp_path / "w", overrides={"nozzle_outer_diameter_um": 360.0})
