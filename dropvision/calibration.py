@@ -812,6 +812,11 @@ class Calibration:
     nozzle_out_of_focus: bool = False
 
     @property
+    def edge_position_uncertainty_px(self) -> float:
+        """Standard uncertainty (px) of an edge position common to a body: its parts in quadrature."""
+        return float(np.sqrt(sum(v * v for v in self.edge_position_terms_px.values())))
+
+    @property
     def volume_uncertainty_source(self) -> str:
         """The largest part of the edge-position uncertainty ("edge floor" when none is known)."""
         terms = self.edge_position_terms_px
@@ -856,7 +861,7 @@ class Calibration:
                 "residual": self.background.residual,
             },
             "clipped_background": None if self.clipped is None else dict(self.clipped),
-            "edge_position_uncertainty_px": float(np.sqrt(sum(v * v for v in self.edge_position_terms_px.values()))),
+            "edge_position_uncertainty_px": self.edge_position_uncertainty_px,
             "edge_position_terms_px": dict(self.edge_position_terms_px),
             "volume_uncertainty_source": self.volume_uncertainty_source,
             "nozzle_out_of_focus": self.nozzle_out_of_focus,

@@ -213,7 +213,7 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
                          **_body_values(b, edge_blur_ref_px)})
             n += 1
         for b in r.rejected:
-            cls = "dust" if (k, id(b)) in static else ("noise" if getattr(b, "off_path", False) else "mist")
+            cls = "dust" if (k, id(b)) in static else ("noise" if b.off_path else "mist")
             why = b.reason + ("; static over the frames: dust" if cls == "dust" else "")
             rows.append({**base, "body_id": n, "body_class": cls, "reason": why, "counted": False,
                          **_body_values(b, edge_blur_ref_px)})

@@ -289,7 +289,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
                          "detached bodies, no per-frame blur or contrast from the walls")
         _axis_along_columns(cal, ctx)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
-    ctx.edge_position_sigma_px = float(math.sqrt(sum(v * v for v in cal.edge_position_terms_px.values())))
+    ctx.edge_position_sigma_px = cal.edge_position_uncertainty_px
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx.edge_noise_px = float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig / max(1.0 - cal.liquid_level, 0.05))
     return cal, sigma, ctx
