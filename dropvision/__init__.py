@@ -15,34 +15,23 @@ Layers: `identify` (models, no images) < `dropvision` (measurement) < `dropvisio
 `identify.app` (command lines, campaigns, demo, Rerun views); see tests/test_layers.py.
 """
 
-import importlib
+from dvcore import __version__
+from dvcore.lazy import lazy_exports
 
-__version__ = "0.1.0"
-
-# public name -> module that defines it
-_WHERE = {
-    "measure": ("dropvision.api", "measure"),
-    "MeasureConfig": ("dropvision.config", "MeasureConfig"),
-    "MeasureResult": ("dropvision.measurement", "MeasureResult"),
-    "measure_sequence": ("dropvision.measurement", "measure_sequence"),
-    "open_sequence": ("dropvision.sequence", "open_sequence"),
-    "sequence_from_arrays": ("dropvision.sequence", "sequence_from_arrays"),
-    "SequenceError": ("dropvision.sequence", "SequenceError"),
-    "SynthConfig": ("dropvision.synth.sequence", "SynthConfig"),
-    "synthesize": ("dropvision.synth.writer", "write_synthetic_sequence"),
-    "run_campaign": ("dropvision.app.campaign", "run_campaign"),
-    "describe_folder": ("dropvision.describe", "describe_folder"),
-    "init_sequence": ("dropvision.describe", "init_sequence"),
+# public name -> "module:attribute" that defines it (tests/test_layers.py reads this map)
+_LAZY = {
+    "measure": "dropvision.api:measure",
+    "MeasureConfig": "dropvision.config:MeasureConfig",
+    "MeasureResult": "dropvision.measurement:MeasureResult",
+    "measure_sequence": "dropvision.measurement:measure_sequence",
+    "open_sequence": "dropvision.sequence:open_sequence",
+    "sequence_from_arrays": "dropvision.sequence:sequence_from_arrays",
+    "SequenceError": "dropvision.sequence:SequenceError",
+    "SynthConfig": "dropvision.synth.sequence:SynthConfig",
+    "synthesize": "dropvision.synth.writer:write_synthetic_sequence",
+    "run_campaign": "dropvision.app.campaign:run_campaign",
+    "describe_folder": "dropvision.describe:describe_folder",
+    "init_sequence": "dropvision.describe:init_sequence",
 }
-__all__ = ["__version__", *_WHERE]
-
-
-def __getattr__(name):
-    if name in _WHERE:
-        module, attr = _WHERE[name]
-        return getattr(importlib.import_module(module), attr)
-    raise AttributeError(f"module 'dropvision' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + list(_WHERE))
+__all__ = ["__version__", *_LAZY]
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)

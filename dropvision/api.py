@@ -54,7 +54,7 @@ def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = N
     ------
     dropvision.sequence.SequenceError
         Unusable input (the message names the file or the argument and the problem).
-    identify.atomic.OutputError
+    dvcore.atomic.OutputError
         ``out`` would destroy something we did not write.
     """
     config = config or MeasureConfig()

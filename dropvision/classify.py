@@ -42,7 +42,7 @@ import cv2
 import numpy as np
 import pandas as pd
 
-from identify import schema
+from dvcore import schema
 
 __all__ = ["Appearance", "appearance", "nozzle_edge_spread_px", "out_of_focus_reason", "bodies_table",
            "BODY_COLUMNS"]
@@ -168,7 +168,7 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
     Returns
     -------
     DataFrame
-        Columns `BODY_COLUMNS` (`identify.schema.BODIES`).
+        Columns `BODY_COLUMNS` (`dvcore.schema.BODIES`).
     """
     rows: list[dict] = []
     # static out-of-focus bodies (same place in >= half the frames) are dust, not mist

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.calibration import (Calibration, CalibrationError, calibrate, edge_sigma_px, esf_sigma_px,
                                    find_nozzle)
 from dropvision.config import MeasureConfig

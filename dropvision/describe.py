@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from dropvision import __version__
+from dvcore import __version__
 from dropvision.calibration import CalibrationError
 from dropvision.inspection import nozzle_outer_width_px
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, check_overrides, open_sequence

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.bodies import (
     DetachedBody,
     body_volume_uncertainty_nl,

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
 from dropvision.context import calibrate_sequence
@@ -33,7 +33,7 @@ from dropvision.frame import FrameRecord, stream_frames
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
 from dropvision.output import write_result
 from dropvision.summary import assemble, per_delay
-from identify.atomic import atomic_dir, check_output_dir
+from dvcore.atomic import atomic_dir, check_output_dir
 
 
 @dataclass
@@ -84,7 +84,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Write the result there (atomically): frames.parquet, bodies.parquet, per_delay.parquet, summary.json.
         It may not be the sequence folder, lie inside it or contain it; an existing folder is
         replaced only when it holds nothing but an earlier result of ours (see
-        `identify.atomic.atomic_dir`). Checked before anything is measured.
+        `dvcore.atomic.atomic_dir`). Checked before anything is measured.
     config : MeasureConfig
     progress : bool
         Progress bar on stderr.
@@ -108,7 +108,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     ------
     dropvision.sequence.SequenceError
         Unusable sequence (missing metadata, other frame size, no readable frame, no nozzle).
-    identify.atomic.OutputError
+    dvcore.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
     """
     if isinstance(seq_dir, Sequence) and overrides:

@@ -6,7 +6,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from dropvision.summary import per_delay
-from identify.atomic import write_json
+from dvcore.atomic import write_json
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     from dropvision.measurement import MeasureResult
@@ -20,7 +20,7 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
     result : MeasureResult
         Frames table and summary.
     out_dir : str or Path
-        Created if missing; the files are written in place (wrap in `identify.atomic.atomic_dir`
+        Created if missing; the files are written in place (wrap in `dvcore.atomic.atomic_dir`
         for an atomic result, as `dropvision.measurement.measure_sequence` does).
     csv : bool
         Also write frames.csv.

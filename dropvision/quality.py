@@ -1,7 +1,7 @@
 """Quality flags: why a value is not trusted (it is then NaN, never a silent wrong number).
 
-Flags are short stable codes (`identify.schema.Quality`, explained in
-`identify.schema.QUALITY_CODES` and docs/FORMAT.md); a frame's ``quality`` column is ``"ok"``
+Flags are short stable codes (`dvcore.schema.Quality`, explained in
+`dvcore.schema.QUALITY_CODES` and docs/FORMAT.md); a frame's ``quality`` column is ``"ok"``
 or its codes joined by ``"; "``.
 """
 
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from identify.schema import Quality
+from dvcore.schema import Quality
 
 # The codes and their explanations are declared once, in the schema of our outputs.
 OK = Quality.OK

@@ -16,7 +16,6 @@ The writers of the same format are in :mod:`dropvision.writers`.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import posixpath
@@ -37,6 +36,8 @@ from dropvision.readers import (
     reader_for,
 )
 from dropvision.readers.base import ColourLuma, is_number
+from dvcore.jsonio import load_json_hardened
+from dvcore.schema import RANGES
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
 
 __all__ = [
@@ -71,28 +72,6 @@ OVERRIDE_KEYS = (
 _DELAY_RE = re.compile(r"(?<![\d.])(\d+(?:\.\d+)?)(?:us|µs|μs)(?![a-z])", re.IGNORECASE)
 #: Open multi-frame files (e.g. TIFF stacks) kept by a Sequence.
 _OPEN_CACHE_SIZE = 4
-
-#: Accepted physical ranges (inclusive) of the numbers of sequence.json (docs/FORMAT.md):
-#: key -> (low, high, unit). Generous for real rigs; a value outside is a SequenceError
-#: naming the key, the value and the range. Diameters: also outer > inner when both given.
-RANGES = {
-    "pixel_size_um": (0.01, 1000.0, "µm"),
-    "nozzle_diameter_um": (1.0, 10000.0, "µm"),
-    "delay_us": (-1e6, 1e7, "µs"),
-    "frame_rate_hz": (1.0, 1e7, "Hz"),
-    "u1_um_per_ms": (1e-6, 1e4, "µm/ms"),
-    "u2_um": (1e-6, 1e4, "µm"),
-    "u3_um_per_ms": (1e-6, 1e4, "µm/ms"),
-    "hold_us": (0.0, 1e6, "µs"),
-    "dead_time_us": (0.0, 1e6, "µs"),
-    "density_kg_m3": (10.0, 1e5, "kg/m³"),
-    "viscosity_mPa_s": (1e-3, 1e7, "mPa·s"),
-    "surface_tension_mN_m": (0.1, 1e4, "mN/m"),
-}
-#: Largest sequence.json read (bytes), deepest nesting of its JSON, longest integer literal.
-MAX_JSON_BYTES = 64 * 1024 ** 2
-MAX_JSON_DEPTH = 64
-MAX_JSON_INT_DIGITS = 100
 
 
 class SequenceError(Exception):
@@ -567,73 +546,6 @@ class _Listed:
     delay_us: float
 
 
-class _JsonRefused(ValueError):
-    """A JSON literal sequence.json may not hold (NaN, Infinity, a huge number)."""
-
-
-def _json_constant(name: str):
-    raise _JsonRefused(f"{name} is not a JSON number (write null for a missing value)")
-
-
-def _json_int(text: str) -> int:
-    digits = len(text.lstrip("-"))
-    if digits > MAX_JSON_INT_DIGITS:
-        raise _JsonRefused(f"integer of {digits} digits (at most {MAX_JSON_INT_DIGITS})")
-    return int(text)
-
-
-def _json_float(text: str) -> float:
-    value = float(text)
-    if not math.isfinite(value):
-        raise _JsonRefused(f"number {text[:40]} is too large to represent")
-    return value
-
-
-def _json_depth_ok(obj) -> bool:
-    """True when no container of ``obj`` is nested deeper than :data:`MAX_JSON_DEPTH`."""
-    stack = [(obj, 1)]
-    while stack:
-        item, depth = stack.pop()
-        if isinstance(item, (dict, list)):
-            if depth > MAX_JSON_DEPTH:
-                return False
-            values = item.values() if isinstance(item, dict) else item
-            stack.extend((v, depth + 1) for v in values if isinstance(v, (dict, list)))
-    return True
-
-
-def _load_json(path: Path) -> dict:
-    """Read sequence.json: at most MAX_JSON_BYTES, UTF-8 (a BOM is skipped), no NaN/Infinity,
-    no integer of more than MAX_JSON_INT_DIGITS digits, nesting at most MAX_JSON_DEPTH."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_JSON_BYTES + 1)
-    except OSError as exc:
-        raise SequenceError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if len(raw) > MAX_JSON_BYTES:
-        raise SequenceError(f"{path}: larger than {MAX_JSON_BYTES} bytes "
-                            "(dropvision.sequence.MAX_JSON_BYTES)")
-    try:
-        text = raw.decode("utf-8-sig")
-    except UnicodeDecodeError:
-        raise SequenceError(f"{path}: not UTF-8 text") from None
-    try:
-        obj = json.loads(text, parse_constant=_json_constant, parse_int=_json_int,
-                         parse_float=_json_float)
-    except _JsonRefused as exc:
-        raise SequenceError(f"{path}: invalid JSON ({exc})") from None
-    except RecursionError:
-        obj = None
-    except ValueError as exc:
-        raise SequenceError(f"{path}: invalid JSON ({exc})") from None
-    if obj is None or not _json_depth_ok(obj):
-        raise SequenceError(f"{path}: invalid JSON (nested more than {MAX_JSON_DEPTH} levels "
-                            "deep)")
-    if not isinstance(obj, dict):
-        raise SequenceError(f"{path}: must hold a JSON object, got {type(obj).__name__}")
-    return obj
-
-
 def _outside(folder_real: str, path: Path) -> str | None:
     """Where ``path`` resolves (symbolic links followed) when that is outside the folder
     ``folder_real`` (already resolved), else None."""
@@ -1087,7 +999,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         target = _outside(folder_real, json_path)
         if target is not None:
             raise SequenceError(f"{json_path}: {_refusal(target)}")
-    file_doc = _load_json(json_path) if json_exists else None
+    file_doc = load_json_hardened(json_path, SequenceError) if json_exists else None
     doc, wheres = _merge_overrides(file_doc, given, labels, json_path)
     sources = {"pixel_size": None, "orientation": None, "nozzle_outer_diameter": None,
                "nozzle_inner_diameter": None, "delay": None, "waveform": None, "bit_depth": None}

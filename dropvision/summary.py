@@ -22,7 +22,7 @@ from dataclasses import asdict
 import numpy as np
 import pandas as pd
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.calibration import Calibration
 from dropvision.config import MeasureConfig
 from dropvision.flow import flow_velocity_at, grown_and_flow
@@ -30,12 +30,12 @@ from dropvision.frame import FrameRecord
 from dropvision.pinchoff import isolated_detached, pinchoff_bracket_problem, pinchoff_delay
 from dropvision.tracking import fit_line, neighbour_outliers, track_main_drop
 from dropvision.volume import NL_PER_UM3
-from identify import schema
-from identify.versions import software_versions
+from dvcore import schema
+from dvcore.versions import software_versions
 from identify.waveform import Waveform
 
 SCHEMA_VERSION = schema.SUMMARY.schema
-#: Columns of frames.parquet, in order (declared with dtype, unit and meaning in `identify.schema.FRAMES`).
+#: Columns of frames.parquet, in order (declared with dtype, unit and meaning in `dvcore.schema.FRAMES`).
 FRAME_COLUMNS = schema.FRAMES.column_names
 PER_DELAY_COLUMNS = [name for name, _ in schema.PER_DELAY_SOURCES]
 #: Flags of a frame whose intensities are not trusted: no number from it.

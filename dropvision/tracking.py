@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.config import MeasureConfig
 from dropvision.frame import FrameRecord
 

@@ -19,7 +19,7 @@ import tifffile
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.readers.tiff import TiffReader
 from dropvision.sequence import SCHEMA, SEQUENCE_JSON
-from identify.atomic import write_bytes, write_json
+from dvcore.atomic import write_bytes, write_json
 
 __all__ = ["write_sequence_json", "write_image", "write_multipage_tiff"]
 

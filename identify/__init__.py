@@ -11,34 +11,24 @@ The public API (loaded on first use, so ``import identify`` stays cheap)::
     identify.tune(model, rig, volume_nl=20)            # closed loop on a rig (identify.tuning)
 """
 
-import importlib
+from dvcore import __version__
+from dvcore.lazy import lazy_exports
 
-__version__ = "0.1.0"
-
-# public name -> module that defines it
-_WHERE = {
-    "load_dataset": "identify.dataset",
-    "Dataset": "identify.dataset",
-    "DatasetError": "identify.dataset",
-    "fit": "identify.api",
-    "load_model": "identify.api",
-    "fit_hybrid": "identify.hybrid",
-    "HybridModel": "identify.hybrid",
-    "FitReport": "identify.hybrid",
-    "Waveform": "identify.waveform",
-    "paper_prediction": "identify.paper",
-    "tune": "identify.tuning",
-    "read_tuning": "identify.tuning",
-    "CallableRig": "identify.tuning",
+# public name -> "module:attribute" that defines it (tests/test_layers.py reads this map)
+_LAZY = {
+    "load_dataset": "identify.dataset:load_dataset",
+    "Dataset": "identify.dataset:Dataset",
+    "DatasetError": "identify.dataset:DatasetError",
+    "fit": "identify.api:fit",
+    "load_model": "identify.api:load_model",
+    "fit_hybrid": "identify.hybrid:fit_hybrid",
+    "HybridModel": "identify.hybrid:HybridModel",
+    "FitReport": "identify.hybrid:FitReport",
+    "Waveform": "identify.waveform:Waveform",
+    "paper_prediction": "identify.paper:paper_prediction",
+    "tune": "identify.tuning:tune",
+    "read_tuning": "identify.tuning:read_tuning",
+    "CallableRig": "identify.tuning:CallableRig",
 }
-__all__ = ["__version__", *_WHERE]
-
-
-def __getattr__(name):
-    if name in _WHERE:
-        return getattr(importlib.import_module(_WHERE[name]), name)
-    raise AttributeError(f"module 'identify' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + list(_WHERE))
+__all__ = ["__version__", *_LAZY]
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)

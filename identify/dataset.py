@@ -47,8 +47,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from identify.atomic import atomic_dir, write_json
-from identify import schema
+from dvcore.atomic import atomic_dir, write_json
+from dvcore import schema
 from identify.ecm import flow_velocity_m_s, simulate
 from identify.hydraulics import Hydraulics, hydraulics_from_dimensions
 from identify.montecarlo import ecm_response_at
@@ -59,9 +59,9 @@ SCHEMA = schema.DATASET.schema
 
 _KIND = {"id": "id", "float": "f", "bool": "b"}
 #: Required columns of timeseries.parquet and their kinds ("f" float, "b" bool, "id"), from
-#: `identify.schema.TIMESERIES`.
+#: `dvcore.schema.TIMESERIES`.
 TIMESERIES_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.TIMESERIES.columns if c.required}
-#: Required columns of summary.parquet, from `identify.schema.DATASET_SUMMARY`.
+#: Required columns of summary.parquet, from `dvcore.schema.DATASET_SUMMARY`.
 SUMMARY_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.DATASET_SUMMARY.columns if c.required}
 #: Summary columns that may hold NaN (not measured; the fits drop that sequence where needed).
 _SUMMARY_NAN_OK = {"flow_velocity_at_max_stroke_m_s", "pinchoff_us", "grown_volume_at_pinchoff_nl",
@@ -181,7 +181,7 @@ class Dataset:
 
         An existing ``out_dir`` is replaced only when it holds nothing but an earlier result of
         ours; ``overwrite`` writes into one holding other files (they are kept). See
-        `identify.atomic.atomic_dir`.
+        `dvcore.atomic.atomic_dir`.
         """
         out_dir = Path(out_dir)
         with atomic_dir(out_dir, overwrite=overwrite, kind="dataset") as tmp:

@@ -30,15 +30,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from identify import __version__, schema
-from identify.atomic import write_json
+from dvcore import __version__, schema
+from dvcore.atomic import write_json
+from dvcore.versions import software_versions
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
 from identify.montecarlo import OUTPUTS, ecm_response_at, ecm_response_at_controls, modal_form, run_monte_carlo
 from identify.kfold import grouped_kfold
 from identify.polynomial import DEFAULT_ORDERS, OrderSelection, PolynomialFit, PolynomialRankError, \
     design_matrix, fit_polynomial, select_order
-from identify.versions import software_versions
 from identify.waveform import Waveform
 
 if TYPE_CHECKING:  # fitting only: imported where used, so that loading a model and predicting stay light
@@ -432,9 +432,11 @@ def _number(value, source, key: str, *, positive: bool = False, nonnegative: boo
     return v
 
 
-#: Physical ranges of a model's scalars (the same generous ranges sequence.json is read with).
-MODEL_RANGES = {"nozzle_inner_diameter_um": 1e4, "dead_time_us": 1e6, "sample_interval_us": 1e4,
-                "waveform.u3_um_per_ms": 1e4, "waveform.hold_us": 1e6}
+#: Upper limits of a model's scalars: the ranges sequence.json is read with (`dvcore.schema.RANGES`).
+MODEL_RANGES = {key: schema.RANGES[name][1] for key, name in (
+    ("nozzle_inner_diameter_um", "nozzle_diameter_um"), ("dead_time_us", "dead_time_us"),
+    ("sample_interval_us", "sample_interval_us"), ("waveform.u3_um_per_ms", "u3_um_per_ms"),
+    ("waveform.hold_us", "hold_us"))}
 
 
 def _check_ecm_stable(c: dict, source) -> None:
@@ -532,7 +534,7 @@ def _check_polynomial(p, source, key: str) -> None:
 
 def _check_model_dict(d: dict, source) -> None:
     """Types, shapes and finiteness of every value of a model document (see
-    `identify.schema.MODEL` for its required keys)."""
+    `dvcore.schema.MODEL` for its required keys)."""
     try:
         schema.check_document(d, schema.MODEL, source)
     except schema.SchemaError as exc:

@@ -227,7 +227,7 @@ class TuningResult:
     Attributes
     ----------
     shots : list of dict
-        One record per shot (the columns of `identify.schema.TUNING`).
+        One record per shot (the columns of `dvcore.schema.TUNING`).
     target_volume_nl, target_velocity_m_s : float, float or None
     volume_tolerance_percent, velocity_tolerance_percent : float
     converged : bool
@@ -247,10 +247,10 @@ class TuningResult:
     meta: dict = field(default_factory=dict)
 
     def to_pandas(self):
-        """One row per shot (`identify.schema.TUNING` columns, then the rig's ``rig_*`` extras)."""
+        """One row per shot (`dvcore.schema.TUNING` columns, then the rig's ``rig_*`` extras)."""
         import pandas as pd
 
-        from identify.schema import TUNING
+        from dvcore.schema import TUNING
 
         df = pd.DataFrame(self.shots)
         cols = TUNING.column_names + sorted(c for c in df.columns if c not in TUNING.column_names)
@@ -262,7 +262,7 @@ class TuningResult:
 
     def to_dict(self) -> dict:
         """tuning.json content (without the shots, which are tuning.parquet)."""
-        from identify.schema import TUNING_RUN
+        from dvcore.schema import TUNING_RUN
 
         return {"schema": TUNING_RUN.schema, "target_volume_nl": self.target_volume_nl,
                 "target_velocity_m_s": self.target_velocity_m_s,
@@ -356,7 +356,7 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     ValueError
         Bad targets, tolerances or budget; a rig answer without an in-flight volume.
     """
-    from identify.versions import software_versions
+    from dvcore.versions import software_versions
 
     for name, v in (("--volume-nl", volume_nl), ("--volume-tolerance-percent", volume_tolerance_percent),
                     ("--velocity-tolerance-percent", velocity_tolerance_percent),
@@ -479,13 +479,13 @@ def write_tuning(result: TuningResult, out_dir, *, inputs=(), overwrite: bool = 
     result : TuningResult
     out_dir : path
         Created, or replaced when it holds only an earlier result of ours
-        (`identify.atomic.atomic_dir`).
+        (`dvcore.atomic.atomic_dir`).
     inputs : iterable of paths
         The model file: ``out_dir`` may not overlap it.
     overwrite : bool
         Write into an existing folder that holds other files (kept).
     """
-    from identify.atomic import atomic_dir, write_json
+    from dvcore.atomic import atomic_dir, write_json
 
     with atomic_dir(out_dir, inputs=inputs, overwrite=overwrite, kind="tuning") as tmp:
         result.to_pandas().to_parquet(tmp / TUNING_FILES[0], index=False)
@@ -500,14 +500,14 @@ def read_tuning(folder) -> TuningResult:
     ------
     OSError
         A file is missing or unreadable.
-    identify.schema.SchemaError
+    dvcore.schema.SchemaError
         A file does not match its declaration (naming the file).
     """
     import json
 
     import pandas as pd
 
-    from identify.schema import TUNING, TUNING_RUN, SchemaError, check_document, check_table
+    from dvcore.schema import TUNING, TUNING_RUN, SchemaError, check_document, check_table
 
     folder = Path(folder)
     table, doc_path = folder / TUNING_FILES[0], folder / TUNING_FILES[1]

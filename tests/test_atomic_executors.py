@@ -5,7 +5,7 @@ import os
 
 import pytest
 
-from identify.atomic import atomic_dir, write_json, write_text
+from dvcore.atomic import atomic_dir, write_json, write_text
 from dropvision.app.campaign import parse_range, shard_name
 from dropvision.app.executors import SerialExecutor, make_executor
 

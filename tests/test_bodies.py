@@ -12,7 +12,7 @@ from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
 from dropvision.sequence import sequence_from_arrays
 from dropvision.synth import SynthConfig, synthesize
-from identify import schema
+from dvcore import schema
 
 DELAYS = tuple(float(d) for d in range(0, 1501, 30))
 

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from identify.atomic import (
+from dvcore.atomic import (
     MARKER,
     OutputError,
     atomic_dir,

@@ -39,8 +39,8 @@ from dropvision.app.rerun_log import (
     logger_from_args,
 )
 from identify.app import rerun_log as irl
-from identify.app import rerun_stream as rst
-from identify.app.rerun_stream import RerunOptions, add_rerun_args, options_from_args
+from dvcore import rerun_options as rst
+from dvcore.rerun_options import RerunOptions, add_rerun_args, options_from_args
 
 ROWS, COLS = 48, 64
 DELAYS_US = [0.0, 30.5, 1150.25]
@@ -404,7 +404,7 @@ def test_cli_flags(tmp_path):
     assert options_from_args(_parser().parse_args(["--rerun-spawn"])).spawn
     assert not opts.raw
     assert options_from_args(_parser().parse_args(["--rerun", str(tmp_path / "x.rrd"), "--rerun-raw"])).raw
-    from identify.app.errors import UsageError
+    from dvcore.errors import UsageError
 
     with pytest.raises(UsageError, match="is a directory"):
         options_from_args(_parser().parse_args(["--rerun", str(tmp_path)]))
@@ -427,7 +427,7 @@ def test_logging_off_does_not_import_rerun():
     code = textwrap.dedent("""
         import argparse, sys
         from dropvision.app.rerun_log import logger_from_args
-        from identify.app.rerun_stream import add_rerun_args
+        from dvcore.rerun_options import add_rerun_args
         from identify.app.rerun_log import recording_from_args
         p = argparse.ArgumentParser(); add_rerun_args(p); a = p.parse_args([])
         assert logger_from_args(a, "dv") is None and recording_from_args(a) is None

@@ -33,7 +33,7 @@ from dropvision.app.rerun_log import (
     RerunLogger,
 )
 from identify.app import rerun_log as irl
-from identify.app.rerun_stream import RerunOptions
+from dvcore.rerun_options import RerunOptions
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from dropvision.measurement import measure_sequence
-from identify import schema
+from dvcore import schema
 from identify.dataset import DatasetError, load_dataset, make_synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -17,7 +17,7 @@ from dropvision.app.rigs import FolderRig, SimulatedPrinthead
 from dropvision.synth.writer import write_synthetic_sequence
 from identify.dataset import load_dataset
 from identify.hybrid import HybridModel, fit_hybrid
-from identify.schema import TUNING, SchemaError
+from dvcore.schema import TUNING, SchemaError
 from identify.tuning import CallableRig, load_rig, read_tuning, tune, update_bias, write_tuning
 
 
@@ -211,7 +211,7 @@ def test_read_tuning_names_the_bad_file(demo_model, tmp_path):
 
 def test_rerun_view_of_a_run(demo_model, tmp_path):
     from identify.app import rerun_log as irl
-    from identify.app.rerun_stream import RerunOptions
+    from dvcore.rerun_options import RerunOptions
     from rrdtools import Rrd
 
     res = tune(demo_model, _plant(demo_model), 20.0)

@@ -26,8 +26,8 @@ from dropvision.app.watch import (JOURNAL, WATCH_JSON, WatchOptions, journal_tab
                                   watch_sequence)
 from dropvision.measurement import measure_sequence
 from dropvision.sequence import open_sequence
-from identify import schema
-from identify.atomic import MARKER, to_json
+from dvcore import schema
+from dvcore.atomic import MARKER, to_json
 
 DELAYS_US = tuple(float(d) for d in range(0, 1401, 70))  # 21 frames: meniscus, growth, pinch-off, flight
 

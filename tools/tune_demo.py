@@ -23,7 +23,7 @@ import numpy as np
 from dropvision.app.campaign import run_campaign, synth_campaign
 from dropvision.app.demo import CAMPAIGN_OVERRIDES, campaign_grid
 from dropvision.app.rigs import SimulatedPrinthead
-from identify.atomic import claim_dir
+from dvcore.atomic import claim_dir
 from identify.dataset import load_dataset
 from identify.hybrid import HybridModel, fit_hybrid
 from identify.tuning import tune, write_tuning

@@ -45,7 +45,7 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from dropvision import __version__
+from dvcore import __version__
 from dropvision.app.executors import check_executor_args, make_executor
 from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
@@ -55,9 +55,9 @@ from dropvision.output import write_result
 from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
-from identify import schema
-from identify.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
-from identify.versions import software_versions
+from dvcore import schema
+from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
+from dvcore.versions import software_versions
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
 MANIFEST_SCHEMA = schema.MANIFEST.schema
@@ -407,7 +407,7 @@ def run_campaign(
 
     Raises
     ------
-    identify.atomic.OutputError
+    dvcore.atomic.OutputError
         ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
         we did not write (without ``overwrite``).
     """
@@ -532,7 +532,7 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
                    progress: bool = True, overrides: dict | None = None, overwrite: bool = False) -> list[Path]:
     """Render a campaign grid (like the paper's Table 1) of synthetic sequences with truth.
 
-    ``out`` is created, or must be empty or ours (see `identify.atomic.claim_dir`); with
+    ``out`` is created, or must be empty or ours (see `dvcore.atomic.claim_dir`); with
     ``overwrite`` an existing folder is written into and its same-named sequence folders are
     replaced as a whole.
     """

@@ -8,8 +8,8 @@ import importlib
 import sys
 import warnings
 
-from identify.app.errors import run_command
-from identify.atomic import OutputError
+from dvcore.errors import run_command
+from dvcore.atomic import OutputError
 
 #: Modules that contribute sub-commands, in the order they appear in --help.
 COMMAND_MODULES = (

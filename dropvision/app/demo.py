@@ -28,8 +28,8 @@ from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
 from identify.app.report import write_report
 from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
-from identify.app.rerun_stream import RerunOptions
-from identify.atomic import OutputError, check_output_dir, claim_dir
+from dvcore.rerun_options import RerunOptions
+from dvcore.atomic import OutputError, check_output_dir, claim_dir
 from identify.dataset import load_dataset
 from dropvision.app.rigs import SimulatedPrinthead
 from identify.design import design

@@ -15,8 +15,8 @@ from dropvision.app.options import (
     add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
     warning_lines,
 )
-from identify.app.errors import UsageError
-from identify.app.rerun_stream import add_rerun_args
+from dvcore.errors import UsageError
+from dvcore.rerun_options import add_rerun_args
 
 _SOURCES = ("orientation", "pixel_size", "delay", "nozzle_outer_diameter", "nozzle_inner_diameter", "waveform",
             "bit_depth")

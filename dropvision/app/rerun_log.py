@@ -63,14 +63,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from identify.app.rerun_stream import (
-    DEFAULT_APPLICATION_ID,
-    RerunOptions,
-    close_stream,
-    delay_ns,
-    open_stream,
-    options_from_args,
-)
+from dvcore.rerun_options import DEFAULT_APPLICATION_ID, RerunOptions, options_from_args
+from identify.app.rerun_stream import close_stream, delay_ns, open_stream
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import rerun as rr

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from identify.app.errors import UsageError
+from dvcore.errors import UsageError
 
 __all__ = ["register", "run"]
 

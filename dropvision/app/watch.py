@@ -18,7 +18,7 @@
    complete frames and written by `dropvision.output.write_result`: with every frame complete
    they equal ``dropvision measure FOLDER`` exactly. The journal is kept in the result.
 
-Nothing is ever written into FOLDER. OUT follows `identify.atomic`: refused when it holds files
+Nothing is ever written into FOLDER. OUT follows `dvcore.atomic`: refused when it holds files
 we did not write (without ``overwrite``); a restart on the same OUT resumes from its journal
 (frames already there and unchanged are not measured again).
 """
@@ -36,7 +36,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from dropvision import quality as q
+import dropvision.quality as q
 from dropvision.config import MeasureConfig
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, measure_frame
@@ -44,15 +44,15 @@ from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.output import write_result
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
-from identify import schema
-from identify.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
+from dvcore import schema
+from dvcore.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
 
 __all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences",
            "read_journal", "journal_table", "replay_sequence"]
 
-#: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `identify.schema.LIVE_FRAMES`).
+#: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `dvcore.schema.LIVE_FRAMES`).
 JOURNAL = schema.LIVE_FRAMES.file
-#: What the watch did (sequence, end, latencies), relative to OUT (`identify.schema.WATCH`).
+#: What the watch did (sequence, end, latencies), relative to OUT (`dvcore.schema.WATCH`).
 WATCH_JSON = schema.WATCH.file
 
 
@@ -159,7 +159,7 @@ def read_journal(out_dir) -> list[dict]:
 
 def journal_table(out_dir):
     """The journal as a table: `read_journal`'s rows with the columns and types of
-    `identify.schema.LIVE_FRAMES` (null numbers as NaN, ``page`` nullable integer).
+    `dvcore.schema.LIVE_FRAMES` (null numbers as NaN, ``page`` nullable integer).
 
     Parameters
     ----------
@@ -206,7 +206,7 @@ class _Journal:
         self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
 
     def append(self, row: dict) -> None:
-        from identify.atomic import to_json
+        from dvcore.atomic import to_json
 
         line = to_json(row, indent=None).encode("utf-8")  # ends with "\n"
         view = memoryview(line)
@@ -340,7 +340,7 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
     ------
     dropvision.sequence.SequenceError
         FOLDER missing, or a sequence that cannot be measured (as ``dropvision measure``).
-    identify.atomic.OutputError
+    dvcore.atomic.OutputError
         OUT overlaps FOLDER or holds files we did not write (without ``overwrite``).
     """
     from watchdog.observers import Observer  # the command's own dependency, imported when it runs
@@ -632,7 +632,7 @@ def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, l
     root : str or Path
         The folder the sequence folders appear in (never written to).
     out_root : str or Path
-        One output folder per sequence inside it (a folder of ours, `identify.atomic.claim_dir`:
+        One output folder per sequence inside it (a folder of ours, `dvcore.atomic.claim_dir`:
         never replaced as a whole).
     options : WatchOptions
         For every sequence.
@@ -651,7 +651,7 @@ def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, l
     failed : dict
         Sequence name -> why it could not be measured.
     """
-    from identify.atomic import claim_dir
+    from dvcore.atomic import claim_dir
 
     root, out_root = Path(root).absolute(), Path(out_root)
     if not root.is_dir():

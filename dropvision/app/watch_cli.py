@@ -16,8 +16,8 @@ from pathlib import Path
 
 from dropvision.app.options import add_metadata_args, captured_warnings, overrides_from_args, print_warnings, \
     warning_lines
-from identify.app.errors import UsageError
-from identify.app.rerun_stream import add_rerun_args
+from dvcore.errors import UsageError
+from dvcore.rerun_options import add_rerun_args
 
 
 def _interrupt(signum, frame):  # SIGTERM ends the sequence as Ctrl-C does
@@ -83,7 +83,7 @@ def _run_sequences(args: argparse.Namespace, root: Path, options, report) -> int
     """``--sequences``: one sequence per sub-folder, one after the other, into OUT/<name>."""
     from dropvision.app.rerun_log import RerunLogger
     from dropvision.app.watch import watch_sequences
-    from identify.app.rerun_stream import options_from_args
+    from dvcore.rerun_options import options_from_args
 
     rerun = options_from_args(args, "dropvision")
     if rerun is not None:

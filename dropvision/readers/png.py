@@ -39,7 +39,7 @@ import numpy as np
 from imagecodecs import delta_decode
 from isal import isal_zlib
 
-from dropvision.readers import base
+import dropvision.readers.base as base
 from dropvision.readers.base import Reader, UnreadableImage, check_pixels, imdecode, read_file
 
 __all__ = ["PngReader", "PngError", "decode_grey_png", "read_png", "png_significant_bits",

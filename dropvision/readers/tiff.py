@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import tifffile
 
-from dropvision.readers import base
+import dropvision.readers.base as base
 from dropvision.readers.base import (
     ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, check_pixels, is_number,
 )

@@ -15,27 +15,32 @@ and sequence.json without nozzle diameters; rig presets in :data:`RIGS`
 (``SynthConfig.for_rig(name, **overrides)``); per-body truth in truth_bodies.csv.
 """
 
-import importlib
+from dvcore.lazy import lazy_exports
 
 # Imported on first use, so that `dropvision <command>` does not pay for scipy.interpolate etc.
-_WHERE = {
-    "DropHistory": "physics", "SynthPhysics": "physics", "drop_history": "physics",
-    "FORMATS": "sequence", "TRUTH_COLUMNS": "sequence", "FrameTruth": "sequence", "SynthConfig": "sequence",
-    "parse_delays": "sequence", "plan": "sequence", "sequence_truth": "sequence", "synthesize": "sequence",
-    "DropShapeModel": "shapes", "ShapeParams": "shapes", "write_synthetic_sequence": "writer",
+# public name -> "module:attribute" (tests/test_layers.py reads this map)
+_LAZY = {
+    "DropHistory": "identify.physics:DropHistory",
+    "SynthPhysics": "identify.physics:SynthPhysics",
+    "drop_history": "identify.physics:drop_history",
+    "FORMATS": "dropvision.synth.sequence:FORMATS",
+    "TRUTH_COLUMNS": "dropvision.synth.sequence:TRUTH_COLUMNS",
+    "FrameTruth": "dropvision.synth.sequence:FrameTruth",
+    "SynthConfig": "dropvision.synth.sequence:SynthConfig",
+    "parse_delays": "dropvision.synth.sequence:parse_delays",
+    "plan": "dropvision.synth.sequence:plan",
+    "sequence_truth": "dropvision.synth.sequence:sequence_truth",
+    "synthesize": "dropvision.synth.sequence:synthesize",
+    "DropShapeModel": "dropvision.synth.shapes:DropShapeModel",
+    "ShapeParams": "dropvision.synth.shapes:ShapeParams",
+    "write_synthetic_sequence": "dropvision.synth.writer:write_synthetic_sequence",
     # realism tier (docs/SYNTH_REALISM.md)
-    "RIGS": "sequence", "BODY_COLUMNS": "sequence", "BODY_CLASSES": "sequence", "BodyTruth": "sequence",
-    "PendantShapeModel": "shapes", "young_laplace_profile": "shapes",
+    "RIGS": "dropvision.synth.sequence:RIGS",
+    "BODY_COLUMNS": "dropvision.synth.sequence:BODY_COLUMNS",
+    "BODY_CLASSES": "dropvision.synth.sequence:BODY_CLASSES",
+    "BodyTruth": "dropvision.synth.sequence:BodyTruth",
+    "PendantShapeModel": "dropvision.synth.shapes:PendantShapeModel",
+    "young_laplace_profile": "dropvision.synth.shapes:young_laplace_profile",
 }
-__all__ = list(_WHERE)
-
-
-def __getattr__(name):
-    if name in _WHERE:
-        module = "identify.physics" if _WHERE[name] == "physics" else f"dropvision.synth.{_WHERE[name]}"
-        return getattr(importlib.import_module(module), name)
-    raise AttributeError(f"module 'dropvision.synth' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(list(globals()) + __all__)
+__all__ = list(_LAZY)
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)

@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from identify.physics import DropHistory, SynthPhysics, drop_history
-from identify.versions import software_versions
+from dvcore.versions import software_versions
 from dropvision.synth.render import CameraGeometry, Optics, Renderer, Structure, body_coverage
 from dropvision.synth.shapes import (SATELLITE_KINDS, DropShapeModel, PendantShapeModel, ShapeParams, ShapeState,
                                      cap_volume_um3)

@@ -2,7 +2,7 @@
 truth_bodies.csv.
 
 All files go through the shared writers of :mod:`dropvision.writers` (images, multi-page TIFF,
-sequence.json) and :mod:`identify.atomic`; the whole folder is built in a temporary sibling
+sequence.json) and :mod:`dvcore.atomic`; the whole folder is built in a temporary sibling
 and renamed into place at the end, so a failure never leaves a half-written sequence.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from identify.atomic import atomic_dir, check_output_dir, write_bytes, write_json, write_text
+from dvcore.atomic import atomic_dir, check_output_dir, write_bytes, write_json, write_text
 from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
 from dropvision.synth.sequence import (STACK_FILE, SynthConfig, bodies_table, frames_table, plan, sequence_truth,
                                        synthesize)
@@ -88,7 +88,7 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
     config : SynthConfig
     out_dir : str or Path
         Target folder. It is created, or replaced if it holds only an earlier result of ours
-        (see `identify.atomic.atomic_dir`); any other non-empty folder is refused.
+        (see `dvcore.atomic.atomic_dir`); any other non-empty folder is refused.
     progress : bool or None
         tqdm progress bar (None: only on a terminal).
     overwrite : bool

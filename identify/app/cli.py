@@ -18,9 +18,9 @@ import math
 import sys
 
 
-from identify.app.errors import UsageError, run_command
-from identify.app.rerun_stream import add_rerun_args
-from identify.atomic import OutputError, check_output_file
+from dvcore.errors import UsageError, run_command
+from dvcore.rerun_options import add_rerun_args
+from dvcore.atomic import OutputError, check_output_file
 
 OUTPUT_UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_volume_nl": "nl",
                 "jetting_velocity_m_s": "m/s"}
@@ -83,7 +83,7 @@ def cmd_fit(args) -> int:
 
     check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=_is_model_file)
     if args.report is not None:  # refuse a report folder that is not ours before the fit
-        from identify.atomic import check_output_dir
+        from dvcore.atomic import check_output_dir
 
         check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
     ds = load_dataset(args.dataset)
@@ -127,7 +127,7 @@ def _point(text):
 
 def cmd_report(args) -> int:
     from identify.app.report import write_report
-    from identify.atomic import check_output_dir
+    from dvcore.atomic import check_output_dir
     from identify.dataset import load_dataset
 
     _check_samples(args.samples)
@@ -273,7 +273,7 @@ def cmd_design(args) -> int:
 
 
 def cmd_tune(args) -> int:
-    from identify.atomic import check_output_dir
+    from dvcore.atomic import check_output_dir
     from identify.tuning import load_rig, tune, write_tuning
 
     _check_samples(args.samples)
@@ -305,7 +305,7 @@ def cmd_tune(args) -> int:
     write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
     _with_recording(args, lambda rec, lg: lg.log_tuning(rec, res, model=m))
     if args.json:
-        from identify.atomic import to_json
+        from dvcore.atomic import to_json
 
         print(to_json({**res.to_dict(), "shots": res.shots}, indent=None), end="")  # NaN as null
     else:

@@ -3,7 +3,7 @@
     identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
     identify fit DATASET --out model.json --report DIR
 
-`write_report` renders, into one output folder written atomically (`identify.atomic.atomic_dir`):
+`write_report` renders, into one output folder written atomically (`dvcore.atomic.atomic_dir`):
 
 * ``fig6_volume_flow.png``: measured (dots) vs ECM-simulated (lines) grown volume and flow
   velocity through the first chosen point, at fixed u1 (varying u2) and fixed u2 (varying u1),
@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from identify import __version__
-from identify.atomic import atomic_dir
+from dvcore import __version__
+from dvcore.atomic import atomic_dir
 
 REPORT_KIND = "identify-report"
 OUTPUT_LABELS = {"pinchoff_us": ("pinch-off", "us"), "inflight_volume_nl": ("in-flight volume", "nl"),
@@ -423,8 +423,8 @@ def write_report(out, model, ds, *, fit_report=None, at=None, samples: int = 10_
     Parameters
     ----------
     out : path
-        Output folder, written atomically (`identify.atomic.atomic_dir`: refused with
-        :class:`identify.atomic.OutputError` before any work when it holds files we did not
+        Output folder, written atomically (`dvcore.atomic.atomic_dir`: refused with
+        :class:`dvcore.atomic.OutputError` before any work when it holds files we did not
         write, unless ``overwrite``).
     model : identify.hybrid.HybridModel
     ds : identify.dataset.Dataset
@@ -443,7 +443,7 @@ def write_report(out, model, ds, *, fit_report=None, at=None, samples: int = 10_
     truth_fn : callable, optional
         ``truth_fn(u1, u2) -> {output: value}`` of a synthetic campaign, drawn in Fig. 7.
     """
-    from identify.atomic import check_output_dir
+    from dvcore.atomic import check_output_dir
 
     check_output_dir(out, inputs=inputs, overwrite=overwrite)
     points = [(float(a), float(b)) for a, b in (at or [grid_centre(model, ds)])]

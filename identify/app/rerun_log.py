@@ -81,7 +81,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from identify.app.rerun_stream import RerunOptions, close_stream, delay_ns, open_stream, options_from_args
+from dvcore.rerun_options import RerunOptions, options_from_args
+from identify.app.rerun_stream import close_stream, delay_ns, open_stream
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import pandas as pd

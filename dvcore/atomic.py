@@ -34,7 +34,7 @@ import tempfile
 from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
-from identify import __version__, schema
+from dvcore import __version__, schema
 
 #: Marker file of every folder dropvision writes.
 MARKER = schema.OUTPUT_MARKER.file

@@ -6,8 +6,11 @@ readers check what they load with :func:`check_table` / :func:`check_document`, 
 :class:`SchemaError` naming the file and the mismatch. ``docs/FORMAT.md`` documents the outputs
 from :func:`markdown` (a test keeps the two identical).
 
-This module sits in the modelling layer (it knows nothing of images) so that both the
-measurement layer and the modelling layer import it.
+Also the accepted physical ranges of the inputs (:data:`RANGES`: sequence.json, model files) and
+the quality codes of the frames table (:class:`Quality`, :data:`QUALITY_CODES`).
+
+This module sits in the foundation layer (:mod:`dvcore`: it knows nothing of images or models),
+so that the measurement, modelling and application layers all stand on it.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 
 __all__ = [
     "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "Quality",
-    "QUALITY_CODES", "check_table", "check_document", "markdown",
+    "QUALITY_CODES", "RANGES", "check_table", "check_document", "markdown",
 ]
 
 
@@ -464,6 +467,29 @@ QUALITY_CODES: dict[str, str] = {
 }
 
 
+# ----------------------------------------------------------------------------- input ranges
+#: Accepted physical ranges (inclusive) of the numbers of the inputs: key -> (low, high, unit).
+#: Generous for real rigs. sequence.json is read with them (docs/FORMAT.md; a value outside is a
+#: ``SequenceError`` naming the key, the value and the range; diameters: also outer > inner when
+#: both given) and a model file's scalars are checked against the same upper limits
+#: (``identify.hybrid.MODEL_RANGES``).
+RANGES: dict[str, tuple[float, float, str]] = {
+    "pixel_size_um": (0.01, 1000.0, "µm"),
+    "nozzle_diameter_um": (1.0, 10000.0, "µm"),
+    "delay_us": (-1e6, 1e7, "µs"),
+    "frame_rate_hz": (1.0, 1e7, "Hz"),
+    "u1_um_per_ms": (1e-6, 1e4, "µm/ms"),
+    "u2_um": (1e-6, 1e4, "µm"),
+    "u3_um_per_ms": (1e-6, 1e4, "µm/ms"),
+    "hold_us": (0.0, 1e6, "µs"),
+    "dead_time_us": (0.0, 1e6, "µs"),
+    "sample_interval_us": (0.0, 1e4, "µs"),
+    "density_kg_m3": (10.0, 1e5, "kg/m³"),
+    "viscosity_mPa_s": (1e-3, 1e7, "mPa·s"),
+    "surface_tension_mN_m": (0.1, 1e4, "mN/m"),
+}
+
+
 # ----------------------------------------------------------------------------- checks
 _KINDS = {
     "float": lambda k: k in "fiu",
@@ -536,7 +562,7 @@ def check_document(doc, document: Document | str, source) -> dict:
 
 def markdown() -> str:
     """The outputs part of docs/FORMAT.md, generated from the declarations."""
-    lines = ["<!-- generated from identify/schema.py by identify.schema.markdown(); do not edit by hand -->", ""]
+    lines = ["<!-- generated from dvcore/schema.py by dvcore.schema.markdown(); do not edit by hand -->", ""]
     for t in TABLES.values():
         lines += [f"### `{t.file}` ({t.schema})", "", t.description, "",
                   "| column | dtype | unit | meaning |", "|---|---|---|---|"]

@@ -1,0 +1,14 @@
+"""dvcore: the foundations dropvision and identify both stand on (no images, no models).
+
+Modules: :mod:`~dvcore.schema` (every table and document written, the input ranges, the quality
+codes), :mod:`~dvcore.atomic` (atomic, non-destructive writes), :mod:`~dvcore.versions`
+(software versions of a result), :mod:`~dvcore.jsonio` (hardened JSON reading),
+:mod:`~dvcore.errors` (the command lines' error boundary), :mod:`~dvcore.rerun_options`
+(where a Rerun recording goes; no rerun import), :mod:`~dvcore.lazy` (lazily loaded public names).
+
+Layers (docs/ARCHITECTURE.md, enforced by tests/test_layers.py): ``dvcore`` < ``identify`` <
+``dropvision`` < ``dropvision.app`` / ``identify.app``. Nothing here imports a layer above.
+"""
+
+#: Version of the dropvision distribution (dropvision, identify and dvcore ship together).
+__version__ = "0.1.0"
