@@ -374,47 +374,25 @@ def check_measurement_block(block, fname: str) -> dict:
     return out
 
 
+#: Columns of summary.parquet with an image-measured campaign's per-sequence calibration checks
+#: (declared in `dvcore.schema.DATASET_SUMMARY`; ``dropvision campaign`` copies them from each
+#: sequence's summary.json).
+CALIBRATION_COLUMNS = ("pixel_size_ratio", "pixel_size_ratio_uncertainty", "inflight_frames")
+
+
 def campaign_calibration(ds: Dataset) -> pd.DataFrame | None:
     """Per-sequence calibration checks of an image-measured campaign, or None.
 
-    Columns ``pixel_size_ratio`` (pixel size implied by the nozzle's outer diameter / the given
-    one), ``pixel_size_ratio_uncertainty`` and ``inflight_frames``, one row per summary row
-    (NaN where unknown). Read from summary.parquet when it carries these columns with values,
-    else from the campaign's shards (``shards/<shard>/summary.json`` through ``manifest.json``,
-    as written by ``dropvision campaign``). None for datasets without either (synthetic,
-    hand-made).
+    Columns :data:`CALIBRATION_COLUMNS`: ``pixel_size_ratio`` (pixel size implied by the
+    nozzle's outer diameter / the given one), ``pixel_size_ratio_uncertainty`` and
+    ``inflight_frames``, one row per summary row (NaN where unknown), from summary.parquet as
+    ``dropvision campaign`` writes it. None for datasets without these columns or with no value
+    in them (synthetic, hand-made).
     """
     su = ds.summary
-    cols = ("pixel_size_ratio", "pixel_size_ratio_uncertainty", "inflight_frames")
-    if all(c in su.columns for c in cols):
-        df = pd.DataFrame({c: pd.to_numeric(su[c], errors="coerce").to_numpy(float) for c in cols})
-        if np.isfinite(df["pixel_size_ratio"].to_numpy()).any():
-            return df
-    if ds.path is None or not (ds.path / "manifest.json").is_file():
+    if not all(c in su.columns for c in CALIBRATION_COLUMNS):
         return None
-    try:
-        manifest = json.loads((ds.path / "manifest.json").read_text(encoding="utf-8"))
-        seqs = manifest.get("sequences") or {}
-    except (OSError, ValueError, AttributeError):
-        return None
-    rows = []
-    for sid in su["sequence_id"]:
-        entry = seqs.get(str(sid)) if isinstance(seqs, dict) else None
-        row = dict.fromkeys(cols, float("nan"))
-        shard = entry.get("shard") if isinstance(entry, dict) else None
-        if isinstance(shard, str) and "/" not in shard and "\\" not in shard and shard not in ("", ".", ".."):
-            try:
-                s = json.loads((ds.path / "shards" / shard / "summary.json").read_text(encoding="utf-8"))
-                cal = s.get("calibration") or {}
-                for c, v in (("pixel_size_ratio", cal.get("pixel_size_ratio")),
-                             ("pixel_size_ratio_uncertainty", cal.get("pixel_size_ratio_uncertainty")),
-                             ("inflight_frames", s.get("inflight_frames"))):
-                    if isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v):
-                        row[c] = float(v)
-            except (OSError, ValueError, AttributeError):
-                pass
-        rows.append(row)
-    df = pd.DataFrame(rows, columns=list(cols))
+    df = pd.DataFrame({c: pd.to_numeric(su[c], errors="coerce").to_numpy(float) for c in CALIBRATION_COLUMNS})
     return None if df.isna().all().all() else df
 
 
