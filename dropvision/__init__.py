@@ -7,7 +7,7 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
     res.frames, res.summary                                          # DataFrame, dict
     res = dropvision.measure(stack, delays_us=d, pixel_size_um=4.73) # frames in memory
     seq = dropvision.open_sequence(folder)                           # validate, read lazily
-    dropvision.synthesize(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
+    dropvision.write_synthetic_sequence(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
     dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset
     dropvision.init_sequence("watcher", {"pixel_size_um": 3.0})      # images alone -> sequence.json
 
@@ -28,7 +28,7 @@ _LAZY = {
     "sequence_from_arrays": "dropvision.sequence:sequence_from_arrays",
     "SequenceError": "dropvision.sequence:SequenceError",
     "SynthConfig": "dropvision.synth.sequence:SynthConfig",
-    "synthesize": "dropvision.synth.writer:write_synthetic_sequence",
+    "write_synthetic_sequence": "dropvision.synth.writer:write_synthetic_sequence",
     "run_campaign": "dropvision.app.campaign:run_campaign",
     "describe_folder": "dropvision.describe:describe_folder",
     "init_sequence": "dropvision.describe:init_sequence",
