@@ -11,8 +11,10 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
     dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset
     dropvision.init_sequence("watcher", {"pixel_size_um": 3.0})      # images alone -> sequence.json
 
-Layers: `identify` (models, no images) < `dropvision` (measurement) < `dropvision.app` /
-`identify.app` (command lines, campaigns, demo, Rerun views); see tests/test_layers.py.
+Layers: `dvcore` (foundations) < `identify` (models, no images) < `dropvision` (measurement) <
+`dropvision.app` / `identify.app` (command lines, campaigns, demo, Rerun views); this package's
+namespace is the facade on top (``run_campaign`` comes from the application layer) and nothing in
+the project imports it. See docs/ARCHITECTURE.md and tests/test_layers.py.
 """
 
 from dvcore import __version__

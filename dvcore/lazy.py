@@ -13,7 +13,7 @@ target module as an import of the declaring package, so laziness hides no edge f
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from collections.abc import Callable  # already loaded at start-up (typing is not: ~1.5 ms)
 
 __all__ = ["lazy_exports"]
 
