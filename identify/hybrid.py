@@ -168,7 +168,10 @@ class HybridModel:
         ``mean_drop_dominant_term`` and ``one_drop_dominant_term`` name the largest variance
         term of each interval ("parameters", "model_discrepancy", "measurement", "drop_scatter");
         ``variance_shares`` gives every term's share of the one-drop variance, and
-        ``model_std_source`` whether the discrepancy is the global or the local estimate.
+        ``model_std_source`` whether the discrepancy is the global or the local estimate, or
+        "polynomial_bias": where the chosen polynomials' estimated bias at (u1, u2)
+        (:meth:`polynomial_bias_sq`, against the more flexible polynomials the fit stored) exceeds
+        them, it is the model discrepancy there.
 
         Measurement term (``intervals["measurement"]`` of the model, from
         :func:`identify.dataset.measurement_uncertainty`): what every sequence of the training
@@ -192,6 +195,7 @@ class HybridModel:
         scatter = (self.intervals or {}).get("scatter") or {}
         meas = (self.intervals or {}).get("measurement") or {}
         z = float(special.ndtri(0.5 + level / 2))
+        bias_sq = self.polynomial_bias_sq(u1, u2)
         out = {}
         for k in INTERVAL_OUTPUTS:
             x = np.asarray(res.samples[k], float)
@@ -200,6 +204,8 @@ class HybridModel:
             lo, hi = (np.percentile(x, [50 * (1 - level), 50 * (1 + level)]) if x.size > 1 else (mean, mean))
             sc = scatter.get(k) or {}
             s_model, model_source = local_model_std(sc, u1, u2)
+            if bias_sq.get(k, 0.0) > s_model**2:  # the chosen polynomial's bias here exceeds it
+                s_model, model_source = float(np.sqrt(bias_sq[k])), "polynomial_bias"
             s_drop = sc.get("drop_std")
             s_meas = _measurement_std(meas, k, mean)
             s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))
@@ -226,6 +232,34 @@ class HybridModel:
             entry["variance_shares"] = {t: (v / total if total > 0 else 0.0) for t, v in terms.items()}
             out[k] = entry
         return out
+
+    def polynomial_bias_sq(self, u1: float, u2: float) -> dict:
+        """Squared bias of the chosen polynomials at (u1, u2) per output, where the fit stored the
+        flexible polynomials (``intervals["flexible"]``; :func:`identify.discrepancy.polynomial_bias`):
+        b² with b the change of the output when the flexible polynomials replace the chosen ones
+        (for the in-flight volume: the pinch-off's change through the ECM growth plus the volume
+        adjuster's). b² is not reduced by the variance of b: E[b²] = bias² + var(b), so on laws
+        the chosen polynomial holds the mean-drop interval becomes about as wide as the flexible
+        polynomial's own (the linear laws' coverage moves by at most 1.5 points), while a
+        debiased max(0, b² - var(b)) left the misfit families' velocity at 82 %. Empty for models
+        without them."""
+        from identify.discrepancy import polynomial_bias
+
+        flex = (self.intervals or {}).get("flexible") or {}
+        b = {name: float(np.ravel(polynomial_bias(getattr(self, name), PolynomialFit.from_dict(d), u1, u2)[0])[0])
+             for name, d in flex.items()}
+        out = {}
+        if "pinchoff" in b:
+            out["pinchoff_us"] = b["pinchoff"]
+        if "velocity_adjuster" in b:
+            out["jetting_velocity_m_s"] = b["velocity_adjuster"]
+        if "pinchoff" in b or "volume_adjuster" in b:
+            t_p = float(self.pinchoff.predict(u1, u2))
+            t = np.array([t_p, t_p + b.get("pinchoff", 0.0)]) - self.dead_time_us
+            v_p, _ = ecm_response_at_controls(modal_form(self.ecm_coefficients), np.full(2, float(u1)),
+                                              np.full(2, float(u2)), t, self.u3_um_per_ms, self.hold_us)
+            out["inflight_volume_nl"] = float(v_p[1] - v_p[0]) + b.get("volume_adjuster", 0.0)
+        return {k: v * v for k, v in out.items()}
 
     @property
     def nozzle_area_m2(self) -> float:
@@ -366,8 +400,10 @@ def widening_reason(output: str, e: dict) -> str | None:
     term = e.get("mean_drop_dominant_term")
     share = (e.get("variance_shares") or {}).get(term, 0.0)
     if term == "model_discrepancy":
-        where = ("near these controls cross-validation saw the polynomials miss the data (local estimate)"
-                 if e.get("model_std_source") == "local" else "cross-validation saw the polynomials miss the data")
+        where = {"local": "near these controls cross-validation saw the polynomials miss the data (local estimate)",
+                 "polynomial_bias": "here a more flexible polynomial departs from the chosen one by more than its "
+                                    "own uncertainty (the chosen order's bias)"}.get(
+            e.get("model_std_source"), "cross-validation saw the polynomials miss the data")
         return (f"{output}: the mean-drop interval is widened mostly by model discrepancy (std {e['model_std']:.3g}, "
                 f"{100 * share:.0f} % of the one-drop variance): {where}")
     if term == "measurement":
@@ -658,6 +694,15 @@ def _check_intervals(d: dict, source) -> None:
             else:
                 raise _model_error(source, f"intervals.measurement.{name}", "is unknown (expected volume_rel, "
                                    "velocity_rel, pixel_size_rel, pinchoff_std_us, source)")
+    fl = iv.get("flexible")
+    if fl is not None:
+        if not isinstance(fl, dict):
+            raise _model_error(source, "intervals.flexible", f"must be an object, got {type(fl).__name__}")
+        for name, p in fl.items():
+            if name not in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
+                raise _model_error(source, f"intervals.flexible.{name}", "is unknown (expected pinchoff, "
+                                   "volume_adjuster, velocity_adjuster)")
+            _check_polynomial(p, source, f"intervals.flexible.{name}")
     c = iv.get("pinchoff_volume_cross_covariance")
     if c is not None:
         shape = (len(d["pinchoff"]["terms"]), len(d["volume_adjuster"]["terms"]))
@@ -844,7 +889,7 @@ def _cross_covariance(a: PolynomialFit, b: PolynomialFit, u1, u2, ra, rb) -> np.
 
 def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
                    seed: int, notes: list, mc_samples: int = 400, standard_errors: dict | None = None,
-                   measurement: dict | None = None) -> dict:
+                   measurement: dict | None = None, flexible: dict | None = None) -> dict:
     """Scatter of individual drops about the model, for `HybridModel.interval_prediction`.
 
     Per output (:data:`INTERVAL_OUTPUTS`):
@@ -952,7 +997,32 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
             notes.append(f"{k}: no cross-validation fold could be fitted; model_std set to 0")
     if measurement is not None:
         out["measurement"] = dict(measurement)
+    if flexible:
+        out["flexible"] = {name: f.to_dict() for name, f in flexible.items()}
+        notes.append("intervals: the chosen polynomials' bias is estimated against more flexible ones (" +
+                      ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible.items()) +
+                      "); where it exceeds the model discrepancy at a control, it replaces it (model_std_source "
+                      "'polynomial_bias')")
     notes.extend(_interval_notes(out["scatter"], fits))
+    return out
+
+
+def _flexible_fits(u1, u2, chosen: dict) -> dict:
+    """Per polynomial name, the flexible polynomial (:func:`identify.discrepancy.flexible_order`)
+    fitted to the chosen one's targets and controls, where it differs from the chosen order and
+    leaves :data:`identify.discrepancy.MIN_FLEXIBLE_DOF` residual degrees of freedom."""
+    from identify.discrepancy import MIN_FLEXIBLE_DOF, flexible_order
+    from identify.polynomial import poly_terms
+
+    out = {}
+    for name, (fit, mask, z) in chosen.items():
+        n1, n2 = flexible_order(fit)
+        if (n1, n2) == (fit.n1, fit.n2) or int(mask.sum()) - len(poly_terms(n1, n2)) < MIN_FLEXIBLE_DOF:
+            continue
+        try:
+            out[name] = fit_polynomial(u1[mask], u2[mask], z[mask], n1, n2, name=name, unit=fit.unit)
+        except PolynomialRankError:
+            continue
     return out
 
 
@@ -1105,6 +1175,8 @@ def fit_hybrid(
     sel_q = select_order(u1[mq], u2[mq], vel_target[mq], name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     notes.extend(_order_note(sel) for sel in (sel_p, sel_v, sel_q))
+    flexible = _flexible_fits(u1, u2, {"pinchoff": (sel_p.fit, mp, tp), "volume_adjuster": (sel_v.fit, mv, vol_target),
+                                       "velocity_adjuster": (sel_q.fit, mq, vel_target)})
     bar.close()
     versions = software_versions()
     versions["identify"] = __version__
@@ -1144,7 +1216,7 @@ def fit_hybrid(
                                      {"pinchoff_us": tp[mall], "inflight_volume_nl": inflight[mall],
                                       "jetting_velocity_m_s": jet[mall]}, vol_target[mall], vel_target[mall],
                                      folds=folds, seed=seed, notes=notes, standard_errors=ses,
-                                     measurement=meas)
+                                     measurement=meas, flexible=flexible)
     training = pd.DataFrame({
         "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,
         "ecm_grown_volume_at_pinchoff_nl": v_ecm, "ecm_flow_velocity_at_max_stroke_m_s": vel_ecm,

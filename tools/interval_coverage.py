@@ -22,7 +22,7 @@ a sine), ``exponential`` (exponential growth in u1 times a linear u2 factor, a c
 ``saturating`` (tanh in u1, a local Gaussian bump)), some with heavier-tailed scatter (Student t
 with 3 degrees of freedom, the same standard deviation) or with 12 % of the training sequences'
 pinch-off detected one strobe delay (10 us) early or late. Printed per family and output: the
-coverage of both intervals, the RMS standardised error of the mean, the held-out relative errors
+coverage of both intervals, the RMS standardised error of the mean (and of one drop), the held-out relative errors
 of the point prediction (max |error|, RMS) and how often the model discrepancy dominates the
 mean-drop interval.
 
@@ -194,6 +194,7 @@ def coverage(seeds, points: int = 20, grid_n: int = 5, level: float = 0.95, nois
                                  "inside_confidence": e["mean_drop_low"] <= t <= e["mean_drop_high"],
                                  "inside_prediction": e["one_drop_low"] <= y <= e["one_drop_high"],
                                  "z_confidence": (e["mean"] - t) / e["mean_drop_std"],
+                                 "z_prediction": (e["mean"] - y) / e["one_drop_std"],
                                  "rel_error_%": 100 * (e["mean"] - t) / t,
                                  "mean_drop_half_width_%": 100 * (e["mean_drop_high"] - e["mean"]) / abs(t),
                                  "mean_drop_dominant": e["mean_drop_dominant_term"]})
@@ -296,6 +297,8 @@ def table(df: pd.DataFrame) -> pd.DataFrame:
         "prediction_coverage_%": 100 * g["inside_prediction"].mean(),
         "rms_z_confidence": g["z_confidence"].apply(lambda z: float(np.sqrt(np.mean(z**2)))),
     })
+    if "z_prediction" in df:
+        out["rms_z_prediction"] = g["z_prediction"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
     if "mean_drop_half_width_%" in df:
         out["max_abs_error_%"] = g["rel_error_%"].apply(lambda z: float(np.max(np.abs(z))))
         out["rms_error_%"] = g["rel_error_%"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
