@@ -17,14 +17,14 @@ __version__ = "0.1.0"
 
 # public name -> module that defines it
 _WHERE = {
-    "load_dataset": "identify.dataset",
+    "load_dataset": "identify.dataset_checks",
     "Dataset": "identify.dataset",
     "DatasetError": "identify.dataset",
     "fit": "identify.api",
     "load_model": "identify.api",
-    "fit_hybrid": "identify.hybrid",
+    "fit_hybrid": "identify.hybrid_fit",
     "HybridModel": "identify.hybrid",
-    "FitReport": "identify.hybrid",
+    "FitReport": "identify.hybrid_fit",
     "Waveform": "identify.waveform",
     "paper_prediction": "identify.paper",
     "tune": "identify.tuning",

@@ -124,9 +124,12 @@ def test_held_out_points_are_not_training_controls(cov):
 
 import json  # noqa: E402
 
-from identify.dataset import (DatasetError, load_dataset, make_synthetic_dataset,  # noqa: E402
-                              measurement_uncertainty)
-from identify.hybrid import HybridModel, ModelFileError, fit_hybrid  # noqa: E402
+from identify.dataset import DatasetError  # noqa: E402
+from identify.dataset_checks import load_dataset  # noqa: E402
+from identify.synthetic_dataset import make_synthetic_dataset  # noqa: E402
+from identify.measurement_uncertainty import measurement_uncertainty  # noqa: E402
+from identify.hybrid import HybridModel, ModelFileError  # noqa: E402
+from identify.hybrid_fit import fit_hybrid  # noqa: E402
 from identify.montecarlo import OUTPUTS, MonteCarloResult  # noqa: E402
 
 GRID3 = [(a, b) for a in (55.0, 65.0, 75.0) for b in (20.0, 27.5, 35.0)]
@@ -266,7 +269,8 @@ def test_campaign_shards_give_the_pixel_size_check(small, tmp_path):
 
     import pandas as pd
 
-    from identify.dataset import campaign_calibration, sequence_standard_errors
+    from identify.dataset import campaign_calibration
+    from identify.measurement_uncertainty import sequence_standard_errors
 
     src, _ = small
     d = tmp_path / "ds"

@@ -1,6 +1,6 @@
 """Calibration of the confidence and prediction intervals of `identify predict` (issue 13).
 
-For each seed: a synthetic campaign (`identify.dataset.make_synthetic_dataset`, known truth,
+For each seed: a synthetic campaign (`identify.synthetic_dataset.make_synthetic_dataset`, known truth,
 ``noise_percent`` noise) on a training grid of n x n controls over the paper's range
 (u1 50..80 um/ms, u2 20..35 um) is fitted (`fit_hybrid(..., arx=False)`); at ``points``
 held-out (u1, u2) drawn uniformly in the range (never on the grid) the model's intervals
@@ -61,9 +61,10 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from identify.dataset import make_synthetic_dataset  # noqa: E402
+from identify.synthetic_dataset import make_synthetic_dataset  # noqa: E402
 from identify.physics import SynthPhysics  # noqa: E402
-from identify.hybrid import INTERVAL_OUTPUTS, fit_hybrid  # noqa: E402
+from identify.hybrid import INTERVAL_OUTPUTS  # noqa: E402
+from identify.hybrid_fit import fit_hybrid  # noqa: E402
 
 U1_RANGE, U2_RANGE = (50.0, 80.0), (20.0, 35.0)
 
@@ -219,7 +220,7 @@ def _render_and_measure(root: Path, dataset: Path, points, seed0: int, workers: 
     from concurrent.futures import ProcessPoolExecutor
 
     from dropvision.app.campaign import run_campaign
-    from identify.dataset import load_dataset
+    from identify.dataset_checks import load_dataset
 
     root.mkdir(parents=True)
     jobs = [(str(root / f"p{i:03d}"), float(a), float(b), seed0 + i, imaging) for i, (a, b) in enumerate(points)]
@@ -234,7 +235,7 @@ def _render_and_measure(root: Path, dataset: Path, points, seed0: int, workers: 
 def measured_coverage(seeds, points: int = 8, grid_n: int = 4, level: float = 0.95, samples: int = 2000,
                       workers: int = 2) -> pd.DataFrame:
     """Like :func:`coverage`, on image-measured campaigns (see the module docstring)."""
-    from identify.dataset import METHOD_UNCERTAINTY
+    from identify.measurement_uncertainty import METHOD_UNCERTAINTY
     from identify.physics import SynthPhysics, drop_history
 
     physics = SynthPhysics()
