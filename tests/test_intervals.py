@@ -189,6 +189,53 @@ def test_measurement_round_trip_and_older_models(small, tmp_path):
     assert e["measurement_std"] == 0.0 and e["measurement_source"] is None
 
 
+def test_polynomial_bias_becomes_the_model_discrepancy_and_says_so(small):
+    """A flexible velocity adjuster 0.05 m/s above the chosen one (same covariance: b = 0.05, its
+    variance 0) makes the discrepancy 0.05 where it exceeds the stored one; the sentence names the
+    chosen order's bias; the flexible polynomials survive model.json and are validated."""
+    from identify.hybrid import widening_reason
+    from identify.polynomial import PolynomialFit
+
+    _, model = small
+    m = HybridModel.from_dict(model.to_dict())
+    d = m.velocity_adjuster.to_dict()
+    d["scaled_coefficients"] = (m.velocity_adjuster.scaled_coefficients + np.eye(len(d["terms"]))[0] * 0.05).tolist()
+    m.intervals["scatter"]["jetting_velocity_m_s"].update({"model_std": 0.01, "local": None})
+    m.intervals["flexible"] = {"velocity_adjuster": d}
+    assert PolynomialFit.from_dict(d).predict(61.0, 24.0) == pytest.approx(m.velocity_adjuster.predict(61.0, 24.0) + 0.05)
+    m2 = HybridModel.from_dict(m.to_dict())
+    assert m2.polynomial_bias_sq(61.0, 24.0) == {"jetting_velocity_m_s": pytest.approx(0.05**2)}
+    iv = m2.interval_prediction(61.0, 24.0, mc=_constant_mc(m2, 61.0, 24.0))
+    e = iv["jetting_velocity_m_s"]
+    assert e["model_std_source"] == "polynomial_bias" and e["model_std"] == pytest.approx(0.05)
+    assert e["mean_drop_std"] == pytest.approx(0.05) and e["mean_drop_dominant_term"] == "model_discrepancy"
+    assert "chosen order's bias" in widening_reason("jetting_velocity_m_s", e)
+    assert iv["pinchoff_us"]["model_std_source"] != "polynomial_bias"  # no flexible pinch-off stored
+    bad = m.to_dict()
+    bad["intervals"]["flexible"] = {"jetting_velocity": d}
+    with pytest.raises(ModelFileError, match="intervals.flexible.jetting_velocity.*is unknown"):
+        HybridModel.from_dict(bad)
+    bad["intervals"]["flexible"] = {"velocity_adjuster": {**d, "scale": [0.0, 1.0]}}
+    with pytest.raises(ModelFileError, match="intervals.flexible.velocity_adjuster.scale"):
+        HybridModel.from_dict(bad)
+
+
+def test_fit_stores_flexible_polynomials_and_notes_them():
+    """On a 5 x 5 grid the fit stores the (2, 3) polynomials next to the chosen ones and says so."""
+    import tempfile
+
+    from interval_coverage import family_dataset
+
+    grid = [(float(a), float(b)) for a in np.linspace(50, 80, 5) for b in np.linspace(20, 35, 5)]
+    with tempfile.TemporaryDirectory() as tmp:
+        rep = fit_hybrid(family_dataset(Path(tmp) / "d", "curved", grid, 1.0, 0), arx=False, seed=0)
+    flex = rep.model.intervals["flexible"]
+    for name in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
+        if (getattr(rep.model, name).n1, getattr(rep.model, name).n2) != (2, 3):
+            assert (flex[name]["n1"], flex[name]["n2"]) == (2, 3)
+    assert any("flexible" in n and "polynomial_bias" in n for n in rep.notes)
+
+
 @pytest.mark.parametrize("key,value,match", [
     ("volume_rel", -0.001, "must be >= 0"),
     ("velocity_rel", float("nan"), "must be finite"),
