@@ -257,7 +257,7 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
       "(relative standard uncertainties, 1 sigma): volume_rel and velocity_rel (used as given), or "
       "pixel_size_rel (calibration of the pixel size, combined with the method's 0.1 % volume / 0.2 % "
       "velocity); pinchoff_std_us; source (text). Absent: from the pixel-size check of the campaign, else "
-      "defaults (identify.dataset.measurement_uncertainty)", required=False),
+      "defaults (identify.measurement_uncertainty.measurement_uncertainty)", required=False),
     F("sequences", "list", "", "sequence ids measured", required=False),
     F("failed", "object", "", "sequence id -> why it failed", required=False),
     F("versions", "object", "", "software versions", required=False),
@@ -287,7 +287,9 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
       "cv_error, centre, scale, lengthscale, discrepancy_variance, scatter_variance, likelihood_ratio), cv_rmse, "
       "in_sample_rmse; pinchoff_volume_cross_covariance (scaled bases); measurement "
       "(systematic measurement uncertainty in both intervals: volume_rel, velocity_rel, pixel_size_rel, pinchoff_std_us, source; absent "
-      "in older models: no term); absent in older models", required=False),
+      "in older models: no term); flexible (optional: per output the more flexible polynomial the chosen order's "
+      "bias is measured against, model_std_source 'polynomial_bias' where that bias exceeds the model discrepancy, "
+      "identify.discrepancy.polynomial_bias); absent in older models", required=False),
     F("notes", "list", "", "what the fit dropped or changed and why (irregular campaigns, ECM level); absent in "
       "older models", required=False),
 ), "Identified hybrid model (Eq. 8).")
@@ -472,7 +474,7 @@ QUALITY_CODES: dict[str, str] = {
 #: Generous for real rigs. sequence.json is read with them (docs/FORMAT.md; a value outside is a
 #: ``SequenceError`` naming the key, the value and the range; diameters: also outer > inner when
 #: both given) and a model file's scalars are checked against the same upper limits
-#: (``identify.hybrid.MODEL_RANGES``).
+#: (``identify.model_file.MODEL_RANGES``).
 RANGES: dict[str, tuple[float, float, str]] = {
     "pixel_size_um": (0.01, 1000.0, "µm"),
     "nozzle_diameter_um": (1.0, 10000.0, "µm"),

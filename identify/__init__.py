@@ -16,14 +16,14 @@ from dvcore.lazy import lazy_exports
 
 # public name -> "module:attribute" that defines it (tests/test_layers.py reads this map)
 _LAZY = {
-    "load_dataset": "identify.dataset:load_dataset",
+    "load_dataset": "identify.dataset_checks:load_dataset",
     "Dataset": "identify.dataset:Dataset",
     "DatasetError": "identify.dataset:DatasetError",
     "fit": "identify.api:fit",
     "load_model": "identify.api:load_model",
-    "fit_hybrid": "identify.hybrid:fit_hybrid",
+    "fit_hybrid": "identify.hybrid_fit:fit_hybrid",
     "HybridModel": "identify.hybrid:HybridModel",
-    "FitReport": "identify.hybrid:FitReport",
+    "FitReport": "identify.hybrid_fit:FitReport",
     "Waveform": "identify.waveform:Waveform",
     "paper_prediction": "identify.paper:paper_prediction",
     "tune": "identify.tuning:tune",

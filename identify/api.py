@@ -4,8 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from identify.dataset import Dataset, load_dataset
-from identify.hybrid import HybridModel, fit_hybrid
+from identify.dataset import Dataset
+from identify.dataset_checks import load_dataset
+from identify.hybrid import HybridModel
+from identify.hybrid_fit import fit_hybrid
 
 
 def fit(dataset, **options) -> HybridModel:
@@ -15,11 +17,11 @@ def fit(dataset, **options) -> HybridModel:
     ----------
     dataset : Dataset or str or Path
         A loaded :class:`~identify.dataset.Dataset` or a dataset folder (see
-        :func:`~identify.dataset.load_dataset`).
+        :func:`~identify.dataset_checks.load_dataset`).
     **options
-        Passed to :func:`~identify.hybrid.fit_hybrid` (``folds``, ``seed``, ``arx``,
+        Passed to :func:`~identify.hybrid_fit.fit_hybrid` (``folds``, ``seed``, ``arx``,
         ``ecm_method``, ``adjuster_reference``, ``progress``). Use ``fit_hybrid`` itself for the
-        cross-validation tables and notes (its :class:`~identify.hybrid.FitReport`).
+        cross-validation tables and notes (its :class:`~identify.hybrid_fit.FitReport`).
 
     Returns
     -------

@@ -73,7 +73,7 @@ class ArxGrid(NamedTuple):
 
 
 #: The one default ARX grid (Table 2 and beyond): na 1-7, nb 1-4, nk 0-40 samples.
-#: :func:`select_structure` and ``identify fit`` (:func:`identify.hybrid.fit_hybrid`,
+#: :func:`select_structure` and ``identify fit`` (:func:`identify.hybrid_fit.fit_hybrid`,
 #: through :func:`grid_for_dead_time`) use it.
 DEFAULT_GRID = ArxGrid(na_range=range(1, 8), nb_range=range(1, 5), nk_range=range(0, 41))
 

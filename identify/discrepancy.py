@@ -206,3 +206,45 @@ def smooth_scatter_variance(u1_um_per_ms, u2_um, y, design, *, starts: int = 6,
     if lr < SCATTER_LIKELIHOOD_RATIO_THRESHOLD:
         return s2_0, n - p, lr
     return float(np.exp(best.x[1])), n - p, lr
+
+
+# ---- bias of the chosen polynomial against a more flexible one (issue 23) ---------------------
+
+#: Orders of the flexible polynomial the chosen order's bias is measured against: the most
+#: flexible of `identify.polynomial.DEFAULT_ORDERS` (9 terms), or the chosen order where larger.
+FLEXIBLE_ORDER = (2, 3)
+#: The flexible polynomial is fitted only when it leaves at least this many residual degrees of
+#: freedom (its variance would otherwise swamp the bias it is meant to show).
+MIN_FLEXIBLE_DOF = 6
+
+
+def flexible_order(chosen) -> tuple[int, int]:
+    """Orders of the flexible polynomial for a chosen `PolynomialFit` (contains the chosen terms)."""
+    return max(FLEXIBLE_ORDER[0], int(chosen.n1)), max(FLEXIBLE_ORDER[1], int(chosen.n2))
+
+
+def polynomial_bias(chosen, flexible, u1_um_per_ms, u2_um) -> tuple[np.ndarray, np.ndarray]:
+    """Estimated bias of the chosen polynomial at (u1, u2) and the variance of that estimate.
+
+    Both `identify.polynomial.PolynomialFit` s were fitted by least squares to the same targets at
+    the same controls (so share the normalisation), the chosen terms a subset of the flexible
+    ones. ``b = flexible - chosen`` estimates the chosen polynomial's bias where the flexible
+    one is unbiased; for nested least squares its variance when there is no bias is
+    s² (h_f - h_c), h the leverage x (XᵀX)⁻¹ xᵀ of each fit and s² the flexible fit's residual
+    variance, so E[b²] = bias² + var: `identify.hybrid.HybridModel.polynomial_bias_sq` uses b²
+    as it is (conservative where the flexible fit is itself uncertain).
+
+    Returns
+    -------
+    b, var : ndarray
+        Same shape as the broadcast controls, in the unit of the polynomial (squared for var).
+    """
+    b = np.asarray(flexible.predict(u1_um_per_ms, u2_um) - chosen.predict(u1_um_per_ms, u2_um), float)
+    s2f = float(flexible.residual_std) ** 2
+
+    def leverage(p):
+        s2 = float(p.residual_std) ** 2
+        return (np.asarray(p.predict_std(u1_um_per_ms, u2_um), float) ** 2 / s2) if s2 > 0 else np.zeros(b.shape)
+
+    var = s2f * np.clip(leverage(flexible) - leverage(chosen), 0.0, None)
+    return b, var

@@ -502,7 +502,7 @@ def pinchoff_volume_cross_covariance(model) -> np.ndarray | None:
     With ``adjuster_reference="ecm"`` the volume adjuster is trained on the measured in-flight
     volume minus the ECM volume at the *measured* pinch-off instant, so pinch-off jitter enters
     both polynomials with opposite signs and cancels in the in-flight volume. Sampling the two
-    independently would count it twice; `identify.hybrid.fit_hybrid` stores their
+    independently would count it twice; `identify.hybrid_fit.fit_hybrid` stores their
     cross-covariance in ``model.intervals["pinchoff_volume_cross_covariance"]``.
     """
     iv = getattr(model, "intervals", None)

@@ -8,7 +8,7 @@ import pytest
 
 from dropvision.app.campaign import find_sequences, run_campaign, synth_campaign
 from dropvision.app.cli import main as dropvision_main
-from identify.dataset import load_dataset
+from identify.dataset_checks import load_dataset
 
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
          "delays_us": tuple(float(d) for d in range(0, 1501, 10)), "noise": 0.3, "dust": 1}

@@ -14,10 +14,10 @@ import pytest
 
 from dropvision.app.campaign import run_campaign, synth_campaign
 from dvcore import schema
-from identify.dataset import (
-    CALIBRATION_COLUMNS, campaign_calibration, load_dataset, make_synthetic_dataset, measurement_uncertainty,
-    sequence_standard_errors,
-)
+from identify.dataset import CALIBRATION_COLUMNS, campaign_calibration
+from identify.dataset_checks import load_dataset
+from identify.measurement_uncertainty import measurement_uncertainty, sequence_standard_errors
+from identify.synthetic_dataset import make_synthetic_dataset
 
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
          "delays_us": tuple(float(d) for d in range(0, 1501, 10)), "noise": 0.3, "dust": 1}

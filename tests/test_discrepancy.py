@@ -76,3 +76,38 @@ def test_smooth_scatter_without_misfit_is_the_residual_variance():
     if lr < SCATTER_LIKELIHOOD_RATIO_THRESHOLD:
         assert s2 == pytest.approx(float(r @ r) / dof, rel=1e-12)
     assert smooth_scatter_variance(U1[:6], U2[:6], r[:6], X[:6]) is None  # n - p < 4
+
+
+# ---- bias of the chosen polynomial against a flexible one -------------------------------------
+
+from identify.discrepancy import FLEXIBLE_ORDER, flexible_order, polynomial_bias  # noqa: E402
+from identify.polynomial import fit_polynomial  # noqa: E402
+
+
+def test_polynomial_bias_is_the_exact_misfit_of_a_law_the_flexible_one_holds():
+    z = 3.0 + 2.0 * X1 + 1.5 * X1**2 - 0.7 * X1 * X2  # in the flexible (2, 3) polynomial, not in (1, 1)
+    chosen = fit_polynomial(U1, U2, z, 1, 1)
+    flexible = fit_polynomial(U1, U2, z, *flexible_order(chosen))
+    assert flexible_order(chosen) == FLEXIBLE_ORDER
+    u1, u2 = np.array([52.0, 63.3, 77.1]), np.array([21.0, 30.2, 34.0])
+    x1, x2 = (u1 - 65) / 15, (u2 - 27.5) / 7.5
+    truth = 3.0 + 2.0 * x1 + 1.5 * x1**2 - 0.7 * x1 * x2
+    b, var = polynomial_bias(chosen, flexible, u1, u2)
+    np.testing.assert_allclose(b, truth - chosen.predict(u1, u2), atol=1e-9)
+    np.testing.assert_allclose(var, 0.0, atol=1e-12)  # the flexible fit is exact: no scatter
+
+
+def test_polynomial_bias_variance_matches_the_spread_of_b_without_bias():
+    """On a law both hold (linear) with unit scatter, b is pure noise: its mean square over many
+    draws is its stated variance (nested least squares), and max(0, b² - var) is small."""
+    u1, u2 = np.array([55.0, 71.3]), np.array([33.0, 24.1])
+    b_all, v_all = [], []
+    for seed in range(400):
+        z = 1.0 + X1 - 0.5 * X2 + np.random.default_rng(seed).standard_normal(U1.size)
+        chosen = fit_polynomial(U1, U2, z, 1, 1)
+        b, v = polynomial_bias(chosen, fit_polynomial(U1, U2, z, 2, 3), u1, u2)
+        b_all.append(b)
+        v_all.append(v)
+    b_all, v_all = np.array(b_all), np.array(v_all)
+    np.testing.assert_allclose(np.mean(b_all**2, axis=0), np.mean(v_all, axis=0), rtol=0.2)
+    assert np.all(np.mean(np.maximum(0.0, b_all**2 - v_all), axis=0) < 0.5 * np.mean(v_all, axis=0))

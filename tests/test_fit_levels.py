@@ -6,8 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from identify.dataset import load_dataset, make_synthetic_dataset
-from identify.hybrid import HybridModel, fit_hybrid
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
+from identify.hybrid import HybridModel
+from identify.hybrid_fit import fit_hybrid
 from identify.physics import drop_history
 from identify.dataset import default_physics
 

@@ -16,7 +16,9 @@ import pytest
 
 from dropvision.app.cli import main as dropvision_main
 from identify.app.cli import main as identify_main
-from identify.dataset import DatasetError, load_dataset, make_synthetic_dataset
+from identify.dataset import DatasetError
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]
@@ -33,7 +35,7 @@ def _one_error_line(err: str, prefix: str) -> str:
 
 @pytest.fixture(scope="module")
 def model_path(tmp_path_factory):
-    from identify.hybrid import fit_hybrid
+    from identify.hybrid_fit import fit_hybrid
 
     root = tmp_path_factory.mktemp("hostile")
     ds = make_synthetic_dataset(root / "ds", grid=GRID, noise_percent=0.5, seed=4)

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from identify.app.cli import main
-from identify.dataset import make_synthetic_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
 
 GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]
 KEYS = {"pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s"}
@@ -146,8 +146,8 @@ def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):
 
 def test_fit_searches_the_whole_structure_grid(fitted):
     """Structure selection covers na 1-7, nb 1-4, nk 0..40 (the issue's grid), not a prior."""
-    from identify.dataset import load_dataset
-    from identify.hybrid import fit_hybrid
+    from identify.dataset_checks import load_dataset
+    from identify.hybrid_fit import fit_hybrid
 
     rep = fit_hybrid(load_dataset(fitted / "ds"), folds=4)
     t = rep.arx_selection.table

@@ -6,7 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from identify.dataset import DatasetError, default_physics, load_dataset, make_synthetic_dataset
+from identify.dataset import DatasetError, default_physics
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
 
 GRID = [(u1, u2) for u1 in (50.0, 65.0, 80.0) for u2 in (20.0, 27.5, 35.0)]
 

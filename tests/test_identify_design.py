@@ -3,9 +3,10 @@
 import numpy as np
 import pytest
 
-from identify.dataset import load_dataset, make_synthetic_dataset
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
 from identify.design import design
-from identify.hybrid import fit_hybrid
+from identify.hybrid_fit import fit_hybrid
 
 GRID = [(a, b) for a in np.linspace(50, 80, 4) for b in np.linspace(20, 35, 4)]
 

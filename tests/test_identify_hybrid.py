@@ -6,9 +6,12 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from identify.dataset import default_physics, ecm_truth, load_dataset, make_synthetic_dataset
+from identify.dataset import default_physics
+from identify.synthetic_dataset import ecm_truth, make_synthetic_dataset
+from identify.dataset_checks import load_dataset
 from identify.ecm import flow_velocity_m_s
-from identify.hybrid import HybridModel, ModelFileError, fit_hybrid
+from identify.hybrid import HybridModel, ModelFileError
+from identify.hybrid_fit import fit_hybrid
 
 GRID = [(a, b) for a in np.linspace(50, 80, 5) for b in np.linspace(20, 35, 5)]
 

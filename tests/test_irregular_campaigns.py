@@ -8,8 +8,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from identify.dataset import DatasetError, default_physics, load_dataset, make_synthetic_dataset
-from identify.hybrid import fit_hybrid
+from identify.dataset import DatasetError, default_physics
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
+from identify.hybrid_fit import fit_hybrid
 from identify.physics import drop_history
 
 GRID = [(float(a), float(b)) for a in (50, 60, 70, 80) for b in (20, 25, 30, 35)]

@@ -13,8 +13,8 @@ import pytest
 import identify
 from identify.app.cli import main
 from identify.app.report import grid_centre, write_report
-from identify.dataset import make_synthetic_dataset
-from identify.hybrid import fit_hybrid
+from identify.synthetic_dataset import make_synthetic_dataset
+from identify.hybrid_fit import fit_hybrid
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 GRID = [(a, b) for a in (55.0, 65.0, 75.0) for b in (20.0, 27.5, 35.0)]

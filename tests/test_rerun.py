@@ -491,8 +491,9 @@ def _colour(rrd: Rrd, entity: str, archetype: str) -> int:
 
 @pytest.fixture(scope="module")
 def identification_rrd(tmp_path_factory):
-    from identify.dataset import load_dataset, make_synthetic_dataset
-    from identify.hybrid import fit_hybrid
+    from identify.dataset_checks import load_dataset
+    from identify.synthetic_dataset import make_synthetic_dataset
+    from identify.hybrid_fit import fit_hybrid
 
     base = tmp_path_factory.mktemp("ident")
     grid = [(a, b) for a in (55.0, 70.0, 85.0) for b in (20.0, 35.0)]

@@ -9,7 +9,9 @@ import pytest
 
 from dropvision.measurement import measure_sequence
 from dvcore import schema
-from identify.dataset import DatasetError, load_dataset, make_synthetic_dataset
+from identify.dataset import DatasetError
+from identify.dataset_checks import load_dataset
+from identify.synthetic_dataset import make_synthetic_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,8 +15,9 @@ from dropvision.app.campaign import run_campaign, synth_campaign
 from dropvision.app.demo import CAMPAIGN_OVERRIDES, campaign_grid
 from dropvision.app.rigs import FolderRig, SimulatedPrinthead
 from dropvision.synth.writer import write_synthetic_sequence
-from identify.dataset import load_dataset
-from identify.hybrid import HybridModel, fit_hybrid
+from identify.dataset_checks import load_dataset
+from identify.hybrid import HybridModel
+from identify.hybrid_fit import fit_hybrid
 from dvcore.schema import TUNING, SchemaError
 from identify.tuning import CallableRig, load_rig, read_tuning, tune, update_bias, write_tuning
 

@@ -48,7 +48,7 @@ if str(ROOT) not in sys.path:
 
 from dropvision.synth.sequence import SynthConfig  # noqa: E402  (after the path set-up)
 from dropvision.synth.writer import write_synthetic_sequence  # noqa: E402
-from identify.dataset import make_synthetic_dataset  # noqa: E402
+from identify.synthetic_dataset import make_synthetic_dataset  # noqa: E402
 
 PY = sys.executable
 LIMIT_S = 60.0

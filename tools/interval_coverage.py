@@ -1,6 +1,6 @@
 """Calibration of the confidence and prediction intervals of `identify predict` (issue 13).
 
-For each seed: a synthetic campaign (`identify.dataset.make_synthetic_dataset`, known truth,
+For each seed: a synthetic campaign (`identify.synthetic_dataset.make_synthetic_dataset`, known truth,
 ``noise_percent`` noise) on a training grid of n x n controls over the paper's range
 (u1 50..80 um/ms, u2 20..35 um) is fitted (`fit_hybrid(..., arx=False)`); at ``points``
 held-out (u1, u2) drawn uniformly in the range (never on the grid) the model's intervals
@@ -22,7 +22,7 @@ a sine), ``exponential`` (exponential growth in u1 times a linear u2 factor, a c
 ``saturating`` (tanh in u1, a local Gaussian bump)), some with heavier-tailed scatter (Student t
 with 3 degrees of freedom, the same standard deviation) or with 12 % of the training sequences'
 pinch-off detected one strobe delay (10 us) early or late. Printed per family and output: the
-coverage of both intervals, the RMS standardised error of the mean, the held-out relative errors
+coverage of both intervals, the RMS standardised error of the mean (and of one drop), the held-out relative errors
 of the point prediction (max |error|, RMS) and how often the model discrepancy dominates the
 mean-drop interval.
 
@@ -61,9 +61,10 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from identify.dataset import make_synthetic_dataset  # noqa: E402
+from identify.synthetic_dataset import make_synthetic_dataset  # noqa: E402
 from identify.physics import SynthPhysics  # noqa: E402
-from identify.hybrid import INTERVAL_OUTPUTS, fit_hybrid  # noqa: E402
+from identify.hybrid import INTERVAL_OUTPUTS  # noqa: E402
+from identify.hybrid_fit import fit_hybrid  # noqa: E402
 
 U1_RANGE, U2_RANGE = (50.0, 80.0), (20.0, 35.0)
 
@@ -194,6 +195,7 @@ def coverage(seeds, points: int = 20, grid_n: int = 5, level: float = 0.95, nois
                                  "inside_confidence": e["mean_drop_low"] <= t <= e["mean_drop_high"],
                                  "inside_prediction": e["one_drop_low"] <= y <= e["one_drop_high"],
                                  "z_confidence": (e["mean"] - t) / e["mean_drop_std"],
+                                 "z_prediction": (e["mean"] - y) / e["one_drop_std"],
                                  "rel_error_%": 100 * (e["mean"] - t) / t,
                                  "mean_drop_half_width_%": 100 * (e["mean_drop_high"] - e["mean"]) / abs(t),
                                  "mean_drop_dominant": e["mean_drop_dominant_term"]})
@@ -218,7 +220,7 @@ def _render_and_measure(root: Path, dataset: Path, points, seed0: int, workers: 
     from concurrent.futures import ProcessPoolExecutor
 
     from dropvision.app.campaign import run_campaign
-    from identify.dataset import load_dataset
+    from identify.dataset_checks import load_dataset
 
     root.mkdir(parents=True)
     jobs = [(str(root / f"p{i:03d}"), float(a), float(b), seed0 + i, imaging) for i, (a, b) in enumerate(points)]
@@ -233,7 +235,7 @@ def _render_and_measure(root: Path, dataset: Path, points, seed0: int, workers: 
 def measured_coverage(seeds, points: int = 8, grid_n: int = 4, level: float = 0.95, samples: int = 2000,
                       workers: int = 2) -> pd.DataFrame:
     """Like :func:`coverage`, on image-measured campaigns (see the module docstring)."""
-    from identify.dataset import METHOD_UNCERTAINTY
+    from identify.measurement_uncertainty import METHOD_UNCERTAINTY
     from identify.physics import SynthPhysics, drop_history
 
     physics = SynthPhysics()
@@ -296,6 +298,8 @@ def table(df: pd.DataFrame) -> pd.DataFrame:
         "prediction_coverage_%": 100 * g["inside_prediction"].mean(),
         "rms_z_confidence": g["z_confidence"].apply(lambda z: float(np.sqrt(np.mean(z**2)))),
     })
+    if "z_prediction" in df:
+        out["rms_z_prediction"] = g["z_prediction"].apply(lambda z: float(np.sqrt(np.mean(z**2))))
     if "mean_drop_half_width_%" in df:
         out["max_abs_error_%"] = g["rel_error_%"].apply(lambda z: float(np.max(np.abs(z))))
         out["rms_error_%"] = g["rel_error_%"].apply(lambda z: float(np.sqrt(np.mean(z**2))))

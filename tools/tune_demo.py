@@ -1,7 +1,7 @@
 """Closed-loop tuning against open-loop design on simulated printheads that differ from the model.
 
 Fits the model the demo fits (its synthetic calibration campaign, nominal ink: rendered, measured,
-`identify.hybrid.fit_hybrid`; ``--quick``: the 3 x 3 grid of ``demo --quick``), caches it in
+`identify.hybrid_fit.fit_hybrid`; ``--quick``: the 3 x 3 grid of ``demo --quick``), caches it in
 ``OUT/model.json``, then for each plant (ink viscosity x 1.2; nozzle diameter x 0.97) and each
 target volume runs `identify.tuning.tune` with the simulated printhead
 (`dropvision.app.rigs.SimulatedPrinthead`) and prints every shot, the final error and the
@@ -24,8 +24,9 @@ from dropvision.app.campaign import run_campaign, synth_campaign
 from dropvision.app.demo import CAMPAIGN_OVERRIDES, campaign_grid
 from dropvision.app.rigs import SimulatedPrinthead
 from dvcore.atomic import claim_dir
-from identify.dataset import load_dataset
-from identify.hybrid import HybridModel, fit_hybrid
+from identify.dataset_checks import load_dataset
+from identify.hybrid import HybridModel
+from identify.hybrid_fit import fit_hybrid
 from identify.tuning import tune, write_tuning
 
 PLANTS = {"viscosity_x1.2": {"viscosity_factor": 1.2}, "nozzle_diameter_x0.97": {"nozzle_diameter_factor": 0.97}}

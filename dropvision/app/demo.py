@@ -30,10 +30,11 @@ from identify.app.report import write_report
 from identify.app.rerun_log import close_recording, log_model_fit, log_prediction, open_identify_recording
 from dvcore.rerun_options import RerunOptions
 from dvcore.atomic import OutputError, check_output_dir, claim_dir
-from identify.dataset import load_dataset
+from identify.dataset_checks import load_dataset
 from dropvision.app.rigs import SimulatedPrinthead
 from identify.design import design
-from identify.hybrid import fit_hybrid, widening_reason
+from identify.hybrid import widening_reason
+from identify.hybrid_fit import fit_hybrid
 from identify.physics import SynthPhysics, drop_history
 from identify.tuning import tune
 

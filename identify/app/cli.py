@@ -78,8 +78,8 @@ def _is_model_file(path) -> bool:
 
 
 def cmd_fit(args) -> int:
-    from identify.dataset import load_dataset
-    from identify.hybrid import fit_hybrid
+    from identify.dataset_checks import load_dataset
+    from identify.hybrid_fit import fit_hybrid
 
     check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=_is_model_file)
     if args.report is not None:  # refuse a report folder that is not ours before the fit
@@ -128,7 +128,7 @@ def _point(text):
 def cmd_report(args) -> int:
     from identify.app.report import write_report
     from dvcore.atomic import check_output_dir
-    from identify.dataset import load_dataset
+    from identify.dataset_checks import load_dataset
 
     _check_samples(args.samples)
     check_output_dir(args.out, inputs=[args.model, args.dataset], overwrite=args.overwrite)

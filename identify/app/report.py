@@ -22,7 +22,7 @@
   with their 95 % intervals, polynomial coefficients with intervals, CV tables, intervals at
   the chosen points, residual statistics, notes and versions.
 
-The CV tables come from the fit (``fit_report``, a :class:`identify.hybrid.FitReport`) when
+The CV tables come from the fit (``fit_report``, a :class:`identify.hybrid_fit.FitReport`) when
 given; from a model file they are recomputed from the dataset with the model's ECM (the same
 targets and the same order selection as the fit).
 """
@@ -429,7 +429,7 @@ def write_report(out, model, ds, *, fit_report=None, at=None, samples: int = 10_
     model : identify.hybrid.HybridModel
     ds : identify.dataset.Dataset
         The training dataset (measured curves, data points of the surfaces, residuals).
-    fit_report : identify.hybrid.FitReport, optional
+    fit_report : identify.hybrid_fit.FitReport, optional
         The fit's CV tables and notes; without it the CV tables are recomputed (`cv_tables`).
     at : list of (u1, u2), optional
         Points of the interval figures and table (default: the centre of the training grid,
