@@ -63,6 +63,20 @@ def test_bench_decoders_tiny():
     assert "cv2.imdecode" in out
 
 
+@pytest.mark.slow
+def test_bench_decoders_corpus_tiny(tmp_path):
+    out, _ = _run("bench_decoders.py", "--corpus", "--repeats", "1", "--out", str(tmp_path / "c.csv"))
+    import csv
+    with (tmp_path / "c.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    ours = {r["kind"]: r for r in rows if r["decoder"] == "dropvision reader"}
+    # our reader reads every kind, identical to OpenCV, with a real time
+    assert {"PNG 8-bit grey, Pillow", "PNG 16-bit grey, OpenCV", "PNG 8-bit colour, Pillow",
+            "JPEG colour q90 640x1024 -> grey", "TIFF 16-bit grey, uncompressed"} <= set(ours)
+    assert all(r["note"] == "" and float(r["ms_per_frame"]) > 0 for r in ours.values()), ours
+    assert "vs best other" in out
+
+
 def test_bench_watch_tiny():
     out, _ = _run("bench_watch.py", "--frames", "6", "--rate-hz", "50")
     assert "completion to row on disk: median" in out and "equal to dropvision measure: yes" in out
