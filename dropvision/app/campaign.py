@@ -269,47 +269,81 @@ def _common(values, what: str, tol: float = 1e-9, why: str = "one dataset is one
     return groups[0][0]
 
 
-def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
-    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards."""
+@dataclass(frozen=True)
+class ShardPart:
+    """One ok shard's share of the dataset (`shard_part`): its timeseries rows, its summary
+    row and its metadata. ``input_hash`` ties it to the shard it was read from."""
+
+    input_hash: str | None
+    timeseries: pd.DataFrame
+    row: dict
+    meta: tuple
+
+
+def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
+    """Read one ok shard into its :class:`ShardPart`; None (and ``entry`` marked failed) when
+    its sequence.json has no waveform u1/u2. Raises when the shard's files are unreadable or
+    break the schema.
+
+    The campaign driver calls it as each sequence finishes, while the workers measure the
+    others, so that the dataset's final assembly only concatenates (see `run_campaign`)."""
+    meta = entry.get("meta") or {}
+    wf = meta.get("waveform") or {}
+    if "u1_um_per_ms" not in wf or "u2_um" not in wf:
+        entry["status"], entry["error"] = "failed", "sequence.json has no waveform u1_um_per_ms/u2_um"
+        return None
+    shard = Path(dataset_dir) / "shards" / entry["shard"]
+    frames = pd.read_parquet(shard / "frames.parquet")
+    schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
+    summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
+                                    shard / "summary.json")
+    u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
+    jv = summary.get("jetting_velocity_m_s")
+    return ShardPart(
+        input_hash=entry.get("input_hash"),
+        timeseries=_timeseries_rows(seq_id, u1, u2, frames),
+        row={
+            "sequence_id": seq_id,
+            "u1_um_per_ms": u1,
+            "u2_um": u2,
+            "pinchoff_us": summary.get("pinchoff_us"),
+            "grown_volume_at_pinchoff_nl": summary.get("grown_volume_at_pinchoff_nl"),
+            "inflight_volume_nl": summary.get("inflight_volume_nl"),
+            "jetting_velocity_m_s": jv,
+            "flow_velocity_at_max_stroke_m_s": summary.get("flow_velocity_at_max_stroke_m_s"),
+            "inflight_volume_std_nl": summary.get("inflight_volume_std_nl"),
+            "jetting_velocity_se_m_s": summary.get("jetting_velocity_se_m_s"),
+            "satellites": summary.get("satellites"),
+            "n_frames": len(frames),
+            "n_errors": len(summary.get("errors") or []),
+            "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
+            "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
+            "inflight_frames": summary.get("inflight_frames"),
+        },
+        meta=(seq_id, meta, wf),
+    )
+
+
+def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, ShardPart] | None = None) -> None:
+    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards.
+
+    ``parts``: sequence id -> its :class:`ShardPart` read earlier (as the sequence finished);
+    a part is used only while it matches the entry's input hash, any other ok shard is read
+    here. The dataset is the same either way (rows in sequence-id order)."""
     dataset_dir = Path(dataset_dir)
+    parts = parts or {}
     ts_parts, rows, metas = [], [], []
     for seq_id, entry in sorted(entries.items()):
         if entry.get("status") != "ok":
             continue
-        meta = entry.get("meta") or {}
-        wf = meta.get("waveform") or {}
-        if "u1_um_per_ms" not in wf or "u2_um" not in wf:
-            entry["status"], entry["error"] = "failed", "sequence.json has no waveform u1_um_per_ms/u2_um"
-            continue
-        shard = dataset_dir / "shards" / entry["shard"]
-        frames = pd.read_parquet(shard / "frames.parquet")
-        schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
-        summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
-                                        shard / "summary.json")
-        u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
-        ts_parts.append(_timeseries_rows(seq_id, u1, u2, frames))
-        jv = summary.get("jetting_velocity_m_s")
-        rows.append(
-            {
-                "sequence_id": seq_id,
-                "u1_um_per_ms": u1,
-                "u2_um": u2,
-                "pinchoff_us": summary.get("pinchoff_us"),
-                "grown_volume_at_pinchoff_nl": summary.get("grown_volume_at_pinchoff_nl"),
-                "inflight_volume_nl": summary.get("inflight_volume_nl"),
-                "jetting_velocity_m_s": jv,
-                "flow_velocity_at_max_stroke_m_s": summary.get("flow_velocity_at_max_stroke_m_s"),
-                "inflight_volume_std_nl": summary.get("inflight_volume_std_nl"),
-                "jetting_velocity_se_m_s": summary.get("jetting_velocity_se_m_s"),
-                "satellites": summary.get("satellites"),
-                "n_frames": len(frames),
-                "n_errors": len(summary.get("errors") or []),
-                "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
-                "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
-                "inflight_frames": summary.get("inflight_frames"),
-            }
-        )
-        metas.append((seq_id, meta, wf))
+        part = parts.get(seq_id)
+        if part is None or part.input_hash != entry.get("input_hash"):
+            part = shard_part(dataset_dir, seq_id, entry)
+            if part is None:
+                continue
+        ts_parts.append(part.timeseries)
+        rows.append(part.row)
+        metas.append(part.meta)
     timeseries = (
         pd.concat(ts_parts, ignore_index=True) if ts_parts else pd.DataFrame(columns=TIMESERIES_COLUMNS)
     )
@@ -442,6 +476,18 @@ def run_campaign(
         if not rerun_options.enabled:
             rerun_options = None
     bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
+    parts: dict[str, ShardPart] = {}
+
+    def read_part(sid: str) -> None:
+        """Read an ok shard's share of the dataset now, while the workers measure the others
+        (the final assembly then only concatenates). A shard that cannot be read is left to
+        the final assembly, which reports it as before."""
+        try:
+            part = shard_part(dataset_dir, sid, entries[sid])
+        except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
+            return
+        if part is not None:
+            parts[sid] = part
 
     def record(future, sid: str) -> None:
         """One finished sequence: into the manifest at once (a kill loses nothing)."""
@@ -454,6 +500,7 @@ def run_campaign(
         entries[sid].update({k: v for k, v in out.items() if k != "warnings"})
         if out["status"] == "ok":
             result.measured.append(sid)
+            read_part(sid)
         else:
             result.failed[sid] = out["error"]
         write_json(manifest_path, manifest)
@@ -479,6 +526,7 @@ def run_campaign(
             ):
                 entries[sid] = prev
                 result.skipped.append(sid)
+                read_part(sid)
                 bar.update(1)
                 continue
             entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
@@ -503,7 +551,7 @@ def run_campaign(
                 pending[future] = sid
         drain()
     bar.close()
-    assemble_dataset(dataset_dir, entries)
+    assemble_dataset(dataset_dir, entries, parts)
     write_json(manifest_path, manifest)
     return result
 
