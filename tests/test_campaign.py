@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -193,3 +194,36 @@ def test_run_stopped_by_an_error_keeps_every_finished_sequence_in_the_manifest(c
     manifest = json.loads((ds / "manifest.json").read_text())["sequences"]
     assert len(manifest) == 4  # the sequences after the failure keep their earlier entries
     assert {e["status"] for e in manifest.values()} == {"ok"}  # the two re-measured ones were recorded
+
+
+def test_client_overlaps_its_serial_work_with_the_tasks(campaign_root, tmp_path, monkeypatch):
+    """Issue 22: the client hashes no new sequence (the workers do), rewrites the manifest once
+    per batch of finished sequences, reads each shard into the dataset once, as it finishes
+    (none again at the end), and the dataset and manifest hashes equal the serial run's."""
+    from dropvision.app import campaign
+
+    serial = tmp_path / "serial"
+    run_campaign(campaign_root, serial, workers=1, progress=False)
+    hashed, parts, writes = [], [], []
+    real_hash, real_part, real_write = campaign.input_hash, campaign.shard_part, campaign.write_json
+    monkeypatch.setattr(campaign, "input_hash", lambda *a, **k: hashed.append(a) or real_hash(*a, **k))
+    monkeypatch.setattr(campaign, "shard_part", lambda *a, **k: parts.append(a[1]) or real_part(*a, **k))
+    monkeypatch.setattr(campaign, "write_json",
+                        lambda p, d: writes.append(Path(p).name) or real_write(p, d))
+    res = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
+    assert len(res.measured) == 4 and not res.failed
+    assert hashed == []  # the pool's workers hashed (they do not see this process's patch)
+    assert sorted(parts) == sorted(res.measured)  # each shard read once, as it finished
+    # start, all submitted, one per batch (1 to 4 batches), the end
+    assert 4 <= writes.count("manifest.json") <= 7
+    for name in ("timeseries.parquet", "summary.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(serial / name), pd.read_parquet(tmp_path / "pool" / name))
+    a = json.loads((serial / "manifest.json").read_text())["sequences"]
+    b = json.loads((tmp_path / "pool" / "manifest.json").read_text())["sequences"]
+    assert {k: e["input_hash"] for k, e in a.items()} == {k: e["input_hash"] for k, e in b.items()}
+    assert all(len(e["input_hash"]) == 64 for e in b.values())
+    # a resumed run hashes each sequence once in the client (to know whether to skip it) and
+    # reads each skipped shard once
+    hashed.clear(), parts.clear()
+    again = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
+    assert len(again.skipped) == 4 and len(hashed) == 4 and sorted(parts) == sorted(again.skipped)

@@ -20,8 +20,9 @@ writes the dataset:
 - ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash);
 - ``manifest.json``: each sequence's path, input hash, status and error.
 
-Every file is written atomically and the manifest is rewritten after every finished
-sequence (in every executor mode, the serial one included), so a run killed at any moment loses no finished sequence and never leaves a
+Every file is written atomically and the manifest is rewritten as soon as sequences finish
+(once per sequence in the serial mode; in the parallel modes once for all that finished since
+the last rewrite), so a run killed at any moment loses no finished sequence and never leaves a
 half-written shard. Re-running resumes: a sequence whose shard carries the same input hash
 (content of its files, the measurement configuration and the dropvision version) is skipped.
 """
@@ -37,7 +38,7 @@ import math
 import os
 import re
 import warnings
-from concurrent.futures import as_completed
+from concurrent.futures import FIRST_COMPLETED, as_completed, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +47,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from dropvision import __version__
-from dropvision.app.executors import check_executor_args, make_executor
+from dropvision.app.executors import SerialExecutor, check_executor_args, make_executor
 from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
@@ -153,19 +154,25 @@ def input_hash(folder, config_repr: str = "") -> str:
 
 
 # ----------------------------------------------------------------------------- worker
-def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rerun_options=None,
-                     overrides: dict | None = None, labels: dict | None = None) -> dict:
+def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=None, rerun_options=None,
+                     overrides: dict | None = None, labels: dict | None = None,
+                     config_repr: str = "") -> dict:
     """Measure one sequence and write its shard atomically. Runs in a worker process.
 
+    ``digest``: the sequence's input hash; None to compute it here first
+    (``input_hash(seq_dir, config_repr)``), so that the client need not read every file of the
+    campaign itself (the hashing then runs on the workers, in parallel, next to the data).
     ``overrides`` / ``labels``: values of sequence.json keys given for every sequence (options,
     see `dropvision.sequence.open_sequence`).
 
-    Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
-    metadata needed for the dataset, the warnings of its measurement (one line each; the
-    caller prints them) and the summary values.
+    Returns a small, picklable summary: status ("ok"/"failed"), error, the input hash, the
+    sequence's metadata needed for the dataset, the warnings of its measurement (one line
+    each; the caller prints them) and the summary values.
     """
     caught: list = []
     try:
+        if digest is None:
+            digest = input_hash(seq_dir, config_repr)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             meta = open_sequence(seq_dir, overrides=overrides, labels=labels).meta
@@ -188,9 +195,10 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
             "pixel_size_um": meta.pixel_size_um,
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
-        return {"status": "ok", "error": None, "meta": info, "warnings": warning_lines(caught)}
+        return {"status": "ok", "error": None, "input_hash": digest, "meta": info,
+                "warnings": warning_lines(caught)}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
-        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None,
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "input_hash": digest, "meta": None,
                 "warnings": warning_lines(caught)}
 
 
@@ -490,7 +498,8 @@ def run_campaign(
             parts[sid] = part
 
     def record(future, sid: str) -> None:
-        """One finished sequence: into the manifest at once (a kill loses nothing)."""
+        """One finished sequence into the manifest's entries (the caller then rewrites the
+        manifest: a kill loses nothing)."""
         try:
             out = future.result()
         except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
@@ -503,25 +512,32 @@ def run_campaign(
             read_part(sid)
         else:
             result.failed[sid] = out["error"]
-        write_json(manifest_path, manifest)
         bar.update(1)
 
-    # each sequence is submitted as soon as its input hash is known (the workers start measuring
-    # while the main process still hashes the others); the executor starts with the first task
+    # The client's serial work per sequence is kept far below a task's time, so that many
+    # workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
+    # submitted at once and its worker computes the input hash (the client only hashes sequences
+    # measured before, to know whether to skip them); finished sequences are recorded in
+    # batches, all that finished since the last manifest rewrite, with one rewrite per batch;
+    # each finished shard is read into its dataset part at once (`shard_part`).
     with contextlib.ExitStack() as stack:
         executor = None
         pending = {}
 
         def drain() -> None:
-            for future in as_completed(pending):
-                record(future, pending[future])
-            pending.clear()
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in sorted(done, key=pending.get):
+                    record(future, pending.pop(future))
+                write_json(manifest_path, manifest)
 
         for sid, folder in zip(current, folders):
-            digest = input_hash(folder, config_repr)
             shard = shard_name(sid)
             prev = old.get(sid, {})
-            if prev.get("status") == "ok" and prev.get("input_hash") == digest and _shard_is_current(
+            digest = None
+            if prev.get("status") == "ok":
+                digest = input_hash(folder, config_repr)
+            if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
                 dataset_dir / "shards" / shard, digest
             ):
                 entries[sid] = prev
@@ -531,10 +547,11 @@ def run_campaign(
                 continue
             entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
                             "error": None}
-            write_json(manifest_path, manifest)
             if executor is None:
                 executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
                 stack.callback(drain)  # on an error below too, before the executor closes
+            if isinstance(executor, SerialExecutor):
+                write_json(manifest_path, manifest)  # the sequence being measured, as pending
             future = executor.submit(
                 measure_to_shard,
                 str(folder),
@@ -544,11 +561,14 @@ def run_campaign(
                 None if rerun_options is None else rerun_options.for_sequence(sid),
                 given or None,
                 labels,
+                config_repr,
             )
             if future.done():  # the serial executor finishes inside submit
                 record(future, sid)
+                write_json(manifest_path, manifest)
             else:
                 pending[future] = sid
+        write_json(manifest_path, manifest)  # every sequence submitted, as pending or done
         drain()
     bar.close()
     assemble_dataset(dataset_dir, entries, parts)
