@@ -205,11 +205,11 @@ def test_client_overlaps_its_serial_work_with_the_tasks(campaign_root, tmp_path,
     serial = tmp_path / "serial"
     run_campaign(campaign_root, serial, workers=1, progress=False)
     hashed, parts, writes = [], [], []
-    real_hash, real_part, real_write = campaign.input_hash, campaign.shard_part, campaign.write_json
+    real_hash, real_part, real_write = campaign.input_hash, campaign.shard_part, campaign._write_manifest
     monkeypatch.setattr(campaign, "input_hash", lambda *a, **k: hashed.append(a) or real_hash(*a, **k))
     monkeypatch.setattr(campaign, "shard_part", lambda *a, **k: parts.append(a[1]) or real_part(*a, **k))
-    monkeypatch.setattr(campaign, "write_json",
-                        lambda p, d: writes.append(Path(p).name) or real_write(p, d))
+    monkeypatch.setattr(campaign, "_write_manifest",
+                        lambda w, d: writes.append(w.path.name) or real_write(w, d))
     res = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
     assert len(res.measured) == 4 and not res.failed
     assert hashed == []  # the pool's workers hashed (they do not see this process's patch)
@@ -227,3 +227,26 @@ def test_client_overlaps_its_serial_work_with_the_tasks(campaign_root, tmp_path,
     hashed.clear(), parts.clear()
     again = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
     assert len(again.skipped) == 4 and len(hashed) == 4 and sorted(parts) == sorted(again.skipped)
+
+
+def test_manifest_writer_gives_the_text_of_write_json(tmp_path):
+    """The manifest, rewritten from cached per-entry pieces, is byte for byte what write_json
+    writes, after entries change, are added, hold NaN, nested values or odd keys."""
+    from dropvision.app.campaign import ManifestWriter
+    from identify.atomic import to_json
+
+    entries = {}
+    manifest = {"schema": "x/1", "root": "/r", "versions": {"a": "1", "b": [1, 2]}, "sequences": entries}
+    writer = ManifestWriter(tmp_path / "manifest.json")
+    steps = [lambda: None,
+             lambda: entries.update({"a": {"status": "pending", "input_hash": None, "meta": None}}),
+             lambda: entries["a"].update(status="ok", meta={"waveform": {"u1": 1.5, "n": [1, {"x": None}]},
+                                                            "v": float("nan")}),
+             lambda: entries.update({'b"\\n\u00e9': {"status": "failed", "error": "line\nbreak", "e": {}}}),
+             lambda: entries["b\"\\n\u00e9"].update(status="ok"),
+             lambda: entries.pop("a")]
+    for step in steps:
+        step()
+        writer.write(manifest)
+        assert (tmp_path / "manifest.json").read_text() == to_json(manifest)
+    assert json.loads((tmp_path / "manifest.json").read_text())["sequences"]
