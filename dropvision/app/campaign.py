@@ -257,6 +257,7 @@ class ManifestWriter:
 
 
 def _write_manifest(writer: ManifestWriter, manifest: dict) -> None:
+    """Every manifest rewrite of `run_campaign` goes through here (one place to observe them)."""
     writer.write(manifest)
 
 
