@@ -36,17 +36,17 @@ cProfile of the run with ``--profile``.
   sequence's input hash, which the worker computes);
 - the client's serial work per sequence: one manifest rewrite (at this campaign's size and at
   ``--manifest-entries``; an upper bound: the client rewrites it once per batch of finished
-  sequences), reading its shard into the dataset (`shard_part`, done as each sequence
-  finishes, overlapping the tasks), and the final assembly that does not overlap anything
-  (``S``: concatenating the parts, writing the tables); the input hash is timed apart (the
-  client computes it only on a resumed run);
+  sequences), overlapping the tasks, and the final assembly that does not overlap anything
+  (``S``: concatenating the parts, writing the tables); the input hash and the reading of
+  the shard into its dataset part (`shard_part`) are timed apart: the worker does both (the
+  client only for the sequences of a resumed run);
 - ``o``: Dask's per-task overhead, from no-op tasks through a one-worker LocalCluster's
   executor (the path ``--scheduler`` takes), submitted all at once;
 - the file-system I/O per task: bytes read (the sequence's files) and written (its shard).
 
 and projects the efficiency at W workers (``--project``) for N sequences::
 
-    c = client work per sequence (manifest rewrite + shard read), overlapped with the tasks
+    c = client work per sequence (a manifest rewrite), overlapped with the tasks
     E(W) = N T / (W t(W)),  t(W) = S + max(ceil(N / W) (T + o), N c)
 
 i.e. Amdahl's law with the non-overlapped serial part S, the per-task overhead o, and the client
@@ -235,7 +235,8 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
         hash_s.append(time.perf_counter() - t)
         shard = cp.shard_name(sid)
         t = time.perf_counter()
-        res = cp.measure_to_shard(str(folder), str(out / "shards" / shard), None, config, config_repr=config_repr)
+        res = cp.measure_to_shard(str(folder), str(out / "shards" / shard), None, config, config_repr=config_repr,
+                                  seq_id=sid)
         task_s.append(time.perf_counter() - t)
         if res["status"] != "ok":
             raise RuntimeError(f"{folder}: {res['error']}")
@@ -267,7 +268,7 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
     o = dask_task_overhead_s()
     med = statistics.median
     T, h, p, m = med(task_s), med(hash_s), med(part_s), manifest_s
-    c = m + p
+    c = m  # the hash and the shard read are the worker's (the client does them on a resume only)
     n = len(folders)
     fig = {"sequences": n, "task_s": T, "hash_s": h, "manifest_write_s": m,
            f"manifest_write_s_at_{manifest_entries}": manifest_big_s, "shard_part_s": p,
@@ -275,10 +276,11 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
            "final_assembly_per_sequence_s": final_s / n, "dask_task_overhead_s": o,
            "read_bytes_per_task": med(read_b), "written_bytes_per_task": med(written_b),
            "io_mb_per_task_s": (med(read_b) + med(written_b)) / 1e6 / T}
-    print(f"\none task T = {T:.3f} s (its input hash, computed by the worker: {h * 1e3:.1f} ms); client per "
-          f"sequence c = {c * 1e3:.1f} ms = {100 * c / T:.2f} % of T (manifest rewrite {m * 1e3:.1f} ms "
-          f"[{manifest_entries} entries: {manifest_big_s * 1e3:.1f} ms], shard read {p * 1e3:.1f} ms; "
-          "overlapped with the tasks)")
+    print(f"\none task T = {T:.3f} s (it includes the worker's input hash, {h * 1e3:.1f} ms, and reading its "
+          f"shard back into its dataset part, {p * 1e3:.1f} ms); client per sequence c = {c * 1e3:.1f} ms = "
+          f"{100 * c / T:.2f} % of T, at most (one manifest rewrite per finished sequence; one per batch when "
+          f"several finish together; {manifest_entries} entries: {manifest_big_s * 1e3:.1f} ms), overlapped "
+          "with the tasks")
     print(f"final assembly S = {final_s * 1e3:.1f} ms for {n} sequences ({final_s / n * 1e3:.2f} ms per sequence, "
           f"{100 * final_s / (n * T):.3f} % of the task time)")
     print("Dask per-task overhead o = " + ("absent (no distributed)" if o is None else
@@ -290,7 +292,7 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
     for N in sorted({n, 1000}):
         S_n = final_s / n * N
         # a manifest rewrite grows with the entries: interpolated between the two timed sizes
-        c_n = p + m + (manifest_big_s - m) * (N - n) / max(manifest_entries - n, 1)
+        c_n = m + (manifest_big_s - m) * (N - n) / max(manifest_entries - n, 1)
         for W in project:
             t_w = S_n + max(math.ceil(N / W) * (T + oo), N * c_n)
             eff = N * T / (W * t_w)

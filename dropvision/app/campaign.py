@@ -157,18 +157,21 @@ def input_hash(folder, config_repr: str = "") -> str:
 # ----------------------------------------------------------------------------- worker
 def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=None, rerun_options=None,
                      overrides: dict | None = None, labels: dict | None = None,
-                     config_repr: str = "") -> dict:
+                     config_repr: str = "", seq_id: str | None = None) -> dict:
     """Measure one sequence and write its shard atomically. Runs in a worker process.
 
     ``digest``: the sequence's input hash; None to compute it here first
     (``input_hash(seq_dir, config_repr)``), so that the client need not read every file of the
     campaign itself (the hashing then runs on the workers, in parallel, next to the data).
     ``overrides`` / ``labels``: values of sequence.json keys given for every sequence (options,
-    see `dropvision.sequence.open_sequence`).
+    see `dropvision.sequence.open_sequence`). ``seq_id``: when given, the worker also reads the
+    shard it wrote into its share of the dataset (`shard_part`, key ``part``), so that the
+    client does not.
 
     Returns a small, picklable summary: status ("ok"/"failed"), error, the input hash, the
     sequence's metadata needed for the dataset, the warnings of its measurement (one line
-    each; the caller prints them) and the summary values.
+    each; the caller prints them), and the dataset part (or None: the client then reads the
+    shard itself).
     """
     caught: list = []
     try:
@@ -196,8 +199,17 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
             "pixel_size_um": meta.pixel_size_um,
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
+        part = None
+        wf = meta.waveform or {}
+        if seq_id is not None and "u1_um_per_ms" in wf and "u2_um" in wf:
+            shard = Path(shard_dir)
+            try:  # the same reading as the client's, of the files just written
+                part = shard_part(shard.parent.parent, seq_id, {"meta": info, "shard": shard.name,
+                                                                "input_hash": digest})
+            except Exception:  # noqa: BLE001 - left to the client's final assembly, which reports it
+                part = None
         return {"status": "ok", "error": None, "input_hash": digest, "meta": info,
-                "warnings": warning_lines(caught)}
+                "warnings": warning_lines(caught), "part": part}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
         return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "input_hash": digest, "meta": None,
                 "warnings": warning_lines(caught)}
@@ -551,10 +563,14 @@ def run_campaign(
             out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
         if out.get("warnings"):
             result.warnings[sid] = out["warnings"]
-        entries[sid].update({k: v for k, v in out.items() if k != "warnings"})
+        part = out.get("part")
+        entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
         if out["status"] == "ok":
             result.measured.append(sid)
-            read_part(sid)
+            if part is not None and part.input_hash == entries[sid].get("input_hash"):
+                parts[sid] = part  # read by the worker
+            else:
+                read_part(sid)
         else:
             result.failed[sid] = out["error"]
         bar.update(1)
@@ -607,6 +623,7 @@ def run_campaign(
                 given or None,
                 labels,
                 config_repr,
+                sid,
             )
             if future.done():  # the serial executor finishes inside submit
                 record(future, sid)
