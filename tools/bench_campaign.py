@@ -265,6 +265,18 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
            "sequences": {f"s{i:06d}": dict(one) for i in range(manifest_entries)}}
     manifest_big_s = rewrite_s(big, "manifest_big.json")
     final_s = _median_s(lambda: cp.assemble_dataset(out, entries, parts), 3)
+    # the same at --manifest-entries sequences (copies of these parts under new ids)
+    big_entries, big_parts = {}, {}
+    for i in range(manifest_entries):
+        sid, entry = list(entries.items())[i % len(entries)]
+        new = f"{sid}~{i:06d}"
+        big_entries[new] = dict(entry)
+        part = parts[sid]
+        ts = part.timeseries.copy()
+        ts["sequence_id"] = new
+        big_parts[new] = dataclasses.replace(part, timeseries=ts, row=dict(part.row, sequence_id=new),
+                                             meta=(new, *part.meta[1:]))
+    final_big_s = _median_s(lambda: cp.assemble_dataset(out, big_entries, big_parts), 3)
     o = dask_task_overhead_s()
     med = statistics.median
     T, h, p, m = med(task_s), med(hash_s), med(part_s), manifest_s
@@ -272,8 +284,8 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
     n = len(folders)
     fig = {"sequences": n, "task_s": T, "hash_s": h, "manifest_write_s": m,
            f"manifest_write_s_at_{manifest_entries}": manifest_big_s, "shard_part_s": p,
-           "client_per_sequence_s": c, "client_fraction": c / T, "final_assembly_s": S if (S := final_s) else 0.0,
-           "final_assembly_per_sequence_s": final_s / n, "dask_task_overhead_s": o,
+           "client_per_sequence_s": c, "client_fraction": c / T, "final_assembly_s": final_s,
+           f"final_assembly_s_at_{manifest_entries}": final_big_s, "dask_task_overhead_s": o,
            "read_bytes_per_task": med(read_b), "written_bytes_per_task": med(written_b),
            "io_mb_per_task_s": (med(read_b) + med(written_b)) / 1e6 / T}
     print(f"\none task T = {T:.3f} s (it includes the worker's input hash, {h * 1e3:.1f} ms, and reading its "
@@ -281,16 +293,17 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
           f"{100 * c / T:.2f} % of T, at most (one manifest rewrite per finished sequence; one per batch when "
           f"several finish together; {manifest_entries} entries: {manifest_big_s * 1e3:.1f} ms), overlapped "
           "with the tasks")
-    print(f"final assembly S = {final_s * 1e3:.1f} ms for {n} sequences ({final_s / n * 1e3:.2f} ms per sequence, "
-          f"{100 * final_s / (n * T):.3f} % of the task time)")
+    print(f"final assembly S = {final_s * 1e3:.1f} ms for {n} sequences, {final_big_s * 1e3:.0f} ms for "
+          f"{manifest_entries} ({final_big_s / manifest_entries * 1e3:.2f} ms per sequence, "
+          f"{100 * final_big_s / (manifest_entries * T):.3f} % of the task time)")
     print("Dask per-task overhead o = " + ("absent (no distributed)" if o is None else
                                           f"{o * 1e3:.2f} ms = {100 * o / T:.2f} % of T"))
     print(f"I/O per task: read {med(read_b) / 1e6:.1f} MB, written {med(written_b) / 1e6:.2f} MB = "
           f"{fig['io_mb_per_task_s']:.1f} MB per task-second")
     proj = []
     oo = o or 0.0
-    for N in sorted({n, 1000}):
-        S_n = final_s / n * N
+    for N in sorted({n, 64, 1000}):
+        S_n = final_s + (final_big_s - final_s) * (N - n) / max(manifest_entries - n, 1)
         # a manifest rewrite grows with the entries: interpolated between the two timed sizes
         c_n = m + (manifest_big_s - m) * (N - n) / max(manifest_entries - n, 1)
         for W in project:
