@@ -26,7 +26,8 @@ def _preload_tables():
     """Import pandas and pyarrow's Parquet writer on a background thread while the sequence is
     calibrated and measured (the tables are made at the end): their ~0.2 s of imports then
     overlap the measurement instead of adding to it. Returns the thread (None when they are
-    loaded already); a failed import is reported by the measurement's own import later."""
+    loaded already, or ``DROPVISION_NO_PRELOAD`` is set: to measure without it); a failed
+    import is reported by the measurement's own import later."""
     import os
     import threading
 
