@@ -22,30 +22,6 @@ _SOURCES = ("orientation", "pixel_size", "delay", "nozzle_outer_diameter", "nozz
             "bit_depth")
 
 
-def _preload_tables():
-    """Import pandas and pyarrow's Parquet writer on a background thread while the sequence is
-    calibrated and measured (the tables are made at the end): their ~0.2 s of imports then
-    overlap the measurement instead of adding to it. Returns the thread (None when they are
-    loaded already, or ``DROPVISION_NO_PRELOAD`` is set: to measure without it); a failed
-    import is reported by the measurement's own import later."""
-    import os
-    import threading
-
-    if "pyarrow.parquet" in sys.modules or os.environ.get("DROPVISION_NO_PRELOAD"):
-        return None
-
-    def load():
-        try:
-            import pandas  # noqa: F401
-            import pyarrow.parquet  # noqa: F401
-        except Exception:  # noqa: BLE001 - raised again where the tables are made
-            pass
-
-    thread = threading.Thread(target=load, name="dropvision-preload-tables", daemon=True)
-    thread.start()
-    return thread
-
-
 def _run(args: argparse.Namespace) -> int:
     # the measurement (numpy, pandas, OpenCV, numba) is imported when the command runs, not for --help
     from dropvision.app.rerun_log import logger_from_args
@@ -58,14 +34,11 @@ def _run(args: argparse.Namespace) -> int:
     overrides, labels = overrides_from_args(args)
     config = MeasureConfig(workers=args.workers)
     logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
-    preload = _preload_tables()
     with captured_warnings() as caught:
         try:
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels)
         finally:
-            if preload is not None:
-                preload.join()  # never exit while it imports
             if logger is not None:
                 logger.close()
             print_warnings("dropvision measure", warning_lines(caught), args)
