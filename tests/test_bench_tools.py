@@ -52,6 +52,21 @@ def test_bench_campaign_tiny(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="Dask (distributed) not installed")
+def test_bench_campaign_overheads_tiny(tmp_path):
+    out, _ = _run("bench_campaign.py", "--overheads", "--sequences", "2", "--frames", "5", "--size", "160x512",
+                  "--manifest-entries", "20", "--project", "2,4", "--keep", str(tmp_path),
+                  "--json", str(tmp_path / "o.json"))
+    fig = json.loads((tmp_path / "o.json").read_text())
+    assert fig["task_s"] > 0 and 0 < fig["client_fraction"] < 1 and fig["dask_task_overhead_s"] > 0
+    assert fig["read_bytes_per_task"] > 0 and fig["written_bytes_per_task"] > 0
+    proj = fig["projection"]
+    assert {(p["sequences"], p["workers"]) for p in proj} == {(n, w) for n in (2, 64, 1000) for w in (2, 4)}
+    assert all(0 < p["efficiency"] <= 1 for p in proj)
+    assert "E(W)" not in out and "Dask per-task overhead" in out
+
+
+@pytest.mark.slow
 def test_bench_montecarlo_tiny():
     out, _ = _run("bench_montecarlo.py", "--samples", "200", "--steps", "50", "--subset", "3", "--repeat", "1")
     assert out.strip()
