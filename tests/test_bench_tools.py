@@ -58,7 +58,7 @@ def test_bench_campaign_overheads_tiny(tmp_path):
                   "--manifest-entries", "20", "--project", "2,4", "--keep", str(tmp_path),
                   "--json", str(tmp_path / "o.json"))
     fig = json.loads((tmp_path / "o.json").read_text())
-    assert fig["task_s"] > 0 and 0 < fig["client_fraction"] < 1 and fig["dask_task_overhead_s"] > 0
+    assert fig["task_s"] > 0 and fig["client_fraction"] > 0 and fig["dask_task_overhead_s"] > 0
     assert fig["read_bytes_per_task"] > 0 and fig["written_bytes_per_task"] > 0
     proj = fig["projection"]
     assert {(p["sequences"], p["workers"]) for p in proj} == {(n, w) for n in (2, 64, 1000) for w in (2, 4)}

@@ -303,9 +303,9 @@ def overheads(root: Path, work: Path, manifest_entries: int, project: list[int])
     proj = []
     oo = o or 0.0
     for N in sorted({n, 64, 1000}):
-        S_n = final_s + (final_big_s - final_s) * (N - n) / max(manifest_entries - n, 1)
+        S_n = max(final_s + (final_big_s - final_s) * (N - n) / max(manifest_entries - n, 1), 0.0)
         # a manifest rewrite grows with the entries: interpolated between the two timed sizes
-        c_n = m + (manifest_big_s - m) * (N - n) / max(manifest_entries - n, 1)
+        c_n = max(m + (manifest_big_s - m) * (N - n) / max(manifest_entries - n, 1), 0.0)
         for W in project:
             t_w = S_n + max(math.ceil(N / W) * (T + oo), N * c_n)
             eff = N * T / (W * t_w)
