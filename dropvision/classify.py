@@ -37,12 +37,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
-import pandas as pd
 
 from dvcore import schema
+
+if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
+    import pandas as pd
 
 __all__ = ["Appearance", "appearance", "nozzle_edge_spread_px", "out_of_focus_reason", "bodies_table",
            "BODY_COLUMNS"]
@@ -170,6 +173,7 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
     DataFrame
         Columns `BODY_COLUMNS` (`dvcore.schema.BODIES`).
     """
+    import pandas as pd
     rows: list[dict] = []
     # static out-of-focus bodies (same place in >= half the frames) are dust, not mist
     soft = [(k, b) for k, r in enumerate(records) for b in r.rejected]

@@ -9,10 +9,14 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from identify.ecm import flow_velocity_m_s
+
+if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
+    import pandas as pd
 
 
 def grown_and_flow(
@@ -45,6 +49,7 @@ def grown_and_flow(
     grown_by_delay : Series
         Mean grown volume (nl) per delay over attached frames (index delay_us, µs).
     """
+    import pandas as pd
     delay_us = np.asarray(delay_us, float)
     v = np.asarray(attached_volume_nl, float)
     first = delay_us == np.min(delay_us) if delay_us.size else np.zeros(0, bool)

@@ -21,9 +21,9 @@ the command line is `dropvision.app.measure_cli`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 import dropvision.quality as q
 from dropvision.config import MeasureConfig
@@ -34,6 +34,9 @@ from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_seq
 from dropvision.output import write_result
 from dropvision.summary import assemble, per_delay
 from dvcore.atomic import atomic_dir, check_output_dir
+
+if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
+    import pandas as pd
 
 
 @dataclass

@@ -11,13 +11,16 @@ Two rules, one per frame and one per sequence:
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from dropvision.context import FrameContext
 from dropvision.segmentation import Body, Segmentation
 from dropvision.special import ndtr
+
+if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
+    import pandas as pd
 
 #: Darkening (transmission units) every interior gap row must show beyond the ends' blurred
 #: tails for a thread to join two bodies.  The ends' unresolved taper (meniscus cone, tail tip)
@@ -193,6 +196,7 @@ def pinchoff_delay(delay_us: np.ndarray, detached: np.ndarray) -> float:
     float
         Pinch-off delay (µs); NaN if no delay qualifies.
     """
+    import pandas as pd
     df = pd.DataFrame({"d": delay_us, "x": detached.astype(float)})
     frac = df.groupby("d")["x"].mean()
     hit = frac.index[frac.to_numpy() >= 0.5]
@@ -218,6 +222,7 @@ def isolated_detached(delay_us: np.ndarray, detached: np.ndarray) -> np.ndarray:
     ndarray of bool
         Per frame.
     """
+    import pandas as pd
     delay_us = np.asarray(delay_us, float)
     if delay_us.size == 0:
         return np.zeros(0, bool)

@@ -18,9 +18,9 @@ calibration frame), wall_contrast (1 - the nozzle wall's transmission in the fra
 from __future__ import annotations
 
 from dataclasses import asdict
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 import dropvision.quality as q
 from dropvision.calibration import Calibration
@@ -33,6 +33,9 @@ from dropvision.volume import NL_PER_UM3
 from dvcore import schema
 from dvcore.versions import software_versions
 from identify.waveform import Waveform
+
+if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
+    import pandas as pd
 
 SCHEMA_VERSION = schema.SUMMARY.schema
 #: Columns of frames.parquet, in order (declared with dtype, unit and meaning in `dvcore.schema.FRAMES`).
@@ -84,6 +87,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     summary : dict
         Per-sequence results (``schema_version`` `SCHEMA_VERSION`; see docs/FORMAT.md).
     """
+    import pandas as pd
     m = len(records)
     delay = np.array([r.delay_us for r in records], float)
     flags = [list(r.flags) for r in records]
@@ -500,6 +504,7 @@ def per_delay(frames: pd.DataFrame) -> pd.DataFrame:
         (ddof 1) and ``<name>_count`` (finite values) of every `PER_DELAY_COLUMNS` column (its
         units), and ``attached_fraction``.
     """
+    import pandas as pd
     if frames.empty:
         return pd.DataFrame({"delay_us": []})
     g = frames.groupby("delay_us", sort=True)

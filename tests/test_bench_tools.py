@@ -52,6 +52,21 @@ def test_bench_campaign_tiny(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.skipif(importlib.util.find_spec("distributed") is None, reason="Dask (distributed) not installed")
+def test_bench_campaign_overheads_tiny(tmp_path):
+    out, _ = _run("bench_campaign.py", "--overheads", "--sequences", "2", "--frames", "5", "--size", "160x512",
+                  "--manifest-entries", "20", "--project", "2,4", "--keep", str(tmp_path),
+                  "--json", str(tmp_path / "o.json"))
+    fig = json.loads((tmp_path / "o.json").read_text())
+    assert fig["task_s"] > 0 and fig["client_fraction"] > 0 and fig["dask_task_overhead_s"] > 0
+    assert fig["read_bytes_per_task"] > 0 and fig["written_bytes_per_task"] > 0
+    proj = fig["projection"]
+    assert {(p["sequences"], p["workers"]) for p in proj} == {(n, w) for n in (2, 64, 1000) for w in (2, 4)}
+    assert all(0 < p["efficiency"] <= 1 for p in proj)
+    assert "E(W)" not in out and "Dask per-task overhead" in out
+
+
+@pytest.mark.slow
 def test_bench_montecarlo_tiny():
     out, _ = _run("bench_montecarlo.py", "--samples", "200", "--steps", "50", "--subset", "3", "--repeat", "1")
     assert out.strip()
@@ -61,6 +76,20 @@ def test_bench_montecarlo_tiny():
 def test_bench_decoders_tiny():
     out, _ = _run("bench_decoders.py", "--repeats", "5", "--inner", "1")
     assert "cv2.imdecode" in out
+
+
+@pytest.mark.slow
+def test_bench_decoders_corpus_tiny(tmp_path):
+    out, _ = _run("bench_decoders.py", "--corpus", "--repeats", "1", "--out", str(tmp_path / "c.csv"))
+    import csv
+    with (tmp_path / "c.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    ours = {r["kind"]: r for r in rows if r["decoder"] == "dropvision reader"}
+    # our reader reads every kind, identical to OpenCV, with a real time
+    assert {"PNG 8-bit grey, Pillow", "PNG 16-bit grey, OpenCV", "PNG 8-bit colour, Pillow",
+            "JPEG colour q90 640x1024 -> grey", "TIFF 16-bit grey, uncompressed"} <= set(ours)
+    assert all(r["note"] == "" and float(r["ms_per_frame"]) > 0 for r in ours.values()), ours
+    assert "vs best other" in out
 
 
 def test_bench_watch_tiny():

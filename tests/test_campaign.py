@@ -2,6 +2,7 @@
 
 import json
 import shutil
+from pathlib import Path
 
 import pandas as pd
 import pytest
@@ -193,3 +194,59 @@ def test_run_stopped_by_an_error_keeps_every_finished_sequence_in_the_manifest(c
     manifest = json.loads((ds / "manifest.json").read_text())["sequences"]
     assert len(manifest) == 4  # the sequences after the failure keep their earlier entries
     assert {e["status"] for e in manifest.values()} == {"ok"}  # the two re-measured ones were recorded
+
+
+def test_client_overlaps_its_serial_work_with_the_tasks(campaign_root, tmp_path, monkeypatch):
+    """Issue 22: the client hashes no new sequence and reads no new shard (the workers do),
+    rewrites the manifest once per batch of finished sequences, reads no shard again at the
+    end, and the dataset and manifest hashes equal the serial run's."""
+    from dropvision.app import campaign
+
+    serial = tmp_path / "serial"
+    run_campaign(campaign_root, serial, workers=1, progress=False)
+    hashed, parts, writes = [], [], []
+    real_hash, real_part, real_write = campaign.input_hash, campaign.shard_part, campaign._write_manifest
+    monkeypatch.setattr(campaign, "input_hash", lambda *a, **k: hashed.append(a) or real_hash(*a, **k))
+    monkeypatch.setattr(campaign, "shard_part", lambda *a, **k: parts.append(a[1]) or real_part(*a, **k))
+    monkeypatch.setattr(campaign, "_write_manifest",
+                        lambda w, d: writes.append(w.path.name) or real_write(w, d))
+    res = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
+    assert len(res.measured) == 4 and not res.failed
+    assert hashed == [] and parts == []  # the pool's workers hashed and read their shards back
+                                         # (they do not see this process's patches)
+    # start, all submitted, one per batch (1 to 4 batches), the end
+    assert 4 <= writes.count("manifest.json") <= 7
+    for name in ("timeseries.parquet", "summary.parquet"):
+        pd.testing.assert_frame_equal(pd.read_parquet(serial / name), pd.read_parquet(tmp_path / "pool" / name))
+    a = json.loads((serial / "manifest.json").read_text())["sequences"]
+    b = json.loads((tmp_path / "pool" / "manifest.json").read_text())["sequences"]
+    assert {k: e["input_hash"] for k, e in a.items()} == {k: e["input_hash"] for k, e in b.items()}
+    assert all(len(e["input_hash"]) == 64 for e in b.values())
+    # a resumed run hashes each sequence once in the client (to know whether to skip it) and
+    # reads each skipped shard once
+    hashed.clear(), parts.clear()
+    again = run_campaign(campaign_root, tmp_path / "pool", workers=2, progress=False)
+    assert len(again.skipped) == 4 and len(hashed) == 4 and sorted(parts) == sorted(again.skipped)
+
+
+def test_manifest_writer_gives_the_text_of_write_json(tmp_path):
+    """The manifest, rewritten from cached per-entry pieces, is byte for byte what write_json
+    writes, after entries change, are added, hold NaN, nested values or odd keys."""
+    from dropvision.app.campaign import ManifestWriter
+    from dvcore.atomic import to_json
+
+    entries = {}
+    manifest = {"schema": "x/1", "root": "/r", "versions": {"a": "1", "b": [1, 2]}, "sequences": entries}
+    writer = ManifestWriter(tmp_path / "manifest.json")
+    steps = [lambda: None,
+             lambda: entries.update({"a": {"status": "pending", "input_hash": None, "meta": None}}),
+             lambda: entries["a"].update(status="ok", meta={"waveform": {"u1": 1.5, "n": [1, {"x": None}]},
+                                                            "v": float("nan")}),
+             lambda: entries.update({'b"\\n\u00e9': {"status": "failed", "error": "line\nbreak", "e": {}}}),
+             lambda: entries["b\"\\n\u00e9"].update(status="ok"),
+             lambda: entries.pop("a")]
+    for step in steps:
+        step()
+        writer.write(manifest)
+        assert (tmp_path / "manifest.json").read_text() == to_json(manifest)
+    assert json.loads((tmp_path / "manifest.json").read_text())["sequences"]

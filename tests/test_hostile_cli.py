@@ -286,14 +286,13 @@ def test_serial_campaign_records_each_sequence_at_once(campaign_root, tmp_path, 
     from dropvision.app import campaign
 
     seen = []
-    real = campaign.write_json
+    real = campaign._write_manifest
 
-    def spy(path, doc):
-        if Path(path).name == "manifest.json":
-            seen.append(sorted(e["status"] for e in doc["sequences"].values()))
-        return real(path, doc)
+    def spy(writer, doc):
+        seen.append(sorted(e["status"] for e in doc["sequences"].values()))
+        return real(writer, doc)
 
-    monkeypatch.setattr(campaign, "write_json", spy)
+    monkeypatch.setattr(campaign, "_write_manifest", spy)
     campaign.run_campaign(campaign_root, tmp_path / "ds", workers=1, progress=False)
     n = len(seen[0])
     # the first write lists everything pending; then one more "ok" per write, one write per sequence

@@ -166,6 +166,50 @@ def test_jpeg_pixel_limit_from_header(tmp_path, monkeypatch):
         reader_for(path).decode(path, None)
 
 
+def test_jpeg_decode_identical_to_opencv(tmp_path):
+    """The JPEG reader (imagecodecs' libjpeg-turbo) gives the same arrays, bit for bit, as the
+    OpenCV path it replaced (``IMREAD_GRAYSCALE`` for colour, ``IMREAD_UNCHANGED`` for grey):
+    the real colour frames of ../shared/realdata (2048x1536 watcher, 752x480 pendant drops) and
+    synthetic grey/colour files with odd sizes and 4:4:4 / 4:2:0 subsampling."""
+    from dropvision.readers.base import ColourLuma
+    from dropvision.readers.jpeg import JpegReader
+
+    real = sorted((Path(__file__).resolve().parents[2] / "shared" / "realdata").glob("*/*/*.jpg"))
+    assert len(real) >= 10  # ../shared is beside the project (a missing folder is a failure)
+    rng = np.random.default_rng(3)
+    made = []
+    for k, (h, w) in enumerate([(37, 53), (64, 64), (333, 200)]):
+        grey = np.clip(rng.normal(128, 40, (h, w)), 0, 255).astype(np.uint8)
+        colour = np.dstack([grey, np.roll(grey, 3, 1), 255 - grey])
+        for name, img in ((f"g{k}.jpg", grey), (f"c{k}.jpg", colour)):
+            path = tmp_path / name
+            cv2.imwrite(str(path), img, [cv2.IMWRITE_JPEG_QUALITY, 90,
+                                         cv2.IMWRITE_JPEG_SAMPLING_FACTOR, [0x111111, 0x221111][k % 2]])
+            made.append(path)
+    reader = JpegReader()
+    for path in real + made:
+        data = np.fromfile(path, np.uint8)
+        colour = jpeg_size(path.read_bytes())[2] == 3
+        expected = cv2.imdecode(data, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_IGNORE_ORIENTATION if colour
+                                else cv2.IMREAD_UNCHANGED)
+        got = reader.decode(path, None)
+        assert isinstance(got, ColourLuma) == colour, path
+        assert got.dtype == np.uint8 and got.shape == expected.shape, path
+        np.testing.assert_array_equal(np.asarray(got), expected, err_msg=str(path))
+
+
+def test_corrupt_jpeg_scan_is_unreadable(tmp_path):
+    """A JPEG whose scan data is garbage (markers intact) is refused with a clear error."""
+    path = tmp_path / "bad.jpg"
+    cv2.imwrite(str(path), np.full((40, 50, 3), 120, np.uint8))
+    data = bytearray(path.read_bytes())
+    sos = data.find(b"\xff\xda")
+    data[sos + 2:sos + 4] = b"\x00\x02"  # a scan header of impossible length
+    path.write_bytes(bytes(data))
+    with pytest.raises(UnreadableImage, match="cannot decode JPEG"):
+        reader_for(path).decode(path, None)
+
+
 # --- colour PNG ---------------------------------------------------------------------------
 
 def test_colour_png_equal_channels_identical_to_grey(synth, tmp_path):

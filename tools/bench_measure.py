@@ -2,7 +2,7 @@
 
     python tools/bench_measure.py [--frames 181] [--rounds 3] [--keep DIR] [--kinds pillow,opencv,jpeg,tiff16]
                                   [--tiers clean,low-contrast,tilted-dusty,watcher-side] [--profile-tier TIER]
-                                  [--no-cli] [--no-rss]
+                                  [--no-cli] [--no-rss] [--stages]
 
 Renders a default synthetic sequence (640 x 1024) and writes it as (a) Pillow-written PNGs
 (adaptive filtering: Sub, Up, Paeth rows), (b) OpenCV-written PNGs (every row Sub), (c) JPEG
@@ -30,6 +30,13 @@ canonical), each decoded once into memory (`dropvision.sequence.sequence_from_ar
 measured pipeline-only (calibration, per-frame pipeline, assembly; one thread), rounds
 alternated over the tiers; reported: frames/s and the extra time per frame against clean
 (goal <= +20 %). ``--profile-tier`` prints a cProfile of one run of that tier.
+
+``--stages``: the pipeline's stages on every tier, from a cProfile of one pipeline-only run each
+(cumulative time of each stage's function, ms per frame and fraction of the run; the profiler's
+overhead inflates the Python-heavy stages a little, so the fractions are the figure to read):
+the calibration pass, and per frame photometry, ROI smoothing, segmentation, the attached
+liquid, the thin-thread rule, each detached body (edges and volume, appearance, description),
+the touching-satellite split; then the assembly (frames table, summary) and the bodies table.
 """
 
 from __future__ import annotations
@@ -271,7 +278,47 @@ def _in_memory(folder: Path):
         bit_depth=m.bit_depth, name=folder.name)
 
 
-def bench_tiers(tiers: list[str], frames: int, rounds: int, work: Path, profile: str | None = None) -> list[dict]:
+#: --stages: stage name -> (module file suffix, function name) whose cumulative time is the stage's
+STAGES = {
+    "calibration pass": ("dropvision/context.py", "calibrate_sequence"),
+    "  background estimate": ("dropvision/calibration.py", "estimate_background"),
+    "per-frame pipeline (all)": ("dropvision/frame.py", "measure_frame"),
+    "  photometry": ("dropvision/frame.py", "measure_photometry"),
+    "  ROI smoothing": ("dropvision/context.py", "smooth_roi"),
+    "  segmentation": ("dropvision/frame.py", "segment_frame"),
+    "  attached liquid": ("dropvision/bodies.py", "measure_attached"),
+    "  thin-thread rule": ("dropvision/pinchoff.py", "thread_joined_labels"),
+    "  detached body edges+volume": ("dropvision/bodies.py", "measure_body"),
+    "  detached body appearance": ("dropvision/classify.py", "appearance"),
+    "  detached body description": ("dropvision/bodies.py", "describe_detached"),
+    "  touching-satellite split": ("dropvision/frame.py", "_split_touching"),
+    "assembly (frames, summary)": ("dropvision/summary.py", "assemble"),
+    "bodies table": ("dropvision/classify.py", "bodies_table"),
+}
+
+
+def stage_profile(measure, frames: int) -> list[tuple[str, float, float]]:
+    """(stage, ms per frame, fraction of the run) of one cProfiled pipeline-only run."""
+    import cProfile
+    import pstats
+
+    prof = cProfile.Profile()
+    t = time.perf_counter()
+    prof.enable()
+    measure()
+    prof.disable()
+    total = time.perf_counter() - t
+    stats = pstats.Stats(prof).stats
+    rows = []
+    for name, (suffix, func) in STAGES.items():
+        ct = sum(v[3] for (file, _, fn), v in stats.items() if fn == func and file.replace("\\", "/").endswith(suffix))
+        rows.append((name, 1e3 * ct / frames, ct / total))
+    rows.append(("whole run (profiled)", 1e3 * total / frames, 1.0))
+    return rows
+
+
+def bench_tiers(tiers: list[str], frames: int, rounds: int, work: Path, profile: str | None = None,
+                stages: bool = False) -> list[dict]:
     """Pipeline-only frames/s (frames already in memory, one thread) on the clean tier and on
     the synthesizer's rig presets, alternated rounds, medians; slow-down vs clean."""
     import warnings
@@ -310,6 +357,12 @@ def bench_tiers(tiers: list[str], frames: int, rounds: int, work: Path, profile:
             prof.disable()
             print(f"[tier {profile}] cProfile of one pipeline-only run, top functions by own time:")
             pstats.Stats(prof).sort_stats("tottime").print_stats(20)
+        if stages:
+            table = {t: stage_profile(lambda t=t: measure_sequence(makers[t][0](), config=config), frames) for t in tiers}
+            print("pipeline stages (one cProfiled pipeline-only run per tier): ms/frame (fraction of the run)")
+            print(f"{'stage':<30s}" + "".join(f"{t:>24s}" for t in tiers))
+            for i, (name, *_) in enumerate(table[tiers[0]]):
+                print(f"{name:<30s}" + "".join(f"{table[t][i][1]:13.3f} ({100 * table[t][i][2]:5.1f} %)" for t in tiers))
     med = statistics.median
     # the slow-down is the median over rounds of (time of the tier / time of clean in the same
     # round): a load change between rounds cancels out
@@ -327,6 +380,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tiers", default=",".join(TIERS),
                     help=f"realism tiers for the pipeline-only figures (default {','.join(TIERS)}; '' = none)")
     ap.add_argument("--profile-tier", default=None, metavar="TIER", help="also cProfile one pipeline-only run of TIER")
+    ap.add_argument("--stages", action="store_true", help="also the pipeline's stages per tier, ms/frame and fraction")
     ap.add_argument("--no-cli", action="store_true", help="skip the command-line wall time")
     ap.add_argument("--no-rss", action="store_true", help="skip the peak-memory runs")
     args = ap.parse_args(argv)
@@ -380,7 +434,7 @@ def main(argv=None) -> int:
               f"{r['baseline_fps']:8.0f} {r['dropvision_fps']:8.0f} {r['speedup']:7.2f}x {r['peak_rss_mb_n']:8.0f} "
               f"{r['peak_rss_mb_3n']:9.0f}  {r['properties']}")
     if tiers:
-        trows = bench_tiers(tiers, args.frames, args.rounds, work, args.profile_tier)
+        trows = bench_tiers(tiers, args.frames, args.rounds, work, args.profile_tier, args.stages)
         print(f"\nrealism tiers: pipeline only (frames in memory, no decoding, one thread), 640x1024 canonical, "
               f"{args.frames} frames, medians of {args.rounds} alternated rounds")
         print(f"{'tier':13s} {'frames/s':>8s} {'vs clean':>8s}  rounds (frames/s); file")

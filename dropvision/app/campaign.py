@@ -20,14 +20,16 @@ writes the dataset:
 - ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash);
 - ``manifest.json``: each sequence's path, input hash, status and error.
 
-Every file is written atomically and the manifest is rewritten after every finished
-sequence (in every executor mode, the serial one included), so a run killed at any moment loses no finished sequence and never leaves a
+Every file is written atomically and the manifest is rewritten as soon as sequences finish
+(once per sequence in the serial mode; in the parallel modes once for all that finished since
+the last rewrite), so a run killed at any moment loses no finished sequence and never leaves a
 half-written shard. Re-running resumes: a sequence whose shard carries the same input hash
 (content of its files, the measurement configuration and the dropvision version) is skipped.
 """
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import contextlib
 import hashlib
@@ -37,7 +39,7 @@ import math
 import os
 import re
 import warnings
-from concurrent.futures import as_completed
+from concurrent.futures import FIRST_COMPLETED, as_completed, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +48,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from dvcore import __version__
-from dropvision.app.executors import check_executor_args, make_executor
+from dropvision.app.executors import SerialExecutor, check_executor_args, make_executor
 from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
@@ -56,7 +58,7 @@ from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
-from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, write_bytes, write_json
+from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, to_json, write_bytes, write_json
 from dvcore.versions import software_versions
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
@@ -153,19 +155,28 @@ def input_hash(folder, config_repr: str = "") -> str:
 
 
 # ----------------------------------------------------------------------------- worker
-def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rerun_options=None,
-                     overrides: dict | None = None, labels: dict | None = None) -> dict:
+def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=None, rerun_options=None,
+                     overrides: dict | None = None, labels: dict | None = None,
+                     config_repr: str = "", seq_id: str | None = None) -> dict:
     """Measure one sequence and write its shard atomically. Runs in a worker process.
 
+    ``digest``: the sequence's input hash; None to compute it here first
+    (``input_hash(seq_dir, config_repr)``), so that the client need not read every file of the
+    campaign itself (the hashing then runs on the workers, in parallel, next to the data).
     ``overrides`` / ``labels``: values of sequence.json keys given for every sequence (options,
-    see `dropvision.sequence.open_sequence`).
+    see `dropvision.sequence.open_sequence`). ``seq_id``: when given, the worker also reads the
+    shard it wrote into its share of the dataset (`shard_part`, key ``part``), so that the
+    client does not.
 
-    Returns a small, picklable summary: status ("ok"/"failed"), error, the sequence's
-    metadata needed for the dataset, the warnings of its measurement (one line each; the
-    caller prints them) and the summary values.
+    Returns a small, picklable summary: status ("ok"/"failed"), error, the input hash, the
+    sequence's metadata needed for the dataset, the warnings of its measurement (one line
+    each; the caller prints them), and the dataset part (or None: the client then reads the
+    shard itself).
     """
     caught: list = []
     try:
+        if digest is None:
+            digest = input_hash(seq_dir, config_repr)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             meta = open_sequence(seq_dir, overrides=overrides, labels=labels).meta
@@ -188,9 +199,19 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str, config=None, rer
             "pixel_size_um": meta.pixel_size_um,
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
-        return {"status": "ok", "error": None, "meta": info, "warnings": warning_lines(caught)}
+        part = None
+        wf = meta.waveform or {}
+        if seq_id is not None and "u1_um_per_ms" in wf and "u2_um" in wf:
+            shard = Path(shard_dir)
+            try:  # the same reading as the client's, of the files just written
+                part = shard_part(shard.parent.parent, seq_id, {"meta": info, "shard": shard.name,
+                                                                "input_hash": digest})
+            except Exception:  # noqa: BLE001 - left to the client's final assembly, which reports it
+                part = None
+        return {"status": "ok", "error": None, "input_hash": digest, "meta": info,
+                "warnings": warning_lines(caught), "part": part}
     except Exception as exc:  # noqa: BLE001 - a failed sequence must not stop the others
-        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None,
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "input_hash": digest, "meta": None,
                 "warnings": warning_lines(caught)}
 
 
@@ -207,6 +228,49 @@ def _load_manifest(path: Path) -> dict:
         raise ValueError(f"{path}: not a dropvision campaign manifest (schema "
                          f"{manifest.get('schema') if isinstance(manifest, dict) else None!r})")
     return manifest
+
+
+class ManifestWriter:
+    """Rewrites manifest.json atomically, the same text as ``write_json`` gives, at a cost that
+    grows with the entries that changed, not with all of them.
+
+    ``to_json`` with an indent runs Python's pure-Python encoder: 50 ms for a manifest of 1000
+    sequences, rewritten as sequences finish, would make the client a bottleneck at a few dozen
+    workers. Each sequence's entry is encoded once, again only when it changed (compared with a
+    copy of what was encoded), and the text is joined from the pieces.
+    """
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._pieces: dict[str, tuple[dict, str]] = {}
+
+    def text(self, manifest: dict) -> str:
+        """The manifest's JSON text, equal to ``to_json(manifest)`` ("sequences" last)."""
+        seqs = manifest["sequences"]
+        head = {k: v for k, v in manifest.items() if k != "sequences"}
+        if not seqs or list(manifest)[-1] != "sequences":
+            return to_json(manifest)
+        pieces = []
+        for sid, entry in seqs.items():
+            known = self._pieces.get(sid)
+            if known is None or known[0] != entry:
+                body = to_json(entry).rstrip("\n").replace("\n", "\n    ")
+                known = (copy.deepcopy(entry), f"    {json.dumps(str(sid))}: {body}")
+                self._pieces[sid] = known
+            pieces.append(known[1])
+        head_text = to_json(head).rstrip("\n")
+        if not head_text.endswith("\n}"):  # never: the head holds the schema and the root
+            return to_json(manifest)
+        return head_text[:-2] + ',\n  "sequences": {\n' + ",\n".join(pieces) + "\n  }\n}\n"
+
+    def write(self, manifest: dict) -> None:
+        """Rewrite the manifest file atomically."""
+        write_bytes(self.path, self.text(manifest).encode("utf-8"))
+
+
+def _write_manifest(writer: ManifestWriter, manifest: dict) -> None:
+    """Every manifest rewrite of `run_campaign` goes through here (one place to observe them)."""
+    writer.write(manifest)
 
 
 def _shard_is_current(shard: Path, digest: str) -> bool:
@@ -269,47 +333,81 @@ def _common(values, what: str, tol: float = 1e-9, why: str = "one dataset is one
     return groups[0][0]
 
 
-def assemble_dataset(dataset_dir, entries: dict[str, dict]) -> None:
-    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards."""
+@dataclass(frozen=True)
+class ShardPart:
+    """One ok shard's share of the dataset (`shard_part`): its timeseries rows, its summary
+    row and its metadata. ``input_hash`` ties it to the shard it was read from."""
+
+    input_hash: str | None
+    timeseries: pd.DataFrame
+    row: dict
+    meta: tuple
+
+
+def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
+    """Read one ok shard into its :class:`ShardPart`; None (and ``entry`` marked failed) when
+    its sequence.json has no waveform u1/u2. Raises when the shard's files are unreadable or
+    break the schema.
+
+    The campaign driver calls it as each sequence finishes, while the workers measure the
+    others, so that the dataset's final assembly only concatenates (see `run_campaign`)."""
+    meta = entry.get("meta") or {}
+    wf = meta.get("waveform") or {}
+    if "u1_um_per_ms" not in wf or "u2_um" not in wf:
+        entry["status"], entry["error"] = "failed", "sequence.json has no waveform u1_um_per_ms/u2_um"
+        return None
+    shard = Path(dataset_dir) / "shards" / entry["shard"]
+    frames = pd.read_parquet(shard / "frames.parquet")
+    schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
+    summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
+                                    shard / "summary.json")
+    u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
+    jv = summary.get("jetting_velocity_m_s")
+    return ShardPart(
+        input_hash=entry.get("input_hash"),
+        timeseries=_timeseries_rows(seq_id, u1, u2, frames),
+        row={
+            "sequence_id": seq_id,
+            "u1_um_per_ms": u1,
+            "u2_um": u2,
+            "pinchoff_us": summary.get("pinchoff_us"),
+            "grown_volume_at_pinchoff_nl": summary.get("grown_volume_at_pinchoff_nl"),
+            "inflight_volume_nl": summary.get("inflight_volume_nl"),
+            "jetting_velocity_m_s": jv,
+            "flow_velocity_at_max_stroke_m_s": summary.get("flow_velocity_at_max_stroke_m_s"),
+            "inflight_volume_std_nl": summary.get("inflight_volume_std_nl"),
+            "jetting_velocity_se_m_s": summary.get("jetting_velocity_se_m_s"),
+            "satellites": summary.get("satellites"),
+            "n_frames": len(frames),
+            "n_errors": len(summary.get("errors") or []),
+            "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
+            "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
+            "inflight_frames": summary.get("inflight_frames"),
+        },
+        meta=(seq_id, meta, wf),
+    )
+
+
+def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, ShardPart] | None = None) -> None:
+    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards.
+
+    ``parts``: sequence id -> its :class:`ShardPart` read earlier (as the sequence finished);
+    a part is used only while it matches the entry's input hash, any other ok shard is read
+    here. The dataset is the same either way (rows in sequence-id order)."""
     dataset_dir = Path(dataset_dir)
+    parts = parts or {}
     ts_parts, rows, metas = [], [], []
     for seq_id, entry in sorted(entries.items()):
         if entry.get("status") != "ok":
             continue
-        meta = entry.get("meta") or {}
-        wf = meta.get("waveform") or {}
-        if "u1_um_per_ms" not in wf or "u2_um" not in wf:
-            entry["status"], entry["error"] = "failed", "sequence.json has no waveform u1_um_per_ms/u2_um"
-            continue
-        shard = dataset_dir / "shards" / entry["shard"]
-        frames = pd.read_parquet(shard / "frames.parquet")
-        schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
-        summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
-                                        shard / "summary.json")
-        u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
-        ts_parts.append(_timeseries_rows(seq_id, u1, u2, frames))
-        jv = summary.get("jetting_velocity_m_s")
-        rows.append(
-            {
-                "sequence_id": seq_id,
-                "u1_um_per_ms": u1,
-                "u2_um": u2,
-                "pinchoff_us": summary.get("pinchoff_us"),
-                "grown_volume_at_pinchoff_nl": summary.get("grown_volume_at_pinchoff_nl"),
-                "inflight_volume_nl": summary.get("inflight_volume_nl"),
-                "jetting_velocity_m_s": jv,
-                "flow_velocity_at_max_stroke_m_s": summary.get("flow_velocity_at_max_stroke_m_s"),
-                "inflight_volume_std_nl": summary.get("inflight_volume_std_nl"),
-                "jetting_velocity_se_m_s": summary.get("jetting_velocity_se_m_s"),
-                "satellites": summary.get("satellites"),
-                "n_frames": len(frames),
-                "n_errors": len(summary.get("errors") or []),
-                "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
-                "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
-                "inflight_frames": summary.get("inflight_frames"),
-            }
-        )
-        metas.append((seq_id, meta, wf))
+        part = parts.get(seq_id)
+        if part is None or part.input_hash != entry.get("input_hash"):
+            part = shard_part(dataset_dir, seq_id, entry)
+            if part is None:
+                continue
+        ts_parts.append(part.timeseries)
+        rows.append(part.row)
+        metas.append(part.meta)
     timeseries = (
         pd.concat(ts_parts, ignore_index=True) if ts_parts else pd.DataFrame(columns=TIMESERIES_COLUMNS)
     )
@@ -436,57 +534,85 @@ def run_campaign(
     entries: dict[str, dict] = {sid: old[sid] for sid in current if sid in old}
     result = CampaignResult(dataset_dir=dataset_dir)
     manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
-    write_json(manifest_path, manifest)
+    manifest_writer = ManifestWriter(manifest_path)
+    _write_manifest(manifest_writer, manifest)
     if rerun_options is not None:
         rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
         if not rerun_options.enabled:
             rerun_options = None
     bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
+    parts: dict[str, ShardPart] = {}
+
+    def read_part(sid: str) -> None:
+        """Read an ok shard's share of the dataset now, while the workers measure the others
+        (the final assembly then only concatenates). A shard that cannot be read is left to
+        the final assembly, which reports it as before."""
+        try:
+            part = shard_part(dataset_dir, sid, entries[sid])
+        except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
+            return
+        if part is not None:
+            parts[sid] = part
 
     def record(future, sid: str) -> None:
-        """One finished sequence: into the manifest at once (a kill loses nothing)."""
+        """One finished sequence into the manifest's entries (the caller then rewrites the
+        manifest: a kill loses nothing)."""
         try:
             out = future.result()
         except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
             out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
         if out.get("warnings"):
             result.warnings[sid] = out["warnings"]
-        entries[sid].update({k: v for k, v in out.items() if k != "warnings"})
+        part = out.get("part")
+        entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
         if out["status"] == "ok":
             result.measured.append(sid)
+            if part is not None and part.input_hash == entries[sid].get("input_hash"):
+                parts[sid] = part  # read by the worker
+            else:
+                read_part(sid)
         else:
             result.failed[sid] = out["error"]
-        write_json(manifest_path, manifest)
         bar.update(1)
 
-    # each sequence is submitted as soon as its input hash is known (the workers start measuring
-    # while the main process still hashes the others); the executor starts with the first task
+    # The client's serial work per sequence is kept far below a task's time, so that many
+    # workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
+    # submitted at once and its worker computes the input hash (the client only hashes sequences
+    # measured before, to know whether to skip them); finished sequences are recorded in
+    # batches, all that finished since the last manifest rewrite, with one rewrite per batch;
+    # each finished shard is read into its dataset part at once (`shard_part`).
     with contextlib.ExitStack() as stack:
         executor = None
         pending = {}
 
         def drain() -> None:
-            for future in as_completed(pending):
-                record(future, pending[future])
-            pending.clear()
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in sorted(done, key=pending.get):
+                    record(future, pending.pop(future))
+                _write_manifest(manifest_writer, manifest)
 
         for sid, folder in zip(current, folders):
-            digest = input_hash(folder, config_repr)
             shard = shard_name(sid)
             prev = old.get(sid, {})
-            if prev.get("status") == "ok" and prev.get("input_hash") == digest and _shard_is_current(
+            digest = None
+            if prev.get("status") == "ok":
+                digest = input_hash(folder, config_repr)
+            if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
                 dataset_dir / "shards" / shard, digest
             ):
                 entries[sid] = prev
                 result.skipped.append(sid)
+                read_part(sid)
                 bar.update(1)
                 continue
             entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
                             "error": None}
-            write_json(manifest_path, manifest)
             if executor is None:
                 executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
                 stack.callback(drain)  # on an error below too, before the executor closes
+            if isinstance(executor, SerialExecutor):
+                _write_manifest(manifest_writer, manifest)  # the sequence being measured, as pending
             future = executor.submit(
                 measure_to_shard,
                 str(folder),
@@ -496,15 +622,19 @@ def run_campaign(
                 None if rerun_options is None else rerun_options.for_sequence(sid),
                 given or None,
                 labels,
+                config_repr,
+                sid,
             )
             if future.done():  # the serial executor finishes inside submit
                 record(future, sid)
+                _write_manifest(manifest_writer, manifest)
             else:
                 pending[future] = sid
+        _write_manifest(manifest_writer, manifest)  # every sequence submitted, as pending or done
         drain()
     bar.close()
-    assemble_dataset(dataset_dir, entries)
-    write_json(manifest_path, manifest)
+    assemble_dataset(dataset_dir, entries, parts)
+    _write_manifest(manifest_writer, manifest)
     return result
 
 
