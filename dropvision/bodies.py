@@ -33,11 +33,10 @@ from dropvision.segmentation import (
     Segmentation,
     find_nozzle_body,
 )
+from dropvision.edges import RowEdges, body_edges
 from dropvision.volume import (
     equivalent_diameter_um,
     BodyVolume,
-    RowEdges,
-    body_edges,
     clip_to_tip_plane,
     integrate,
     neck_chord_px,

@@ -1,7 +1,7 @@
 """The calibration pass of a sequence and what it leaves for the per-frame measurement.
 
 `calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
-(`dropvision.calibration.calibrate`: background, nozzle, axis, tilt, tip plane, liquid level),
+(`dropvision.calibration.calibrate_frames`: background, nozzle, axis, tilt, tip plane, liquid level),
 measures the edge blur, the transmission noise and the nozzle walls' reference sharpness and
 contrast, and builds the `FrameContext`: the region of interest (a column band around the axis,
 from just above the tip down) and the arrays every frame is measured with.
@@ -16,13 +16,15 @@ import cv2
 import numpy as np
 
 from dropvision import quality as q
-from dropvision.calibration import (Calibration, CalibrationError, calibrate, edge_sigma_px, esf_sigma_px,
-                                   find_nozzle)
+from dropvision.blur import edge_sigma_px, esf_sigma_px
+from dropvision.calibration import Calibration, CalibrationError, calibrate_frames
+from dropvision.nozzle import find_nozzle
 from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
 from dropvision.classify import appearance, nozzle_edge_spread_px
-from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
-from dropvision.volume import NL_PER_UM3, body_edges, outline
+from dropvision.edges import body_edges, edge_threshold
+from dropvision.segmentation import dark_mask, find_nozzle_body, segment, threshold_image
+from dropvision.volume import NL_PER_UM3, outline
 
 
 @dataclass
@@ -76,7 +78,7 @@ class FrameContext:
     nozzle_blur_px: float = 0.0  # the walls' own blur (px) when they are out of focus, else 0
     # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
     smooth_px: float = 0.0
-    # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
+    # clipped background: its unclipped level (NaN: not clipped, or unknown) (`background.unclipped_level`)
     clipped_level: float = float("nan")
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
@@ -231,7 +233,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     images = [cal_frames[i] for i in sorted(cal_frames)]
     first = cal_frames[first_idx]
     try:
-        cal = calibrate(
+        cal = calibrate_frames(
             first, images, meta.pixel_size_um,
             nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
             nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
@@ -300,7 +302,7 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
 
     - ``edge floor``: ``config.edge_position_floor_px`` (threshold interpolation and blur model);
     - ``background level``: the background model's local misfit ``dB/B``
-      (`dropvision.calibration.background_residual`) moves the 50 % crossing by
+      (`dropvision.background.background_residual`) moves the 50 % crossing by
       ``dB/B / slope``, the edge's slope being ``(1 - T_liquid) / (sqrt(2 pi) sigma)``;
     - ``clipped background``: against a background clipped at an unknown level the true edge
       lies up to ``edge_range_px`` outside the measured one: half of it; with an estimated level,

@@ -36,7 +36,8 @@ from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
-from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
+from dropvision.edges import RowEdges
+from dropvision.volume import integrate, split_at_row, waist_row
 
 
 @dataclass

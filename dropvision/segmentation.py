@@ -1,10 +1,10 @@
 """Segmentation of backlit strobe frames into dark bodies.
 
 A frame is compared with its illumination (background) estimate: a pixel is *dark* when its
-transmission ``T = I / B`` is below the 50 % level between the background (1) and the liquid's
-interior level.  The comparison is done on the raw integers against a precomputed integer
-threshold image, ``I < ceil(thr * B)``, which is exactly ``T < thr`` and costs one ``cv2``
-call.  Each dark body is then taken with its enclosed bright lens spot filled (outer
+transmission ``T = I / B`` is below the edge level (`dropvision.edges.edge_threshold`, half-way
+between the background and the liquid's interior level).  The comparison is done on the raw
+integers against a precomputed integer threshold image, ``I < ceil(thr * B)``, which is
+exactly ``T < thr`` and costs one ``cv2`` call.  Each dark body is then taken with its enclosed bright lens spot filled (outer
 contours drawn filled), and labelled; bodies touching the top of the region of interest are
 the nozzle (with any liquid still joined to it), the others are detached liquid.
 Static specks (opaque dust found during calibration) are removed from the dark mask before
@@ -37,22 +37,6 @@ CLASS_OUT_OF_FOCUS = 6  # out-of-focus detached body: mist, or dust when static 
 CLASS_TOUCHING = 7  # satellite touching the main drop, split off it at the waist (not counted)
 CLASS_TAIL = 8  # detached body longer than ``compact_ratio`` equivalent diameters (a free ligament)
 CLASS_BORDER = 9  # detached body cut by the edge of the frame or of the measured band
-
-
-def edge_threshold(interior_level: float) -> float:
-    """Edge (50 %) transmission level half-way between the background (1) and a dark interior.
-
-    Parameters
-    ----------
-    interior_level : float
-        Transmission (background = 1) inside the liquid or the nozzle.
-
-    Returns
-    -------
-    float
-        ``(1 + interior_level) / 2``, in transmission units.
-    """
-    return 0.5 * (1.0 + interior_level)
 
 
 @dataclass(frozen=True)
@@ -96,7 +80,7 @@ def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarr
     background : ndarray
         Background (illumination) grey levels.
     threshold : float
-        Edge level in transmission units (see `edge_threshold`).
+        Edge level in transmission units (see `dropvision.edges.edge_threshold`).
     dtype : numpy dtype
         Dtype of the frames (integers are clipped to its range).
 
