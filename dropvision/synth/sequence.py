@@ -121,7 +121,7 @@ class SynthConfig:
     orientation : str
         Direction the drops travel in the stored frames: "down" (canonical), "up", "left",
         "right". Frames are rendered canonically (``width_px`` x ``height_px``) and stored
-        with :func:`dropvision.sequence.from_canonical`; every truth position stays canonical.
+        with :func:`dropvision.orientation.from_canonical`; every truth position stays canonical.
     holder : bool or float
         Dark holder block / nozzle plate around the nozzle at the top: False/0 none, True
         5 x the nozzle outer diameter wide, a number > 0 its width in µm. It reaches from the
@@ -211,7 +211,7 @@ class SynthConfig:
         def bad(name, why):
             raise ValueError(f"SynthConfig.{name}: {why}, got {getattr(self, name)!r}")
 
-        from dropvision.sequence import ORIENTATIONS
+        from dropvision.orientation import ORIENTATIONS
 
         object.__setattr__(self, "colour_gains", tuple(float(g) for g in self.colour_gains))
         if isinstance(self.orientation, str):
@@ -854,14 +854,14 @@ def synthesize(config: SynthConfig, *, progress: bool | None = None,
     ------
     image : ndarray, uint8 or uint16
         The frame as stored: (height_px, width_px) canonically, rotated by
-        :func:`dropvision.sequence.from_canonical` for ``orientation`` (left/right: (width_px,
+        :func:`dropvision.orientation.from_canonical` for ``orientation`` (left/right: (width_px,
         height_px)); (..., 3) RGB with ``colour``. JPEG compression happens in the writer.
     truth : FrameTruth
         Canonical-frame truth; ``truth.bodies`` holds the frame's truth_bodies.csv rows.
     """
     from tqdm import tqdm
 
-    from dropvision.sequence import from_canonical
+    from dropvision.orientation import from_canonical
 
     p = synth_plan if synth_plan is not None else plan(config)
     cfg = p.config
@@ -916,7 +916,7 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
     ecm = cfg.physics.ecm_parameters()
     coeffs = ecm.coefficients()
     doc = _jetting_truth(p, delays, tp, attached, detached, ecm, coeffs)
-    from dropvision.sequence import canonical_to_original
+    from dropvision.orientation import canonical_to_original
 
     stored_r, stored_c = canonical_to_original(float(cfg.tip_row), float(cfg.axis_col), cfg.orientation,
                                                (int(cfg.height_px), int(cfg.width_px)))
@@ -948,7 +948,7 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
     }
     doc["conventions"].update({
         "truth_positions": "canonical frame; sequence.json orientation rotates the stored frames "
-                           "(dropvision.sequence.from_canonical); stored_tip_row/stored_axis_col "
+                           "(dropvision.orientation.from_canonical); stored_tip_row/stored_axis_col "
                            "give the tip centre in the stored image",
         "n_satellites": "detached bodies other than the main drop",
         "n_satellites_visible": "drops other than the main drop as a person counts them: satellites "
