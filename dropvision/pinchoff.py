@@ -17,7 +17,7 @@ import pandas as pd
 
 from dropvision.context import FrameContext
 from dropvision.edges import crossing_fraction
-from dropvision.segmentation import Body, Segmentation
+from dropvision.segmentation import DarkBody, Segmentation
 from dropvision.special import ndtr
 
 #: Darkening (transmission units) every interior gap row must show beyond the ends' blurred
@@ -30,7 +30,7 @@ from dropvision.special import ndtr
 INTERIOR_THREAD_MARGIN = 0.05
 
 
-def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: Body,
+def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: DarkBody,
                          bottom_row: float, gain: float) -> set[int]:
     """Labels of detached bodies still joined to the attached liquid by an unresolved thread.
 
@@ -59,7 +59,7 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         Calibrated blur (px), threshold, liquid level and noise (transmission units).
     seg : Segmentation
         The frame's bodies.
-    nozzle_body : Body
+    nozzle_body : DarkBody
         The nozzle with the attached liquid.
     bottom_row : float
         Bottom row of the attached liquid (region coordinates, px).

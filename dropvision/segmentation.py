@@ -40,7 +40,7 @@ CLASS_BORDER = 9  # detached body cut by the edge of the frame or of the measure
 
 
 @dataclass(frozen=True)
-class Body:
+class DarkBody:
     """One dark body in region-of-interest coordinates.
 
     Attributes
@@ -69,7 +69,7 @@ class Segmentation:
     """Result of `segment`: filled label image of the region of interest and its bodies."""
 
     labels: np.ndarray  # uint16, 0 = background
-    bodies: list[Body]
+    bodies: list[DarkBody]
 
 
 def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarray:
@@ -120,7 +120,7 @@ def segment(mask: np.ndarray, min_area_px: int = 4) -> Segmentation:
     """
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     labels = np.zeros(mask.shape, np.uint16)
-    bodies: list[Body] = []
+    bodies: list[DarkBody] = []
     for c in contours:
         x, y, w, h = cv2.boundingRect(c)
         if w * h < min_area_px:
@@ -131,33 +131,33 @@ def segment(mask: np.ndarray, min_area_px: int = 4) -> Segmentation:
         if area < min_area_px:
             labels[y:y + h, x:x + w][labels[y:y + h, x:x + w] == lab] = 0
             continue
-        bodies.append(Body(lab, x, y, x + w, y + h, area, y == 0))
+        bodies.append(DarkBody(lab, x, y, x + w, y + h, area, y == 0))
     # keep labels consecutive after removals
     if bodies and bodies[-1].label != len(bodies):
         lut = np.zeros(bodies[-1].label + 1, np.uint16)
         new = []
         for i, b in enumerate(bodies, start=1):
             lut[b.label] = i
-            new.append(Body(i, b.x0, b.y0, b.x1, b.y1, b.area_px, b.nozzle))
+            new.append(DarkBody(i, b.x0, b.y0, b.x1, b.y1, b.area_px, b.nozzle))
         labels = lut[labels]
         bodies = new
     return Segmentation(labels, bodies)
 
 
-def find_nozzle_body(bodies: list[Body], axis_roi: float) -> Body | None:
+def find_nozzle_body(bodies: list[DarkBody], axis_roi: float) -> DarkBody | None:
     """The largest body touching the top of the region whose columns span the axis.
 
     Parameters
     ----------
-    bodies : list of Body
+    bodies : list of DarkBody
     axis_roi : float
         Axis column (region coordinates, px).
 
     Returns
     -------
-    Body or None
+    DarkBody or None
     """
-    found: Body | None = None
+    found: DarkBody | None = None
     for b in bodies:
         if b.nozzle and b.x0 <= axis_roi < b.x1:
             if found is None or b.area_px > found.area_px:

@@ -14,7 +14,7 @@ down the image).
 Its parts: the metadata and errors (`dropvision.sequence_meta`), the frames' orientation
 (`dropvision.orientation`), the validation of values and overrides (`dropvision.overrides`) and
 the frame discovery (`dropvision.discovery`).  The writers of the same format are in
-:mod:`dropvision.writers`.
+:mod:`dropvision.sequence_writer`.
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ __all__ = [
     "sequence_from_arrays", "parse_delay_from_name", "RANGES", "OVERRIDE_KEYS", "check_overrides",
 ]
 
-#: Value of the ``schema`` key of sequence.json (written by ``dropvision.writers``).
+#: Value of the ``schema`` key of sequence.json (written by ``dropvision.sequence_writer``).
 SCHEMA = "dropvision.sequence/1"
 #: File name of the metadata file in a sequence folder.
 SEQUENCE_JSON = "sequence.json"

@@ -255,7 +255,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "detached_volume_uncertainty_nl": np.where(np.isfinite(drop.detached_volume_nl),
                                                    drop.detached_volume_uncertainty_nl, np.nan),
         "volume_uncertainty_source": [cal.volume_uncertainty_source] * m,
-    }, columns=FRAME_COLUMNS)
+    })
+    frames = frames[sorted(frames.columns, key=_declared_order)]
+    check_frames_table(frames, "the frames table built by dropvision.summary.assemble")
     # --- summary -------------------------------------------------------------------------
     last_att = delay[attached & (delay < pinch)] if np.isfinite(pinch) else delay[attached]
     g_pinch = float("nan")
@@ -483,6 +485,43 @@ def check_nozzle(meta, drop, config: MeasureConfig, flags, notes) -> bool:
                          f"{d_in:g} um): nozzle_inner_diameter_um wrong? flow velocities not given")
             lie = True
     return lie
+
+
+def _declared_order(column: str) -> int:
+    """Position of ``column`` in `FRAME_COLUMNS` (undeclared columns last, for the check to name)."""
+    return FRAME_COLUMNS.index(column) if column in FRAME_COLUMNS else len(FRAME_COLUMNS)
+
+
+def check_frames_table(frames: pd.DataFrame, source) -> None:
+    """Check the frames table against its schema (`identify.schema.FRAMES`) before it is used or written.
+
+    Parameters
+    ----------
+    frames : DataFrame
+        The frames table.
+    source : str or Path
+        What it is (a file being written, or where it was built), named in the error.
+
+    Raises
+    ------
+    identify.schema.SchemaError
+        Naming ``source`` and the first offending column: one missing, one not declared in the
+        schema, columns out of the declared order, a wrong dtype, a missing value in a column that
+        allows none, or an infinite value.
+    """
+    missing = [c for c in FRAME_COLUMNS if c not in frames.columns]
+    if missing:
+        raise schema.SchemaError(f"{source}: missing column {missing[0]!r} of {schema.FRAMES.schema} "
+                                 f"(declared in identify/schema.py FRAMES)"
+                                 + (f"; also missing: {', '.join(missing[1:])}" if missing[1:] else ""))
+    extra = [c for c in frames.columns if c not in FRAME_COLUMNS]
+    if extra:
+        raise schema.SchemaError(f"{source}: column {extra[0]!r} is not declared in {schema.FRAMES.schema} "
+                                 "(identify/schema.py FRAMES): declare it there or do not write it")
+    if list(frames.columns) != FRAME_COLUMNS:
+        raise schema.SchemaError(f"{source}: columns not in the order declared by {schema.FRAMES.schema} "
+                                 "(identify/schema.py FRAMES)")
+    schema.check_table(frames, schema.FRAMES, source)
 
 
 def per_delay(frames: pd.DataFrame) -> pd.DataFrame:

@@ -22,7 +22,7 @@ from dropvision.synth.shapes import (SATELLITE_KINDS, DropShapeModel, PendantSha
 
 __all__ = ["FORMATS", "TRUTH_COLUMNS", "BODY_COLUMNS", "BODY_CLASSES", "SCENES", "RIGS", "SynthConfig",
            "FrameTruth", "BodyTruth", "SynthPlan", "plan", "synthesize", "sequence_truth", "parse_delays",
-           "frames_table", "bodies_table", "colour_gains"]
+           "truth_frames_table", "truth_bodies_table", "colour_gains"]
 
 #: Output containers: one PNG per frame, one TIFF per frame, one multi-page TIFF, one JPEG
 #: per frame (8-bit only).
@@ -476,14 +476,14 @@ class BodyTruth:
         return asdict(self)
 
 
-def frames_table(rows) -> pd.DataFrame:
+def truth_frames_table(rows) -> pd.DataFrame:
     """truth_frames.csv content as a DataFrame with :data:`TRUTH_COLUMNS`."""
     df = pd.DataFrame([r.to_dict() for r in rows], columns=list(TRUTH_COLUMNS))
     df["page"] = df["page"].astype("Int64")
     return df
 
 
-def bodies_table(rows) -> pd.DataFrame:
+def truth_bodies_table(rows) -> pd.DataFrame:
     """truth_bodies.csv content (:data:`BODY_COLUMNS`) from the frames' :class:`FrameTruth`."""
     return pd.DataFrame([b.to_dict() for r in rows for b in r.bodies], columns=list(BODY_COLUMNS))
 

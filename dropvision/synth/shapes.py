@@ -67,7 +67,7 @@ from scipy.optimize import brentq
 from identify.physics import DropHistory, SynthPhysics
 
 __all__ = [
-    "UM3_PER_NL", "Spheroid", "SphericalSegment", "QuadraticNeck", "Profile", "Body",
+    "UM3_PER_NL", "Spheroid", "SphericalSegment", "QuadraticNeck", "Profile", "LiquidBody",
     "ShapeParams", "ShapeState", "DropShapeModel", "cap_volume_um3", "cap_height_for_volume_um",
     "TabulatedProfile", "SATELLITE_MODES", "bead_segment", "dumbbell_profile",
     "young_laplace_profile", "PendantShapeModel", "SATELLITE_KINDS",
@@ -420,7 +420,7 @@ class Profile:
 
 
 @dataclass(frozen=True)
-class Body:
+class LiquidBody:
     """A liquid body of revolution placed in the nozzle frame.
 
     Attributes
@@ -453,7 +453,7 @@ class Body:
         return (self.origin_z_um + s * np.cos(self.axis_angle_rad),
                 self.origin_x_um + s * np.sin(self.axis_angle_rad))
 
-    def shifted(self, dz_um: float, dx_um: float) -> "Body":
+    def shifted(self, dz_um: float, dx_um: float) -> "LiquidBody":
         return replace(self, origin_z_um=self.origin_z_um + dz_um, origin_x_um=self.origin_x_um + dx_um)
 
 
@@ -516,8 +516,8 @@ class ShapeState:
 
     t_us: float
     attached: bool
-    attached_body: Body | None
-    main_body: Body | None
+    attached_body: LiquidBody | None
+    main_body: LiquidBody | None
     satellites: tuple = ()
     attached_volume_nl: float = 0.0
     grown_volume_nl: float = 0.0
@@ -535,7 +535,7 @@ class ShapeState:
         return len(self.satellites)
 
     @property
-    def bodies(self) -> tuple[Body, ...]:
+    def bodies(self) -> tuple[LiquidBody, ...]:
         out = tuple(b for b in (self.attached_body, self.main_body) if b is not None)
         return out + tuple(self.satellites)
 
@@ -718,7 +718,7 @@ class DropShapeModel:
             profile = build(R)
             d = self._drop(R, eps, c)
             spots = self._spot(c, d.a_um, d.b_um)
-        body = Body("attached", profile, 0.0, 0.0, 0.0, spots)
+        body = LiquidBody("attached", profile, 0.0, 0.0, 0.0, spots)
         vol = body.volume_nl()
         return ShapeState(
             t_us=t, attached=True, attached_body=body, main_body=None, attached_volume_nl=vol,
@@ -726,7 +726,7 @@ class DropShapeModel:
             flow_velocity_m_s=float(self.history.flow_velocity_m_s_at(t)),
             extra={"attached_target_nl": target / UM3_PER_NL})
 
-    def _residual_body(self, delta: float) -> Body:
+    def _residual_body(self, delta: float) -> LiquidBody:
         sp = self.shape
         parts = []
         ell = self.s_wp * (np.exp(-delta / sp.stub_retract_us) if sp.stub_retract_us > 0 else 0.0)
@@ -741,7 +741,7 @@ class DropShapeModel:
         if sp.bead_um > 0:  # bead hanging from the apex of the residual meniscus (disjoint support)
             top = max(p.support[1] for p in parts)
             parts.append(bead_segment(top, sp.bead_um))
-        return Body("attached", Profile(tuple(parts), clip_min_um=0.0), 0.0, 0.0, 0.0)
+        return LiquidBody("attached", Profile(tuple(parts), clip_min_um=0.0), 0.0, 0.0, 0.0)
 
     def _detached_state(self, t: float) -> ShapeState:
         delta = t - self.tp
@@ -750,7 +750,7 @@ class DropShapeModel:
         eps = self.elongation(delta)
         zc, xc = self.drop_center_zx_um(delta)
         inflight = delta >= self.t_final
-        sats: list[Body] = []
+        sats: list[LiquidBody] = []
         if not inflight:
             L = self._tail_length(delta)
             target = self.v_inflight_um3 + self.v_sat_um3
@@ -771,9 +771,9 @@ class DropShapeModel:
                 sz, sx = zc + s * np.cos(self.theta), xc + s * np.sin(self.theta)
                 spots = self._spot(0.0, r_s, r_s)
                 prof = self._dumbbell if kind == "dumbbell" else Profile((Spheroid(0.0, r_s, r_s),))
-                sats.append(Body("satellite", prof, sz, sx, self.theta, spots))
+                sats.append(LiquidBody("satellite", prof, sz, sx, self.theta, spots))
         d = self._drop(R, eps)
-        main = Body("drop", profile, zc, xc, self.theta, self._spot(0.0, d.a_um, d.b_um))
+        main = LiquidBody("drop", profile, zc, xc, self.theta, self._spot(0.0, d.a_um, d.b_um))
         v_main = main.volume_nl()
         cz, cx = main.centroid_zx_um()
         return ShapeState(
@@ -818,7 +818,7 @@ class PendantShapeModel:
         f = shape.spot_radius_fraction
         rmax = d["max_radius_um"]
         spots = ((d["equator_s_um"], f * rmax, f * rmax),) if f > 0 else ()
-        self.body = Body("attached", prof, 0.0, 0.0, 0.0, spots)
+        self.body = LiquidBody("attached", prof, 0.0, 0.0, 0.0, spots)
         # names used by the dust layout and the truth (a pendant drop neither detaches nor flies)
         self.theta = 0.0
         self.tp = float("inf")
