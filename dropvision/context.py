@@ -261,7 +261,11 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         ctx.smooth_px = float(config.smooth_px)
         if ctx.sigma_px > 0:  # the kernel is truncated (`smooth_roi`): its own standard deviation
             ctx.sigma_px = float(math.hypot(ctx.sigma_px, _kernel_sigma(ctx.smooth_px)))
-    _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
+    walls = wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma, cal.liquid_level, config)
+    if walls is not None:
+        ctx.wall_rows, ctx.wall_cols, ctx.wall_inv_background = walls.rows, walls.cols, walls.inv_background
+        ctx.blur_ref_px, ctx.sharpness_ref = walls.blur_px, walls.sharpness
+        ctx.max_frame_blur_px, ctx.min_wall_contrast = walls.max_frame_blur_px, walls.min_wall_contrast
     nozzle_ref = _nozzle_edge_spread(first, ctx)
     found = detached_appearances(images, ctx)
     body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
@@ -488,18 +492,72 @@ def transmission_noise(transmission: np.ndarray, default: float) -> float:
     return default
 
 
-def _set_wall_reference(ctx: FrameContext, cal: Calibration, nozzle, t_first: np.ndarray, sigma: float,
-                        config: MeasureConfig) -> None:
-    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane."""
-    dry = nozzle.rows <= cal.tip_row - 3
+@dataclass(frozen=True)
+class WallReference:
+    """The nozzle walls well above the tip plane: the per-frame sharpness and contrast reference.
+
+    Attributes
+    ----------
+    rows, cols : ndarray of int
+        Pixel windows across the walls (`dropvision.quality.wall_windows`, full-frame).
+    inv_background : ndarray of float32
+        ``1 / background`` at those pixels.
+    blur_px : float
+        Calibrated edge blur the walls' sharpness corresponds to (px).
+    sharpness : float
+        Their edge sharpness in the calibration frame (`dropvision.quality.edge_sharpness`).
+    max_frame_blur_px : float
+        A frame blurrier than this is flagged.
+    min_wall_contrast : float
+        A frame whose walls' contrast is below this is flagged.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    inv_background: np.ndarray
+    blur_px: float
+    sharpness: float
+    max_frame_blur_px: float
+    min_wall_contrast: float
+
+
+def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.ndarray, sigma_px: float,
+                   liquid_level: float, config: MeasureConfig) -> WallReference | None:
+    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane.
+
+    Parameters
+    ----------
+    nozzle : dropvision.nozzle.Nozzle
+        Outer walls found in the first calibration frame.
+    tip_row : float
+        Tip plane row; walls 3 rows and more above it are used (dry).
+    background : ndarray
+        Background model (grey levels, full frame).
+    t_first : ndarray
+        First calibration frame over the background (transmission).
+    sigma_px : float
+        Calibrated edge blur (px).
+    liquid_level : float
+        Liquid interior transmission (scales the contrast floor).
+    config : MeasureConfig
+
+    Returns
+    -------
+    WallReference or None
+        None when fewer than 4 wall windows, no finite blur, or walls without sharpness or
+        contrast: the frames' blur and contrast are then not judged from the walls.
+    """
+    dry = nozzle.rows <= tip_row - 3
     wr, wc = q.wall_windows(nozzle.rows[dry], nozzle.left_px[dry], nozzle.right_px[dry], t_first.shape[1])
-    if wr.shape[0] >= 4 and np.isfinite(sigma):
-        prof = t_first[wr, wc]
-        sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
-        if sharp > 0 and contrast > 0:
-            ctx.wall_rows, ctx.wall_cols = wr, wc
-            ctx.wall_inv_background = (1.0 / cal.background.background[wr, wc]).astype(np.float32)
-            ctx.blur_ref_px, ctx.sharpness_ref = float(sigma), sharp
-            ctx.max_frame_blur_px = min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma)
-            ctx.min_wall_contrast = contrast * max(1.0 - config.contrast_change_tolerance,
-                                                   config.min_contrast / max(1.0 - cal.liquid_level, 1e-6))
+    if not (wr.shape[0] >= 4 and np.isfinite(sigma_px)):
+        return None
+    prof = t_first[wr, wc]
+    sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
+    if not (sharp > 0 and contrast > 0):
+        return None
+    return WallReference(
+        rows=wr, cols=wc, inv_background=(1.0 / background[wr, wc]).astype(np.float32),
+        blur_px=float(sigma_px), sharpness=sharp,
+        max_frame_blur_px=min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma_px),
+        min_wall_contrast=contrast * max(1.0 - config.contrast_change_tolerance,
+                                         config.min_contrast / max(1.0 - liquid_level, 1e-6)))
