@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dropvision.synth.shapes import LiquidBody, Profile, QuadraticNeck
+from dropvision.synth.profiles import LiquidBody, Profile, QuadraticNeck
 
 __all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer",
            "Structure", "polygon_coverage", "mist_map"]

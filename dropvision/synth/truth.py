@@ -12,7 +12,7 @@ import pandas as pd
 from dropvision.orientation import canonical_to_original
 from dropvision.synth.config import colour_gains
 from dropvision.synth.planning import SynthPlan, renderer_for
-from dropvision.synth.shapes import cap_volume_um3
+from dropvision.synth.profiles import bead_segment, cap_volume_um3
 from identify.versions import software_versions
 
 
@@ -157,9 +157,7 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
 
 
 def _bead_dims(bead_um: float) -> tuple[float, float]:
-    """(base radius, height) of the bead segment (see shapes.bead_segment)."""
-    from dropvision.synth.shapes import bead_segment
-
+    """(base radius, height) of the bead segment (see `dropvision.synth.profiles.bead_segment`)."""
     b = bead_segment(0.0, bead_um)
     return b.base_radius_um, b.height_um
 
