@@ -187,7 +187,8 @@ def calibrate_frames(
     expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um else None
     frac = clipped_fraction(bg.background, max_value)
     if frac > clipped_limit:
-        level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background, DEFAULT_EDGE_THRESHOLD,
+        level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background,
+                                                             DEFAULT_EDGE_THRESHOLD,
                                                              expected), max_value)
         clipped = {"fraction": frac, "level": level, "level_uncertainty": level_se, "max_value": int(max_value),
                    "method": "background grey level from the unclipped part of the top body's edge profile "

@@ -268,20 +268,15 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         ctx.max_frame_blur_px, ctx.min_wall_contrast = walls.max_frame_blur_px, walls.min_wall_contrast
     nozzle_ref = _nozzle_edge_spread(first, ctx)
     found = detached_appearances(images, ctx)
-    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
     ctx.edge_blur_ref_px, ctx.edge_blur_ref_source = nozzle_ref, "nozzle walls"
-    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
-    if np.isfinite(body_ref) and not nozzle_ref <= limit:
+    body = body_blur_reference(found, nozzle_ref, sigma, config)
+    if body is not None:
         # the nozzle (or the holder block around it) is out of focus: what is in focus is the
         # jet's plane, so the sharpest detached body is the reference for mist, and the blur
         # is its outline's edge-spread function; the walls no longer judge a frame's blur or contrast
         cal.nozzle_out_of_focus = True
-        sharpest = found[int(np.argmin(found["edge_blur_px"]))]
-        walls_sigma = sigma
-        sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
-        # the walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
-        ctx.nozzle_blur_px = float(walls_sigma if np.isfinite(walls_sigma) else
-                                   sigma * nozzle_ref / body_ref if np.isfinite(nozzle_ref) else 3.0 * sigma)
+        body_ref, sigma = body.edge_blur_ref_px, body.sigma_px
+        ctx.nozzle_blur_px = body.nozzle_blur_px
         ctx.edge_blur_ref_px = body_ref
         ctx.mist_blur_factor = config.mist_blur_factor_bodies
         ctx.edge_blur_ref_source = "sharpest detached body (the nozzle walls are out of focus)"
@@ -299,6 +294,59 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx.edge_noise_px = float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig / max(1.0 - cal.liquid_level, 0.05))
     return cal, sigma, ctx
+
+
+@dataclass(frozen=True)
+class BodyBlurReference:
+    """The sharpest detached body as the blur reference, when the nozzle walls are out of focus.
+
+    Attributes
+    ----------
+    edge_blur_ref_px : float
+        Its edge spread (`dropvision.classify`): mist is judged against it.
+    sigma_px : float
+        Its edge blur (Gaussian sigma of its outline's edge-spread fit, else its edge spread):
+        the calibration's blur from then on.
+    nozzle_blur_px : float
+        The walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
+        (three times the body's without a wall spread).
+    """
+
+    edge_blur_ref_px: float
+    sigma_px: float
+    nozzle_blur_px: float
+
+
+def body_blur_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
+                        config: MeasureConfig) -> BodyBlurReference | None:
+    """Whether the nozzle walls are out of focus, and then the sharpest detached body's blur reference.
+
+    Parameters
+    ----------
+    found : ndarray of APPEARANCE_DTYPE
+        Detached bodies of the calibration frames (`detached_appearances`).
+    nozzle_edge_spread_px : float
+        Edge spread of the nozzle walls in the first frame (NaN: not measured).
+    walls_sigma_px : float
+        The walls' edge-spread fit (`dropvision.blur.edge_sigma_px`).
+    config : MeasureConfig
+        ``mist_blur_factor`` and ``mist_blur_offset_px``: the walls are out of focus when their
+        spread is beyond ``mist_blur_factor x`` the sharpest body's ``+ mist_blur_offset_px``.
+
+    Returns
+    -------
+    BodyBlurReference or None
+        None when the walls are in focus (or no detached body was found): they stay the reference.
+    """
+    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
+    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
+    if not (np.isfinite(body_ref) and not nozzle_edge_spread_px <= limit):
+        return None
+    sharpest = found[int(np.argmin(found["edge_blur_px"]))]
+    sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
+    nozzle_blur = float(walls_sigma_px if np.isfinite(walls_sigma_px) else
+                        sigma * nozzle_edge_spread_px / body_ref if np.isfinite(nozzle_edge_spread_px) else 3.0 * sigma)
+    return BodyBlurReference(edge_blur_ref_px=body_ref, sigma_px=sigma, nozzle_blur_px=nozzle_blur)
 
 
 def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureConfig) -> dict[str, float]:

@@ -190,7 +190,8 @@ def _axis_runs(rr: np.ndarray, s: np.ndarray, e: np.ndarray, y1: int) -> tuple[n
     return start, stop
 
 
-def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESHOLD, expected_width_px: float | None = None) -> Nozzle:
+def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESHOLD,
+                expected_width_px: float | None = None) -> Nozzle:
     """Locate the nozzle (dark body at the top edge) and fit its outer walls.
 
     Parameters

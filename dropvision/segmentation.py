@@ -4,9 +4,10 @@ A frame is compared with its illumination (background) estimate: a pixel is *dar
 transmission ``T = I / B`` is below the edge level (`dropvision.edges.edge_threshold`, half-way
 between the background and the liquid's interior level).  The comparison is done on the raw
 integers against a precomputed integer threshold image, ``I < ceil(thr * B)``, which is
-exactly ``T < thr`` and costs one ``cv2`` call.  Each dark body is then taken with its enclosed bright lens spot filled (outer
-contours drawn filled), and labelled; bodies touching the top of the region of interest are
-the nozzle (with any liquid still joined to it), the others are detached liquid.
+exactly ``T < thr`` and costs one ``cv2`` call.  Each dark body is then taken with its enclosed
+bright lens spot filled (outer contours drawn filled), and labelled; bodies touching the top of
+the region of interest are the nozzle (with any liquid still joined to it), the others are
+detached liquid.
 Static specks (opaque dust found during calibration) are removed from the dark mask before
 labelling, so they can never become liquid.
 

@@ -8,7 +8,7 @@ import pytest
 from dropvision.blur import edge_sigma_px
 from dropvision.calibration import calibrate_frames
 from dropvision.config import MeasureConfig
-from dropvision.context import wall_reference
+from dropvision.context import APPEARANCE_DTYPE, body_blur_reference, wall_reference
 from dropvision.edges import edge_threshold
 from dropvision.nozzle import find_nozzle
 from dropvision.synth import SynthConfig, synthesize
@@ -45,3 +45,25 @@ def test_wall_reference_none_without_a_blur_or_walls(first_frame):
     # the tip plane above every wall row: no dry wall
     assert wall_reference(nozzle, float(nozzle.rows.min()), cal.background.background, t, sigma, cal.liquid_level,
                           config) is None
+
+
+def _found(*bodies):
+    """Detached bodies (edge spread px, ESF sigma px) as `detached_appearances` returns them."""
+    return np.array([(0, 100, 0.2, spread, sigma) for spread, sigma in bodies], APPEARANCE_DTYPE)
+
+
+def test_body_blur_reference_only_when_the_walls_are_out_of_focus():
+    config = MeasureConfig()
+    found = _found((1.0, 0.9), (2.0, 1.8))
+    limit = config.mist_blur_factor * 1.0 + config.mist_blur_offset_px
+    assert body_blur_reference(found, limit, 1.1, config) is None  # walls as sharp as allowed
+    assert body_blur_reference(_found(), 5.0, 1.1, config) is None  # no detached body
+    ref = body_blur_reference(found, limit + 0.5, 1.1, config)
+    assert ref.edge_blur_ref_px == 1.0 and ref.sigma_px == 0.9  # the sharpest body's
+    assert ref.nozzle_blur_px == 1.1  # the walls' own fit
+    # no wall fit: the body's sigma scaled by the two spreads; no wall spread either: 3 x
+    assert body_blur_reference(found, limit + 0.5, float("nan"), config).nozzle_blur_px == pytest.approx(
+        0.9 * (limit + 0.5) / 1.0)
+    assert body_blur_reference(found, float("nan"), float("nan"), config).nozzle_blur_px == pytest.approx(2.7)
+    # the sharpest body without an ESF fit: its edge spread
+    assert body_blur_reference(_found((1.0, float("nan"))), 5.0, 1.1, config).sigma_px == 1.0
