@@ -29,15 +29,14 @@ from dropvision.segmentation import (
     CLASS_SPECK,
     CLASS_TAIL,
     CLASS_TOUCHING,
-    Body,
+    DarkBody,
     Segmentation,
     find_nozzle_body,
 )
+from dropvision.edges import RowEdges, body_edges
 from dropvision.volume import (
     equivalent_diameter_um,
     BodyVolume,
-    RowEdges,
-    body_edges,
     clip_to_tip_plane,
     integrate,
     neck_chord_px,
@@ -130,7 +129,7 @@ def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
     return float(math.pi * volume.top_chord_px * 3.0 * nozzle_blur_px * 0.5 * nozzle_blur_px)
 
 
-def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body, gain: float) -> AttachedLiquid:
+def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody, gain: float) -> AttachedLiquid:
     """Edges, volume below the tip plane, bottom and neck of the liquid joined to the nozzle.
 
     Parameters
@@ -139,7 +138,7 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
         Raw frame, region of interest.
     ctx : FrameContext
     seg : Segmentation
-    body : Body
+    body : DarkBody
         The nozzle body (`find_nozzle_body`).
     gain : float
         Frame illumination relative to the background model.
@@ -180,7 +179,7 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3
 
 
-def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Body,
+def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
                  gain: float) -> tuple[RowEdges, BodyVolume]:
     """Run edges and disc-integrated volume (px^3, blur corrected) of a detached body.
 
@@ -190,7 +189,7 @@ def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Bo
         Raw frame, region of interest.
     ctx : FrameContext
     seg : Segmentation
-    body : Body
+    body : DarkBody
     gain : float
         Frame illumination relative to the background model.
 
@@ -226,7 +225,7 @@ def off_path_reason(main: DetachedBody, body: DetachedBody, through_tip: bool = 
     return None
 
 
-def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: RowEdges,
+def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edges: RowEdges,
                       volume: BodyVolume) -> DetachedBody:
     """A detached body in physical units, with what makes it untrusted.
 
@@ -234,7 +233,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
     ----------
     ctx : FrameContext
     seg : Segmentation
-    body : Body
+    body : DarkBody
     edges : RowEdges
     volume : BodyVolume
         From `measure_body`.
@@ -272,7 +271,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: Body, edges: R
     )
 
 
-def class_image(seg: Segmentation, nozzle_body: Body | None, bodies: Sequence[DetachedBody] = (),
+def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody] = (),
                 rejected: Sequence[DetachedBody] = (), opaque: np.ndarray | None = None, *,
                 compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
     """Per-pixel segmentation classes and per-body boxes of one frame (for the Rerun viewer).
@@ -283,7 +282,7 @@ def class_image(seg: Segmentation, nozzle_body: Body | None, bodies: Sequence[De
     Parameters
     ----------
     seg : Segmentation
-    nozzle_body : Body or None
+    nozzle_body : DarkBody or None
         The body holding the attached liquid (`CLASS_ATTACHED`; other top bodies `CLASS_NOZZLE`).
     bodies : sequence of DetachedBody
         The frame's in-focus detached bodies, largest first (`FrameRecord.bodies`), matched to

@@ -1,7 +1,7 @@
 """The calibration pass of a sequence and what it leaves for the per-frame measurement.
 
 `calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
-(`dropvision.calibration.calibrate`: background, nozzle, axis, tilt, tip plane, liquid level),
+(`dropvision.calibration.calibrate_frames`: background, nozzle, axis, tilt, tip plane, liquid level),
 measures the edge blur, the transmission noise and the nozzle walls' reference sharpness and
 contrast, and builds the `FrameContext`: the region of interest (a column band around the axis,
 from just above the tip down) and the arrays every frame is measured with.
@@ -16,13 +16,15 @@ import cv2
 import numpy as np
 
 import dropvision.quality as q
-from dropvision.calibration import (Calibration, CalibrationError, calibrate, edge_sigma_px, esf_sigma_px,
-                                   find_nozzle)
+from dropvision.blur import edge_sigma_px, esf_sigma_px
+from dropvision.calibration import Calibration, CalibrationError, calibrate_frames
+from dropvision.nozzle import find_nozzle
 from dropvision.config import MeasureConfig
 from dropvision.sequence import SequenceError
 from dropvision.classify import appearance, nozzle_edge_spread_px
-from dropvision.segmentation import dark_mask, edge_threshold, find_nozzle_body, segment, threshold_image
-from dropvision.volume import NL_PER_UM3, body_edges, outline
+from dropvision.edges import body_edges, edge_threshold
+from dropvision.segmentation import dark_mask, find_nozzle_body, segment, threshold_image
+from dropvision.volume import NL_PER_UM3, outline
 
 
 @dataclass
@@ -76,7 +78,7 @@ class FrameContext:
     nozzle_blur_px: float = 0.0  # the walls' own blur (px) when they are out of focus, else 0
     # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
     smooth_px: float = 0.0
-    # clipped background: its unclipped level (NaN: not clipped, or unknown) (`calibration.unclipped_level`)
+    # clipped background: its unclipped level (NaN: not clipped, or unknown) (`background.unclipped_level`)
     clipped_level: float = float("nan")
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
@@ -231,7 +233,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     images = [cal_frames[i] for i in sorted(cal_frames)]
     first = cal_frames[first_idx]
     try:
-        cal = calibrate(
+        cal = calibrate_frames(
             first, images, meta.pixel_size_um,
             nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
             nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
@@ -259,23 +261,22 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         ctx.smooth_px = float(config.smooth_px)
         if ctx.sigma_px > 0:  # the kernel is truncated (`smooth_roi`): its own standard deviation
             ctx.sigma_px = float(math.hypot(ctx.sigma_px, _kernel_sigma(ctx.smooth_px)))
-    _set_wall_reference(ctx, cal, nozzle, t_first, sigma, config)
+    walls = wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma, cal.liquid_level, config)
+    if walls is not None:
+        ctx.wall_rows, ctx.wall_cols, ctx.wall_inv_background = walls.rows, walls.cols, walls.inv_background
+        ctx.blur_ref_px, ctx.sharpness_ref = walls.blur_px, walls.sharpness
+        ctx.max_frame_blur_px, ctx.min_wall_contrast = walls.max_frame_blur_px, walls.min_wall_contrast
     nozzle_ref = _nozzle_edge_spread(first, ctx)
     found = detached_appearances(images, ctx)
-    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
     ctx.edge_blur_ref_px, ctx.edge_blur_ref_source = nozzle_ref, "nozzle walls"
-    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
-    if np.isfinite(body_ref) and not nozzle_ref <= limit:
+    body = body_blur_reference(found, nozzle_ref, sigma, config)
+    if body is not None:
         # the nozzle (or the holder block around it) is out of focus: what is in focus is the
         # jet's plane, so the sharpest detached body is the reference for mist, and the blur
         # is its outline's edge-spread function; the walls no longer judge a frame's blur or contrast
         cal.nozzle_out_of_focus = True
-        sharpest = found[int(np.argmin(found["edge_blur_px"]))]
-        walls_sigma = sigma
-        sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
-        # the walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
-        ctx.nozzle_blur_px = float(walls_sigma if np.isfinite(walls_sigma) else
-                                   sigma * nozzle_ref / body_ref if np.isfinite(nozzle_ref) else 3.0 * sigma)
+        body_ref, sigma = body.edge_blur_ref_px, body.sigma_px
+        ctx.nozzle_blur_px = body.nozzle_blur_px
         ctx.edge_blur_ref_px = body_ref
         ctx.mist_blur_factor = config.mist_blur_factor_bodies
         ctx.edge_blur_ref_source = "sharpest detached body (the nozzle walls are out of focus)"
@@ -295,12 +296,65 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     return cal, sigma, ctx
 
 
+@dataclass(frozen=True)
+class BodyBlurReference:
+    """The sharpest detached body as the blur reference, when the nozzle walls are out of focus.
+
+    Attributes
+    ----------
+    edge_blur_ref_px : float
+        Its edge spread (`dropvision.classify`): mist is judged against it.
+    sigma_px : float
+        Its edge blur (Gaussian sigma of its outline's edge-spread fit, else its edge spread):
+        the calibration's blur from then on.
+    nozzle_blur_px : float
+        The walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
+        (three times the body's without a wall spread).
+    """
+
+    edge_blur_ref_px: float
+    sigma_px: float
+    nozzle_blur_px: float
+
+
+def body_blur_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
+                        config: MeasureConfig) -> BodyBlurReference | None:
+    """Whether the nozzle walls are out of focus, and then the sharpest detached body's blur reference.
+
+    Parameters
+    ----------
+    found : ndarray of APPEARANCE_DTYPE
+        Detached bodies of the calibration frames (`detached_appearances`).
+    nozzle_edge_spread_px : float
+        Edge spread of the nozzle walls in the first frame (NaN: not measured).
+    walls_sigma_px : float
+        The walls' edge-spread fit (`dropvision.blur.edge_sigma_px`).
+    config : MeasureConfig
+        ``mist_blur_factor`` and ``mist_blur_offset_px``: the walls are out of focus when their
+        spread is beyond ``mist_blur_factor x`` the sharpest body's ``+ mist_blur_offset_px``.
+
+    Returns
+    -------
+    BodyBlurReference or None
+        None when the walls are in focus (or no detached body was found): they stay the reference.
+    """
+    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
+    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
+    if not (np.isfinite(body_ref) and not nozzle_edge_spread_px <= limit):
+        return None
+    sharpest = found[int(np.argmin(found["edge_blur_px"]))]
+    sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
+    nozzle_blur = float(walls_sigma_px if np.isfinite(walls_sigma_px) else
+                        sigma * nozzle_edge_spread_px / body_ref if np.isfinite(nozzle_edge_spread_px) else 3.0 * sigma)
+    return BodyBlurReference(edge_blur_ref_px=body_ref, sigma_px=sigma, nozzle_blur_px=nozzle_blur)
+
+
 def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureConfig) -> dict[str, float]:
     """The parts (px, standard uncertainties) of an edge-position error common to a whole body.
 
     - ``edge floor``: ``config.edge_position_floor_px`` (threshold interpolation and blur model);
     - ``background level``: the background model's local misfit ``dB/B``
-      (`dropvision.calibration.background_residual`) moves the 50 % crossing by
+      (`dropvision.background.background_residual`) moves the 50 % crossing by
       ``dB/B / slope``, the edge's slope being ``(1 - T_liquid) / (sqrt(2 pi) sigma)``;
     - ``clipped background``: against a background clipped at an unknown level the true edge
       lies up to ``edge_range_px`` outside the measured one: half of it; with an estimated level,
@@ -486,18 +540,72 @@ def transmission_noise(transmission: np.ndarray, default: float) -> float:
     return default
 
 
-def _set_wall_reference(ctx: FrameContext, cal: Calibration, nozzle, t_first: np.ndarray, sigma: float,
-                        config: MeasureConfig) -> None:
-    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane."""
-    dry = nozzle.rows <= cal.tip_row - 3
+@dataclass(frozen=True)
+class WallReference:
+    """The nozzle walls well above the tip plane: the per-frame sharpness and contrast reference.
+
+    Attributes
+    ----------
+    rows, cols : ndarray of int
+        Pixel windows across the walls (`dropvision.quality.wall_windows`, full-frame).
+    inv_background : ndarray of float32
+        ``1 / background`` at those pixels.
+    blur_px : float
+        Calibrated edge blur the walls' sharpness corresponds to (px).
+    sharpness : float
+        Their edge sharpness in the calibration frame (`dropvision.quality.edge_sharpness`).
+    max_frame_blur_px : float
+        A frame blurrier than this is flagged.
+    min_wall_contrast : float
+        A frame whose walls' contrast is below this is flagged.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    inv_background: np.ndarray
+    blur_px: float
+    sharpness: float
+    max_frame_blur_px: float
+    min_wall_contrast: float
+
+
+def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.ndarray, sigma_px: float,
+                   liquid_level: float, config: MeasureConfig) -> WallReference | None:
+    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane.
+
+    Parameters
+    ----------
+    nozzle : dropvision.nozzle.Nozzle
+        Outer walls found in the first calibration frame.
+    tip_row : float
+        Tip plane row; walls 3 rows and more above it are used (dry).
+    background : ndarray
+        Background model (grey levels, full frame).
+    t_first : ndarray
+        First calibration frame over the background (transmission).
+    sigma_px : float
+        Calibrated edge blur (px).
+    liquid_level : float
+        Liquid interior transmission (scales the contrast floor).
+    config : MeasureConfig
+
+    Returns
+    -------
+    WallReference or None
+        None when fewer than 4 wall windows, no finite blur, or walls without sharpness or
+        contrast: the frames' blur and contrast are then not judged from the walls.
+    """
+    dry = nozzle.rows <= tip_row - 3
     wr, wc = q.wall_windows(nozzle.rows[dry], nozzle.left_px[dry], nozzle.right_px[dry], t_first.shape[1])
-    if wr.shape[0] >= 4 and np.isfinite(sigma):
-        prof = t_first[wr, wc]
-        sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
-        if sharp > 0 and contrast > 0:
-            ctx.wall_rows, ctx.wall_cols = wr, wc
-            ctx.wall_inv_background = (1.0 / cal.background.background[wr, wc]).astype(np.float32)
-            ctx.blur_ref_px, ctx.sharpness_ref = float(sigma), sharp
-            ctx.max_frame_blur_px = min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma)
-            ctx.min_wall_contrast = contrast * max(1.0 - config.contrast_change_tolerance,
-                                                   config.min_contrast / max(1.0 - cal.liquid_level, 1e-6))
+    if not (wr.shape[0] >= 4 and np.isfinite(sigma_px)):
+        return None
+    prof = t_first[wr, wc]
+    sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
+    if not (sharp > 0 and contrast > 0):
+        return None
+    return WallReference(
+        rows=wr, cols=wc, inv_background=(1.0 / background[wr, wc]).astype(np.float32),
+        blur_px=float(sigma_px), sharpness=sharp,
+        max_frame_blur_px=min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma_px),
+        min_wall_contrast=contrast * max(1.0 - config.contrast_change_tolerance,
+                                         config.min_contrast / max(1.0 - liquid_level, 1e-6)))

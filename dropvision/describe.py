@@ -22,7 +22,7 @@ from dvcore import __version__
 from dropvision.calibration import CalibrationError
 from dropvision.inspection import nozzle_outer_width_px
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, check_overrides, open_sequence
-from dropvision.writers import write_sequence_json
+from dropvision.sequence_writer import write_sequence_json
 
 __all__ = ["FolderDescription", "describe_folder", "init_sequence"]
 

@@ -35,8 +35,9 @@ from dropvision.bodies import (
 from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
-from dropvision.segmentation import Body, Segmentation, dark_mask, segment, threshold_image
-from dropvision.volume import RowEdges, integrate, split_at_row, waist_row
+from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
+from dropvision.edges import RowEdges
+from dropvision.volume import integrate, split_at_row, waist_row
 
 
 @dataclass
@@ -97,7 +98,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     edges: list[RowEdges] = []
     nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi)
     threads: set[int] = set()
-    sources: dict[int, tuple[Body, RowEdges]] = {}
+    sources: dict[int, tuple[DarkBody, RowEdges]] = {}
     if nozzle_body is None:
         rec.flags.append(q.NO_NOZZLE)
     else:
@@ -158,7 +159,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     return rec
 
 
-def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body: Body, edges: RowEdges) -> None:
+def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body: DarkBody, edges: RowEdges) -> None:
     """A satellite touching the main drop (one silhouette with a short waist) is split off it.
 
     The main drop is then the larger lobe; the smaller one, when compact (at most
@@ -252,7 +253,7 @@ def segment_frame(roi: np.ndarray, ctx: FrameContext, gain: float) -> Segmentati
     return segment(mask, ctx.min_area_px)
 
 
-def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: Body | None,
+def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: DarkBody | None,
                rec: FrameRecord, all_edges: list[RowEdges]) -> None:
     """Hand the frame's stages to a Rerun logger (only called when logging is on).
 

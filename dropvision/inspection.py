@@ -5,7 +5,7 @@ What a user of a drop watcher does not want to type, read from the frame itself:
 - `detect_orientation`: which image edge the nozzle (or its holder) is attached to, hence the
   ``orientation`` of docs/FORMAT.md (the direction the drops travel in the stored image). The
   frame is shrunk to at most 256 px, divided by its own smooth illumination
-  (`dropvision.calibration.estimate_background`, the same background model as the
+  (`dropvision.background.estimate_background`, the same background model as the
   measurement, so vignetting is not a dark body) and thresholded half-way to its darkest
   level. The dark bodies touching an edge are the candidates; each belongs to the edge it
   covers the largest fraction of (a holder in a vignetted corner also touches the next edge a
@@ -14,7 +14,7 @@ What a user of a drop watcher does not want to type, read from the frame itself:
   candidate only, along the axis it points to). Otherwise the result says what was seen at
   each edge and the caller keeps its default.
 - `nozzle_outer_width_px`: the nozzle's outer width in pixels, by the measurement's own
-  calibration (`dropvision.calibration.calibrate` on each frame; the median over frames spread
+  calibration (`dropvision.calibration.calibrate_frames` on each frame; the median over frames spread
   over the sequence, as a neck hanging from the nozzle can be narrower than its walls), so that
   a pixel size can come from a known outer diameter (as OpenDrop and DropPyTension take it
   from the needle).
@@ -31,8 +31,9 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from dropvision.calibration import CalibrationError, calibrate, estimate_background
-from dropvision.segmentation import edge_threshold
+from dropvision.background import estimate_background
+from dropvision.calibration import CalibrationError, calibrate_frames
+from dropvision.edges import edge_threshold
 
 __all__ = ["EDGE_TO_ORIENTATION", "OrientationGuess", "detect_orientation", "nozzle_outer_width_px"]
 
@@ -171,7 +172,7 @@ def detect_orientation(image: np.ndarray) -> OrientationGuess:
 def nozzle_outer_width_px(images, *, max_value: int | None = None) -> tuple[float, int]:
     """Outer width of the nozzle in pixels, measured as the calibration measures it.
 
-    Each frame is calibrated alone (`dropvision.calibration.calibrate`: without an expected
+    Each frame is calibrated alone (`dropvision.calibration.calibrate_frames`: without an expected
     width the narrowest straight walls of the top body); a neck or a thread of liquid hanging
     from the nozzle can be narrower than its walls in some frames, so the median over the
     frames is returned (give frames spread over the sequence).
@@ -199,7 +200,7 @@ def nozzle_outer_width_px(images, *, max_value: int | None = None) -> tuple[floa
     widths, first_error = [], None
     for image in images:
         try:  # the pixel size does not enter the wall positions: 1 µm/px is a placeholder
-            widths.append(float(calibrate(image, [image], 1.0, max_value=max_value).nozzle_outer_diameter_px))
+            widths.append(float(calibrate_frames(image, [image], 1.0, max_value=max_value).nozzle_outer_diameter_px))
         except CalibrationError as exc:
             first_error = first_error or exc
     if not widths:

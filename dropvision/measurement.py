@@ -10,7 +10,7 @@ The orchestration: open -> calibrate -> stream frames -> assemble -> write.  One
    disc integration (`dropvision.volume`), the thin-thread rule (`dropvision.pinchoff`).
 3. `dropvision.summary`: the frames table and the summary (pinch-off, grown volume and flow
    velocity `dropvision.flow`, main drop and velocity `dropvision.tracking`), `per_delay`.
-4. `dropvision.output`: ``frames.parquet`` (+ ``frames.csv``), ``per_delay.parquet``,
+4. `dropvision.result_writer`: ``frames.parquet`` (+ ``frames.csv``), ``per_delay.parquet``,
    ``summary.json``, written atomically.
 
 Frames are streamed (one decoded frame per worker at a time); only small per-frame records are
@@ -31,7 +31,7 @@ from dropvision.classify import bodies_table
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, stream_frames
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
-from dropvision.output import write_result
+from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
 from dvcore.atomic import atomic_dir, check_output_dir
 

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dropvision.context import FrameContext
-from dropvision.segmentation import Body, Segmentation
+from dropvision.edges import crossing_fraction
+from dropvision.segmentation import DarkBody, Segmentation
 from dropvision.special import ndtr
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
@@ -32,7 +33,7 @@ if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
 INTERIOR_THREAD_MARGIN = 0.05
 
 
-def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: Body,
+def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: DarkBody,
                          bottom_row: float, gain: float) -> set[int]:
     """Labels of detached bodies still joined to the attached liquid by an unresolved thread.
 
@@ -61,7 +62,7 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         Calibrated blur (px), threshold, liquid level and noise (transmission units).
     seg : Segmentation
         The frame's bodies.
-    nozzle_body : Body
+    nozzle_body : DarkBody
         The nozzle with the attached liquid.
     bottom_row : float
         Bottom row of the attached liquid (region coordinates, px).
@@ -115,8 +116,9 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         rows = np.arange(yb, b.y0 + 1)
         t_path = np.array([darkest(y, xb + (xt - xb) * (y - yb) / (b.y0 - yb)) for y in rows])
         # sub-pixel 50 % crossings of the two ends along the path (end row dark, next row not)
-        e_top = yb + crossing_fraction(t_path[0], t_path[1], ctx.threshold)
-        e_bot = b.y0 - crossing_fraction(t_path[-1], t_path[-2], ctx.threshold)
+        # (a path that does not rise from an end has no crossing there: the row's middle)
+        e_top = yb + (crossing_fraction(t_path[0], t_path[1], ctx.threshold) if t_path[1] > t_path[0] else 0.5)
+        e_bot = b.y0 - (crossing_fraction(t_path[-1], t_path[-2], ctx.threshold) if t_path[-2] > t_path[-1] else 0.5)
         expected = end_tails_transmission(rows[1:-1], e_top, e_bot, sig, sig, ctx.liquid_level)
         excess = expected - t_path[1:-1]
         # a thread darkens the path, not the rows beside it: a darker surround (a blurred holder's
@@ -130,26 +132,6 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         if float(judged.min()) > limit and float(local.min()) > limit:
             out.add(b.label)
     return out
-
-
-def crossing_fraction(t_dark: float, t_next: float, threshold: float) -> float:
-    """Where a linear profile from a dark row to the next crosses ``threshold``.
-
-    Parameters
-    ----------
-    t_dark, t_next : float
-        Transmission of the dark row and of the next row.
-    threshold : float
-        Edge level (transmission).
-
-    Returns
-    -------
-    float
-        Distance from the dark row, 0..1 px (0.5 when the profile does not rise).
-    """
-    if not t_next > t_dark:
-        return 0.5
-    return float(np.clip((threshold - t_dark) / (t_next - t_dark), 0.0, 1.0))
 
 
 def end_tails_transmission(rows: np.ndarray, e_top: float, e_bot: float, sigma_top_px: float,

@@ -1,12 +1,13 @@
 """Segmentation of backlit strobe frames into dark bodies.
 
 A frame is compared with its illumination (background) estimate: a pixel is *dark* when its
-transmission ``T = I / B`` is below the 50 % level between the background (1) and the liquid's
-interior level.  The comparison is done on the raw integers against a precomputed integer
-threshold image, ``I < ceil(thr * B)``, which is exactly ``T < thr`` and costs one ``cv2``
-call.  Each dark body is then taken with its enclosed bright lens spot filled (outer
-contours drawn filled), and labelled; bodies touching the top of the region of interest are
-the nozzle (with any liquid still joined to it), the others are detached liquid.
+transmission ``T = I / B`` is below the edge level (`dropvision.edges.edge_threshold`, half-way
+between the background and the liquid's interior level).  The comparison is done on the raw
+integers against a precomputed integer threshold image, ``I < ceil(thr * B)``, which is
+exactly ``T < thr`` and costs one ``cv2`` call.  Each dark body is then taken with its enclosed
+bright lens spot filled (outer contours drawn filled), and labelled; bodies touching the top of
+the region of interest are the nozzle (with any liquid still joined to it), the others are
+detached liquid.
 Static specks (opaque dust found during calibration) are removed from the dark mask before
 labelling, so they can never become liquid.
 
@@ -39,24 +40,8 @@ CLASS_TAIL = 8  # detached body longer than ``compact_ratio`` equivalent diamete
 CLASS_BORDER = 9  # detached body cut by the edge of the frame or of the measured band
 
 
-def edge_threshold(interior_level: float) -> float:
-    """Edge (50 %) transmission level half-way between the background (1) and a dark interior.
-
-    Parameters
-    ----------
-    interior_level : float
-        Transmission (background = 1) inside the liquid or the nozzle.
-
-    Returns
-    -------
-    float
-        ``(1 + interior_level) / 2``, in transmission units.
-    """
-    return 0.5 * (1.0 + interior_level)
-
-
 @dataclass(frozen=True)
-class Body:
+class DarkBody:
     """One dark body in region-of-interest coordinates.
 
     Attributes
@@ -85,7 +70,7 @@ class Segmentation:
     """Result of `segment`: filled label image of the region of interest and its bodies."""
 
     labels: np.ndarray  # uint16, 0 = background
-    bodies: list[Body]
+    bodies: list[DarkBody]
 
 
 def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarray:
@@ -96,7 +81,7 @@ def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarr
     background : ndarray
         Background (illumination) grey levels.
     threshold : float
-        Edge level in transmission units (see `edge_threshold`).
+        Edge level in transmission units (see `dropvision.edges.edge_threshold`).
     dtype : numpy dtype
         Dtype of the frames (integers are clipped to its range).
 
@@ -136,7 +121,7 @@ def segment(mask: np.ndarray, min_area_px: int = 4) -> Segmentation:
     """
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
     labels = np.zeros(mask.shape, np.uint16)
-    bodies: list[Body] = []
+    bodies: list[DarkBody] = []
     for c in contours:
         x, y, w, h = cv2.boundingRect(c)
         if w * h < min_area_px:
@@ -147,33 +132,33 @@ def segment(mask: np.ndarray, min_area_px: int = 4) -> Segmentation:
         if area < min_area_px:
             labels[y:y + h, x:x + w][labels[y:y + h, x:x + w] == lab] = 0
             continue
-        bodies.append(Body(lab, x, y, x + w, y + h, area, y == 0))
+        bodies.append(DarkBody(lab, x, y, x + w, y + h, area, y == 0))
     # keep labels consecutive after removals
     if bodies and bodies[-1].label != len(bodies):
         lut = np.zeros(bodies[-1].label + 1, np.uint16)
         new = []
         for i, b in enumerate(bodies, start=1):
             lut[b.label] = i
-            new.append(Body(i, b.x0, b.y0, b.x1, b.y1, b.area_px, b.nozzle))
+            new.append(DarkBody(i, b.x0, b.y0, b.x1, b.y1, b.area_px, b.nozzle))
         labels = lut[labels]
         bodies = new
     return Segmentation(labels, bodies)
 
 
-def find_nozzle_body(bodies: list[Body], axis_roi: float) -> Body | None:
+def find_nozzle_body(bodies: list[DarkBody], axis_roi: float) -> DarkBody | None:
     """The largest body touching the top of the region whose columns span the axis.
 
     Parameters
     ----------
-    bodies : list of Body
+    bodies : list of DarkBody
     axis_roi : float
         Axis column (region coordinates, px).
 
     Returns
     -------
-    Body or None
+    DarkBody or None
     """
-    found: Body | None = None
+    found: DarkBody | None = None
     for b in bodies:
         if b.nozzle and b.x0 <= axis_roi < b.x1:
             if found is None or b.area_px > found.area_px:

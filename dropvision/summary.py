@@ -28,8 +28,10 @@ from dropvision.config import MeasureConfig
 from dropvision.flow import flow_velocity_at, grown_and_flow
 from dropvision.frame import FrameRecord
 from dropvision.pinchoff import isolated_detached, pinchoff_bracket_problem, pinchoff_delay
-from dropvision.tracking import fit_line, neighbour_outliers, track_main_drop
-from dropvision.volume import NL_PER_UM3
+from dropvision.plausibility import (attached_volume_outliers, check_nozzle, check_pixel_size, check_track, delays_text,
+                                     growth_short_at_max_stroke, implausible_velocity, pinchoff_before_dead_time,
+                                     pinchoff_before_stroke_end)
+from dropvision.tracking import fit_line, track_main_drop
 from dvcore import schema
 from dvcore.versions import software_versions
 from identify.waveform import Waveform
@@ -99,27 +101,22 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     has_det = np.array([bool(r.bodies) for r in records], bool)
     dead_time = dead_time_us(meta, config)
     # --- plausibility of the pixel size (issue "hostile and lying input", lie 1) ----------
-    length_lie = _check_pixel_size(cal, meta, config, flags, notes)
+    length_lie = check_pixel_size(cal, meta, config, flags, notes)
     # --- pinch-off: an isolated detached delay is a foreign frame, not the pinch-off -----
     isolated = isolated_detached(delay, has_det)
     for k in np.nonzero(isolated)[0]:
         flags[k].append(q.NEIGHBOURS)
     if isolated.any():
         notes.append(f"{int(isolated.sum())} frame(s) show a detached drop between attached delays "
-                     f"({_delays_text(delay[isolated])} us): inconsistent with their neighbours, left out")
+                     f"({delays_text(delay[isolated])} us): inconsistent with their neighbours, left out")
     pinch = pinchoff_delay(delay[~isolated], has_det[~isolated]) if (~isolated).any() else float("nan")
     delay_lie = False
     has_waveform = bool(getattr(meta, "waveform", None))
     if not has_waveform:
         notes.append("no waveform in sequence.json: no waveform-based check (dead time, end of the stroke) is run "
                      "and the first delay's frames are taken as the meniscus at rest")
-    if has_waveform and np.isfinite(pinch) and pinch < dead_time:
-        # the piston has not moved before the dead time: no drop can have separated
+    if has_waveform and pinchoff_before_dead_time(pinch, dead_time, flags, notes):
         delay_lie = True
-        for fl in flags:  # every delay is wrong
-            fl.append(q.DELAY_INCONSISTENT)
-        notes.append(f"pinch-off at {pinch:g} us is before the waveform's dead time {dead_time:g} us: delays "
-                     "shifted or in another unit; pinch-off and velocities not given")
         pinch = float("nan")
     problem = pinchoff_bracket_problem(delay[~isolated], pinch, config.min_pinchoff_frames)
     if problem is not None and np.unique(delay).size == 1:
@@ -142,17 +139,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
             flags[k].append(q.NOZZLE_OUT_OF_FOCUS)
     # --- attached volumes that disagree with their neighbours (frames of another sequence) ---
     vol_used = att_vol.copy()
-    att_ok = attached & np.isfinite(att_vol)
-    if att_ok.sum() >= 4:
-        scale = float(np.nanmax(np.abs(att_vol[att_ok])))
-        out = neighbour_outliers(np.where(att_ok, delay, np.nan), att_vol, config.track_outlier_sigmas,
-                                 config.volume_outlier_floor_fraction * scale)
-        if out.any():
-            for k in np.nonzero(out)[0]:
-                flags[k].append(q.NEIGHBOURS)
-            vol_used[out] = np.nan
-            notes.append(f"{int(out.sum())} attached frame(s) ({_delays_text(delay[out])} us) disagree with the "
-                         "neighbouring delays' volume far beyond the sequence's scatter: left out")
+    vol_used[attached_volume_outliers(delay, att_vol, attached, config, flags, notes)] = np.nan
     grown, flow, meniscus, grown_by_delay = grown_and_flow(delay, vol_used, attached, meta.nozzle_inner_diameter_um)
     # The grown volume is relative to the initial meniscus (Section 4.1.1): that needs a frame
     # taken before the piston moves (delay <= dead time). Without one, no grown volume or flow.
@@ -177,33 +164,17 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
             flow[k] = np.nan
             drop.inflight[k] = False
     # --- main-drop track: position and volume consistent with the neighbouring delays -------
-    _check_track(delay, drop, config, flags, notes)
+    check_track(delay, drop, config, flags, notes)
     # --- the stroke must grow the meniscus by the maximum stroke (delays stretched?) ------
     max_stroke_us = max_stroke_instant_us(meta, config)
-    if np.isfinite(pinch) and np.isfinite(max_stroke_us) and not delay_lie and pinch < max_stroke_us:
-        # a squeeze-mode drop separates after the piston has stopped pushing (the paper's
-        # campaign: 1.7-2.8 stroke durations after the stroke's end); before it, the delays are
-        # compressed (e.g. halved) or the waveform in sequence.json is not the one fired
+    if not delay_lie and pinchoff_before_stroke_end(pinch, max_stroke_us, flags, notes):
         delay_lie = True
-        for fl in flags:
-            fl.append(q.DELAY_INCONSISTENT)
-        notes.append(f"pinch-off at {pinch:g} us is before the end of the stroke ({max_stroke_us:.0f} us after the "
-                     "trigger): delays compressed or the waveform is not the one fired; pinch-off and velocities "
-                     "not given")
         pinch = float("nan")
-    if meniscus_at_rest and np.isfinite(pinch) and np.isfinite(max_stroke_us) and not delay_lie:
-        g_at_pinch = _grown_before(grown, delay, attached, pinch)
-        d_g = grown_by_delay.index.to_numpy(float)
-        if np.isfinite(g_at_pinch) and g_at_pinch > 0 and d_g.size >= 2 and d_g.min() <= max_stroke_us <= d_g.max():
-            g_ms = float(np.interp(max_stroke_us, d_g, grown_by_delay.to_numpy(float)))
-            if g_ms < config.min_growth_at_max_stroke_fraction * g_at_pinch:
-                delay_lie = True
-                for fl in flags:  # every delay is wrong
-                    fl.append(q.DELAY_INCONSISTENT)
-                notes.append(f"grown volume at the maximum stroke ({max_stroke_us:.0f} us) is {g_ms:.3g} nl, under "
-                             f"{config.min_growth_at_max_stroke_fraction:g} of the {g_at_pinch:.3g} nl grown by the "
-                             "pinch-off: delays stretched or in another unit; pinch-off and velocities not given")
-                pinch = float("nan")
+    if (meniscus_at_rest and not delay_lie
+            and growth_short_at_max_stroke(grown, delay, attached, grown_by_delay, pinch, max_stroke_us, config,
+                                           flags, notes)):
+        delay_lie = True
+        pinch = float("nan")
     if delay_lie:
         flow[:] = np.nan
     # --- flow needs a plausible inner diameter -------------------------------------------
@@ -216,12 +187,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     inflight = drop.inflight
     line = fit_line(delay[inflight], drop.z_um[inflight])
     velocity, velocity_se = line.slope, line.slope_se
-    if np.isfinite(velocity) and not (config.min_jetting_velocity_m_s <= velocity <= config.max_jetting_velocity_m_s):
-        for k in np.nonzero(inflight)[0]:
-            flags[k].append(q.IMPLAUSIBLE)
-        notes.append(f"jetting velocity {velocity:.3g} m/s outside {config.min_jetting_velocity_m_s:g}.."
-                     f"{config.max_jetting_velocity_m_s:g} m/s, implausible for drop-on-demand (delays in another "
-                     "unit, or a second moving body): not given")
+    if implausible_velocity(velocity, inflight, config, flags, notes):
         velocity = velocity_se = float("nan")
     if delay_lie:
         velocity = velocity_se = float("nan")
@@ -259,7 +225,9 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         "detached_volume_uncertainty_nl": np.where(np.isfinite(drop.detached_volume_nl),
                                                    drop.detached_volume_uncertainty_nl, np.nan),
         "volume_uncertainty_source": [cal.volume_uncertainty_source] * m,
-    }, columns=FRAME_COLUMNS)
+    })
+    frames = frames[sorted(frames.columns, key=_declared_order)]
+    check_frames_table(frames, "the frames table built by dropvision.summary.assemble")
     # --- summary -------------------------------------------------------------------------
     last_att = delay[attached & (delay < pinch)] if np.isfinite(pinch) else delay[attached]
     g_pinch = float("nan")
@@ -388,105 +356,43 @@ def _grown_u_before(grown_u, delay, attached, pinch, g_pinch) -> float:
     return float(np.mean(grown_u[attached & (delay == last.max()) & np.isfinite(grown_u)]))
 
 
-def _delays_text(delays) -> str:
-    """Distinct delays, comma separated (at most 8)."""
-    d = np.unique(np.asarray(delays, float))
-    text = ", ".join(f"{v:g}" for v in d[:8])
-    return text + (", ..." if d.size > 8 else "")
+def _declared_order(column: str) -> int:
+    """Position of ``column`` in `FRAME_COLUMNS` (undeclared columns last, for the check to name)."""
+    return FRAME_COLUMNS.index(column) if column in FRAME_COLUMNS else len(FRAME_COLUMNS)
 
 
-def _grown_before(grown, delay, attached, pinch) -> float:
-    """Mean grown volume at the last attached delay before the pinch-off (nl)."""
-    last = delay[attached & (delay < pinch) & np.isfinite(grown)]
-    if not last.size:
-        return float("nan")
-    return float(np.mean(grown[attached & (delay == last.max()) & np.isfinite(grown)]))
+def check_frames_table(frames: pd.DataFrame, source) -> None:
+    """Check the frames table against its schema (`dvcore.schema.FRAMES`) before it is used or written.
 
+    Parameters
+    ----------
+    frames : DataFrame
+        The frames table.
+    source : str or Path
+        What it is (a file being written, or where it was built), named in the error.
 
-def _check_pixel_size(cal: Calibration, meta, config: MeasureConfig, flags, notes) -> bool:
-    """Compare the given pixel size with the one implied by the nozzle's outer diameter.
-
-    Beyond ``config.pixel_size_tolerance_fraction`` every frame is flagged and True is returned
-    (the length-dependent summary values are then not given).  Inside it a note is written when
-    the ratio differs from 1 by more than ``config.pixel_size_note_sigmas`` standard
-    uncertainties of the measured outer diameter: the edge fit locates the outer diameter to
-    about 0.1 % on a 76 px nozzle, so a 1.5 % lie (+4.6 % volume) is far outside what the
-    measurement itself can explain, while honest sequences stay within ~1 uncertainty.
+    Raises
+    ------
+    dvcore.schema.SchemaError
+        Naming ``source`` and the first offending column: one missing, one not declared in the
+        schema, columns out of the declared order, or a wrong dtype.  Values are not judged.
     """
-    ratio, u = cal.pixel_size_ratio, cal.pixel_size_ratio_uncertainty
-    if not getattr(meta, "nozzle_outer_diameter_um", None):
-        notes.append("pixel size unchecked (no nozzle_outer_diameter_um)")
-        return False
-    if not np.isfinite(ratio):
-        return False
-    if abs(ratio - 1.0) > config.pixel_size_tolerance_fraction:
-        for fl in flags:
-            fl.append(q.PIXEL_SIZE_MISMATCH)
-        notes.append(f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one (beyond "
-                     f"{100 * config.pixel_size_tolerance_fraction:g} %): volumes and velocities not given")
-        return True
-    if np.isfinite(u) and abs(ratio - 1.0) > config.pixel_size_note_sigmas * u:
-        notes.append(f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one "
-                     f"(+-{u:.4f}): within the tolerance but beyond the edge fit's uncertainty; volumes scale "
-                     "with its cube")
-    return False
-
-
-def _check_track(delay, drop, config: MeasureConfig, flags, notes) -> None:
-    """Flag in-flight frames whose main drop disagrees with the neighbouring delays.
-
-    A position far off the track with the track's volume is the same drop at a wrong delay
-    (``delay_inconsistent``); a volume far off (or both) is another body or another sequence
-    (``inconsistent_with_neighbours``).  Either is left out of the in-flight values.
-    """
-    inf = drop.inflight.copy()
-    if inf.sum() < 4:
-        return
-    x = np.where(inf, delay, np.nan)
-    vols = drop.drop_volume_nl
-    med = float(np.nanmedian(vols[inf]))
-    vol_out = neighbour_outliers(x, vols, config.track_outlier_sigmas, config.volume_outlier_floor_fraction * med)
-    z_out = neighbour_outliers(x, drop.z_um, config.track_outlier_sigmas, config.track_outlier_floor_um)
-    wrong_delay = z_out & ~vol_out
-    other = vol_out
-    for k in np.nonzero(wrong_delay)[0]:
-        flags[k].append(q.DELAY_INCONSISTENT)
-    for k in np.nonzero(other)[0]:
-        flags[k].append(q.NEIGHBOURS)
-    if wrong_delay.any():
-        notes.append(f"the drop's position at {_delays_text(delay[wrong_delay])} us does not follow its motion "
-                     "at the neighbouring delays (drop going back up: delays mislabelled): left out")
-    if other.any():
-        notes.append(f"the main drop at {_delays_text(delay[other])} us differs in volume from its neighbours far "
-                     "beyond the sequence's scatter (another body or sequence): left out")
-    drop.inflight[wrong_delay | other] = False
-
-
-def check_nozzle(meta, drop, config: MeasureConfig, flags, notes) -> bool:
-    """Drop volume against the nozzle and inner >= outer diameter; True when the inner diameter is a lie.
-
-    The nozzle volume is pi r_in^2 x d_in: the bore one inner diameter long, the length scale of
-    the meniscus and of the liquid pushed out per stroke.  A drop larger than
-    ``config.max_drop_to_nozzle_volumes`` of these cannot come from this nozzle.
-    """
-    d_in = meta.nozzle_inner_diameter_um
-    d_out = getattr(meta, "nozzle_outer_diameter_um", None)
-    lie = False
-    if d_in and d_out and d_in >= d_out:
-        notes.append(f"nozzle inner diameter {d_in:g} um >= outer {d_out:g} um: impossible, flow velocities "
-                     "not given")
-        lie = True
-    if d_in:
-        nozzle_nl = np.pi * (0.5 * d_in) ** 2 * d_in * NL_PER_UM3
-        big = np.isfinite(drop.drop_volume_nl) & (drop.drop_volume_nl > config.max_drop_to_nozzle_volumes * nozzle_nl)
-        if big.any():
-            for k in np.nonzero(big)[0]:
-                flags[k].append(q.IMPLAUSIBLE)
-            notes.append(f"drop volume up to {np.nanmax(drop.drop_volume_nl[big]):.3g} nl is more than "
-                         f"{config.max_drop_to_nozzle_volumes:g} nozzle volumes ({nozzle_nl:.3g} nl for "
-                         f"{d_in:g} um): nozzle_inner_diameter_um wrong? flow velocities not given")
-            lie = True
-    return lie
+    missing = [c for c in FRAME_COLUMNS if c not in frames.columns]
+    if missing:
+        raise schema.SchemaError(f"{source}: missing column {missing[0]!r} of {schema.FRAMES.schema} "
+                                 f"(declared in identify/schema.py FRAMES)"
+                                 + (f"; also missing: {', '.join(missing[1:])}" if missing[1:] else ""))
+    extra = [c for c in frames.columns if c not in FRAME_COLUMNS]
+    if extra:
+        raise schema.SchemaError(f"{source}: column {extra[0]!r} is not declared in {schema.FRAMES.schema} "
+                                 "(identify/schema.py FRAMES): declare it there or do not write it")
+    if list(frames.columns) != FRAME_COLUMNS:
+        raise schema.SchemaError(f"{source}: columns not in the order declared by {schema.FRAMES.schema} "
+                                 "(identify/schema.py FRAMES)")
+    # dtypes only (checked on the table's empty head): the values are the measurement's, and some
+    # are legitimately outside what a reader of the file is told to expect (an infinite blur_px
+    # of a frame whose edges could not be located, the hostile corpus's jpeg_named_png)
+    schema.check_table(frames.head(0), schema.FRAMES, source)
 
 
 def per_delay(frames: pd.DataFrame) -> pd.DataFrame:

@@ -1,9 +1,7 @@
 """Volumes of axisymmetric bodies from their silhouettes, by disc integration.
 
-For every image row crossing a body, every dark run gets sub-pixel edge positions: the 50 %
-crossing of the normalised transmission between the local background (1) and the liquid's
-interior level, linearly interpolated between the two pixels that straddle the threshold.
-The run's chord ``c`` gives a slice of area ``pi (c/2)^2 cos(tilt)``: a horizontal chord of a
+For every image row crossing a body, every dark run has sub-pixel edge positions
+(`dropvision.edges.body_edges`).  The run's chord ``c`` gives a slice of area ``pi (c/2)^2 cos(tilt)``: a horizontal chord of a
 body of revolution whose axis is tilted by ``tilt`` from the image columns is ``1/cos(tilt)``
 longer than the true diameter, and the horizontal slice of a locally cylindrical body is an
 ellipse of area ``pi r^2 / cos(tilt)``; both together give ``pi (c/2)^2 cos(tilt)`` per unit
@@ -24,137 +22,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dropvision.edges import RowEdges
+
 #: Nanolitres per cubic micrometre.
 NL_PER_UM3 = 1e-6
-
-
-@dataclass
-class RowEdges:
-    """Sub-pixel edges of the dark runs of one body (all arrays have one entry per run).
-
-    Attributes
-    ----------
-    row : ndarray of int
-        Row of the run (region-of-interest coordinates).
-    left_px, right_px : ndarray of float
-        Sub-pixel edge positions (column coordinates, pixel centres integers).
-    touches : bool
-        A run reaches the side of the region (the edge could not be located).
-    """
-
-    row: np.ndarray
-    left_px: np.ndarray
-    right_px: np.ndarray
-    touches: bool
-
-    @property
-    def chord_px(self) -> np.ndarray:
-        return self.right_px - self.left_px
-
-    @property
-    def centre_px(self) -> np.ndarray:
-        return 0.5 * (self.right_px + self.left_px)
-
-
-def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Horizontal runs of True in a 2-D boolean array.
-
-    Returns
-    -------
-    rows, starts, stops : ndarray of int
-        Run ``k`` covers ``mask[rows[k], starts[k]:stops[k]]``.
-    """
-    h, w = mask.shape
-    padded = np.zeros((h, w + 2), np.int8)
-    padded[:, 1:-1] = mask
-    d = np.diff(padded, axis=1)
-    r0, c0 = np.nonzero(d == 1)
-    _, c1 = np.nonzero(d == -1)
-    return r0, c0, c1
-
-
-def subpixel_edges(
-    image: np.ndarray,
-    inv_background: np.ndarray,
-    rows: np.ndarray,
-    starts: np.ndarray,
-    stops: np.ndarray,
-    threshold: float,
-    gain: float = 1.0,
-) -> RowEdges:
-    """Sub-pixel 50 % crossings at both ends of each run.
-
-    Parameters
-    ----------
-    image : ndarray
-        Raw image (region of interest).
-    inv_background : ndarray of float32
-        ``1 / background`` for the same region.
-    rows, starts, stops : ndarray of int
-        Runs as returned by `runs` (dark pixels ``starts..stops-1``).
-    threshold : float
-        Transmission level of the edge, ``(1 + interior_level) / 2``.
-    gain : float
-        Frame illumination relative to the background model (strobe flicker).
-
-    Returns
-    -------
-    RowEdges
-    """
-    w = image.shape[1]
-    touches = bool(np.any(starts == 0) or np.any(stops == w))
-    s = np.clip(starts, 1, w - 1)
-    e = np.clip(stops, 1, w - 1)
-    scale = 1.0 / gain
-    t_out_l = image[rows, s - 1] * inv_background[rows, s - 1] * scale
-    t_in_l = image[rows, s] * inv_background[rows, s] * scale
-    t_in_r = image[rows, e - 1] * inv_background[rows, e - 1] * scale
-    t_out_r = image[rows, e] * inv_background[rows, e] * scale
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fl = np.clip((t_out_l - threshold) / (t_out_l - t_in_l), 0.0, 1.0)
-        fr = np.clip((threshold - t_in_r) / (t_out_r - t_in_r), 0.0, 1.0)
-    fl = np.where(np.isfinite(fl), fl, 0.5)
-    fr = np.where(np.isfinite(fr), fr, 0.5)
-    left = (s - 1) + fl
-    right = (e - 1) + fr
-    return RowEdges(np.asarray(rows), left.astype(float), right.astype(float), touches)
-
-
-def body_edges(
-    image: np.ndarray,
-    inv_background: np.ndarray,
-    labels: np.ndarray,
-    label: int,
-    bbox: tuple[int, int, int, int],
-    threshold: float,
-    gain: float = 1.0,
-    row_min: int = 0,
-) -> RowEdges:
-    """Sub-pixel run edges of one labelled body (region-of-interest coordinates).
-
-    Parameters
-    ----------
-    image, inv_background : ndarray
-        Region of interest and ``1 / background`` over it.
-    labels : ndarray
-        Label image of the region (`dropvision.segmentation.segment`).
-    label : int
-        The body's label.
-    bbox : (x0, y0, x1, y1)
-        Its bounding box (half-open).
-    threshold, gain : float
-        See `subpixel_edges`.
-    row_min : int
-        Ignore rows above this one.
-    """
-    x0, y0, x1, y1 = bbox
-    y0 = max(y0, row_min)
-    if y1 <= y0:
-        e = np.zeros(0)
-        return RowEdges(np.zeros(0, int), e, e, False)
-    sub = labels[y0:y1, x0:x1] == label
-    r, s, e = runs(sub)
-    return subpixel_edges(image, inv_background, r + y0, s + x0, e + x0, threshold, gain)
 
 
 def slice_areas_px2(edges: RowEdges, tilt_rad: float = 0.0) -> np.ndarray:
@@ -214,7 +85,7 @@ def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = Tru
     ----------
     edges : RowEdges
     sigma_px : float
-        Effective blur (see `dropvision.calibration.edge_sigma_px`).
+        Effective blur (see `dropvision.blur.edge_sigma_px`).
     closed_top : bool
         The body has a top pole (False for liquid joined to the nozzle: its silhouette starts
         at the tip plane).

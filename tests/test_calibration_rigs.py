@@ -48,7 +48,7 @@ def test_nozzle_barely_protruding_is_flagged_not_guessed(tmp_path):
 def test_small_dark_bodies_in_a_large_vignetted_frame_are_not_low_contrast():
     """A nozzle and drop covering well under 1 % of a frame with a little vignetting: the
     low-contrast rules must not take the background's fall-off for the bodies."""
-    from dropvision.calibration import calibrate
+    from dropvision.calibration import calibrate_frames
 
     h = w = 1024
     yy, xx = np.mgrid[0:h, 0:w]
@@ -57,6 +57,6 @@ def test_small_dark_bodies_in_a_large_vignetted_frame_are_not_low_contrast():
     img[:80, 502:522] = 15.0  # a 20 px needle
     img[(yy - 300) ** 2 + (xx - 512) ** 2 <= 100] = 20.0  # a drop, r = 10 px
     img = np.clip(img, 0, 255).astype(np.uint8)
-    cal = calibrate(img, [img], 5.0)
+    cal = calibrate_frames(img, [img], 5.0)
     assert abs(cal.axis_col - 511.5) < 0.5
     assert cal.liquid_level < 0.2

@@ -21,7 +21,7 @@ import dropvision.readers.png as png_reader
 from dropvision.app.cli import main
 from dropvision.readers import UnreadableImage
 from dropvision.sequence import open_sequence
-from dropvision.writers import write_multipage_tiff
+from dropvision.sequence_writer import write_multipage_tiff
 
 
 @pytest.fixture(scope="module")

@@ -11,11 +11,10 @@ import pytest
 import tifffile
 
 import dropvision.readers.png as png_reader
-from dropvision.sequence import (
-    RGBConvertedWarning, SequenceError, canonical_to_original, from_canonical, open_sequence,
-    original_to_canonical, parse_delay_from_name, to_canonical,
-)
-from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.discovery import parse_delay_from_name
+from dropvision.orientation import canonical_to_original, from_canonical, original_to_canonical, to_canonical
+from dropvision.sequence import RGBConvertedWarning, SequenceError, open_sequence
+from dropvision.sequence_writer import write_image, write_multipage_tiff, write_sequence_json
 
 RNG = np.random.default_rng(12345)
 

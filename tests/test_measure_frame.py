@@ -5,19 +5,22 @@ import pytest
 from scipy import ndimage
 
 from dropvision import segmentation as sg
+from dropvision import edges as edg
 from dropvision import volume as vo
-from dropvision.calibration import calibrate, edge_sigma_px, find_nozzle
+from dropvision.blur import edge_sigma_px
+from dropvision.calibration import calibrate_frames
+from dropvision.nozzle import find_nozzle
 from test_measure_draw import cap, cylinder, render, sphere, spheroid, volume_px3
 
 
 def _detached_volumes(img, level, bg, sigma, tilt_rad=0.0):
-    thr = sg.edge_threshold(level)
+    thr = edg.edge_threshold(level)
     b_img = np.full(img.shape, bg, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     out = []
     for b in seg.bodies:
         if not b.nozzle:
-            ed = vo.body_edges(img, 1 / b_img, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), thr)
+            ed = edg.body_edges(img, 1 / b_img, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), thr)
             out.append(vo.integrate(ed, tilt_rad, None, sigma).volume_px3)
     return out
 
@@ -48,10 +51,10 @@ def test_tilted_slices_cos_factor_vs_resampling():
     b_img = np.full(img.shape, 0.8 * 65535, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     (b,) = [b for b in seg.bodies if not b.nozzle]
-    ed = vo.body_edges(img, 1 / b_img, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), thr)
+    ed = edg.body_edges(img, 1 / b_img, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), thr)
     # middle rows only (away from the flat ends): per unit axial length
     mid = (ed.row > 40 + 60) & (ed.row < 40 + 120)
-    area = vo.slice_areas_px2(vo.RowEdges(ed.row[mid], ed.left_px[mid], ed.right_px[mid], False), th)
+    area = vo.slice_areas_px2(edg.RowEdges(ed.row[mid], ed.left_px[mid], ed.right_px[mid], False), th)
     per_row = area.mean()
     # one image row is cos(th) of axial length: true volume per row = pi r^2 cos(th)
     assert per_row == pytest.approx(np.pi * 15**2 * np.cos(th), rel=1e-3)
@@ -81,7 +84,7 @@ def test_calibration_recovers_tip_axis_tilt(tilt):
     rest = render(bodies=[cap(12, 3)], **kw)
     drop = render(bodies=[cap(12, 3), sphere(100, 22)], seed=1, **kw)
     att = render(bodies=[cap(12, 3), cylinder(0, 50, 10), sphere(65, 18)], seed=2, **kw)
-    cal = calibrate(rest, [rest, drop, att], 4.73, nozzle_outer_diameter_um=40 * 4.73,
+    cal = calibrate_frames(rest, [rest, drop, att], 4.73, nozzle_outer_diameter_um=40 * 4.73,
                     nozzle_inner_diameter_um=24 * 4.73)
     assert cal.tip_row == pytest.approx(40.3, abs=0.1)
     assert cal.axis_col == pytest.approx(80.2, abs=0.1)
@@ -94,7 +97,7 @@ def test_calibration_recovers_tip_axis_tilt(tilt):
 def test_pendant_tip_from_silhouette():
     # liquid hanging from the outer edge: the tip is where the silhouette leaves the walls
     img = render(bodies=[cap(20, 45)], noise=0.005)
-    cal = calibrate(img, [img], 4.73)
+    cal = calibrate_frames(img, [img], 4.73)
     assert cal.tip_source.startswith("silhouette")
     assert cal.tip_row == pytest.approx(40.3, abs=1.0)
 
@@ -111,7 +114,7 @@ def test_opaque_dust_is_never_liquid():
     dust = [(150, 30, 3, 0.1)]  # opaque speck off the axis
     frames = [render(bodies=[cap(12, 3)] + ([sphere(z, 15)] if z else []), dust=dust, seed=i, noise=0.01)
               for i, z in enumerate([0, 40, 70, 100, 130])]
-    cal = calibrate(frames[0], frames, 4.73)
+    cal = calibrate_frames(frames[0], frames, 4.73)
     assert cal.background.opaque is not None and cal.background.opaque[150, 30]
     allowed = np.where(cal.background.opaque, 0, 255).astype(np.uint8)
     thr = sg.threshold_image(cal.background.background, cal.threshold, np.uint8)

@@ -199,7 +199,7 @@ def test_inner_diameter_not_smaller_than_outer_is_noted():
     from types import SimpleNamespace
 
     from dropvision.config import MeasureConfig
-    from dropvision.summary import check_nozzle
+    from dropvision.plausibility import check_nozzle
 
     notes, flags = [], [[]]
     drop = SimpleNamespace(drop_volume_nl=np.array([1.0]))

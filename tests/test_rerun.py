@@ -297,7 +297,7 @@ def test_tilted_calibration_lines(tmp_path):
 
 
 @dataclass(frozen=True)
-class BodyLike:  # like dropvision.segmentation.Body plus a class (half-open box, ROI coordinates)
+class BodyLike:  # like dropvision.segmentation.DarkBody plus a class (half-open box, ROI coordinates)
     label: int
     x0: int
     y0: int

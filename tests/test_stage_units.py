@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 from dropvision import segmentation as sg
+from dropvision import edges as edg
 from dropvision import volume as vo
 from dropvision.bodies import DetachedBody, measure_attached, off_path_reason
-from dropvision.calibration import esf_sigma_px
+from dropvision.blur import esf_sigma_px
 from dropvision.context import attached_half_width_px
 from dropvision.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
 from dropvision.summary import frame_scatter_nl, grown_uncertainty
@@ -34,7 +35,7 @@ def _edges(rows, chords, centre=0.0):
     """RowEdges of one run per row, symmetric about ``centre``."""
     rows = np.asarray(rows, int)
     c = np.asarray(chords, float)
-    return vo.RowEdges(rows, centre - 0.5 * c, centre + 0.5 * c, False)
+    return edg.RowEdges(rows, centre - 0.5 * c, centre + 0.5 * c, False)
 
 
 def _sphere_edges(k: int, centre_row: int = 100):
@@ -199,12 +200,12 @@ def test_volume_uncertainties_match_the_integral_they_describe():
     bv = vo.integrate(ed)
     d = 1e-4
     # every edge moved outwards by d: the volume change is the common-error uncertainty
-    grown = vo.integrate(vo.RowEdges(ed.row, ed.left_px - d, ed.right_px + d, False)).volume_px3
+    grown = vo.integrate(edg.RowEdges(ed.row, ed.left_px - d, ed.right_px + d, False)).volume_px3
     assert grown - bv.volume_px3 == pytest.approx(vo.volume_uncertainty_px3(bv, d, blur_fraction=0.0), rel=1e-3)
     # independent noise on every edge: the spread of Monte Carlo volumes
     rng = np.random.default_rng(3)
     noise = 0.05
-    vols = [vo.integrate(vo.RowEdges(ed.row, ed.left_px + rng.normal(0, noise, ed.row.size),
+    vols = [vo.integrate(edg.RowEdges(ed.row, ed.left_px + rng.normal(0, noise, ed.row.size),
                                      ed.right_px + rng.normal(0, noise, ed.row.size), False)).volume_px3
             for _ in range(1500)]
     assert np.std(vols) == pytest.approx(vo.random_volume_uncertainty_px3(bv, noise), rel=0.06)
@@ -225,7 +226,7 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     img = render(shape=(130, 160), bodies=[cylinder(0.0, 60.2, 15.5)], tip_row=40.3, axis_col=80.0,
                  nozzle_r_out=20.0, spot=0.0, blur_px=0.0, bits=16)
     level, bg = 0.12, 0.8 * 65535
-    thr = sg.edge_threshold(level)
+    thr = edg.edge_threshold(level)
     b_img = np.full(img.shape, bg, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     body = sg.find_nozzle_body(seg.bodies, 80.0)

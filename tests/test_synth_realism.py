@@ -9,7 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from dropvision.sequence import RGBConvertedWarning, open_sequence, to_canonical
+from dropvision.orientation import to_canonical
+from dropvision.sequence import RGBConvertedWarning, open_sequence
 from dropvision.synth import SynthConfig, synthesize, write_synthetic_sequence
 from dropvision.synth.render import Renderer
 from dropvision.synth.sequence import (BODY_CLASSES, BODY_COLUMNS, RIGS, TRUTH_COLUMNS, colour_gains, plan,

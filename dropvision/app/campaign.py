@@ -53,7 +53,7 @@ from dropvision.app.options import warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
-from dropvision.output import write_result
+from dropvision.result_writer import write_result
 from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence

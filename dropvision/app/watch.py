@@ -15,7 +15,7 @@
    These rows are provisional: the frame's own measurement, before the sequence-level analysis.
 3. When the sequence ends (the expected number of frames, ``idle_s`` without a new frame, or
    Ctrl-C) the final tables are measured by `dropvision.measurement.measure_sequence` over the
-   complete frames and written by `dropvision.output.write_result`: with every frame complete
+   complete frames and written by `dropvision.result_writer.write_result`: with every frame complete
    they equal ``dropvision measure FOLDER`` exactly. The journal is kept in the result.
 
 Nothing is ever written into FOLDER. OUT follows `dvcore.atomic`: refused when it holds files
@@ -41,7 +41,7 @@ from dropvision.config import MeasureConfig
 from dropvision.context import calibrate_sequence
 from dropvision.frame import FrameRecord, measure_frame
 from dropvision.measurement import MeasureResult, measure_sequence
-from dropvision.output import write_result
+from dropvision.result_writer import write_result
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
 from dvcore import schema

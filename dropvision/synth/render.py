@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dropvision.synth.shapes import Body, Profile, QuadraticNeck
+from dropvision.synth.profiles import LiquidBody, Profile, QuadraticNeck
 
 __all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer",
            "Structure", "polygon_coverage", "mist_map"]
@@ -68,13 +68,13 @@ class CameraGeometry:
         return self.tip_row + z * d[0] + x * n[0], self.axis_col + z * d[1] + x * n[1]
 
 
-def _body_frame(body: Body, geom: CameraGeometry):
+def _body_frame(body: LiquidBody, geom: CameraGeometry):
     o_r, o_c = geom.to_pixel(body.origin_z_um, body.origin_x_um)
     d, n = geom.direction(body.axis_angle_rad)
     return float(o_r), float(o_c), d, n
 
 
-def _box(body: Body, geom: CameraGeometry, pad_px: float = 2.0):
+def _box(body: LiquidBody, geom: CameraGeometry, pad_px: float = 2.0):
     """Pixel index box (r0, r1, c0, c1), inclusive-exclusive, clipped; None if outside."""
     o_r, o_c, d, n = _body_frame(body, geom)
     lo, hi = body.profile.support
@@ -96,7 +96,7 @@ def _box(body: Body, geom: CameraGeometry, pad_px: float = 2.0):
     return r0, r1, c0, c1
 
 
-def _inside(body: Body, geom: CameraGeometry, rows, cols, frame):
+def _inside(body: LiquidBody, geom: CameraGeometry, rows, cols, frame):
     o_r, o_c, d, n = frame
     px = geom.pixel_size_um
     dr, dc = rows - o_r, cols - o_c
@@ -106,12 +106,12 @@ def _inside(body: Body, geom: CameraGeometry, rows, cols, frame):
     return y * y <= r2, r2, y
 
 
-def body_coverage(body: Body, geom: CameraGeometry, supersample: int = 8, *, full: bool = False):
+def body_coverage(body: LiquidBody, geom: CameraGeometry, supersample: int = 8, *, full: bool = False):
     """Exact-by-supersampling pixel coverage of one body.
 
     Parameters
     ----------
-    body : Body
+    body : LiquidBody
     geom : CameraGeometry
     supersample : int
         Samples per pixel side for mixed pixels.
@@ -163,7 +163,7 @@ def body_coverage(body: Body, geom: CameraGeometry, supersample: int = 8, *, ful
     return r0, c0, cov
 
 
-def spot_mask(body: Body, geom: CameraGeometry, min_spot_px: float = 1.2):
+def spot_mask(body: LiquidBody, geom: CameraGeometry, min_spot_px: float = 1.2):
     """Soft-edged bright-spot ellipses of a body (appearance only): (r0, c0, patch) or None.
 
     Spots whose across semi-axis is below ``min_spot_px`` pixels are not drawn.
@@ -290,7 +290,7 @@ class Renderer:
         self.geom, self.optics = geom, optics
         H, W = geom.shape
         reach = (H + W) * geom.pixel_size_um * 2
-        nozzle = Body("nozzle", Profile((QuadraticNeck(-reach, 0.0, nozzle_outer_radius_um,
+        nozzle = LiquidBody("nozzle", Profile((QuadraticNeck(-reach, 0.0, nozzle_outer_radius_um,
                                                        nozzle_outer_radius_um),)), 0.0, 0.0)
         self.nozzle_cov = coverage_image([nozzle], geom, optics.supersample)
         rr = (np.arange(H) - (H - 1) / 2.0) / ((H - 1) / 2.0)

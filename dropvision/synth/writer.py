@@ -1,7 +1,7 @@
 """Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv,
 truth_bodies.csv.
 
-All files go through the shared writers of :mod:`dropvision.writers` (images, multi-page TIFF,
+All files go through the shared writers of :mod:`dropvision.sequence_writer` (images, multi-page TIFF,
 sequence.json) and :mod:`dvcore.atomic`; the whole folder is built in a temporary sibling
 and renamed into place at the end, so a failure never leaves a half-written sequence.
 """
@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 
 from dvcore.atomic import atomic_dir, check_output_dir, write_bytes, write_json, write_text
-from dropvision.writers import write_image, write_multipage_tiff, write_sequence_json
-from dropvision.synth.sequence import (STACK_FILE, SynthConfig, bodies_table, frames_table, plan, sequence_truth,
+from dropvision.sequence_writer import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.synth.sequence import (STACK_FILE, SynthConfig, truth_bodies_table, truth_frames_table, plan, sequence_truth,
                                        synthesize)
 
 __all__ = ["write_synthetic_sequence", "sequence_metadata", "encode_jpeg"]
@@ -121,6 +121,6 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
                 rows.append(truth)
         write_sequence_json(tmp, sequence_metadata(config, p.frames))
         write_json(tmp / "truth.json", _inflight_with_touching(sequence_truth(p), rows))
-        write_text(tmp / "truth_frames.csv", frames_table(rows).to_csv(index=False, float_format="%.9g"))
-        write_text(tmp / "truth_bodies.csv", bodies_table(rows).to_csv(index=False, float_format="%.9g"))
+        write_text(tmp / "truth_frames.csv", truth_frames_table(rows).to_csv(index=False, float_format="%.9g"))
+        write_text(tmp / "truth_bodies.csv", truth_bodies_table(rows).to_csv(index=False, float_format="%.9g"))
     return out

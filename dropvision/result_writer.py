@@ -1,11 +1,16 @@
-"""Writing a measurement: frames.parquet (+ frames.csv), bodies.parquet, per_delay.parquet, summary.json."""
+"""Writing a measurement: frames.parquet (+ frames.csv), bodies.parquet, per_delay.parquet, summary.json.
+
+The frames table is checked against its schema before anything is written
+(`dropvision.summary.check_frames_table`): a missing, undeclared or mistyped column is an error
+naming it, never a silently empty column.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from dropvision.summary import per_delay
+from dropvision.summary import check_frames_table, per_delay
 from dvcore.atomic import write_json
 
 if TYPE_CHECKING:  # pragma: no cover - typing only
@@ -26,8 +31,14 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
         Also write frames.csv.
     extra_summary : dict, optional
         Entries added to (or replacing those of) summary.json.
+
+    Raises
+    ------
+    dvcore.schema.SchemaError
+        The frames table does not follow its schema (nothing is written).
     """
     out = Path(out_dir)
+    check_frames_table(result.frames, out / "frames.parquet")
     out.mkdir(parents=True, exist_ok=True)
     result.frames.to_parquet(out / "frames.parquet", index=False)
     if csv:

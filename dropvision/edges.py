@@ -1,0 +1,244 @@
+"""The edge: its threshold level, the sub-pixel crossing of it, and the edges of dark runs.
+
+Every edge in a backlit frame is placed at one level: half-way between the background
+(transmission 1) and the interior level of the dark body it bounds (`edge_threshold`).  Before
+that interior level is measured (the first look at a frame during calibration), the level is
+`first_pass_threshold` of the frame's darkest body.  Between a dark sample and its bright
+neighbour the edge lies where the straight line between them crosses the threshold
+(`crossing_fraction`); this one primitive places the run edges of every body
+(`subpixel_edges`, `body_edges`), the nozzle tip along a column (`first_rising_crossing`) and
+the ends of a pinch-off thread (`dropvision.pinchoff`).
+
+Coordinates: pixel centres are integers; a row ``i`` covers ``[i - 0.5, i + 0.5)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Edge level used when nothing is known of the interior (an opaque interior, level 0).
+DEFAULT_EDGE_THRESHOLD = 0.5
+
+
+def edge_threshold(interior_level: float) -> float:
+    """Edge (50 %) transmission level half-way between the background (1) and a dark interior.
+
+    Parameters
+    ----------
+    interior_level : float
+        Transmission (background = 1) inside the liquid or the nozzle.
+
+    Returns
+    -------
+    float
+        ``(1 + interior_level) / 2``, in transmission units.
+    """
+    return 0.5 * (1.0 + interior_level)
+
+
+def first_pass_threshold(darkest_transmission: float) -> float:
+    """Edge level for a first look at a frame whose interior level is not measured yet.
+
+    Half-way to the darkest body (`edge_threshold` of it) in a low-contrast frame, whose darkest
+    body lies between 30 and 80 % transmission (liquid and nozzle half transparent: 50 % might
+    miss them); `DEFAULT_EDGE_THRESHOLD` otherwise.
+
+    Parameters
+    ----------
+    darkest_transmission : float
+        Darkest transmission of the frame's bodies (`dropvision.background.darkest_level`).
+
+    Returns
+    -------
+    float
+        Edge level (transmission).
+    """
+    if 0.3 < darkest_transmission < 0.8:
+        return edge_threshold(darkest_transmission)
+    return DEFAULT_EDGE_THRESHOLD
+
+
+def crossing_fraction(t_dark, t_bright, threshold: float, from_bright: bool = False):
+    """Where the straight line from a dark sample to its bright neighbour crosses ``threshold``.
+
+    Parameters
+    ----------
+    t_dark, t_bright : float or ndarray
+        Transmission of the dark sample and of its neighbour one pixel away.
+    threshold : float
+        Edge level (transmission, `edge_threshold`).
+    from_bright : bool
+        Measure the distance from the bright sample instead of the dark one.  It is computed
+        directly, ``(t_bright - threshold) / (t_bright - t_dark)``, not as one minus the other
+        (which would differ in the last bits of the samples' float32).
+
+    Returns
+    -------
+    float or ndarray
+        Distance from the dark (or bright) sample towards the other one, clipped to 0..1 px
+        (float for scalars, the samples' dtype for arrays).  A flat pair has no crossing: the
+        edge is put at the dark sample when both lie above the level (it is not dark), at the
+        bright one when both lie below, half-way when both lie on it.
+    """
+    t_dark, t_bright = np.asarray(t_dark), np.asarray(t_bright)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        if from_bright:
+            f = np.clip((t_bright - threshold) / (t_bright - t_dark), 0.0, 1.0)
+        else:
+            f = np.clip((threshold - t_dark) / (t_bright - t_dark), 0.0, 1.0)
+    if np.ndim(f) == 0:
+        return float(f) if np.isfinite(f) else 0.5
+    return np.where(np.isfinite(f), f, 0.5)
+
+
+def first_rising_crossing(profile: np.ndarray, start: int, stop: int, threshold: float) -> float:
+    """First crossing of ``threshold`` from a dark sample to the next bright one in ``profile[start:stop]``.
+
+    Parameters
+    ----------
+    profile : ndarray
+        Transmission along a line (a column, going down).
+    start, stop : int
+        Part of the profile searched.
+    threshold : float
+        Edge level (transmission).
+
+    Returns
+    -------
+    float
+        Sub-pixel index in ``profile`` (`crossing_fraction` past the last dark sample), NaN
+        when the profile never rises through the level there.
+    """
+    seg = profile[start:stop]
+    above = np.nonzero(seg >= threshold)[0]
+    above = above[above > 0]
+    for i in above:
+        if seg[i - 1] < threshold:
+            return start + i - 1 + float(crossing_fraction(seg[i - 1], seg[i], threshold))
+    return np.nan
+
+
+@dataclass
+class RowEdges:
+    """Sub-pixel edges of the dark runs of one body (all arrays have one entry per run).
+
+    Attributes
+    ----------
+    row : ndarray of int
+        Row of the run (region-of-interest coordinates).
+    left_px, right_px : ndarray of float
+        Sub-pixel edge positions (column coordinates, pixel centres integers).
+    touches : bool
+        A run reaches the side of the region (the edge could not be located).
+    """
+
+    row: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    touches: bool
+
+    @property
+    def chord_px(self) -> np.ndarray:
+        return self.right_px - self.left_px
+
+    @property
+    def centre_px(self) -> np.ndarray:
+        return 0.5 * (self.right_px + self.left_px)
+
+
+def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Horizontal runs of True in a 2-D boolean array.
+
+    Returns
+    -------
+    rows, starts, stops : ndarray of int
+        Run ``k`` covers ``mask[rows[k], starts[k]:stops[k]]``.
+    """
+    h, w = mask.shape
+    padded = np.zeros((h, w + 2), np.int8)
+    padded[:, 1:-1] = mask
+    d = np.diff(padded, axis=1)
+    r0, c0 = np.nonzero(d == 1)
+    _, c1 = np.nonzero(d == -1)
+    return r0, c0, c1
+
+
+def subpixel_edges(
+    image: np.ndarray,
+    inv_background: np.ndarray,
+    rows: np.ndarray,
+    starts: np.ndarray,
+    stops: np.ndarray,
+    threshold: float,
+    gain: float = 1.0,
+) -> RowEdges:
+    """Sub-pixel edges (`crossing_fraction`) at both ends of each run.
+
+    Parameters
+    ----------
+    image : ndarray
+        Raw image (region of interest).
+    inv_background : ndarray of float32
+        ``1 / background`` for the same region.
+    rows, starts, stops : ndarray of int
+        Runs as returned by `runs` (dark pixels ``starts..stops-1``).
+    threshold : float
+        Transmission level of the edge, ``(1 + interior_level) / 2``.
+    gain : float
+        Frame illumination relative to the background model (strobe flicker).
+
+    Returns
+    -------
+    RowEdges
+    """
+    w = image.shape[1]
+    touches = bool(np.any(starts == 0) or np.any(stops == w))
+    s = np.clip(starts, 1, w - 1)
+    e = np.clip(stops, 1, w - 1)
+    scale = 1.0 / gain
+    t_out_l = image[rows, s - 1] * inv_background[rows, s - 1] * scale
+    t_in_l = image[rows, s] * inv_background[rows, s] * scale
+    t_in_r = image[rows, e - 1] * inv_background[rows, e - 1] * scale
+    t_out_r = image[rows, e] * inv_background[rows, e] * scale
+    left = (s - 1) + crossing_fraction(t_in_l, t_out_l, threshold, from_bright=True)
+    right = (e - 1) + crossing_fraction(t_in_r, t_out_r, threshold)
+    return RowEdges(np.asarray(rows), left.astype(float), right.astype(float), touches)
+
+
+def body_edges(
+    image: np.ndarray,
+    inv_background: np.ndarray,
+    labels: np.ndarray,
+    label: int,
+    bbox: tuple[int, int, int, int],
+    threshold: float,
+    gain: float = 1.0,
+    row_min: int = 0,
+) -> RowEdges:
+    """Sub-pixel run edges of one labelled body (region-of-interest coordinates).
+
+    Parameters
+    ----------
+    image, inv_background : ndarray
+        Region of interest and ``1 / background`` over it.
+    labels : ndarray
+        Label image of the region (`dropvision.segmentation.segment`).
+    label : int
+        The body's label.
+    bbox : (x0, y0, x1, y1)
+        Its bounding box (half-open).
+    threshold, gain : float
+        See `subpixel_edges`.
+    row_min : int
+        Ignore rows above this one.
+    """
+    x0, y0, x1, y1 = bbox
+    y0 = max(y0, row_min)
+    if y1 <= y0:
+        e = np.zeros(0)
+        return RowEdges(np.zeros(0, int), e, e, False)
+    sub = labels[y0:y1, x0:x1] == label
+    r, s, e = runs(sub)
+    return subpixel_edges(image, inv_background, r + y0, s + x0, e + x0, threshold, gain)

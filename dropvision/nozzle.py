@@ -1,0 +1,376 @@
+"""The nozzle in the first frame: its outer walls (axis, tilt, outer width) and its tip plane.
+
+- `find_nozzle`: the dark body touching the top edge (canonical orientation); its straight
+  part is a run of rows of constant width of the dark run holding the nozzle (followed up from
+  the body's lowest row): the one of the expected outer width when the metadata gives it, else
+  the narrowest (a holder block above it is wider; `_straight_walls`); the outer walls'
+  sub-pixel edges over those rows give the midline (axis column, tilt) and the outer width
+  (cross-check of the pixel size, `outer_diameter_uncertainty_px`).  Walls shorter than 10 rows
+  (a nozzle barely protruding from its holder) take the tilt from the holder's face instead,
+  and with no straight walls at all the part of the body below the face is the nozzle
+  (`_face_nozzle`: the axis is perpendicular to the face).
+- `find_tip`: in a frame with the meniscus at rest, the vertical transmission profiles of the
+  wall annulus columns (between the inner and outer radius) cross the edge level at the tip;
+  when liquid hangs below the walls (annulus dark below the straight part) the tip is the row
+  where the silhouette leaves the straight walls.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from dropvision.background import CalibrationError
+from dropvision.edges import DEFAULT_EDGE_THRESHOLD, first_rising_crossing, runs, subpixel_edges
+from dropvision.segmentation import fill_holes
+
+
+@dataclass
+class Nozzle:
+    """Outer walls of the nozzle (full-frame coordinates).
+
+    Attributes
+    ----------
+    rows : ndarray
+        Rows of the straight part used for the fit.
+    left_px, right_px : ndarray
+        Sub-pixel outer wall edges on those rows.
+    axis_a, axis_b : float
+        Midline ``col = axis_a + axis_b * row``.
+    outer_width_px : float
+        Mean horizontal outer width (multiply by cos(tilt) for the diameter).
+    straight_end_row : int
+        Last row of the straight part.
+    interior_level : float
+        Median transmission inside the nozzle.
+    """
+
+    rows: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    axis_a: float
+    axis_b: float
+    outer_width_px: float
+    straight_end_row: int
+    interior_level: float
+    #: Sub-pixel outer edges of every row of the top body (walls and the liquid hanging below).
+    outline_rows: np.ndarray | None = None
+    outline_left: np.ndarray | None = None
+    outline_right: np.ndarray | None = None
+
+    @property
+    def tilt_rad(self) -> float:
+        return float(np.arctan(self.axis_b))
+
+    @property
+    def outer_diameter_px(self) -> float:
+        return self.outer_width_px * float(np.cos(self.tilt_rad))
+
+    def axis_col(self, row: float) -> float:
+        return self.axis_a + self.axis_b * row
+
+
+def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
+    """(start, stop) of the nozzle's straight part: a run of rows of constant width.
+
+    Runs of consecutive candidate rows whose widths (5-row running median) stay within 1.5 px of
+    the run's median are the straight parts of the top body (a holder block above the nozzle, the nozzle, a needle).
+    With the nozzle's expected outer width (px), the longest run within a factor 1.5 of it is the
+    nozzle; none: (0, 0).  Without it, runs of at least 6 rows are preferred to shorter ones (at
+    least 3) and the narrowest is the nozzle (a holder is wider; the liquid hanging below is not
+    of constant width), the longest on a tie.
+    """
+    # a 5-row running median: edge noise (low contrast) must not break a straight wall
+    width = np.asarray(width, float)
+    if width.size >= 5:
+        pad = np.pad(width, 2, mode="edge")
+        width = np.median(np.lib.stride_tricks.sliding_window_view(pad, 5), axis=1)
+    runs_ = []
+    i, n = 0, width.size
+    while i < n:
+        if not cand[i]:
+            i += 1
+            continue
+        j = i + 1
+        while j < n and cand[j] and abs(width[j] - np.median(width[i:j])) <= 1.5:
+            j += 1
+        if width[i] >= 4 and j - i >= 3:
+            runs_.append((i, j))
+        i = j
+    if not runs_:
+        return (0, 0)
+    med = {r: float(np.median(width[r[0]:r[1]])) for r in runs_}
+    if expected_px:
+        near = [r for r in runs_ if 1 / 1.5 < med[r] / expected_px < 1.5]
+        return max(near, key=lambda r: r[1] - r[0]) if near else (0, 0)
+    if any(r[1] - r[0] >= 6 for r in runs_):
+        runs_ = [r for r in runs_ if r[1] - r[0] >= 6]
+    return min(runs_, key=lambda r: (med[r], -(r[1] - r[0])))
+
+
+def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int, int, float] | None:
+    """A nozzle barely protruding from a holder block or plate: (first row, stop row, axis slope).
+
+    The lowest dark row of the top body in each column is its bottom profile; its longest
+    straight stretch (RANSAC) is the holder's face, and the columns reaching more than 1.5 px below the face
+    (the group nearest the middle of the face) are the nozzle (and its meniscus).  Returns the rows
+    from the face down to the bottom of that group and the axis slope (col per row,
+    perpendicular to the face), or None when nothing protrudes.
+    """
+    cols = np.nonzero(body.any(axis=0))[0]
+    if cols.size < 20:
+        return None
+    bottom = np.array([np.nonzero(body[:, c])[0].max() for c in cols], float)
+    # the face is the longest straight stretch of the bottom profile (a wedge or a rounded corner
+    # beside it is not): RANSAC over pairs of columns, inliers within 1 px, refitted
+    x = cols.astype(float)
+    rng = np.random.default_rng(0)
+    best = None
+    for _ in range(300):
+        i, j = rng.choice(cols.size, 2, replace=False)
+        if x[i] == x[j]:
+            continue
+        slope = (bottom[j] - bottom[i]) / (x[j] - x[i])
+        inl = np.abs(bottom - (bottom[i] + slope * (x - x[i]))) <= 1.0
+        if best is None or inl.sum() > best.sum():
+            best = inl
+    if best is None or best.sum() < 10:
+        return None
+    q = np.polyfit(x[best], bottom[best], 1)
+    res = bottom - np.polyval(q, x)
+    below = res >= 1.5
+    if not below.any():
+        return None
+    # groups of adjacent protruding columns; the nozzle is the one nearest the middle of the face
+    # (a wedge or corner protrudes at its ends)
+    edges_ = np.flatnonzero(np.diff(np.r_[0, below.astype(int), 0]))
+    groups = list(zip(edges_[::2], edges_[1::2] - 1))
+    face_mid = 0.5 * (x[best].min() + x[best].max())
+    lo, hi = min(groups, key=lambda g: abs(0.5 * (x[g[0]] + x[g[1]]) - face_mid))
+    face_row = float(max(np.polyval(q, cols[lo]), np.polyval(q, cols[hi])))  # the face's lower end over the nozzle
+    r0 = int(np.ceil(face_row + 1.0))
+    r1 = int(bottom[lo:hi + 1].max()) + 1
+    if r1 - r0 < 4:  # fewer rows give no usable wall lines
+        return None
+    return r0, r1, float(-q[0])
+
+
+def _axis_runs(rr: np.ndarray, s: np.ndarray, e: np.ndarray, y1: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the dark run holding the nozzle: followed from the lowest row upwards.
+
+    In the lowest row with a run at least 3 px wide the widest run is taken; in each row above,
+    the run overlapping (8-connected) the one below it most. Rows above the first row without
+    such a run get -1.
+    """
+    start = np.full(y1, -1)
+    stop = np.full(y1, -1)
+    order = np.argsort(rr, kind="stable")
+    rr, s, e = rr[order], s[order], e[order]
+    bounds = np.searchsorted(rr, np.arange(y1 + 1))
+    prev = None
+    for r in range(y1 - 1, -1, -1):
+        i0, i1 = bounds[r], bounds[r + 1]
+        if i0 == i1:
+            if prev is None:
+                continue
+            break
+        if prev is None:
+            k = i0 + int(np.argmax(e[i0:i1] - s[i0:i1]))
+            if e[k] - s[k] < 3:  # a noise pixel hanging below the body
+                continue
+        else:  # 8-connected: a run touching the one below diagonally still continues it
+            overlap = np.minimum(e[i0:i1], prev[1] + 1) - np.maximum(s[i0:i1], prev[0] - 1)
+            if overlap.max() <= 0:
+                break
+            k = i0 + int(np.argmax(overlap))
+        start[r], stop[r] = s[k], e[k]
+        prev = (s[k], e[k])
+    return start, stop
+
+
+def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESHOLD,
+                expected_width_px: float | None = None) -> Nozzle:
+    """Locate the nozzle (dark body at the top edge) and fit its outer walls.
+
+    Parameters
+    ----------
+    transmission : ndarray of float
+        Background-normalised frame (canonical orientation).
+    threshold : float
+        Edge level (50 % between background and the nozzle's interior).
+    expected_width_px : float, optional
+        The nozzle's outer diameter in pixels when the metadata gives it: picks the nozzle among
+        the straight parts of the top body (a holder block is wider).
+    """
+    t = np.asarray(transmission, np.float32)
+    h, w = t.shape
+    mask = (t < threshold).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0]
+    if not top:
+        raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
+    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
+    body = fill_holes((lab == k).astype(np.uint8) * 255) > 0
+    y1 = stats[k, cv2.CC_STAT_TOP] + stats[k, cv2.CC_STAT_HEIGHT]
+    rr, s, e = runs(body[:y1])
+    # outer silhouette per row: first start .. last stop
+    first = np.full(y1, -1)
+    last = np.full(y1, -1)
+    np.maximum.at(last, rr, e)
+    first_vals = np.full(y1, w + 1)
+    np.minimum.at(first_vals, rr, s)
+    first = np.where(first_vals <= w, first_vals, -1)
+    # the run holding the nozzle in each row, followed up from the body's lowest row (a holder
+    # block beside the nozzle is another run, or makes this one much wider)
+    a_start, a_stop = _axis_runs(rr, s, e, y1)
+    width = np.where(a_start >= 0, a_stop - a_start, 0)
+    cand = (width > 2) & (width < 0.9 * w) & (a_start > 0) & (a_stop < w)
+    if cand.sum() < 3:
+        raise CalibrationError(f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to "
+                               f"{int(np.max(last - np.maximum(first, 0)))} px wide) has no straight walls")
+    a, b = _straight_walls(width, cand, expected_width_px)
+    face_slope = None
+    if b - a < 3:  # no walls of the expected width: a nozzle barely protruding from a holder or plate
+        face = _face_nozzle(t, body[:y1], threshold)
+        if face is None:
+            raise CalibrationError(
+                f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to {int(width.max())} px wide) "
+                "has fewer than 3 rows of constant width"
+                + (f" near the expected {expected_width_px:.0f} px" if expected_width_px else "")
+                + " and nothing protrudes below its lower face; give nozzle_tip_row and axis_col in sequence.json")
+        a, b, face_slope = face
+    # sub-pixel edges of the outer walls, away from the tip (blur) and from a holder's face
+    if b - a >= 12:
+        rows = np.arange(a + 2 if a > 0 else a, b - 4)  # 2 rows off a holder's face above the walls
+    else:
+        rows = np.arange(a, max(a + 1, b - 1) if face_slope is not None else max(a + 3, b - 2))
+    ones = np.ones_like(t)
+    edges = subpixel_edges(t, ones, rows, a_start[rows], a_stop[rows], threshold)
+    left, right = edges.left_px, edges.right_px
+    mid = 0.5 * (left + right)
+    coef = np.polyfit(rows.astype(float), mid, 1) if rows.size >= 2 else np.array([0.0, mid[0]])
+    if face_slope is None and rows.size < 10:  # walls too short for their midline's slope
+        face_slope = _face_nozzle(t, body[:y1], threshold)
+        face_slope = None if face_slope is None else face_slope[2]
+    if face_slope is not None and rows.size < 10:  # the axis is perpendicular to the holder's face
+        coef = np.array([face_slope, float(np.mean(mid) - face_slope * np.mean(rows))])
+    inner = cv2.erode(body[: b].astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    vals_in = t[: b][inner & (t[: b] < threshold)]
+    level = float(np.median(vals_in)) if vals_in.size else 0.0
+    orows = np.nonzero((first > 0) & (last < w) & (last > first))[0]
+    outline = subpixel_edges(t, ones, orows, first[orows], last[orows], threshold)
+    return Nozzle(rows, left, right, float(coef[1]), float(coef[0]), float(np.mean(right - left)), int(b - 1), level,
+                  orows, outline.left_px, outline.right_px)
+
+
+def find_tip(
+    transmission: np.ndarray,
+    nozzle: Nozzle,
+    threshold: float,
+    inner_radius_px: float | None = None,
+) -> tuple[float, str]:
+    """Sub-pixel row of the nozzle tip plane at the axis, and how it was found.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        A frame with the meniscus at rest (normalised).
+    nozzle : Nozzle
+    threshold : float
+        50 % level between background and the nozzle's interior.
+    inner_radius_px : float, optional
+        Nozzle inner radius (pixels), to place the annulus columns on the wall.
+
+    Returns
+    -------
+    tip_row : float
+    source : str
+        ``"wall annulus 50 % crossing"`` or ``"silhouette leaves the straight walls"``.
+    """
+    t = np.asarray(transmission, np.float32)
+    h, w = t.shape
+    r_out = 0.5 * nozzle.outer_diameter_px
+    tan = nozzle.axis_b
+    end = nozzle.straight_end_row
+    lo = r_out * 0.6 if inner_radius_px is None else inner_radius_px + 1.5
+    hi = r_out - 2.5
+    tips = {}
+    if hi > lo:
+        offsets = np.linspace(lo, hi, max(2, int(hi - lo) + 1))
+        for side in (-1, 1):
+            vals = []
+            for d in offsets:
+                col = nozzle.axis_col(end) + side * d
+                c = int(round(col))
+                if not 0 <= c < w:
+                    continue
+                y = first_rising_crossing(t[:, c], max(0, end - 12), min(h, end + 12), threshold)
+                if np.isfinite(y):
+                    vals.append(y + (c - nozzle.axis_col(y)) * tan)
+            if len(vals) >= 2:
+                tips[side] = float(np.median(vals))
+    if len(tips) == 2 and abs(tips[-1] - tips[1]) < 1.0 and abs(0.5 * (tips[-1] + tips[1]) - end) < 4:
+        return 0.5 * (tips[-1] + tips[1]), "wall annulus 50 % crossing"
+    # silhouette departure from the straight wall lines: the deviation of the outer edges from
+    # the fitted wall lines, extrapolated linearly back to zero from its first rows above 0.3 px
+    rows = np.arange(end + 1, min(h, end + 60))
+    mask = (t < threshold)
+    fl = np.polyfit(nozzle.rows.astype(float), nozzle.left_px, 1)
+    fr = np.polyfit(nozzle.rows.astype(float), nozzle.right_px, 1)
+    ys, devs = [], []
+    for y in rows:
+        cl = np.polyval(fl, y)
+        cr = np.polyval(fr, y)
+        row = mask[y]
+        c0 = int(max(0, np.floor(cl - r_out)))
+        c1 = int(min(w, np.ceil(cr + r_out)))
+        if not np.any(row[c0:c1]):
+            return float(y - 0.5), "silhouette leaves the straight walls (ends)"
+        rr, s, e = runs(row[None, c0:c1])
+        ed = subpixel_edges(t[y:y + 1, c0:c1], np.ones((1, c1 - c0), np.float32), np.zeros_like(s), s, e, threshold)
+        dev = max(abs(ed.left_px.min() + c0 - cl), abs(ed.right_px.max() + c0 - cr))
+        ys.append(y)
+        devs.append(dev)
+        if dev > 3.0:
+            break
+    ys = np.array(ys, float)
+    devs = np.array(devs, float)
+    sel = devs > 0.3
+    if sel.sum() >= 2:
+        k = np.nonzero(sel)[0]
+        k = k[: max(2, min(len(k), 4))]
+        slope, icpt = np.polyfit(ys[k], devs[k], 1)
+        if slope > 0:
+            y0 = -icpt / slope
+            return float(np.clip(y0, end - 1.0, ys[k[0]])), "silhouette leaves the straight walls"
+    if sel.any():
+        return float(ys[np.argmax(sel)] - 0.5), "silhouette leaves the straight walls"
+    return float(end + 0.5), "end of the straight walls"
+
+
+def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float) -> float:
+    """Standard uncertainty (px) of the nozzle's measured outer diameter.
+
+    Two parts in quadrature: the statistical error of the mean width (standard deviation of
+    the per-row widths over the straight rows / sqrt(rows)), and a systematic floor of
+    ``edge_position_floor_px`` on each of the two walls (threshold and blur model bias, which
+    does not average out over rows).
+
+    Parameters
+    ----------
+    nozzle : Nozzle
+        Fitted outer walls.
+    edge_position_floor_px : float
+        Systematic uncertainty of one edge (px).
+
+    Returns
+    -------
+    float
+        Uncertainty of ``nozzle.outer_diameter_px`` (px).
+    """
+    w = np.asarray(nozzle.right_px, float) - np.asarray(nozzle.left_px, float)
+    w = w[np.isfinite(w)]
+    stat = float(np.std(w, ddof=1) / np.sqrt(w.size)) if w.size >= 2 else float("nan")
+    return float(np.hypot(stat, np.sqrt(2.0) * edge_position_floor_px) * np.cos(nozzle.tilt_rad))

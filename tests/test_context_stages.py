@@ -1,0 +1,69 @@
+"""Calibration-pass stages that take arrays and return a small result (dropvision/context.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from dropvision.blur import edge_sigma_px
+from dropvision.calibration import calibrate_frames
+from dropvision.config import MeasureConfig
+from dropvision.context import APPEARANCE_DTYPE, body_blur_reference, wall_reference
+from dropvision.edges import edge_threshold
+from dropvision.nozzle import find_nozzle
+from dropvision.synth import SynthConfig, synthesize
+
+
+@pytest.fixture(scope="module")
+def first_frame():
+    cfg = SynthConfig(width_px=160, height_px=320, delays_us=(0.0,))
+    img, _ = next(iter(synthesize(cfg, progress=False)))
+    cal = calibrate_frames(img, [img], cfg.pixel_size_um)
+    t = np.asarray(img, np.float32) / cal.background.background
+    nozzle = find_nozzle(t, edge_threshold(cal.nozzle_level))
+    return cal, nozzle, t, edge_sigma_px(t, nozzle)
+
+
+def test_wall_reference_from_the_dry_walls(first_frame):
+    cal, nozzle, t, sigma = first_frame
+    config = MeasureConfig()
+    ref = wall_reference(nozzle, cal.tip_row, cal.background.background, t, sigma, cal.liquid_level, config)
+    assert ref is not None
+    assert ref.rows.shape == ref.cols.shape == ref.inv_background.shape and ref.rows.shape[0] >= 4
+    assert ref.inv_background.dtype == np.float32
+    assert np.all(ref.rows <= cal.tip_row - 3)  # dry walls only
+    assert ref.blur_px == pytest.approx(sigma) and ref.sharpness > 0
+    assert ref.max_frame_blur_px == pytest.approx(min(config.max_blur_px, (1 + config.blur_change_tolerance) * sigma))
+    assert 0 < ref.min_wall_contrast < 1
+
+
+def test_wall_reference_none_without_a_blur_or_walls(first_frame):
+    cal, nozzle, t, sigma = first_frame
+    config = MeasureConfig()
+    assert wall_reference(nozzle, cal.tip_row, cal.background.background, t, float("nan"), cal.liquid_level,
+                          config) is None
+    # the tip plane above every wall row: no dry wall
+    assert wall_reference(nozzle, float(nozzle.rows.min()), cal.background.background, t, sigma, cal.liquid_level,
+                          config) is None
+
+
+def _found(*bodies):
+    """Detached bodies (edge spread px, ESF sigma px) as `detached_appearances` returns them."""
+    return np.array([(0, 100, 0.2, spread, sigma) for spread, sigma in bodies], APPEARANCE_DTYPE)
+
+
+def test_body_blur_reference_only_when_the_walls_are_out_of_focus():
+    config = MeasureConfig()
+    found = _found((1.0, 0.9), (2.0, 1.8))
+    limit = config.mist_blur_factor * 1.0 + config.mist_blur_offset_px
+    assert body_blur_reference(found, limit, 1.1, config) is None  # walls as sharp as allowed
+    assert body_blur_reference(_found(), 5.0, 1.1, config) is None  # no detached body
+    ref = body_blur_reference(found, limit + 0.5, 1.1, config)
+    assert ref.edge_blur_ref_px == 1.0 and ref.sigma_px == 0.9  # the sharpest body's
+    assert ref.nozzle_blur_px == 1.1  # the walls' own fit
+    # no wall fit: the body's sigma scaled by the two spreads; no wall spread either: 3 x
+    assert body_blur_reference(found, limit + 0.5, float("nan"), config).nozzle_blur_px == pytest.approx(
+        0.9 * (limit + 0.5) / 1.0)
+    assert body_blur_reference(found, float("nan"), float("nan"), config).nozzle_blur_px == pytest.approx(2.7)
+    # the sharpest body without an ESF fit: its edge spread
+    assert body_blur_reference(_found((1.0, float("nan"))), 5.0, 1.1, config).sigma_px == 1.0
