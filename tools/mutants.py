@@ -22,6 +22,7 @@ Usage (from the repository root)::
 
     .venv/bin/python tools/mutants.py                 # every mutant, then the markdown table
     .venv/bin/python tools/mutants.py --only tie_rule # one (repeatable; prefix match with --prefix)
+    .venv/bin/python tools/mutants.py --baseline      # the targeted tests pass unmutated first
     .venv/bin/python tools/mutants.py --list          # the table of mutants, nothing run
     .venv/bin/python tools/mutants.py --only layer_cycle --show   # with the failing assertion
     .venv/bin/python tools/mutants.py --timeout 300 --python .venv/bin/python
@@ -301,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--prefix", action="store_true", help="--only names are prefixes")
     p.add_argument("--list", action="store_true", help="print the table of mutants and run nothing")
     p.add_argument("--timeout", type=float, default=600.0, help="seconds per mutant (default 600)")
+    p.add_argument("--baseline", action="store_true",
+                   help="first run the chosen mutants' test files unmutated; stop unless they pass")
     p.add_argument("--show", action="store_true", help="print the end of each pytest run's output")
     p.add_argument("--python", default=sys.executable, help="interpreter that runs pytest")
     a = p.parse_args(argv)
@@ -316,6 +319,17 @@ def main(argv: list[str] | None = None) -> int:
     if a.list:
         print(table())
         return 0
+    if a.baseline:
+        files = list(dict.fromkeys(t for m in chosen for t in m.tests))
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+        t0 = time.monotonic()
+        proc = subprocess.run([a.python, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider", *files],
+                              cwd=ROOT, env=env, capture_output=True, text=True)
+        last = (proc.stdout.strip().splitlines() or ["no output"])[-1]
+        print(f"baseline (no mutant) of {len(files)} test files: {last} ({time.monotonic() - t0:.0f} s)", flush=True)
+        if proc.returncode != 0:
+            print(proc.stdout[-3000:] + proc.stderr[-2000:])
+            return 1
     rows = []
     for m in chosen:
         outcome, detail, dt = run_mutant(m, a.python, a.timeout, a.show)
