@@ -1,0 +1,344 @@
+"""Plant known mistakes (mutants) in the source, one at a time, and see which test catches each.
+
+A developer tool (not run by ``make test``): issue 20 asks for tests with teeth, shown by
+planting the mistakes a reviewer found (and a few more on the new code) and running the tests
+that should catch them.  Each mutant is data in :data:`MUTANTS`: the file, the exact text it
+replaces (which must occur exactly once, so a mutant that no longer applies is reported, not
+silently skipped) and the targeted test files.  For each one the tool
+
+1. checks the working tree's file is unmodified (``git diff --quiet``; it never plants on top of
+   an edit),
+2. writes the mutated file,
+3. runs ``python -m pytest -x -q -p no:randomly -rf <tests>`` with ``OPENBLAS_NUM_THREADS=1``
+   and a time limit,
+4. restores the file's original bytes (in a ``finally``: also on Ctrl-C or a time-out) and
+   checks ``git diff --quiet`` again,
+
+and records CAUGHT (the first failing test, as pytest names it), SURVIVED (the tests passed),
+NO-MATCH (the text to replace is not found exactly once) or TIMEOUT.  A mutant is caught only
+by a failure: an error while collecting counts as caught too (it is named), a skip does not.
+
+Usage (from the repository root)::
+
+    .venv/bin/python tools/mutants.py                 # every mutant, then the markdown table
+    .venv/bin/python tools/mutants.py --only tie_rule # one (repeatable; prefix match with --prefix)
+    .venv/bin/python tools/mutants.py --baseline      # the targeted tests pass unmutated first
+    .venv/bin/python tools/mutants.py --list          # the table of mutants, nothing run
+    .venv/bin/python tools/mutants.py --only layer_cycle --show   # with the failing assertion
+    .venv/bin/python tools/mutants.py --timeout 300 --python .venv/bin/python
+
+Exit status 0 when every mutant run was caught, 1 otherwise.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutant:
+    """One planted mistake: replace ``before`` (exactly once in ``path``) by ``after``; an empty
+    ``before`` appends ``after`` to the file."""
+
+    name: str
+    path: str  # relative to the repository root
+    before: str
+    after: str
+    tests: tuple[str, ...]  # test files (or node ids) to run
+    what: str  # one line: the mistake it stands for
+
+
+STAGE = ("tests/test_stage_units.py",)
+VIEWER = ("tests/test_rerun_screenshot.py",)
+INTERVALS = ("tests/test_intervals.py",)
+
+MUTANTS: tuple[Mutant, ...] = (
+    # --- the previous stop's mutants (issue 20), re-planted where the code now lives ----------
+    Mutant("tie_rule", "dropvision/pinchoff.py",
+           "hit = frac.index[frac.to_numpy() >= 0.5]", "hit = frac.index[frac.to_numpy() > 0.5]",
+           STAGE, "pinch-off delay: a tie (half detached) no longer counts"),
+    Mutant("waist_both_halves", "dropvision/volume.py",
+           "half = edges.chord_px[at] / (2.0 * math.sqrt(2.0))", "half = edges.chord_px[at] / 2.0",
+           STAGE, "split_at_row: the waist row's whole slice counted in both halves"),
+    Mutant("attached_x1005", "dropvision/bodies.py",
+           "return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3,",
+           "return AttachedLiquid(volume_nl=1.005 * bv.volume_px3 * ctx.nl_per_px3,",
+           STAGE, "attached volume x1.005"),
+    Mutant("blur_sign", "dropvision/volume.py",
+           "vol += c_vol * cos_t", "vol -= c_vol * cos_t",
+           STAGE, "blur correction subtracted instead of added"),
+    Mutant("tilt_cos_dropped", "dropvision/volume.py",
+           "return np.pi * 0.25 * c * c * np.cos(tilt_rad)", "return np.pi * 0.25 * c * c",
+           STAGE, "slice area without cos(tilt)"),
+    Mutant("off_path_disabled", "dropvision/bodies.py",
+           "if off > 0.5 * max(main.diameter_um, 20.0):", "if False:",
+           STAGE, "off-path rule never fires"),
+    Mutant("threshold_plus_001", "dropvision/edges.py",
+           "return 0.5 * (1.0 + interior_level)", "return 0.5 * (1.0 + interior_level) + 0.01",
+           STAGE + ("tests/test_edges.py",), "edge threshold +0.01 (the one rule of the edge level)"),
+    Mutant("mask_threshold_plus_001", "dropvision/segmentation.py",
+           "t = np.ceil(np.asarray(background, dtype=np.float64) * threshold)",
+           "t = np.ceil(np.asarray(background, dtype=np.float64) * (threshold + 0.01))",
+           STAGE + ("tests/test_measure_frame.py", "tests/test_segmentation.py"),
+           "dark mask's grey-level threshold +0.01 (survived STAGE + test_measure_frame.py: "
+           "tests/test_segmentation.py added)"),
+    Mutant("isolated_tie", "dropvision/pinchoff.py",
+           "maj = frac.to_numpy() >= 0.5", "maj = frac.to_numpy() > 0.5",
+           STAGE, "isolated_detached: a tie is not a detached majority"),
+    Mutant("random_u_factor", "dropvision/volume.py",
+           "math.sqrt(0.5 * volume.chord2_px2)", "math.sqrt(volume.chord2_px2)",
+           STAGE, "random edge-noise volume uncertainty sqrt(2) too large"),
+    Mutant("tip_plane_fraction", "dropvision/volume.py",
+           "frac = i0 + 0.5 - top_px  # in (0, 1]", "frac = i0 + 1.0 - top_px",
+           STAGE, "row fraction below the tip plane off by half a row"),
+    Mutant("end_tails_sign", "dropvision/pinchoff.py",
+           "dark = ndtr((e_top - rows) / sigma_top_px)", "dark = ndtr((rows - e_top) / sigma_top_px)",
+           STAGE, "upper end's tail in the wrong direction"),
+    Mutant("frame_scatter_sqrt15", "dropvision/summary.py",
+           "np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))", "np.median(np.abs(d2 - np.median(d2))))",
+           STAGE, "frame scatter without the sqrt(3/2) of second differences"),
+    Mutant("grown_r0_n0", "dropvision/summary.py",
+           "+ rand ** 2 + r0 ** 2 / n0 + se ** 2)", "+ rand ** 2 + r0 ** 2 + se ** 2)",
+           STAGE, "grown-volume uncertainty: meniscus random part not divided by n0"),
+    Mutant("esf_slope_cosine", "dropvision/blur.py",
+           "us.append(sign * (x[keep] - xe) / np.hypot(1.0, s))", "us.append(sign * (x[keep] - xe))",
+           STAGE, "edge spread measured along the row, not the outline's normal"),
+    Mutant("plane_cut_sqrt12", "dropvision/volume.py",
+           "c * abs(math.tan(tilt_rad)) / math.sqrt(12.0)", "c * abs(math.tan(tilt_rad)) / math.sqrt(3.0)",
+           STAGE, "plane-cut tilt term sqrt(3) instead of sqrt(12)"),
+    Mutant("waist_lobe_off_by_one", "dropvision/volume.py",
+           "j0 < min_lobe_rows or n - 1 - j1 < min_lobe_rows", "j0 <= min_lobe_rows or n - 1 - j1 < min_lobe_rows",
+           STAGE, "waist: the upper lobe needs one row more than min_lobe_rows"),
+    Mutant("half_width_axis_test", "dropvision/context.py",
+           "holds_axis = bool(np.any(np.abs(cols - cal.axis_col) < 2.0)) or bool((lab[:r, axis] == k).any())",
+           "holds_axis = True",
+           STAGE, "attached half-width counts bodies that do not hold the axis"),
+    Mutant("common_u_cos", "dropvision/volume.py",
+           "edge = math.pi * volume.area_px2 * edge_sigma_px * math.cos(tilt_rad)",
+           "edge = math.pi * volume.area_px2 * edge_sigma_px",
+           STAGE, "common-edge volume uncertainty without cos(tilt)"),
+    Mutant("viewer_error_is_skip", "tools/rerun_screenshot.py",
+           "if isinstance(exc, TimeoutError) or _TIMED_OUT.search(str(exc)):", "if True:",
+           VIEWER, "viewer probe: any exception (broken wrapper, API change) reads as a skip"),
+    Mutant("viewer_png_unchecked", "tools/rerun_screenshot.py",
+           "if not isinstance(png, bytes) or not png.startswith(b\"\\x89PNG\"):", "if not isinstance(png, bytes):",
+           VIEWER, "viewer probe: a screenshot that is no PNG passes"),
+    Mutant("viewer_exit_status", "tools/rerun_screenshot.py",
+           "    if rc != 0:\n        raise ViewerBroken", "    if rc is None:\n        raise ViewerBroken",
+           VIEWER, "viewer probe: a non-zero exit status passes"),
+    # --- listed in the issue ------------------------------------------------------------------
+    Mutant("confidence_x06", "identify/hybrid.py",
+           "s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))",
+           "s_conf = 0.6 * float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))",
+           INTERVALS + ("tests/test_identify_hybrid.py",), "confidence intervals 0.6x as wide"),
+    Mutant("one_output_x15", "identify/hybrid.py",
+           "s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))",
+           "s_conf = (1.5 if k == 'jetting_velocity_m_s' else 1.0) * float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))",
+           INTERVALS + ("tests/test_identify_hybrid.py",), "one output's (velocity) interval 1.5x too wide"),
+    # --- new ones on the merged code ----------------------------------------------------------
+    Mutant("crossing_direction", "dropvision/edges.py",
+           "f = np.clip((threshold - t_dark) / (t_bright - t_dark), 0.0, 1.0)",
+           "f = np.clip((t_bright - threshold) / (t_bright - t_dark), 0.0, 1.0)",
+           ("tests/test_edges.py",) + STAGE, "crossing_fraction measured from the wrong sample"),
+    Mutant("edge_threshold_level", "dropvision/edges.py",
+           "return 0.5 * (1.0 + interior_level)", "return 0.5 * (1.0 + 0.5 * interior_level)",
+           ("tests/test_edges.py",) + STAGE, "edge level not half-way to the interior"),
+    Mutant("frames_dtype_unchecked", "dropvision/summary.py",
+           "    schema.check_table(frames.head(0), schema.FRAMES, source)", "    pass",
+           ("tests/test_frames_table.py",), "frames table written without its dtype check"),
+    Mutant("layer_upward_import", "dvcore/schema.py",
+           "", "\n\ndef _planted_upward():\n    import dropvision.volume  # noqa: F401\n",
+           ("tests/test_layers.py",), "an upward import (foundation -> image pipeline) in the real tree"),
+    Mutant("layer_cycle", "dropvision/edges.py",
+           "", "\n\ndef _planted_cycle():\n    from dropvision.volume import integrate  # noqa: F401\n",
+           ("tests/test_layers.py",), "an import cycle (edges -> volume -> edges) in the real tree, inside a function"),
+    Mutant("json_depth_limit", "dvcore/jsonio.py",
+           "if depth > MAX_JSON_DEPTH:", "if depth > 100 * MAX_JSON_DEPTH:",
+           ("tests/test_hostile_inputs.py",), "hardened JSON accepts any nesting depth"),
+    Mutant("polynomial_bias_sign", "identify/discrepancy.py",
+           "b = np.asarray(flexible.predict(u1_um_per_ms, u2_um) - chosen.predict(u1_um_per_ms, u2_um), float)",
+           "b = np.asarray(chosen.predict(u1_um_per_ms, u2_um) - flexible.predict(u1_um_per_ms, u2_um), float)",
+           ("tests/test_discrepancy.py",) + INTERVALS, "polynomial bias with the wrong sign"),
+    Mutant("polynomial_bias_max", "identify/hybrid.py",
+           "if bias_sq.get(k, 0.0) > s_model**2:", "if False:",
+           INTERVALS, "the chosen polynomial's bias never replaces a smaller model discrepancy"),
+    Mutant("atomic_foreign_overwrite", "dvcore/atomic.py",
+           "    if not overwrite:\n        raise _refusal(final, foreign)\n    return \"replace\"",
+           "    return \"replace\"",
+           ("tests/test_output_safety.py", "tests/test_atomic_executors.py"),
+           "an output folder holding files we did not write is replaced without --overwrite"),
+    Mutant("flicker_gain_inverted", "dropvision/edges.py",
+           "scale = 1.0 / gain", "scale = gain",
+           ("tests/test_edges.py",) + STAGE + ("tests/test_measure_frame.py", "tests/test_subpixel_edges.py"),
+           "sub-pixel edges: the strobe-flicker gain applied the wrong way (survived: tests/test_subpixel_edges.py added)"),
+    Mutant("right_side_never_touches", "dropvision/edges.py",
+           "touches = bool(np.any(starts == 0) or np.any(stops == w))", "touches = bool(np.any(starts == 0))",
+           ("tests/test_edges.py",) + STAGE + ("tests/test_measure_frame.py", "tests/test_subpixel_edges.py"),
+           "a run reaching the region's right side is not flagged (survived: tests/test_subpixel_edges.py added)"),
+    Mutant("row_min_ignored", "dropvision/edges.py",
+           "y0 = max(y0, row_min)", "y0 = y0",
+           ("tests/test_edges.py",) + STAGE + ("tests/test_measure_frame.py", "tests/test_subpixel_edges.py"),
+           "body_edges keeps rows above row_min (survived: tests/test_subpixel_edges.py added)"),
+    Mutant("flat_pair_edge", "dropvision/edges.py",
+           "return float(f) if np.isfinite(f) else 0.5", "return float(f) if np.isfinite(f) else 0.0",
+           ("tests/test_edges.py",), "a flat pair on the level: edge at the dark sample, not half-way"),
+    Mutant("frames_order_unchecked", "dropvision/summary.py",
+           "if list(frames.columns) != FRAME_COLUMNS:", "if False:",
+           ("tests/test_frames_table.py",), "frames table columns out of the declared order pass"),
+    Mutant("json_int_digits", "dvcore/jsonio.py",
+           "if digits > MAX_JSON_INT_DIGITS:", "if digits > 100 * MAX_JSON_INT_DIGITS:",
+           ("tests/test_hostile_inputs.py",), "hardened JSON accepts a 10 000-digit integer"),
+    Mutant("output_inside_input", "dvcore/atomic.py",
+           "        if in_r in out_r.parents:\n", "        if False:\n",
+           ("tests/test_output_safety.py", "tests/test_atomic_executors.py"),
+           "an output folder inside the input folder is allowed"),
+    Mutant("prediction_t_quantile", "identify/hybrid.py",
+           "q = float(special.stdtrit(dof, 0.5 + level / 2)) if dof else z", "q = z",
+           INTERVALS + ("tests/test_identify_hybrid.py", "tests/test_interval_quantiles.py"),
+           "one-drop interval with the normal quantile instead of Student's t (survived: tests/test_interval_quantiles.py added)"),
+    Mutant("relative_measurement_term", "identify/hybrid.py",
+           "return abs(mean) * v if relative else v", "return v",
+           INTERVALS + ("tests/test_identify_hybrid.py",),
+           "a relative measurement uncertainty used as absolute"),
+    Mutant("bias_variance_sign", "identify/discrepancy.py",
+           "np.clip(leverage(flexible) - leverage(chosen), 0.0, None)",
+           "np.clip(leverage(chosen) - leverage(flexible), 0.0, None)",
+           ("tests/test_discrepancy.py",), "polynomial_bias variance from the leverages the wrong way"),
+    Mutant("manifest_stale_entry", "dropvision/app/campaign.py",
+           "if known is None or known[0] != entry:", "if known is None:",
+           ("tests/test_campaign.py",), "manifest writer keeps a sequence's first text after it changed"),
+)
+
+
+def _git_clean(path: str) -> bool:
+    return subprocess.run(["git", "diff", "--quiet", "--", path], cwd=ROOT).returncode == 0
+
+
+def _first_failure(output: str) -> str:
+    """The first failing test pytest names (``-rf`` summary), or its collection error."""
+    m = re.search(r"^(?:FAILED|ERROR) (\S+)", output, re.M)
+    if m:
+        return m.group(1)
+    return "(pytest failed: " + (output.strip().splitlines() or ["no output"])[-1][:120] + ")"
+
+
+def run_mutant(m: Mutant, python: str, timeout_s: float, show: bool = False) -> tuple[str, str, float]:
+    """Plant ``m``, run its tests, restore the file. Returns (outcome, detail, seconds); ``show``
+    prints the end of pytest's output (the failure's assertion)."""
+    target = ROOT / m.path
+    if not _git_clean(m.path):
+        raise SystemExit(f"{m.path}: has uncommitted changes; commit or stash them before planting mutants")
+    original = target.read_bytes()
+    text = original.decode("utf-8")
+    n = text.count(m.before) if m.before else 1
+    if n != 1:
+        return "NO-MATCH", f"the text to replace occurs {n} times in {m.path}", 0.0
+    t0 = time.monotonic()
+    try:
+        mutated = text.replace(m.before, m.after, 1) if m.before else text + m.after
+        target.write_bytes(mutated.encode("utf-8"))
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PYTHONDONTWRITEBYTECODE="1")
+        try:
+            proc = subprocess.run([python, "-m", "pytest", "-x", "-q", "-p", "no:randomly", "-p", "no:cacheprovider",
+                                   "-rf", *m.tests], cwd=ROOT, env=env, capture_output=True, text=True,
+                                  timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            return "TIMEOUT", f"no result within {timeout_s:g} s", time.monotonic() - t0
+    finally:
+        target.write_bytes(original)
+    if not _git_clean(m.path):
+        raise SystemExit(f"{m.path}: not restored after mutant {m.name}; run git checkout -- {m.path}")
+    dt = time.monotonic() - t0
+    if show:
+        print("\n".join((proc.stdout + proc.stderr).strip().splitlines()[-25:]), flush=True)
+    if proc.returncode == 0:
+        return "SURVIVED", "all targeted tests passed", dt
+    if proc.returncode == 5:
+        return "SURVIVED", "no tests collected", dt
+    return "CAUGHT", _first_failure(proc.stdout + proc.stderr), dt
+
+
+def _line(m: Mutant) -> int:
+    """Line of ``before`` in the file (for an append, the line after the last)."""
+    text = (ROOT / m.path).read_text("utf-8")
+    i = text.find(m.before) if m.before else len(text)
+    return text.count("\n", 0, i) + 1 if i >= 0 else 0
+
+
+def _cell(s: str) -> str:
+    if not s:
+        return "(end of file)"
+    return "`" + s.strip().replace("\n", " ⏎ ").replace("|", "\\|") + "`"
+
+
+def table(rows: list[tuple[Mutant, str, str, float]] | None = None) -> str:
+    """The markdown table of the mutants (with outcomes when ``rows`` is given)."""
+    head = "| mutant | what | file:line | before -> after | tests run |"
+    if rows is not None:
+        head += " outcome | caught by | s |"
+    out = [head, "|" + "---|" * (head.count("|") - 1)]
+    items = rows if rows is not None else [(m, "", "", 0.0) for m in MUTANTS]
+    for m, outcome, detail, dt in items:
+        cells = [m.name, m.what, f"{m.path}:{_line(m)}", f"{_cell(m.before)} -> {_cell(m.after)}",
+                 " ".join(m.tests)]
+        if rows is not None:
+            cells += [outcome, detail, f"{dt:.0f}"]
+        out.append("| " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--only", action="append", default=[], metavar="NAME", help="run this mutant (repeatable)")
+    p.add_argument("--prefix", action="store_true", help="--only names are prefixes")
+    p.add_argument("--list", action="store_true", help="print the table of mutants and run nothing")
+    p.add_argument("--timeout", type=float, default=600.0, help="seconds per mutant (default 600)")
+    p.add_argument("--baseline", action="store_true",
+                   help="first run the chosen mutants' test files unmutated; stop unless they pass")
+    p.add_argument("--show", action="store_true", help="print the end of each pytest run's output")
+    p.add_argument("--python", default=sys.executable, help="interpreter that runs pytest")
+    a = p.parse_args(argv)
+    names = {m.name for m in MUTANTS}
+    if len(names) != len(MUTANTS):
+        raise SystemExit("tools/mutants.py: two mutants share a name")
+    chosen = list(MUTANTS)
+    if a.only:
+        unknown = [o for o in a.only if not any((m.startswith(o) if a.prefix else m == o) for m in names)]
+        if unknown:
+            raise SystemExit(f"unknown mutant(s): {', '.join(unknown)}; known: {', '.join(sorted(names))}")
+        chosen = [m for m in MUTANTS if any((m.name.startswith(o) if a.prefix else m.name == o) for o in a.only)]
+    if a.list:
+        print(table())
+        return 0
+    if a.baseline:
+        files = list(dict.fromkeys(t for m in chosen for t in m.tests))
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+        t0 = time.monotonic()
+        proc = subprocess.run([a.python, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider", *files],
+                              cwd=ROOT, env=env, capture_output=True, text=True)
+        last = (proc.stdout.strip().splitlines() or ["no output"])[-1]
+        print(f"baseline (no mutant) of {len(files)} test files: {last} ({time.monotonic() - t0:.0f} s)", flush=True)
+        if proc.returncode != 0:
+            print(proc.stdout[-3000:] + proc.stderr[-2000:])
+            return 1
+    rows = []
+    for m in chosen:
+        outcome, detail, dt = run_mutant(m, a.python, a.timeout, a.show)
+        print(f"{m.name:28s} {outcome:9s} {detail} ({dt:.0f} s)", flush=True)
+        rows.append((m, outcome, detail, dt))
+    print()
+    print(table(rows))
+    return 0 if all(r[1] == "CAUGHT" for r in rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
