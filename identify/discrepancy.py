@@ -216,11 +216,11 @@ FLEXIBLE_ORDER = (2, 3)
 #: Orders of the second reference: the same 9 terms as :data:`FLEXIBLE_ORDER` spent on u1 instead
 #: of u2 (1, u1 .. u1⁴, u2, u1 u2 .. u1³ u2), the most flexible in u1 that a 5-level u1 grid
 #: determines. A law whose u1 dependence is not quadratic (an exponential, a cosine over the
-#: range) leaves a cubic/quartic misfit in u1 that (2, 3) cannot follow, and at 1 % scatter on a
-#: 5 x 5 grid no test tells the two references apart; `identify.hybrid.HybridModel.polynomial_bias_sq`
-#: uses the larger of the two biases (an envelope over plausible alternative models). Like
-#: :func:`flexible_order`, raised to the chosen order where that is larger (the reference contains
-#: the chosen terms, so that b and its variance are those of nested least squares).
+#: range) leaves a cubic/quartic misfit in u1 that (2, 3) cannot follow.
+#: `identify.hybrid.HybridModel.polynomial_bias_sq` counts its bias where it is significant at the
+#: control (`identify.hybrid.U1_REFERENCE_CHI2`) and then uses the larger of the two references'.
+#: Like :func:`flexible_order`, raised to the chosen order where that is larger (the reference
+#: contains the chosen terms, so that b and its variance are those of nested least squares).
 FLEXIBLE_U1_ORDER = (4, 1)
 #: The flexible polynomial is fitted only when it leaves at least this many residual degrees of
 #: freedom (its variance would otherwise swamp the bias it is meant to show).

@@ -254,9 +254,10 @@ class HybridModel:
         from identify.discrepancy import polynomial_bias
 
         flex = (self.intervals or {}).get(key) or {}
-        bv = {name: tuple(float(np.ravel(a)[0]) for a in polynomial_bias(getattr(self, name), PolynomialFit.from_dict(d),
-                                                                          u1, u2))
-              for name, d in flex.items()}
+        bv = {}
+        for name, d in flex.items():
+            b, var = polynomial_bias(getattr(self, name), PolynomialFit.from_dict(d), u1, u2)
+            bv[name] = (float(np.ravel(b)[0]), float(np.ravel(var)[0]))
         out = {}
         if "pinchoff" in bv:
             out["pinchoff_us"] = bv["pinchoff"]

@@ -323,7 +323,8 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         out["flexible_u1"] = {name: f.to_dict() for name, f in flexible_u1.items()}
         notes.append("intervals: and against references flexible in u1 (" +
                      ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible_u1.items()) +
-                     "); per output the larger of the two references' biases is used")
+                     "), counted at a control where that bias is significant (pointwise test at 5 %); "
+                     "then per output the larger of the two references' biases is used")
     notes.extend(_interval_notes(out["scatter"], fits))
     return out
 
