@@ -289,7 +289,9 @@ MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
       "(systematic measurement uncertainty in both intervals: volume_rel, velocity_rel, pixel_size_rel, pinchoff_std_us, source; absent "
       "in older models: no term); flexible (optional: per output the more flexible polynomial the chosen order's "
       "bias is measured against, model_std_source 'polynomial_bias' where that bias exceeds the model discrepancy, "
-      "identify.discrepancy.polynomial_bias); absent in older models", required=False),
+      "identify.discrepancy.polynomial_bias); flexible_u1 (optional: the same for the reference flexible in u1, order (4, 1) "
+      "or the chosen order where larger, counted at a control only where its departure is significant); absent in older models",
+      required=False),
     F("notes", "list", "", "what the fit dropped or changed and why (irregular campaigns, ECM level); absent in "
       "older models", required=False),
 ), "Identified hybrid model (Eq. 8).")

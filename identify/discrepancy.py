@@ -213,6 +213,15 @@ def smooth_scatter_variance(u1_um_per_ms, u2_um, y, design, *, starts: int = 6,
 #: Orders of the flexible polynomial the chosen order's bias is measured against: the most
 #: flexible of `identify.polynomial.DEFAULT_ORDERS` (9 terms), or the chosen order where larger.
 FLEXIBLE_ORDER = (2, 3)
+#: Orders of the second reference: the same 9 terms as :data:`FLEXIBLE_ORDER` spent on u1 instead
+#: of u2 (1, u1 .. u1⁴, u2, u1 u2 .. u1³ u2), the most flexible in u1 that a 5-level u1 grid
+#: determines. A law whose u1 dependence is not quadratic (an exponential, a cosine over the
+#: range) leaves a cubic/quartic misfit in u1 that (2, 3) cannot follow.
+#: `identify.hybrid.HybridModel.polynomial_bias_sq` counts its bias where it is significant at the
+#: control (`identify.hybrid.U1_REFERENCE_CHI2`) and then uses the larger of the two references'.
+#: Like :func:`flexible_order`, raised to the chosen order where that is larger (the reference
+#: contains the chosen terms, so that b and its variance are those of nested least squares).
+FLEXIBLE_U1_ORDER = (4, 1)
 #: The flexible polynomial is fitted only when it leaves at least this many residual degrees of
 #: freedom (its variance would otherwise swamp the bias it is meant to show).
 MIN_FLEXIBLE_DOF = 6
@@ -221,6 +230,11 @@ MIN_FLEXIBLE_DOF = 6
 def flexible_order(chosen) -> tuple[int, int]:
     """Orders of the flexible polynomial for a chosen `PolynomialFit` (contains the chosen terms)."""
     return max(FLEXIBLE_ORDER[0], int(chosen.n1)), max(FLEXIBLE_ORDER[1], int(chosen.n2))
+
+
+def flexible_u1_order(chosen) -> tuple[int, int]:
+    """Orders of the reference flexible in u1 for a chosen `PolynomialFit` (contains the chosen terms)."""
+    return max(FLEXIBLE_U1_ORDER[0], int(chosen.n1)), max(FLEXIBLE_U1_ORDER[1], int(chosen.n2))
 
 
 def polynomial_bias(chosen, flexible, u1_um_per_ms, u2_um) -> tuple[np.ndarray, np.ndarray]:

@@ -231,31 +231,49 @@ class HybridModel:
 
     def polynomial_bias_sq(self, u1: float, u2: float) -> dict:
         """Squared bias of the chosen polynomials at (u1, u2) per output, where the fit stored the
-        flexible polynomials (``intervals["flexible"]``; :func:`identify.discrepancy.polynomial_bias`):
-        b² with b the change of the output when the flexible polynomials replace the chosen ones
-        (for the in-flight volume: the pinch-off's change through the ECM growth plus the volume
-        adjuster's). b² is not reduced by the variance of b: E[b²] = bias² + var(b), so on laws
-        the chosen polynomial holds the mean-drop interval becomes about as wide as the flexible
-        polynomial's own (the linear laws' coverage moves by at most 1.5 points), while a
-        debiased max(0, b² - var(b)) left the misfit families' velocity at 82 %. Empty for models
-        without them."""
+        flexible reference polynomials (``intervals["flexible"]``, order (2, 3), and
+        ``intervals["flexible_u1"]``, order (4, 1); :func:`identify.discrepancy.polynomial_bias`).
+        Per reference, b² with b the change of the output when the reference polynomials replace
+        the chosen ones (for the in-flight volume: the pinch-off's change through the ECM growth
+        plus the volume adjuster's). b² of the (2, 3) reference is not reduced by the variance of
+        b: E[b²] = bias² + var(b), so on laws the chosen polynomial holds the mean-drop interval
+        becomes about as wide as the flexible polynomial's own, while a debiased max(0, b² -
+        var(b)) left the misfit families' velocity at 82 %. The (4, 1) reference counts only
+        where its departure is significant (:data:`U1_REFERENCE_CHI2`), and then per output the
+        larger of the two b² is used. Empty for models without them."""
+        out = {k: b * b for k, (b, _) in self._reference_bias("flexible", u1, u2).items()}
+        for k, (b, var) in self._reference_bias("flexible_u1", u1, u2).items():
+            if b * b > U1_REFERENCE_CHI2 * var:  # the u1 reference departs significantly here
+                out[k] = max(out.get(k, 0.0), b * b)
+        return out
+
+    def _reference_bias(self, key: str, u1: float, u2: float) -> dict:
+        """Per output, (b, var b): the change of the output when the reference polynomials
+        ``intervals[key]`` replace the chosen ones, and its variance without bias (see
+        :meth:`polynomial_bias_sq`; the pinch-off's variance carried to the volume linearly)."""
         from identify.discrepancy import polynomial_bias
 
-        flex = (self.intervals or {}).get("flexible") or {}
-        b = {name: float(np.ravel(polynomial_bias(getattr(self, name), PolynomialFit.from_dict(d), u1, u2)[0])[0])
-             for name, d in flex.items()}
+        flex = (self.intervals or {}).get(key) or {}
+        bv = {}
+        for name, d in flex.items():
+            b, var = polynomial_bias(getattr(self, name), PolynomialFit.from_dict(d), u1, u2)
+            bv[name] = (float(np.ravel(b)[0]), float(np.ravel(var)[0]))
         out = {}
-        if "pinchoff" in b:
-            out["pinchoff_us"] = b["pinchoff"]
-        if "velocity_adjuster" in b:
-            out["jetting_velocity_m_s"] = b["velocity_adjuster"]
-        if "pinchoff" in b or "volume_adjuster" in b:
+        if "pinchoff" in bv:
+            out["pinchoff_us"] = bv["pinchoff"]
+        if "velocity_adjuster" in bv:
+            out["jetting_velocity_m_s"] = bv["velocity_adjuster"]
+        if "pinchoff" in bv or "volume_adjuster" in bv:
+            bp, vp = bv.get("pinchoff", (0.0, 0.0))
+            bq, vq = bv.get("volume_adjuster", (0.0, 0.0))
             t_p = float(self.pinchoff.predict(u1, u2))
-            t = np.array([t_p, t_p + b.get("pinchoff", 0.0)]) - self.dead_time_us
+            t = np.array([t_p, t_p + bp]) - self.dead_time_us
             v_p, _ = ecm_response_at_controls(modal_form(self.ecm_coefficients), np.full(2, float(u1)),
                                               np.full(2, float(u2)), t, self.u3_um_per_ms, self.hold_us)
-            out["inflight_volume_nl"] = float(v_p[1] - v_p[0]) + b.get("volume_adjuster", 0.0)
-        return {k: v * v for k, v in out.items()}
+            dv = float(v_p[1] - v_p[0])
+            gain = dv / bp if bp != 0 else 0.0  # volume per microsecond of pinch-off change
+            out["inflight_volume_nl"] = (dv + bq, gain * gain * vp + vq)
+        return out
 
     @property
     def nozzle_area_m2(self) -> float:
@@ -354,6 +372,12 @@ class HybridModel:
         except RecursionError:
             raise ModelFileError(f"{path}: invalid JSON (nested too deeply)") from None
         return cls.from_dict(d, source=str(path))
+
+
+#: The reference flexible in u1 counts at a control only where its departure b from the chosen
+#: polynomial is significant there: b² > var(b) times the 95 % quantile of χ²(1) (a pointwise
+#: Wald test at 5 %; with no bias it fires at about 5 % of controls).
+U1_REFERENCE_CHI2 = 3.841
 
 
 def _dominant(terms: dict) -> str:

@@ -204,7 +204,8 @@ def _cross_covariance(a: PolynomialFit, b: PolynomialFit, u1, u2, ra, rb) -> np.
 
 def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
                    seed: int, notes: list, mc_samples: int = 400, standard_errors: dict | None = None,
-                   measurement: dict | None = None, flexible: dict | None = None) -> dict:
+                   measurement: dict | None = None, flexible: dict | None = None,
+                   flexible_u1: dict | None = None) -> dict:
     """Scatter of individual drops about the model, for `HybridModel.interval_prediction`.
 
     Per output (:data:`INTERVAL_OUTPUTS`):
@@ -318,20 +319,28 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
                       ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible.items()) +
                       "); where it exceeds the model discrepancy at a control, it replaces it (model_std_source "
                       "'polynomial_bias')")
+    if flexible_u1:
+        out["flexible_u1"] = {name: f.to_dict() for name, f in flexible_u1.items()}
+        notes.append("intervals: and against references flexible in u1 (" +
+                     ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible_u1.items()) +
+                     "), counted at a control where that bias is significant (pointwise test at 5 %); "
+                     "then per output the larger of the two references' biases is used")
     notes.extend(_interval_notes(out["scatter"], fits))
     return out
 
 
-def _flexible_fits(u1, u2, chosen: dict) -> dict:
-    """Per polynomial name, the flexible polynomial (:func:`identify.discrepancy.flexible_order`)
-    fitted to the chosen one's targets and controls, where it differs from the chosen order and
-    leaves :data:`identify.discrepancy.MIN_FLEXIBLE_DOF` residual degrees of freedom."""
+def _flexible_fits(u1, u2, chosen: dict, order=None) -> dict:
+    """Per polynomial name, the flexible polynomial (``order(fit)``, by default
+    :func:`identify.discrepancy.flexible_order`) fitted to the chosen one's targets and controls,
+    where it differs from the chosen order, the data determine it and it leaves
+    :data:`identify.discrepancy.MIN_FLEXIBLE_DOF` residual degrees of freedom."""
     from identify.discrepancy import MIN_FLEXIBLE_DOF, flexible_order
     from identify.polynomial import poly_terms
 
+    order = order or flexible_order
     out = {}
     for name, (fit, mask, z) in chosen.items():
-        n1, n2 = flexible_order(fit)
+        n1, n2 = order(fit)
         if (n1, n2) == (fit.n1, fit.n2) or int(mask.sum()) - len(poly_terms(n1, n2)) < MIN_FLEXIBLE_DOF:
             continue
         try:
@@ -491,8 +500,12 @@ def fit_hybrid(
     sel_q = select_order(u1[mq], u2[mq], vel_target[mq], name="velocity_adjuster", unit="m/s", **kw)
     bar.update(1)
     notes.extend(_order_note(sel) for sel in (sel_p, sel_v, sel_q))
-    flexible = _flexible_fits(u1, u2, {"pinchoff": (sel_p.fit, mp, tp), "volume_adjuster": (sel_v.fit, mv, vol_target),
-                                       "velocity_adjuster": (sel_q.fit, mq, vel_target)})
+    from identify.discrepancy import flexible_u1_order
+
+    chosen = {"pinchoff": (sel_p.fit, mp, tp), "volume_adjuster": (sel_v.fit, mv, vol_target),
+              "velocity_adjuster": (sel_q.fit, mq, vel_target)}
+    flexible = _flexible_fits(u1, u2, chosen)
+    flexible_u1 = _flexible_fits(u1, u2, chosen, order=flexible_u1_order)
     bar.close()
     versions = software_versions()
     versions["identify"] = __version__
@@ -532,7 +545,8 @@ def fit_hybrid(
                                      {"pinchoff_us": tp[mall], "inflight_volume_nl": inflight[mall],
                                       "jetting_velocity_m_s": jet[mall]}, vol_target[mall], vel_target[mall],
                                      folds=folds, seed=seed, notes=notes, standard_errors=ses,
-                                     measurement=meas, flexible=flexible)
+                                     measurement=meas, flexible=flexible,
+                                     flexible_u1=flexible_u1)
     training = pd.DataFrame({
         "sequence_id": su["sequence_id"].to_numpy(), "u1_um_per_ms": u1, "u2_um": u2, "pinchoff_us": tp,
         "ecm_grown_volume_at_pinchoff_nl": v_ecm, "ecm_flow_velocity_at_max_stroke_m_s": vel_ecm,

@@ -267,15 +267,17 @@ def _check_intervals(d: dict, source) -> None:
             else:
                 raise _model_error(source, f"intervals.measurement.{name}", "is unknown (expected volume_rel, "
                                    "velocity_rel, pixel_size_rel, pinchoff_std_us, source)")
-    fl = iv.get("flexible")
-    if fl is not None:
+    for key in ("flexible", "flexible_u1"):
+        fl = iv.get(key)
+        if fl is None:
+            continue
         if not isinstance(fl, dict):
-            raise _model_error(source, "intervals.flexible", f"must be an object, got {type(fl).__name__}")
+            raise _model_error(source, f"intervals.{key}", f"must be an object, got {type(fl).__name__}")
         for name, p in fl.items():
             if name not in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
-                raise _model_error(source, f"intervals.flexible.{name}", "is unknown (expected pinchoff, "
+                raise _model_error(source, f"intervals.{key}.{name}", "is unknown (expected pinchoff, "
                                    "volume_adjuster, velocity_adjuster)")
-            _check_polynomial(p, source, f"intervals.flexible.{name}")
+            _check_polynomial(p, source, f"intervals.{key}.{name}")
     c = iv.get("pinchoff_volume_cross_covariance")
     if c is not None:
         shape = (len(d["pinchoff"]["terms"]), len(d["volume_adjuster"]["terms"]))

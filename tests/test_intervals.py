@@ -202,6 +202,7 @@ def test_polynomial_bias_becomes_the_model_discrepancy_and_says_so(small):
     d["scaled_coefficients"] = (m.velocity_adjuster.scaled_coefficients + np.eye(len(d["terms"]))[0] * 0.05).tolist()
     m.intervals["scatter"]["jetting_velocity_m_s"].update({"model_std": 0.01, "local": None})
     m.intervals["flexible"] = {"velocity_adjuster": d}
+    clean = json.dumps(m.to_dict())
     assert PolynomialFit.from_dict(d).predict(61.0, 24.0) == pytest.approx(m.velocity_adjuster.predict(61.0, 24.0) + 0.05)
     m2 = HybridModel.from_dict(m.to_dict())
     assert m2.polynomial_bias_sq(61.0, 24.0) == {"jetting_velocity_m_s": pytest.approx(0.05**2)}
@@ -211,17 +212,47 @@ def test_polynomial_bias_becomes_the_model_discrepancy_and_says_so(small):
     assert e["mean_drop_std"] == pytest.approx(0.05) and e["mean_drop_dominant_term"] == "model_discrepancy"
     assert "chosen order's bias" in widening_reason("jetting_velocity_m_s", e)
     assert iv["pinchoff_us"]["model_std_source"] != "polynomial_bias"  # no flexible pinch-off stored
-    bad = m.to_dict()
+    bad = json.loads(clean)  # a copy: to_dict shares the intervals dict (and the fixture's)
     bad["intervals"]["flexible"] = {"jetting_velocity": d}
     with pytest.raises(ModelFileError, match="intervals.flexible.jetting_velocity.*is unknown"):
         HybridModel.from_dict(bad)
     bad["intervals"]["flexible"] = {"velocity_adjuster": {**d, "scale": [0.0, 1.0]}}
     with pytest.raises(ModelFileError, match="intervals.flexible.velocity_adjuster.scale"):
         HybridModel.from_dict(bad)
+    bad = json.loads(clean)
+    bad["intervals"]["flexible_u1"] = {"volume": d}
+    with pytest.raises(ModelFileError, match="intervals.flexible_u1.volume.*is unknown"):
+        HybridModel.from_dict(bad)
+
+
+def test_u1_reference_counts_only_where_its_departure_is_significant(small):
+    """The (4, 1) reference widens the velocity interval where a cosine in u1 (a quartic on the
+    5-level grid) leaves a misfit the chosen (1, 1) plane misses, and not on a plane plus scatter
+    (its departure there is within its own variance)."""
+    from identify.discrepancy import flexible_u1_order
+    from identify.polynomial import fit_polynomial
+
+    _, model = small
+    rng = np.random.default_rng(3)
+    u1, u2 = (a.ravel() for a in np.meshgrid(np.linspace(50, 80, 5), np.linspace(20, 35, 5)))
+    plane = 0.10 + 0.002 * (u1 - 65) + 0.001 * (u2 - 27.5) + rng.normal(0, 0.002, u1.size)
+    out = {}
+    for law, z in (("plane", plane), ("cosine", plane + 0.02 * np.cos(np.pi * (u1 - 65) / 15))):
+        m = HybridModel.from_dict(json.loads(json.dumps(model.to_dict())))
+        m.velocity_adjuster = fit_polynomial(u1, u2, z, 1, 1, name="velocity_adjuster", unit="m/s")
+        ref = fit_polynomial(u1, u2, z, *flexible_u1_order(m.velocity_adjuster), name="velocity_adjuster", unit="m/s")
+        m.intervals = {"flexible_u1": {"velocity_adjuster": ref.to_dict()}}
+        m = HybridModel.from_dict(m.to_dict())  # survives model.json
+        out[law] = m.polynomial_bias_sq(65.0, 27.5).get("jetting_velocity_m_s", 0.0)
+        b = float(ref.predict(65.0, 27.5) - m.velocity_adjuster.predict(65.0, 27.5))
+        if law == "cosine":
+            assert out[law] == pytest.approx(b * b) and abs(b) > 0.01  # most of the 0.02 peak the plane misses
+    assert out["plane"] == 0.0
 
 
 def test_fit_stores_flexible_polynomials_and_notes_them():
-    """On a 5 x 5 grid the fit stores the (2, 3) polynomials next to the chosen ones and says so."""
+    """On a 5 x 5 grid the fit stores the (2, 3) and the (4, 1) polynomials next to the chosen
+    ones and says so."""
     import tempfile
 
     from interval_coverage import family_dataset
@@ -234,6 +265,11 @@ def test_fit_stores_flexible_polynomials_and_notes_them():
         if (getattr(rep.model, name).n1, getattr(rep.model, name).n2) != (2, 3):
             assert (flex[name]["n1"], flex[name]["n2"]) == (2, 3)
     assert any("flexible" in n and "polynomial_bias" in n for n in rep.notes)
+    flex_u1 = rep.model.intervals["flexible_u1"]
+    for name in ("pinchoff", "volume_adjuster", "velocity_adjuster"):
+        p = getattr(rep.model, name)
+        assert (flex_u1[name]["n1"], flex_u1[name]["n2"]) == (max(4, p.n1), max(1, p.n2))
+    assert any("flexible in u1" in n for n in rep.notes)
 
 
 @pytest.mark.parametrize("key,value,match", [
