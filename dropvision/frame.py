@@ -194,7 +194,8 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -
     """Illumination gain, saturation, edge blur and wall contrast of a frame, into ``rec``.
 
     Sets ``rec.gain`` (frame illumination / background model), ``rec.blur_px`` (Gaussian sigma,
-    px, from the nozzle walls' steepness relative to the calibration frame) and
+    px, from the nozzle walls' steepness relative to the calibration frame; NaN, flagged
+    blurred, where the walls show no edge) and
     ``rec.wall_contrast`` (1 - the walls' transmission), and appends the flags: illumination
     unknown or off by more than 10 ``ctx.gain_tolerance``, more than ``ctx.saturation_limit``
     of the background samples saturated, blur or contrast off the calibration frame's.
@@ -221,8 +222,14 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -
         prof = image[ctx.wall_rows, ctx.wall_cols].astype(np.float32) * ctx.wall_inv_background / gain
         sharp = q.edge_sharpness(prof)
         rec.wall_contrast = q.wall_contrast(prof)
-        rec.blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp if sharp > 0 else float("inf")
-        if rec.blur_px > ctx.max_frame_blur_px:
+        if sharp > 0:
+            rec.blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp
+            if rec.blur_px > ctx.max_frame_blur_px:
+                rec.flags.append(q.BLURRED)
+        else:
+            # the walls show no edge at all (a black or uniform frame): the blur is unmeasurable,
+            # NaN (the frames table holds no infinities) and the frame flagged as blurred
+            rec.blur_px = float("nan")
             rec.flags.append(q.BLURRED)
         if rec.wall_contrast < ctx.min_wall_contrast:
             rec.flags.append(q.LOW_CONTRAST)
