@@ -59,6 +59,7 @@ from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
 from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, to_json, write_bytes, write_json
+from dvcore.jsonio import load_json_hardened
 from dvcore.versions import software_versions
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
@@ -221,12 +222,11 @@ def _load_manifest(path: Path) -> dict:
     if not path.exists():
         return {"schema": MANIFEST_SCHEMA, "sequences": {}}
     try:
-        manifest = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{path}: unreadable manifest ({exc}); remove it to start afresh") from exc
-    if not isinstance(manifest, dict) or manifest.get("schema") != MANIFEST_SCHEMA:
-        raise ValueError(f"{path}: not a dropvision campaign manifest (schema "
-                         f"{manifest.get('schema') if isinstance(manifest, dict) else None!r})")
+        manifest = load_json_hardened(path)
+    except ValueError as exc:  # one line naming the file (dvcore.jsonio)
+        raise ValueError(f"{exc}: unreadable manifest; remove it to start afresh") from None
+    if manifest.get("schema") != MANIFEST_SCHEMA:
+        raise ValueError(f"{path}: not a dropvision campaign manifest (schema {manifest.get('schema')!r})")
     return manifest
 
 
@@ -275,8 +275,8 @@ def _write_manifest(writer: ManifestWriter, manifest: dict) -> None:
 
 def _shard_is_current(shard: Path, digest: str) -> bool:
     try:
-        summary = json.loads((shard / "summary.json").read_text())
-    except (OSError, json.JSONDecodeError):
+        summary = load_json_hardened(shard / "summary.json")
+    except ValueError:
         return False
     return summary.get("input_hash") == digest and (shard / "frames.parquet").exists()
 
@@ -359,7 +359,7 @@ def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
     shard = Path(dataset_dir) / "shards" / entry["shard"]
     frames = pd.read_parquet(shard / "frames.parquet")
     schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
-    summary = schema.check_document(json.loads((shard / "summary.json").read_text()), schema.SUMMARY,
+    summary = schema.check_document(load_json_hardened(shard / "summary.json", schema.SchemaError), schema.SUMMARY,
                                     shard / "summary.json")
     u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
     jv = summary.get("jetting_velocity_m_s")
