@@ -78,7 +78,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     image : ndarray
         The full frame (raw grey levels).
     ctx : FrameContext
-        From `dropvision.context.calibrate_sequence`.
+        From `dropvision.calibration_pass.calibrate_sequence`.
     ref : frame reference, optional
         ``index``, ``file``, ``page``, ``delay_us`` (µs), ``repeat`` copied into the record.
     logger : object, optional

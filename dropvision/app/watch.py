@@ -7,7 +7,7 @@
    closed it), and it decodes. A decode failure of a file that is still changing is "not yet";
    one that stays unreadable and unchanged for ``unreadable_after_s`` is reported, as the batch
    measurement reports it.
-2. The sequence is calibrated (`dropvision.context.calibrate_sequence`) on the complete frames
+2. The sequence is calibrated (`dropvision.calibration_pass.calibrate_sequence`) on the complete frames
    as soon as there is one, and again each time their number has doubled; every new frame is
    measured with the newest context (`dropvision.frame.measure_frame`) and its row appended to
    the journal ``OUT/live/frames.jsonl`` (one ``write`` of one line per frame, so a kill leaves
@@ -38,7 +38,7 @@ from pathlib import Path
 
 import dropvision.quality as q
 from dropvision.config import MeasureConfig
-from dropvision.context import calibrate_sequence
+from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, measure_frame
 from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.result_writer import write_result
