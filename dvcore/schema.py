@@ -327,7 +327,7 @@ LIVE_FRAMES = Table("live_frames", "live/frames.jsonl", "dropvision.live-frames/
     F("latency_ms", "float", "ms", "from the file's last modification to its row", nullable=False),
 ), "`dropvision watch`: one JSON line per frame as it is measured, before the sequence-level analysis "
    "(provisional: pinch-off, grown volume, tracking and the final quality codes are in frames.parquet at the "
-   "end). Appended one whole line at a time; read with `dropvision.app.watch.read_journal`.")
+   "end). Appended one whole line at a time; read with `dropvision.app.live_journal.read_journal`.")
 
 WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
     F("schema", "str", "", "document id"),
