@@ -16,7 +16,10 @@ import pandas as pd
 import pytest
 
 from dropvision.app.campaign import run_campaign
+from dropvision.calibration_pass import calibrate_sequence
+from dropvision.frame import measure_photometry
 from dropvision.measurement import measure_sequence
+from dropvision.sequence import open_sequence
 from dropvision.summary import FRAME_COLUMNS, check_frames_table
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
@@ -43,6 +46,24 @@ def root(tmp_path_factory):
 def _float_values(frames: pd.DataFrame) -> np.ndarray:
     cols = [c.name for c in schema.FRAMES.columns if c.dtype == "float"]
     return frames[cols].to_numpy(dtype=float, na_value=np.nan)
+
+
+def test_photometry_of_a_frame_without_edges(root):
+    """The stage itself: a black or uniform frame has no measurable blur (NaN), flagged blurred;
+    a good frame of the sequence has the calibration's blur and no flag."""
+    with open_sequence(root / "seq") as seq:
+        _, _, ctx = calibrate_sequence(seq)
+        good = seq.read(0).image
+    assert ctx.wall_rows is not None  # the walls judge the frames' blur
+    ok = measure_photometry(good, ctx)
+    assert ok.flags == () and ok.gain == pytest.approx(1.0, abs=0.02)
+    assert ok.blur_px == pytest.approx(ctx.blur_ref_px, rel=0.05) and ok.wall_contrast > ctx.min_wall_contrast
+    black = measure_photometry(np.zeros_like(good), ctx)
+    assert np.isnan(black.blur_px) and "blurred" in black.flags
+    # a flat grey frame keeps a trace of the background's shading at the walls: a blur far over
+    # the limit, finite, flagged
+    flat = measure_photometry(np.full_like(good, int(np.median(good))), ctx)
+    assert ctx.max_frame_blur_px < flat.blur_px < np.inf and "blurred" in flat.flags
 
 
 def test_black_frame_blur_is_nan_and_flagged(root, tmp_path):
