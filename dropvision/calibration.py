@@ -5,7 +5,7 @@ backlight (`dropvision.background`), the nozzle's walls and tip plane (`dropvisi
 here the liquid's interior level (`interior_level`: median transmission inside liquid bodies,
 their bright lens spot excluded; the edge threshold is half-way between it and 1,
 `dropvision.edges.edge_threshold`).  The edges' blur is measured afterwards
-(`dropvision.blur`), and `dropvision.context.calibrate_sequence` runs all of it on an open
+(`dropvision.blur`), and `dropvision.calibration_pass.calibrate_sequence` runs all of it on an open
 sequence.
 """
 
@@ -79,7 +79,7 @@ class Calibration:
     pixel_size_ratio_uncertainty: float = float("nan")
     #: A clipped background: ``fraction`` at the sensor maximum, unclipped ``level`` (NaN: unknown), ``method``.
     clipped: dict | None = None
-    #: Parts of the edge-position uncertainty common to a body (px; `dropvision.context.edge_position_terms_px`).
+    #: Parts of the edge-position uncertainty common to a body (px; `dropvision.calibration_pass.edge_position_terms_px`).
     edge_position_terms_px: dict = field(default_factory=dict)
     #: The nozzle walls are out of focus (the sharpest detached body is the in-focus reference).
     nozzle_out_of_focus: bool = False

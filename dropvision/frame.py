@@ -78,7 +78,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     image : ndarray
         The full frame (raw grey levels).
     ctx : FrameContext
-        From `dropvision.context.calibrate_sequence`.
+        From `dropvision.calibration_pass.calibrate_sequence`.
     ref : frame reference, optional
         ``index``, ``file``, ``page``, ``delay_us`` (µs), ``repeat`` copied into the record.
     logger : object, optional
@@ -92,7 +92,9 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         index=getattr(ref, "index", 0), file=getattr(ref, "file", ""), page=getattr(ref, "page", None),
         delay_us=float(getattr(ref, "delay_us", 0.0)), repeat=getattr(ref, "repeat", 0),
     )
-    measure_photometry(image, ctx, rec)
+    photo = measure_photometry(image, ctx)
+    rec.gain, rec.blur_px, rec.wall_contrast = photo.gain, photo.blur_px, photo.wall_contrast
+    rec.flags.extend(photo.flags)
     roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
     seg = segment_frame(roi, ctx, rec.gain)
     edges: list[RowEdges] = []
@@ -190,44 +192,76 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
     rec.bodies[1:] = sorted(rec.bodies[1:], key=lambda d: -d.volume_nl)
 
 
-def measure_photometry(image: np.ndarray, ctx: FrameContext, rec: FrameRecord) -> None:
-    """Illumination gain, saturation, edge blur and wall contrast of a frame, into ``rec``.
+@dataclass(frozen=True)
+class Photometry:
+    """A frame's illumination, blur and wall contrast (`measure_photometry`).
 
-    Sets ``rec.gain`` (frame illumination / background model), ``rec.blur_px`` (Gaussian sigma,
-    px, from the nozzle walls' steepness relative to the calibration frame) and
-    ``rec.wall_contrast`` (1 - the walls' transmission), and appends the flags: illumination
-    unknown or off by more than 10 ``ctx.gain_tolerance``, more than ``ctx.saturation_limit``
-    of the background samples saturated, blur or contrast off the calibration frame's.
+    Attributes
+    ----------
+    gain : float
+        Frame illumination over the background model (1 where unknown or clipped).
+    blur_px : float
+        Edge blur (Gaussian sigma, px) from the nozzle walls' steepness relative to the
+        calibration frame; NaN where not judged (no wall reference) or unmeasurable (the walls
+        show no edge: flagged blurred).
+    wall_contrast : float
+        1 - the walls' transmission (NaN without a wall reference).
+    flags : tuple of str
+        Quality codes (`dvcore.schema.Quality`): illumination, saturated or clipped, blurred,
+        low contrast.
+    """
+
+    gain: float
+    blur_px: float = float("nan")
+    wall_contrast: float = float("nan")
+    flags: tuple[str, ...] = ()
+
+
+def measure_photometry(image: np.ndarray, ctx: FrameContext) -> Photometry:
+    """Illumination gain, saturation, edge blur and wall contrast of a frame.
+
+    Flags: illumination unknown or off by more than 10 ``ctx.gain_tolerance``, more than
+    ``ctx.saturation_limit`` of the background samples saturated, blur or contrast off the
+    calibration frame's (an unmeasurable blur, walls without any edge, is NaN and flagged blurred).
 
     Parameters
     ----------
     image : ndarray
         The full frame (raw grey levels).
     ctx : FrameContext
-    rec : FrameRecord
-        Updated in place.
+
+    Returns
+    -------
+    Photometry
     """
+    flags: list[str] = []
+    blur_px = wall_contrast = float("nan")
     samples = image[ctx.r0:, ctx.c0:ctx.c1][ctx.sample_rows, ctx.sample_cols]
     clipped = bool(np.isfinite(ctx.clipped_level))
     # a clipped background shows no strobe variation: the strobe is taken as steady (gain 1)
     gain = 1.0 if clipped else q.frame_gain(samples, ctx.background[ctx.sample_rows, ctx.sample_cols])
     if not np.isfinite(gain):
         gain = 1.0
-        rec.flags.append(q.ILLUMINATION)
-    rec.gain = gain
+        flags.append(q.ILLUMINATION)
     if q.saturation_fraction(samples, ctx.max_value) > ctx.saturation_limit:
-        rec.flags.append(q.CLIPPED if clipped else q.SATURATED)
+        flags.append(q.CLIPPED if clipped else q.SATURATED)
     if ctx.wall_rows is not None:
         prof = image[ctx.wall_rows, ctx.wall_cols].astype(np.float32) * ctx.wall_inv_background / gain
         sharp = q.edge_sharpness(prof)
-        rec.wall_contrast = q.wall_contrast(prof)
-        rec.blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp if sharp > 0 else float("inf")
-        if rec.blur_px > ctx.max_frame_blur_px:
-            rec.flags.append(q.BLURRED)
-        if rec.wall_contrast < ctx.min_wall_contrast:
-            rec.flags.append(q.LOW_CONTRAST)
+        wall_contrast = q.wall_contrast(prof)
+        if sharp > 0:
+            blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp
+            if blur_px > ctx.max_frame_blur_px:
+                flags.append(q.BLURRED)
+        else:
+            # the walls show no edge at all (a black or uniform frame): the blur is unmeasurable,
+            # NaN (the frames table holds no infinities) and the frame flagged as blurred
+            flags.append(q.BLURRED)
+        if wall_contrast < ctx.min_wall_contrast:
+            flags.append(q.LOW_CONTRAST)
     if abs(gain - 1.0) > 10 * ctx.gain_tolerance:
-        rec.flags.append(q.ILLUMINATION)
+        flags.append(q.ILLUMINATION)
+    return Photometry(gain=gain, blur_px=blur_px, wall_contrast=wall_contrast, flags=tuple(flags))
 
 
 def segment_frame(roi: np.ndarray, ctx: FrameContext, gain: float) -> Segmentation:

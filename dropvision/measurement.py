@@ -2,8 +2,8 @@
 
 The orchestration: open -> calibrate -> stream frames -> assemble -> write.  One module per stage:
 
-1. `dropvision.context`: calibration pass (`dropvision.calibration`: background, nozzle, axis,
-   tilt, tip plane, liquid level; edge blur) and the per-frame `FrameContext`.
+1. `dropvision.calibration_pass`: calibration pass (`dropvision.calibration`: background, nozzle,
+   axis, tilt, tip plane, liquid level; edge blur) giving the per-frame `dropvision.context.FrameContext`.
 2. `dropvision.frame`: the per-frame pipeline (`measure_frame`) and the frame stream:
    photometry and quality (`dropvision.quality`), dark mask and bodies
    (`dropvision.segmentation`), attached and detached liquid (`dropvision.bodies`), volumes by
@@ -28,7 +28,7 @@ import numpy as np
 import dropvision.quality as q
 from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
-from dropvision.context import calibrate_sequence
+from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, stream_frames
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
 from dropvision.result_writer import write_result

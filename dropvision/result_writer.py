@@ -1,8 +1,8 @@
 """Writing a measurement: frames.parquet (+ frames.csv), bodies.parquet, per_delay.parquet, summary.json.
 
 The frames table is checked against its schema before anything is written
-(`dropvision.summary.check_frames_table`): a missing, undeclared or mistyped column is an error
-naming it, never a silently empty column.
+(`dropvision.summary.check_frames_table`): a missing, undeclared or mistyped column, or an
+infinite value, is an error naming it, never a silently empty column nor a file its readers refuse.
 """
 
 from __future__ import annotations

@@ -375,7 +375,9 @@ def check_frames_table(frames: pd.DataFrame, source) -> None:
     ------
     dvcore.schema.SchemaError
         Naming ``source`` and the first offending column: one missing, one not declared in the
-        schema, columns out of the declared order, or a wrong dtype.  Values are not judged.
+        schema, columns out of the declared order, a wrong dtype, a missing value where the
+        schema allows none, or an infinite value (what `dvcore.schema.check_table` refuses when
+        the file is read back).
     """
     missing = [c for c in FRAME_COLUMNS if c not in frames.columns]
     if missing:
@@ -389,10 +391,9 @@ def check_frames_table(frames: pd.DataFrame, source) -> None:
     if list(frames.columns) != FRAME_COLUMNS:
         raise schema.SchemaError(f"{source}: columns not in the order declared by {schema.FRAMES.schema} "
                                  "(identify/schema.py FRAMES)")
-    # dtypes only (checked on the table's empty head): the values are the measurement's, and some
-    # are legitimately outside what a reader of the file is told to expect (an infinite blur_px
-    # of a frame whose edges could not be located, the hostile corpus's jpeg_named_png)
-    schema.check_table(frames.head(0), schema.FRAMES, source)
+    # the same check a reader applies (dropvision.app.campaign reads shards back with it): dtypes,
+    # missing values where not allowed, no infinities (an unmeasurable value is NaN and flagged)
+    schema.check_table(frames, schema.FRAMES, source)
 
 
 def per_delay(frames: pd.DataFrame) -> pd.DataFrame:

@@ -110,7 +110,8 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
       nullable=False),
     F("neck_px", "float", "px", "narrowest width of the neck while attached"),
     F("gain", "float", "", "illumination of the frame relative to the background model"),
-    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls"),
+    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls (NaN, flagged blurred, "
+      "where the walls show no edge)"),
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
     F("attached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of attached_volume_nl (edge position, "
       "blur correction; dropvision.volume.volume_uncertainty_px3)"),
@@ -316,7 +317,8 @@ LIVE_FRAMES = Table("live_frames", "live/frames.jsonl", "dropvision.live-frames/
     F("drop_z_um", "float", "um", "its centroid along the jetting axis from the tip plane"),
     F("drop_x_um", "float", "um", "its centroid across the axis"),
     F("quality", "str", "", "the frame's own quality codes ('ok' when none)", nullable=False),
-    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls"),
+    F("blur_px", "float", "px", "edge blur (Gaussian sigma) measured at the nozzle walls (NaN, flagged blurred, "
+      "where the walls show no edge)"),
     F("gain", "float", "", "illumination of the frame relative to the background model"),
     F("error", "str", "", "why the frame could not be read (null when it was measured)"),
     F("calibration_frames", "int", "", "complete frames the calibration it was measured with was made from",
@@ -327,7 +329,7 @@ LIVE_FRAMES = Table("live_frames", "live/frames.jsonl", "dropvision.live-frames/
     F("latency_ms", "float", "ms", "from the file's last modification to its row", nullable=False),
 ), "`dropvision watch`: one JSON line per frame as it is measured, before the sequence-level analysis "
    "(provisional: pinch-off, grown volume, tracking and the final quality codes are in frames.parquet at the "
-   "end). Appended one whole line at a time; read with `dropvision.app.watch.read_journal`.")
+   "end). Appended one whole line at a time; read with `dropvision.app.live_journal.read_journal`.")
 
 WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
     F("schema", "str", "", "document id"),

@@ -4,13 +4,13 @@ the folder's files are described in :mod:`identify.dataset`."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from dvcore import schema
+from dvcore.jsonio import load_json_hardened
 from identify.dataset import MIN_RUN_SAMPLES, SUMMARY_COLUMNS, TIMESERIES_COLUMNS, Dataset, DatasetError, check_measurement_block
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
@@ -347,10 +347,7 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
     for n, f in files.items():
         if not f.is_file():
             raise DatasetError(f"{f}: missing file")
-    try:
-        meta = json.loads(files["dataset.json"].read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise DatasetError(f"{files['dataset.json']}: invalid JSON ({exc})") from None
+    meta = load_json_hardened(files["dataset.json"], DatasetError)
     try:
         schema.check_document(meta, schema.DATASET, files["dataset.json"])
     except schema.SchemaError as exc:

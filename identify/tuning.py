@@ -503,18 +503,16 @@ def read_tuning(folder) -> TuningResult:
     dvcore.schema.SchemaError
         A file does not match its declaration (naming the file).
     """
-    import json
-
     import pandas as pd
 
+    from dvcore.jsonio import load_json_hardened
     from dvcore.schema import TUNING, TUNING_RUN, SchemaError, check_document, check_table
 
     folder = Path(folder)
     table, doc_path = folder / TUNING_FILES[0], folder / TUNING_FILES[1]
-    try:
-        doc = json.loads(doc_path.read_text(encoding="utf-8"))
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SchemaError(f"{doc_path}: invalid JSON ({exc})") from None
+    if not doc_path.is_file():
+        raise FileNotFoundError(f"{doc_path}: missing file (a tuning run folder holds {', '.join(TUNING_FILES)})")
+    doc = load_json_hardened(doc_path, SchemaError)
     check_document(doc, TUNING_RUN, doc_path)
     try:
         df = pd.read_parquet(table)

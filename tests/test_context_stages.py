@@ -1,6 +1,8 @@
-"""Calibration-pass stages that take arrays and return a small result (dropvision/context.py)."""
+"""Calibration-pass stages that take arrays and return a small result (dropvision/calibration_pass.py)."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -8,7 +10,9 @@ import pytest
 from dropvision.blur import edge_sigma_px
 from dropvision.calibration import calibrate_frames
 from dropvision.config import MeasureConfig
-from dropvision.context import APPEARANCE_DTYPE, body_blur_reference, wall_reference
+from dropvision.calibration_pass import (APPEARANCE_DTYPE, body_blur_reference, focus_reference, noise_smoothing,
+                                         smoothed_sigma_px, wall_reference)
+from dropvision.context import smoothing_kernel_sigma_px
 from dropvision.edges import edge_threshold
 from dropvision.nozzle import find_nozzle
 from dropvision.synth import SynthConfig, synthesize
@@ -67,3 +71,58 @@ def test_body_blur_reference_only_when_the_walls_are_out_of_focus():
     assert body_blur_reference(found, float("nan"), float("nan"), config).nozzle_blur_px == pytest.approx(2.7)
     # the sharpest body without an ESF fit: its edge spread
     assert body_blur_reference(_found((1.0, float("nan"))), 5.0, 1.1, config).sigma_px == 1.0
+
+
+def _noisy(std, shape=(200, 80), seed=0):
+    return (1.0 + np.random.default_rng(seed).normal(0.0, std, shape)).astype(np.float32)
+
+
+def test_noise_smoothing_smooths_only_noisy_frames():
+    config = MeasureConfig()
+    quiet = noise_smoothing(_noisy(0.2 * config.smooth_noise_limit), 1.0, config, default_noise_t=0.01)
+    assert quiet.noise_t == pytest.approx(0.2 * config.smooth_noise_limit, rel=0.1)
+    assert quiet.smooth_px == 0.0 and quiet.sigma_px == 1.0  # blur correction untouched
+    noisy = noise_smoothing(_noisy(3.0 * config.smooth_noise_limit), 1.0, config, default_noise_t=0.01)
+    assert noisy.noise_t > config.smooth_noise_limit
+    assert noisy.smooth_px == config.smooth_px > 0
+    # the truncated kernel's own standard deviation added in quadrature
+    assert noisy.sigma_px == pytest.approx(math.hypot(1.0, smoothing_kernel_sigma_px(config.smooth_px)))
+    # without a blur correction (sigma 0) the smoothing adds none
+    assert noise_smoothing(_noisy(3.0 * config.smooth_noise_limit), 0.0, config, default_noise_t=0.01).sigma_px == 0.0
+    # too few bright pixels to measure: the default
+    dark = np.full((50, 50), 0.5, np.float32)
+    assert noise_smoothing(dark, 1.0, config, default_noise_t=0.0123).noise_t == 0.0123
+
+
+def test_smoothed_sigma_hand_values():
+    assert smoothed_sigma_px(1.5, 0.0) == 1.5
+    assert smoothed_sigma_px(0.0, 2.0) == 0.0
+    # the kernel is truncated at +-2 sigma: narrower than the nominal sigma
+    assert 0.8 * 2.0 < smoothing_kernel_sigma_px(2.0) < 2.0
+    assert smoothed_sigma_px(1.5, 2.0) == pytest.approx(math.hypot(1.5, smoothing_kernel_sigma_px(2.0)))
+
+
+def test_focus_reference_walls_in_focus_keep_their_references():
+    config = MeasureConfig()
+    found = _found((1.0, 0.9))
+    limit = config.mist_blur_factor * 1.0 + config.mist_blur_offset_px
+    ref = focus_reference(found, limit, 1.1, 1.3, 2.0, config)
+    assert not ref.nozzle_out_of_focus and ref.note is None
+    assert (ref.edge_blur_ref_px, ref.edge_blur_ref_source) == (limit, "nozzle walls")
+    assert ref.mist_blur_factor == config.mist_blur_factor
+    assert ref.sigma_px == 1.1 and ref.effective_sigma_px == 1.3 and ref.nozzle_blur_px == 0.0
+
+
+def test_focus_reference_walls_out_of_focus_take_the_sharpest_body():
+    config = MeasureConfig()
+    found = _found((1.0, 0.9), (2.0, 1.8))
+    ref = focus_reference(found, 4.0, 1.1, 1.3, 0.0, config)
+    assert ref.nozzle_out_of_focus and "out of focus (edge spread 4.00 px against 1.00 px" in ref.note
+    assert ref.edge_blur_ref_px == 1.0 and ref.edge_blur_ref_source.startswith("sharpest detached body")
+    assert ref.mist_blur_factor == config.mist_blur_factor_bodies
+    assert ref.sigma_px == 0.9 and ref.effective_sigma_px == 0.9 and ref.nozzle_blur_px == 1.1
+    # smoothed frames: the kernel added to the body's blur; no blur correction: none
+    assert focus_reference(found, 4.0, 1.1, 1.3, 2.0, config).effective_sigma_px == pytest.approx(
+        math.hypot(0.9, smoothing_kernel_sigma_px(2.0)))
+    off = MeasureConfig(blur_correction=False)
+    assert focus_reference(found, 4.0, 1.1, 0.0, 2.0, off).effective_sigma_px == 0.0

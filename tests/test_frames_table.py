@@ -60,10 +60,12 @@ def test_wrong_dtype_is_named(tmp_path):
         _write(frames, tmp_path)
 
 
-def test_order_checked_values_not_judged():
+def test_order_checked_and_infinite_values_refused():
     frames = _frames()
     with pytest.raises(schema.SchemaError, match="order"):
         check_frames_table(frames[FRAME_COLUMNS[::-1]], "reordered")
-    # the measurement's values are its own: a frame whose blur could not be located (inf)
+    # the writer checks what a reader checks (dvcore.schema.check_table): an unmeasurable value is
+    # NaN and flagged, never infinite (tests/test_unmeasurable_blur.py)
     frames.loc[1, "blur_px"] = np.inf
-    check_frames_table(frames, "inf blur")
+    with pytest.raises(schema.SchemaError, match="column 'blur_px' holds infinite values"):
+        check_frames_table(frames, "inf blur")

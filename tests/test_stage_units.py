@@ -20,7 +20,7 @@ from dropvision import edges as edg
 from dropvision import volume as vo
 from dropvision.bodies import DetachedBody, measure_attached, off_path_reason
 from dropvision.blur import esf_sigma_px
-from dropvision.context import attached_half_width_px
+from dropvision.calibration_pass import attached_half_width_px
 from dropvision.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
 from dropvision.summary import frame_scatter_nl, grown_uncertainty
 from test_measure_draw import cylinder, render

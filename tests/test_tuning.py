@@ -210,6 +210,19 @@ def test_read_tuning_names_the_bad_file(demo_model, tmp_path):
         read_tuning(tmp_path / "run")
 
 
+def test_read_tuning_refuses_hostile_json_naming_the_file(demo_model, tmp_path):
+    """tuning.json is read with the hardened reader (dvcore.jsonio): NaN/Infinity are refused."""
+    res = tune(demo_model, _plant(demo_model), 20.0, shots=1)
+    write_tuning(res, tmp_path / "run")
+    doc = tmp_path / "run" / "tuning.json"
+    doc.write_text(doc.read_text().replace('"target_volume_nl": 20.0', '"target_volume_nl": Infinity', 1))
+    with pytest.raises(SchemaError, match=r"tuning\.json: invalid JSON \(Infinity is not a JSON number"):
+        read_tuning(tmp_path / "run")
+    doc.unlink()
+    with pytest.raises(FileNotFoundError, match=r"tuning\.json: missing file"):
+        read_tuning(tmp_path / "run")
+
+
 def test_rerun_view_of_a_run(demo_model, tmp_path):
     from identify.app import rerun_log as irl
     from dvcore.rerun_options import RerunOptions

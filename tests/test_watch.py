@@ -2,7 +2,7 @@
 `measure_sequence` of the same folder, nothing lost on SIGKILL, a restart completes the sequence.
 
 A synthetic sequence is rendered once, then replayed into a watched folder frame by frame
-(`dropvision.app.watch.replay_sequence`: sequence.json first, each frame in two writes with a
+(`dropvision.app.replay.replay_sequence`: sequence.json first, each frame in two writes with a
 pause, so the watcher can meet it half-written).
 """
 
@@ -22,8 +22,9 @@ import pandas as pd
 import pytest
 
 from dropvision.app.cli import main
-from dropvision.app.watch import (JOURNAL, WATCH_JSON, WatchOptions, journal_table, read_journal, replay_sequence,
-                                  watch_sequence)
+from dropvision.app.live_journal import JOURNAL, journal_table, read_journal
+from dropvision.app.replay import replay_sequence
+from dropvision.app.watch import WATCH_JSON, WatchOptions, watch_sequence
 from dropvision.measurement import measure_sequence
 from dropvision.sequence import open_sequence
 from dvcore import schema

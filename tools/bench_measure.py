@@ -280,7 +280,7 @@ def _in_memory(folder: Path):
 
 #: --stages: stage name -> (module file suffix, function name) whose cumulative time is the stage's
 STAGES = {
-    "calibration pass": ("dropvision/context.py", "calibrate_sequence"),
+    "calibration pass": ("dropvision/calibration_pass.py", "calibrate_sequence"),
     "  background estimate": ("dropvision/calibration.py", "estimate_background"),
     "per-frame pipeline (all)": ("dropvision/frame.py", "measure_frame"),
     "  photometry": ("dropvision/frame.py", "measure_photometry"),

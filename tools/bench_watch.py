@@ -2,7 +2,7 @@
 
 Replays a sequence folder (default: sample_frames/colour_ink_u70_u25, 181 frames of 704 x 224 px)
 into a temporary folder at ``--rate-hz`` frames per second (sequence.json first, each frame in
-two writes 10 ms apart: `dropvision.app.watch.replay_sequence`) while ``dropvision watch`` runs
+two writes 10 ms apart: `dropvision.app.replay.replay_sequence`) while ``dropvision watch`` runs
 on it in its own process, then prints the time from each file's completion (the writer closed
 it) to its row on disk in ``OUT/live/frames.jsonl``: median, 90th percentile, max, and the
 first frame (which waits for the first calibration) apart. Finally it checks that the final
@@ -32,7 +32,8 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from dropvision.app.watch import JOURNAL, read_journal, replay_sequence  # noqa: E402
+from dropvision.app.live_journal import JOURNAL, read_journal  # noqa: E402
+from dropvision.app.replay import replay_sequence  # noqa: E402
 from dropvision.measurement import measure_sequence  # noqa: E402
 from dropvision.sequence import open_sequence  # noqa: E402
 

@@ -7,7 +7,7 @@
    closed it), and it decodes. A decode failure of a file that is still changing is "not yet";
    one that stays unreadable and unchanged for ``unreadable_after_s`` is reported, as the batch
    measurement reports it.
-2. The sequence is calibrated (`dropvision.context.calibrate_sequence`) on the complete frames
+2. The sequence is calibrated (`dropvision.calibration_pass.calibrate_sequence`) on the complete frames
    as soon as there is one, and again each time their number has doubled; every new frame is
    measured with the newest context (`dropvision.frame.measure_frame`) and its row appended to
    the journal ``OUT/live/frames.jsonl`` (one ``write`` of one line per frame, so a kill leaves
@@ -36,9 +36,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import dropvision.quality as q
 from dropvision.config import MeasureConfig
-from dropvision.context import calibrate_sequence
+from dropvision.calibration_pass import calibrate_sequence
+from dropvision.app.live_journal import JOURNAL, Journal, live_row, read_journal
 from dropvision.frame import FrameRecord, measure_frame
 from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.result_writer import write_result
@@ -47,11 +47,8 @@ from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
 from dvcore import schema
 from dvcore.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
 
-__all__ = ["JOURNAL", "WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences",
-           "read_journal", "journal_table", "replay_sequence"]
+__all__ = ["WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences"]
 
-#: The journal of live rows, relative to OUT (JSON lines, one per measured frame; `dvcore.schema.LIVE_FRAMES`).
-JOURNAL = schema.LIVE_FRAMES.file
 #: What the watch did (sequence, end, latencies), relative to OUT (`dvcore.schema.WATCH`).
 WATCH_JSON = schema.WATCH.file
 
@@ -124,99 +121,6 @@ class WatchResult:
     n_resumed: int
     latency_ms: list[float]
     left_out: list[str]
-
-
-# --- the journal -------------------------------------------------------------------------------
-
-def read_journal(out_dir) -> list[dict]:
-    """Rows of ``OUT/live/frames.jsonl`` (whole lines only; a cut last line is left out).
-
-    Parameters
-    ----------
-    out_dir : str or Path
-        The watch's output folder.
-
-    Returns
-    -------
-    list of dict
-        One per frame measured live, in the order they were measured.
-    """
-    path = Path(out_dir) / JOURNAL
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        return []
-    rows = []
-    for line in data.split(b"\n")[:-1]:  # the part after the last newline is cut: left out
-        try:
-            row = json.loads(line)
-        except ValueError:
-            continue
-        if isinstance(row, dict) and isinstance(row.get("file"), str):
-            rows.append(row)
-    return rows
-
-
-def journal_table(out_dir):
-    """The journal as a table: `read_journal`'s rows with the columns and types of
-    `dvcore.schema.LIVE_FRAMES` (null numbers as NaN, ``page`` nullable integer).
-
-    Parameters
-    ----------
-    out_dir : str or Path
-        The watch's output folder.
-
-    Returns
-    -------
-    pandas.DataFrame
-    """
-    import pandas as pd
-
-    table = pd.DataFrame(read_journal(out_dir), columns=schema.LIVE_FRAMES.column_names)
-    for col in schema.LIVE_FRAMES.columns:
-        if col.dtype == "int":
-            table[col.name] = table[col.name].astype("Int64")
-        elif col.dtype == "float":
-            table[col.name] = pd.to_numeric(table[col.name]).astype(float)
-    return table
-
-
-def _live_row(rec: FrameRecord, cal_frames: int) -> dict:
-    """A frame's provisional row: its own measurement, before the sequence-level analysis
-    (volumes nl, positions µm along (z) and across (x) the axis, delays µs)."""
-    main = rec.bodies[0] if rec.bodies else None
-    return {
-        "file": rec.file, "page": rec.page, "delay_us": rec.delay_us, "repeat": rec.repeat,
-        "attached_volume_nl": rec.attached_volume_nl,
-        "attached_volume_uncertainty_nl": rec.attached_volume_uncertainty_nl,
-        "n_detached": len(rec.bodies),
-        "drop_volume_nl": main.volume_nl if main else math.nan,
-        "drop_z_um": main.z_um if main else math.nan,
-        "drop_x_um": main.x_um if main else math.nan,
-        "quality": q.join(rec.flags), "blur_px": rec.blur_px, "gain": rec.gain, "error": rec.error,
-        "calibration_frames": cal_frames,
-    }
-
-
-class _Journal:
-    """Append-only JSON lines: one ``os.write`` of one whole line per row."""
-
-    def __init__(self, path: Path):
-        self.path = path
-        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-
-    def append(self, row: dict) -> None:
-        from dvcore.atomic import to_json
-
-        line = to_json(row, indent=None).encode("utf-8")  # ends with "\n"
-        view = memoryview(line)
-        while view:  # a regular file takes it in one write; a short write is continued
-            view = view[os.write(self._fd, view):]
-
-    def close(self) -> None:
-        if self._fd >= 0:
-            os.close(self._fd)
-            self._fd = -1
 
 
 def _start_out(out: Path, folder: Path, overwrite: bool) -> list[dict]:
@@ -357,7 +261,7 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
     for r in rows:
         done[r["file"]] = (int(r.get("size") or -1), int(r.get("mtime_ns") or -1))
         measured.add((r["file"], r.get("page")))
-    journal = _Journal(out / JOURNAL)
+    journal = Journal(out / JOURNAL)
     events: queue.Queue = queue.Queue()
     observer = Observer()
     observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
@@ -559,7 +463,7 @@ class _LiveState:
                     rec = measure_frame(fr.image, self.ctx, replace(ref, index=self.arrived), self.logger)
                 self.arrived += 1
                 pending.pop(ref.file, None)
-                yield _live_row(rec, self.cal_frames), file_stat
+                yield live_row(rec, self.cal_frames), file_stat
         finally:
             seq.close()
 
@@ -698,49 +602,3 @@ def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, l
     except KeyboardInterrupt:  # between two sequences
         pass
     return results, failed
-
-
-# --- a drop watcher, replayed ------------------------------------------------------------------
-
-def replay_sequence(src, dst, *, rate_hz: float = 20.0, pause_s: float = 0.01, stop_after: int | None = None
-                    ) -> dict[str, float]:
-    """Write a sequence folder's frames into ``dst`` as a drop watcher would: sequence.json
-    first, then one frame every ``1 / rate_hz`` s, each in two writes ``pause_s`` apart (so a
-    reader can find it half-written). For trying ``dropvision watch`` and measuring it.
-
-    Parameters
-    ----------
-    src : str or Path
-        A complete sequence folder (frames in sequence.json's list order, else natural name order).
-    dst : str or Path
-        The folder to fill (created).
-    rate_hz : float
-        Frames per second.
-    pause_s : float
-        Pause between the two halves of each file.
-    stop_after : int, optional
-        Write only this many frames.
-
-    Returns
-    -------
-    dict
-        File name -> when it was complete (``time.time()`` after it was closed, s).
-    """
-    src, dst = Path(src), Path(dst)
-    with open_sequence(src, require_pixel_size=False) as seq:  # the listed order
-        names = list(dict.fromkeys(r.file for r in sorted(seq.meta.frames, key=lambda r: r.listed_index)))
-    dst.mkdir(parents=True, exist_ok=True)
-    if (src / SEQUENCE_JSON).is_file():
-        shutil.copyfile(src / SEQUENCE_JSON, dst / SEQUENCE_JSON)
-    complete: dict[str, float] = {}
-    t0 = time.monotonic()
-    for k, name in enumerate(names[:stop_after]):
-        time.sleep(max(0.0, t0 + k / rate_hz - time.monotonic()))
-        data = (src / name).read_bytes()
-        with open(dst / name, "wb") as fh:
-            fh.write(data[:len(data) // 2])
-            fh.flush()
-            time.sleep(pause_s)
-            fh.write(data[len(data) // 2:])
-        complete[name] = time.time()
-    return complete

@@ -1,0 +1,204 @@
+"""The campaign's dataset: each measured sequence's share of it and the dataset files.
+
+`shard_part` reads one finished shard (``shards/<id>/frames.parquet`` and ``summary.json``,
+checked against their schema) into its :class:`ShardPart`: its ``timeseries.parquet`` rows
+(per strobe delay, averaged over the attached frames) and its ``summary.parquet`` row;
+`assemble_dataset` writes ``timeseries.parquet``, ``summary.parquet`` and ``dataset.json`` from
+the parts, refusing sequences that disagree on the nozzle, the ink or the printhead drive.
+The campaign driver is `dropvision.app.campaign.run_campaign`.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from dvcore import schema
+from dvcore.atomic import write_bytes, write_json
+from dvcore.jsonio import load_json_hardened
+from dvcore.versions import software_versions
+from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
+
+__all__ = ["DATASET_SCHEMA", "TIMESERIES_COLUMNS", "SUMMARY_COLUMNS", "ShardPart", "shard_part", "assemble_dataset"]
+
+DATASET_SCHEMA = schema.DATASET.schema
+TIMESERIES_COLUMNS = schema.TIMESERIES.column_names
+SUMMARY_COLUMNS = schema.DATASET_SUMMARY.column_names
+
+
+def _timeseries_rows(seq_id: str, u1: float, u2: float, frames: pd.DataFrame) -> pd.DataFrame:
+    frames = frames.copy()
+    frames["_grown_attached"] = frames["grown_volume_nl"].where(frames["attached"])
+    frames["_flow_attached"] = frames["flow_velocity_m_s"].where(frames["attached"])
+    g = frames.groupby("delay_us", sort=True)
+    out = pd.DataFrame(
+        {
+            "delay_us": g.size().index.to_numpy(dtype=float),
+            "grown_volume_nl": g["_grown_attached"].mean().to_numpy(dtype=float),
+            "flow_velocity_m_s": g["_flow_attached"].mean().to_numpy(dtype=float),
+            "attached": g["attached"].all().to_numpy(dtype=bool),
+        }
+    )
+    out.insert(0, "u2_um", float(u2))
+    out.insert(0, "u1_um_per_ms", float(u1))
+    out.insert(0, "sequence_id", seq_id)
+    return out[TIMESERIES_COLUMNS]
+
+
+def _same(a, b, tol: float) -> bool:
+    if isinstance(a, (int, float)) and isinstance(b, (int, float)):
+        return math.isclose(a, b, rel_tol=tol, abs_tol=tol)
+    return a == b
+
+
+def _common(values, what: str, tol: float = 1e-9, why: str = "one dataset is one nozzle and one ink"):
+    """The one value the sequences share (None when none gives it).
+
+    ``values``: (sequence id, value) pairs. Sequences that differ are refused, naming the
+    sequences of each value: one dataset is one nozzle and one ink (per-sequence calibration,
+    the pixel size, is not compared here: see `assemble_dataset`).
+    """
+    pairs = [(sid, v) for sid, v in values if v is not None]
+    if not pairs:
+        return None
+    groups: list[tuple[object, list[str]]] = []
+    for sid, v in pairs:
+        for value, names in groups:
+            if _same(value, v, tol):
+                names.append(sid)
+                break
+        else:
+            groups.append((v, [sid]))
+    if len(groups) > 1:
+        def named(names):
+            return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+        shown = "; ".join(f"{value!r} in {named(names)}" for value, names in groups[:4])
+        raise ValueError(f"sequences disagree on {what}: {shown}; {why}")
+    return groups[0][0]
+
+
+@dataclass(frozen=True)
+class ShardPart:
+    """One ok shard's share of the dataset (`shard_part`): its timeseries rows, its summary
+    row and its metadata. ``input_hash`` ties it to the shard it was read from."""
+
+    input_hash: str | None
+    timeseries: pd.DataFrame
+    row: dict
+    meta: tuple
+
+
+def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
+    """Read one ok shard into its :class:`ShardPart`; None (and ``entry`` marked failed) when
+    its sequence.json has no waveform u1/u2. Raises when the shard's files are unreadable or
+    break the schema.
+
+    The campaign driver calls it as each sequence finishes, while the workers measure the
+    others, so that the dataset's final assembly only concatenates (see `run_campaign`)."""
+    meta = entry.get("meta") or {}
+    wf = meta.get("waveform") or {}
+    if "u1_um_per_ms" not in wf or "u2_um" not in wf:
+        entry["status"], entry["error"] = "failed", "sequence.json has no waveform u1_um_per_ms/u2_um"
+        return None
+    shard = Path(dataset_dir) / "shards" / entry["shard"]
+    frames = pd.read_parquet(shard / "frames.parquet")
+    schema.check_table(frames, schema.FRAMES, shard / "frames.parquet")
+    summary = schema.check_document(load_json_hardened(shard / "summary.json", schema.SchemaError), schema.SUMMARY,
+                                    shard / "summary.json")
+    u1, u2 = float(wf["u1_um_per_ms"]), float(wf["u2_um"])
+    jv = summary.get("jetting_velocity_m_s")
+    return ShardPart(
+        input_hash=entry.get("input_hash"),
+        timeseries=_timeseries_rows(seq_id, u1, u2, frames),
+        row={
+            "sequence_id": seq_id,
+            "u1_um_per_ms": u1,
+            "u2_um": u2,
+            "pinchoff_us": summary.get("pinchoff_us"),
+            "grown_volume_at_pinchoff_nl": summary.get("grown_volume_at_pinchoff_nl"),
+            "inflight_volume_nl": summary.get("inflight_volume_nl"),
+            "jetting_velocity_m_s": jv,
+            "flow_velocity_at_max_stroke_m_s": summary.get("flow_velocity_at_max_stroke_m_s"),
+            "inflight_volume_std_nl": summary.get("inflight_volume_std_nl"),
+            "jetting_velocity_se_m_s": summary.get("jetting_velocity_se_m_s"),
+            "satellites": summary.get("satellites"),
+            "n_frames": len(frames),
+            "n_errors": len(summary.get("errors") or []),
+            "pixel_size_ratio": (summary.get("calibration") or {}).get("pixel_size_ratio"),
+            "pixel_size_ratio_uncertainty": (summary.get("calibration") or {}).get("pixel_size_ratio_uncertainty"),
+            "inflight_frames": summary.get("inflight_frames"),
+        },
+        meta=(seq_id, meta, wf),
+    )
+
+
+def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, ShardPart] | None = None) -> None:
+    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards.
+
+    ``parts``: sequence id -> its :class:`ShardPart` read earlier (as the sequence finished);
+    a part is used only while it matches the entry's input hash, any other ok shard is read
+    here. The dataset is the same either way (rows in sequence-id order)."""
+    dataset_dir = Path(dataset_dir)
+    parts = parts or {}
+    ts_parts, rows, metas = [], [], []
+    for seq_id, entry in sorted(entries.items()):
+        if entry.get("status") != "ok":
+            continue
+        part = parts.get(seq_id)
+        if part is None or part.input_hash != entry.get("input_hash"):
+            part = shard_part(dataset_dir, seq_id, entry)
+            if part is None:
+                continue
+        ts_parts.append(part.timeseries)
+        rows.append(part.row)
+        metas.append(part.meta)
+    timeseries = (
+        pd.concat(ts_parts, ignore_index=True) if ts_parts else pd.DataFrame(columns=TIMESERIES_COLUMNS)
+    )
+    summary_df = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+    for col in SUMMARY_COLUMNS[3:]:
+        summary_df[col] = pd.to_numeric(summary_df[col], errors="coerce").astype(float)
+    delays = timeseries.groupby("sequence_id")["delay_us"].apply(lambda d: np.diff(np.sort(d.to_numpy())))
+    steps = np.concatenate(delays.to_list()) if len(delays) else np.array([])
+    steps = steps[steps > 0]
+    # the dataset is in physical units: each sequence carries its own scale (a refocused camera
+    # changes the pixel size, not the nozzle or the ink), so pixel sizes are listed, not compared
+    pixel_sizes = {sid: m.get("pixel_size_um") for sid, m, _ in metas if m.get("pixel_size_um") is not None}
+    distinct = sorted(set(pixel_sizes.values()))
+    waveform_why = "one dataset is one printhead drive (the model has one dead time, instroke and hold)"
+    dataset = {
+        "schema": DATASET_SCHEMA,
+        "nozzle_inner_diameter_um": _common([(s, m.get("nozzle_inner_diameter_um")) for s, m, _ in metas],
+                                            "nozzle_inner_diameter_um"),
+        "ink": _common([(s, m.get("ink")) for s, m, _ in metas], "ink"),
+        "nozzle": _common([(s, m.get("nozzle")) for s, m, _ in metas], "nozzle geometry"),
+        "pixel_size_um": distinct[0] if len(distinct) == 1 else None,
+        "pixel_size_um_by_sequence": pixel_sizes if len(distinct) > 1 else None,
+        "sample_interval_us": float(np.median(steps)) if steps.size else None,
+        "dead_time_us": _common([(s, w.get("dead_time_us", DEAD_TIME_US)) for s, _, w in metas],
+                                "waveform dead_time_us", why=waveform_why),
+        "u3_um_per_ms": _common([(s, w.get("u3_um_per_ms", U3_PRESET_UM_PER_MS)) for s, _, w in metas],
+                                "waveform u3_um_per_ms", why=waveform_why),
+        "hold_us": _common([(s, w.get("hold_us", HOLD_PRESET_US)) for s, _, w in metas], "waveform hold_us",
+                           why=waveform_why),
+        "n_sequences": len(rows),
+        "sequences": [r["sequence_id"] for r in rows],
+        "failed": {k: e.get("error") for k, e in entries.items() if e.get("status") != "ok"},
+        "created_by": "dropvision campaign",
+        "versions": software_versions(),
+    }
+    write_bytes(dataset_dir / "timeseries.parquet", _parquet_bytes(timeseries))
+    write_bytes(dataset_dir / "summary.parquet", _parquet_bytes(summary_df))
+    write_json(dataset_dir / "dataset.json", dataset)
+
+
+def _parquet_bytes(df: pd.DataFrame) -> bytes:
+    buf = io.BytesIO()
+    df.to_parquet(buf, index=False)
+    return buf.getvalue()

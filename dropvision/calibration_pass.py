@@ -1,0 +1,575 @@
+"""The calibration pass of a sequence: from a few frames to the `FrameContext` of its measurement.
+
+`calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
+(`dropvision.calibration.calibrate_frames`: background, nozzle, axis, tilt, tip plane, liquid level),
+and then runs the stages below, each taking arrays and returning a small result it applies to the
+context it built (`dropvision.context.FrameContext.build`):
+
+- `noise_smoothing`: the transmission noise, and whether noisy frames are smoothed first;
+- `wall_reference`: the nozzle walls' sharpness and contrast, against which a frame's blur and
+  contrast are judged;
+- `body_blur_reference` / `focus_reference`: whether the nozzle walls are out of focus, and then
+  the sharpest detached body as the blur reference (`detached_appearances` finds the bodies);
+- `edge_position_terms_px`: the edge-position uncertainty common to a body.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import cv2
+import numpy as np
+
+import dropvision.quality as q
+from dropvision.blur import edge_sigma_px, esf_sigma_px
+from dropvision.calibration import Calibration, CalibrationError, calibrate_frames
+from dropvision.classify import appearance, nozzle_edge_spread_px
+from dropvision.config import MeasureConfig
+from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
+from dropvision.edges import body_edges, edge_threshold
+from dropvision.nozzle import find_nozzle
+from dropvision.segmentation import dark_mask, find_nozzle_body, segment
+from dropvision.sequence import SequenceError
+from dropvision.volume import outline
+
+
+def calibration_indices(delays_us: np.ndarray, n: int) -> list[int]:
+    """Indices of up to ``n`` frames at distinct delays spread over the sequence (first included).
+
+    Parameters
+    ----------
+    delays_us : ndarray
+        Delay of every frame (µs), in frame order.
+    n : int
+        Most frames to pick.
+
+    Returns
+    -------
+    list of int
+    """
+    if delays_us.size == 0:
+        return []
+    _, first_of = np.unique(delays_us, return_index=True)
+    first_of = np.sort(first_of)
+    pick = np.unique(np.round(np.linspace(0, first_of.size - 1, min(n, first_of.size))).astype(int))
+    return [int(first_of[i]) for i in pick]
+
+
+def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
+                       decoded: dict | None = None) -> tuple[Calibration, float, FrameContext]:
+    """Calibration pass over a few frames spread over an open sequence.
+
+    Parameters
+    ----------
+    seq : dropvision.sequence.Sequence
+        Open sequence (``meta``, ``len``, ``read``).
+    config : MeasureConfig
+    decoded : dict, optional
+        Receives the decoded calibration frames (index -> image) so that the measurement pass
+        does not decode them again.
+
+    Returns
+    -------
+    cal : Calibration
+    sigma_px : float
+        Effective edge blur (Gaussian sigma, px).
+    ctx : FrameContext
+        What `dropvision.frame.measure_frame` needs.
+
+    Raises
+    ------
+    dropvision.sequence.SequenceError
+        No readable frame, or the calibration failed.
+    """
+    meta = seq.meta
+    n = len(seq)
+    cal_frames = {}
+    for i in calibration_indices(meta.delays_us, config.calibration_frames):
+        fr = seq.read(i)
+        if fr.image is not None:
+            cal_frames[i] = fr.image
+    if not cal_frames:  # the spread frames were unreadable: take the first readable one
+        for i in range(n):
+            fr = seq.read(i)
+            if fr.image is not None:
+                cal_frames[i] = fr.image
+                break
+    if not cal_frames:
+        raise SequenceError(f"{meta.path}: no readable frame")
+    if decoded is not None:
+        decoded.update(cal_frames)
+    first_idx = min(cal_frames)
+    images = [cal_frames[i] for i in sorted(cal_frames)]
+    first = cal_frames[first_idx]
+    try:
+        cal = calibrate_frames(
+            first, images, meta.pixel_size_um,
+            nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
+            nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
+            tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col,
+            pixel_size_tolerance=config.pixel_size_tolerance_fraction,
+            edge_position_floor_px=config.edge_position_floor_px,
+            max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
+        )
+    except CalibrationError as exc:
+        how = (meta.sources or {}).get("orientation")
+        seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
+                if how and str(exc).startswith("no nozzle") else "")
+        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
+    t_first = np.asarray(first, np.float32) / cal.background.background
+    expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
+    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
+    max_value = 2 ** int(meta.bit_depth) - 1
+    clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
+    sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
+    reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal) for img in images)
+    ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config, attached_half_width_px=reach)
+    noise = noise_smoothing(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.sigma_px, config, default_noise_t=ctx.noise_t)
+    ctx = replace(ctx, clipped_level=cal.clipped_level, noise_t=noise.noise_t, smooth_px=noise.smooth_px,
+                  sigma_px=noise.sigma_px)
+    walls = wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma, cal.liquid_level, config)
+    if walls is not None:
+        ctx = replace(ctx, wall_rows=walls.rows, wall_cols=walls.cols, wall_inv_background=walls.inv_background,
+                      blur_ref_px=walls.blur_px, sharpness_ref=walls.sharpness,
+                      max_frame_blur_px=walls.max_frame_blur_px, min_wall_contrast=walls.min_wall_contrast)
+    found = detached_appearances(images, ctx)
+    focus = focus_reference(found, _nozzle_edge_spread(first, ctx), sigma, ctx.sigma_px, ctx.smooth_px, config)
+    sigma = focus.sigma_px
+    ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, edge_blur_ref_source=focus.edge_blur_ref_source,
+                  mist_blur_factor=focus.mist_blur_factor, sigma_px=focus.effective_sigma_px,
+                  nozzle_blur_px=focus.nozzle_blur_px)
+    if focus.nozzle_out_of_focus:
+        # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
+        ctx = replace(ctx, wall_rows=None, wall_cols=None, wall_inv_background=None,
+                      max_frame_blur_px=float("inf"), tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD)
+        cal.nozzle_out_of_focus = True
+        cal.notes.append(focus.note)
+        cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
+    cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
+    sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
+    ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
+                  edge_noise_px=float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig
+                                      / max(1.0 - cal.liquid_level, 0.05)))
+    return cal, sigma, ctx
+
+
+@dataclass(frozen=True)
+class BodyBlurReference:
+    """The sharpest detached body as the blur reference, when the nozzle walls are out of focus.
+
+    Attributes
+    ----------
+    edge_blur_ref_px : float
+        Its edge spread (`dropvision.classify`): mist is judged against it.
+    sigma_px : float
+        Its edge blur (Gaussian sigma of its outline's edge-spread fit, else its edge spread):
+        the calibration's blur from then on.
+    nozzle_blur_px : float
+        The walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
+        (three times the body's without a wall spread).
+    """
+
+    edge_blur_ref_px: float
+    sigma_px: float
+    nozzle_blur_px: float
+
+
+def body_blur_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
+                        config: MeasureConfig) -> BodyBlurReference | None:
+    """Whether the nozzle walls are out of focus, and then the sharpest detached body's blur reference.
+
+    Parameters
+    ----------
+    found : ndarray of APPEARANCE_DTYPE
+        Detached bodies of the calibration frames (`detached_appearances`).
+    nozzle_edge_spread_px : float
+        Edge spread of the nozzle walls in the first frame (NaN: not measured).
+    walls_sigma_px : float
+        The walls' edge-spread fit (`dropvision.blur.edge_sigma_px`).
+    config : MeasureConfig
+        ``mist_blur_factor`` and ``mist_blur_offset_px``: the walls are out of focus when their
+        spread is beyond ``mist_blur_factor x`` the sharpest body's ``+ mist_blur_offset_px``.
+
+    Returns
+    -------
+    BodyBlurReference or None
+        None when the walls are in focus (or no detached body was found): they stay the reference.
+    """
+    body_ref = float(found["edge_blur_px"].min()) if found.size else float("nan")
+    limit = config.mist_blur_factor * body_ref + config.mist_blur_offset_px
+    if not (np.isfinite(body_ref) and not nozzle_edge_spread_px <= limit):
+        return None
+    sharpest = found[int(np.argmin(found["edge_blur_px"]))]
+    sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
+    nozzle_blur = float(walls_sigma_px if np.isfinite(walls_sigma_px) else
+                        sigma * nozzle_edge_spread_px / body_ref if np.isfinite(nozzle_edge_spread_px) else 3.0 * sigma)
+    return BodyBlurReference(edge_blur_ref_px=body_ref, sigma_px=sigma, nozzle_blur_px=nozzle_blur)
+
+
+def smoothed_sigma_px(sigma_px: float, smooth_px: float) -> float:
+    """The edge blur (px) after the smoothing of noisy frames: the kernel's own standard deviation
+    (it is truncated, `dropvision.context.smooth_roi`) added in quadrature; unchanged without
+    smoothing or without a blur correction (``sigma_px`` 0)."""
+    if smooth_px > 0 and sigma_px > 0:
+        return float(math.hypot(sigma_px, smoothing_kernel_sigma_px(smooth_px)))
+    return sigma_px
+
+
+@dataclass(frozen=True)
+class NoiseSmoothing:
+    """The frames' transmission noise and whether they are smoothed before their edges are found.
+
+    Attributes
+    ----------
+    noise_t : float
+        Robust standard deviation of the transmission noise (`transmission_noise`).
+    smooth_px : float
+        Gaussian smoothing (px) of each region before segmentation (0: none).
+    sigma_px : float
+        The edge blur the volumes are corrected for (px), the smoothing included (`smoothed_sigma_px`).
+    """
+
+    noise_t: float
+    smooth_px: float
+    sigma_px: float
+
+
+def noise_smoothing(transmission_roi: np.ndarray, sigma_px: float, config: MeasureConfig, *,
+                    default_noise_t: float) -> NoiseSmoothing:
+    """Noise of the first calibration frame, and the smoothing noisy (low-contrast) frames get.
+
+    Parameters
+    ----------
+    transmission_roi : ndarray
+        First calibration frame over the background, region of interest.
+    sigma_px : float
+        Edge blur of the volume correction (px; 0 without it).
+    config : MeasureConfig
+        Frames noisier than ``smooth_noise_limit`` are smoothed by ``smooth_px``.
+    default_noise_t : float
+        The noise taken when the frame has too few bright pixels to measure it.
+
+    Returns
+    -------
+    NoiseSmoothing
+    """
+    noise_t = transmission_noise(transmission_roi, default_noise_t)
+    if noise_t > config.smooth_noise_limit:
+        smooth_px = float(config.smooth_px)
+        return NoiseSmoothing(noise_t=noise_t, smooth_px=smooth_px, sigma_px=smoothed_sigma_px(sigma_px, smooth_px))
+    return NoiseSmoothing(noise_t=noise_t, smooth_px=0.0, sigma_px=sigma_px)
+
+
+@dataclass(frozen=True)
+class FocusReference:
+    """What a body's edge spread and the volumes' blur correction are referred to: the nozzle
+    walls, or the sharpest detached body when the walls are out of focus.
+
+    Attributes
+    ----------
+    edge_blur_ref_px : float
+        Edge spread mist is judged against (`dropvision.classify`).
+    edge_blur_ref_source : str
+        Where it comes from (written in the summary).
+    mist_blur_factor : float
+        The limit's factor on it (``config.mist_blur_factor`` or ``mist_blur_factor_bodies``).
+    sigma_px : float
+        Calibrated edge blur (Gaussian sigma, px): the walls' fit, or the body's.
+    effective_sigma_px : float
+        The blur the volumes are corrected for (px; 0 without correction; smoothing included).
+    nozzle_blur_px : float
+        The walls' own blur when they are out of focus (px), else 0.
+    nozzle_out_of_focus : bool
+    note : str or None
+        The summary's note when the walls are out of focus.
+    """
+
+    edge_blur_ref_px: float
+    edge_blur_ref_source: str
+    mist_blur_factor: float
+    sigma_px: float
+    effective_sigma_px: float
+    nozzle_blur_px: float
+    nozzle_out_of_focus: bool
+    note: str | None = None
+
+
+def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
+                    effective_sigma_px: float, smooth_px: float, config: MeasureConfig) -> FocusReference:
+    """The blur references: the nozzle walls, or the sharpest detached body when they are out of focus.
+
+    When the nozzle (or the holder block around it) is out of focus, what is in focus is the
+    jet's plane: the sharpest detached body is the reference for mist, and the blur is its
+    outline's edge-spread function (`body_blur_reference`).
+
+    Parameters
+    ----------
+    found : ndarray of APPEARANCE_DTYPE
+        Detached bodies of the calibration frames (`detached_appearances`).
+    nozzle_edge_spread_px : float
+        Edge spread of the nozzle walls in the first frame (NaN: not measured).
+    walls_sigma_px : float
+        The walls' edge-spread fit (`dropvision.blur.edge_sigma_px`).
+    effective_sigma_px : float
+        The blur correction so far (`noise_smoothing`): kept when the walls are in focus.
+    smooth_px : float
+        Smoothing of noisy frames (px; 0: none).
+    config : MeasureConfig
+
+    Returns
+    -------
+    FocusReference
+    """
+    body = body_blur_reference(found, nozzle_edge_spread_px, walls_sigma_px, config)
+    if body is None:
+        return FocusReference(edge_blur_ref_px=nozzle_edge_spread_px, edge_blur_ref_source="nozzle walls",
+                              mist_blur_factor=config.mist_blur_factor, sigma_px=walls_sigma_px,
+                              effective_sigma_px=effective_sigma_px, nozzle_blur_px=0.0, nozzle_out_of_focus=False)
+    note = (f"the nozzle walls are out of focus (edge spread {nozzle_edge_spread_px:.2f} px against "
+            f"{body.edge_blur_ref_px:.2f} px of the sharpest detached body): in-focus and blur judged from the "
+            "detached bodies, no per-frame blur or contrast from the walls")
+    return FocusReference(
+        edge_blur_ref_px=body.edge_blur_ref_px,
+        edge_blur_ref_source="sharpest detached body (the nozzle walls are out of focus)",
+        mist_blur_factor=config.mist_blur_factor_bodies, sigma_px=body.sigma_px,
+        effective_sigma_px=smoothed_sigma_px(body.sigma_px if config.blur_correction else 0.0, smooth_px),
+        nozzle_blur_px=body.nozzle_blur_px, nozzle_out_of_focus=True, note=note)
+
+
+def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureConfig) -> dict[str, float]:
+    """The parts (px, standard uncertainties) of an edge-position error common to a whole body.
+
+    - ``edge floor``: ``config.edge_position_floor_px`` (threshold interpolation and blur model);
+    - ``background level``: the background model's local misfit ``dB/B``
+      (`dropvision.background.background_residual`) moves the 50 % crossing by
+      ``dB/B / slope``, the edge's slope being ``(1 - T_liquid) / (sqrt(2 pi) sigma)``;
+    - ``clipped background``: against a background clipped at an unknown level the true edge
+      lies up to ``edge_range_px`` outside the measured one: half of it; with an estimated level,
+      its standard uncertainty ``level_uncertainty / level`` moves the crossing like a
+      background error, and so does the backlight's variation under the clip, which no pixel
+      shows (the level is read at the nozzle and used everywhere): of the scale of the level's
+      excess over the clip, ``1 - max / level``, taken as uniform within that span (over
+      sqrt(3)).
+
+    Parameters
+    ----------
+    cal : Calibration
+    sigma_px : float
+        Edge blur (Gaussian sigma, px; at least 0.5 px is used: the pixel box).
+    config : MeasureConfig
+
+    Returns
+    -------
+    dict
+        Term name -> px.
+    """
+    sig = max(float(sigma_px), 0.5) if np.isfinite(sigma_px) else 1.0
+    depth = max(1.0 - float(cal.liquid_level), 0.05)
+    terms = {"edge floor": float(config.edge_position_floor_px),
+             "background level": float(cal.background.residual) * math.sqrt(2.0 * math.pi) * sig / depth}
+    clipped = cal.clipped or {}
+    if clipped.get("used") and not clipped.get("level_known", True):
+        terms["clipped background"] = 0.5 * float(clipped.get("edge_range_px", 1.0))
+    elif clipped.get("used"):
+        level = float(clipped["level"])
+        rel = float(clipped.get("level_uncertainty", float("nan"))) / level
+        span = 1.0 - float(clipped.get("max_value", level)) / level
+        rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
+        terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
+    return terms
+
+
+#: Fields of `detached_appearances` (one record per body): the calibration frame it is in, its
+#: area (px), darkest transmission, edge spread (`dropvision.classify.appearance`, px) and the
+#: Gaussian sigma of its outline's edge-spread function (px).
+APPEARANCE_DTYPE = np.dtype([("frame", int), ("area_px", int), ("min_transmission", float), ("edge_blur_px", float),
+                             ("esf_sigma_px", float)])
+
+
+def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np.ndarray:
+    """Detached dark bodies of the calibration frames that look like liquid, with their appearance.
+
+    Bodies of at least ``min_area_px`` pixels, not touching the region's edges, as dark as half
+    the liquid's depth (``1 - T_min >= (1 - T_liquid) / 2``), judged with the same estimator as
+    every body (`dropvision.classify.appearance`).  Mist and dust are never sharper than the
+    liquid in the jet's plane, so the smallest ``edge_blur_px`` is an in-focus body whenever the
+    frames hold one.
+
+    Parameters
+    ----------
+    images : sequence of ndarray
+        Raw calibration frames (canonical orientation).
+    ctx : FrameContext
+    min_area_px : int
+        Smaller bodies are not used (too few boundary pixels for a stable spread).
+
+    Returns
+    -------
+    ndarray of `APPEARANCE_DTYPE`
+    """
+    out = []
+    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    for i, img in enumerate(images):
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        hh, ww = seg.labels.shape
+        t = None
+        for b in seg.bodies:
+            if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
+                continue
+            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=ctx.liquid_level)
+            if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
+                # its outline's edge-spread function: the blur of the jet's plane
+                ed = body_edges(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
+                                ctx.threshold)
+                if t is None:
+                    t = roi.astype(np.float32) * ctx.inv_background
+                sig = esf_sigma_px(t, *outline(ed), ctx.liquid_level)
+                out.append((i, b.area_px, app.min_transmission, app.edge_blur_px, sig))
+    return np.array(out, APPEARANCE_DTYPE)
+
+
+#: The jet's direction when the nozzle walls are out of focus: the image columns (tilt 0, stated).
+#: A blurred holder's face or walls do not give the jet's axis (a 3 deg tilt on a level jet was
+#: measured that way), and the line through a drop and its satellites is not the axis either
+#: (satellites drift off it by a few px: 1-4 deg from two bodies).  The volume's error from a
+#: tilt ``t`` left out is ``1 - cos t``: 0.14 % at 3 deg.
+AXIS_ALONG_COLUMNS_TILT_RAD = 0.0
+AXIS_ALONG_COLUMNS_SOURCE = "image columns (assumed: the nozzle walls are out of focus)"
+
+
+def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
+    """How far (px) the liquid hanging from the nozzle reaches sideways from the axis in one frame.
+
+    The dark body touching the top edge that holds the axis column, in its rows from 2 px below
+    the tip plane down (a holder block above the tip does not count); 0 when there is none.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        Frame over the background model (canonical orientation).
+    cal : Calibration
+
+    Returns
+    -------
+    float
+        Largest horizontal distance (px) of its pixels from the axis.
+    """
+    mask = (transmission < cal.threshold).astype(np.uint8)
+    _, lab = cv2.connectedComponents(mask, connectivity=8)
+    axis = int(round(min(max(cal.axis_col, 0), transmission.shape[1] - 1)))
+    top = np.unique(lab[0][lab[0] > 0])
+    r = int(math.ceil(cal.tip_row)) + 2
+    below = lab[r:]
+    best = 0.0
+    for k in top:
+        _, cols = np.nonzero(below == k)
+        if cols.size == 0:
+            continue
+        holds_axis = bool(np.any(np.abs(cols - cal.axis_col) < 2.0)) or bool((lab[:r, axis] == k).any())
+        if holds_axis:
+            best = max(best, float(np.max(np.abs(cols - cal.axis_col))))
+    return best
+
+
+def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
+    """Edge spread of the nozzle body in the first calibration frame (`dropvision.classify`)."""
+    roi = smooth_roi(first[ctx.r0:, ctx.c0:ctx.c1], ctx)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    return (float("nan") if body is None
+            else nozzle_edge_spread_px(roi, ctx.inv_background, seg.labels, body, floor=ctx.liquid_level))
+
+
+def transmission_noise(transmission: np.ndarray, default: float) -> float:
+    """Robust spread (std) of the transmission noise of bright background pixels.
+
+    Parameters
+    ----------
+    transmission : ndarray
+        Frame over background (region of interest).
+    default : float
+        Returned when fewer than 100 neighbouring bright pairs exist.
+
+    Returns
+    -------
+    float
+        Noise standard deviation, in transmission units (MAD of horizontal differences).
+    """
+    d = np.diff(transmission, axis=1)[(transmission[:, 1:] > 0.9) & (transmission[:, :-1] > 0.9)]
+    if d.size > 100:
+        return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    return default
+
+
+@dataclass(frozen=True)
+class WallReference:
+    """The nozzle walls well above the tip plane: the per-frame sharpness and contrast reference.
+
+    Attributes
+    ----------
+    rows, cols : ndarray of int
+        Pixel windows across the walls (`dropvision.quality.wall_windows`, full-frame).
+    inv_background : ndarray of float32
+        ``1 / background`` at those pixels.
+    blur_px : float
+        Calibrated edge blur the walls' sharpness corresponds to (px).
+    sharpness : float
+        Their edge sharpness in the calibration frame (`dropvision.quality.edge_sharpness`).
+    max_frame_blur_px : float
+        A frame blurrier than this is flagged.
+    min_wall_contrast : float
+        A frame whose walls' contrast is below this is flagged.
+    """
+
+    rows: np.ndarray
+    cols: np.ndarray
+    inv_background: np.ndarray
+    blur_px: float
+    sharpness: float
+    max_frame_blur_px: float
+    min_wall_contrast: float
+
+
+def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.ndarray, sigma_px: float,
+                   liquid_level: float, config: MeasureConfig) -> WallReference | None:
+    """Per-frame sharpness/contrast reference: the nozzle walls well above the tip plane.
+
+    Parameters
+    ----------
+    nozzle : dropvision.nozzle.Nozzle
+        Outer walls found in the first calibration frame.
+    tip_row : float
+        Tip plane row; walls 3 rows and more above it are used (dry).
+    background : ndarray
+        Background model (grey levels, full frame).
+    t_first : ndarray
+        First calibration frame over the background (transmission).
+    sigma_px : float
+        Calibrated edge blur (px).
+    liquid_level : float
+        Liquid interior transmission (scales the contrast floor).
+    config : MeasureConfig
+
+    Returns
+    -------
+    WallReference or None
+        None when fewer than 4 wall windows, no finite blur, or walls without sharpness or
+        contrast: the frames' blur and contrast are then not judged from the walls.
+    """
+    dry = nozzle.rows <= tip_row - 3
+    wr, wc = q.wall_windows(nozzle.rows[dry], nozzle.left_px[dry], nozzle.right_px[dry], t_first.shape[1])
+    if not (wr.shape[0] >= 4 and np.isfinite(sigma_px)):
+        return None
+    prof = t_first[wr, wc]
+    sharp, contrast = q.edge_sharpness(prof), q.wall_contrast(prof)
+    if not (sharp > 0 and contrast > 0):
+        return None
+    return WallReference(
+        rows=wr, cols=wc, inv_background=(1.0 / background[wr, wc]).astype(np.float32),
+        blur_px=float(sigma_px), sharpness=sharp,
+        max_frame_blur_px=min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma_px),
+        min_wall_contrast=contrast * max(1.0 - config.contrast_change_tolerance,
+                                         config.min_contrast / max(1.0 - liquid_level, 1e-6)))
