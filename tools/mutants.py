@@ -118,7 +118,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("waist_lobe_off_by_one", "dropvision/volume.py",
            "j0 < min_lobe_rows or n - 1 - j1 < min_lobe_rows", "j0 <= min_lobe_rows or n - 1 - j1 < min_lobe_rows",
            STAGE, "waist: the upper lobe needs one row more than min_lobe_rows"),
-    Mutant("half_width_axis_test", "dropvision/context.py",
+    Mutant("half_width_axis_test", "dropvision/calibration_pass.py",
            "holds_axis = bool(np.any(np.abs(cols - cal.axis_col) < 2.0)) or bool((lab[:r, axis] == k).any())",
            "holds_axis = True",
            STAGE, "attached half-width counts bodies that do not hold the axis"),
