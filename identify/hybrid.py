@@ -26,7 +26,6 @@ model.json is in :mod:`identify.model_file`, the fit in :mod:`identify.hybrid_fi
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -35,6 +34,7 @@ import numpy as np
 
 from dvcore import schema
 from dvcore.atomic import write_json
+from dvcore.jsonio import load_json_hardened
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, nozzle_area_m2
 from identify.ecm import simulate as ecm_simulate
 from identify.model_file import ModelFileError, check_model_dict
@@ -365,12 +365,7 @@ class HybridModel:
         path = Path(path)
         if not path.is_file():
             raise ModelFileError(f"{path}: model file not found")
-        try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise ModelFileError(f"{path}: invalid JSON ({exc})") from None
-        except RecursionError:
-            raise ModelFileError(f"{path}: invalid JSON (nested too deeply)") from None
+        d = load_json_hardened(path, ModelFileError)  # size, encoding, NaN, depth: one line naming the file
         return cls.from_dict(d, source=str(path))
 
 
