@@ -68,7 +68,10 @@ class BackgroundModel:
 
 
 def _poly_terms(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
-    return np.stack([x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
+    # each power computed once (``x**i`` as before, so the terms are the same to the bit)
+    px = [x**i for i in range(degree + 1)]
+    py = [y**j for j in range(degree + 1)]
+    return np.stack([px[i] * py[j] for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
 
 
 def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -> np.ndarray:
@@ -164,8 +167,8 @@ def estimate_background(
     cnt = np.zeros((h, w), np.int32)
     for img in images:
         bright = ~dark_bodies_mask(img, margin_px)
-        acc[bright] += img[bright]
-        cnt[bright] += 1
+        np.add(acc, img, out=acc, where=bright)  # in place, no gathered copies
+        cnt += bright
     valid = cnt > 0
     mean = np.where(valid, acc / np.maximum(cnt, 1), 0.0).astype(np.float32)
     step = max(2, int(np.sqrt(h * w / 20000)))
