@@ -160,9 +160,10 @@ def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     padded = np.zeros((h, w + 2), np.int8)
     padded[:, 1:-1] = mask
     d = np.diff(padded, axis=1)
-    r0, c0 = np.nonzero(d == 1)
-    _, c1 = np.nonzero(d == -1)
-    return r0, c0, c1
+    # one pass: in each row the changes alternate, a start (+1) then its stop (-1)
+    rr, cc = np.nonzero(d)
+    up = d[rr, cc] == 1
+    return rr[up], cc[up], cc[~up]
 
 
 def subpixel_edges(
