@@ -195,9 +195,9 @@ def subpixel_edges(
     RowEdges
     """
     w = image.shape[1]
-    touches = bool(np.any(starts == 0) or np.any(stops == w))
-    s = np.clip(starts, 1, w - 1)
-    e = np.clip(stops, 1, w - 1)
+    touches = bool((starts == 0).any() or (stops == w).any())
+    s = np.minimum(np.maximum(starts, 1), w - 1)  # integer clip (np.clip costs ~30 us a call here)
+    e = np.minimum(np.maximum(stops, 1), w - 1)
     scale = 1.0 / gain
     t_out_l = image[rows, s - 1] * inv_background[rows, s - 1] * scale
     t_in_l = image[rows, s] * inv_background[rows, s] * scale

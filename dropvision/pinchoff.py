@@ -130,7 +130,7 @@ def _gather(roi: np.ndarray, inv_background: np.ndarray, rows: np.ndarray, cols:
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Transmission (float32, ``roi * inv_background``) at ``rows[:, None]``, ``cols``; inside the frame."""
     inside = (cols >= 0) & (cols < roi.shape[1])
-    cc = np.clip(cols, 0, roi.shape[1] - 1)
+    cc = np.minimum(np.maximum(cols, 0), roi.shape[1] - 1)
     rr = np.broadcast_to(rows[:, None], cc.shape)
     return roi[rr, cc].astype(np.float32) * inv_background[rr, cc], inside, cc
 
