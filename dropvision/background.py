@@ -67,8 +67,15 @@ class BackgroundModel:
     residual: float = 0.0
 
 
-def _poly_terms(x: np.ndarray, y: np.ndarray, degree: int) -> np.ndarray:
-    return np.stack([x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
+def _poly_terms(col: np.ndarray, row: np.ndarray, grid_x: np.ndarray, grid_y: np.ndarray, degree: int) -> np.ndarray:
+    """Terms ``x**i * y**j`` (total degree <= ``degree``) of the samples at grid indices ``col``, ``row``.
+
+    The samples lie on a grid, so each power is taken once per grid column (row) and gathered:
+    the same ``x**i`` of the same coordinates, to the bit, at a fraction of the cost.
+    """
+    px = [(grid_x**i)[col] for i in range(degree + 1)]
+    py = [(grid_y**j)[row] for j in range(degree + 1)]
+    return np.stack([px[i] * py[j] for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
 
 
 def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -> np.ndarray:
@@ -77,12 +84,13 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
     v = values[ys, xs]
     ok = valid[ys, xs]
     sx, sy = 2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)
-    x = xs[ok] * sx - 1.0
-    y = ys[ok] * sy - 1.0
+    grid_x = np.arange(0, w, step) * sx - 1.0  # sample coordinates scaled to -1..1
+    grid_y = np.arange(0, h, step) * sy - 1.0
     v = v[ok].astype(np.float64)
     if v.size < 50:
         raise CalibrationError("too few background pixels to estimate the illumination")
-    a = _poly_terms(x, y, degree)
+    row, col = np.nonzero(ok)
+    a = _poly_terms(col, row, grid_x, grid_y, degree)
     keep = np.ones(v.size, bool)
     coef = None
     for _ in range(4):
@@ -164,8 +172,8 @@ def estimate_background(
     cnt = np.zeros((h, w), np.int32)
     for img in images:
         bright = ~dark_bodies_mask(img, margin_px)
-        acc[bright] += img[bright]
-        cnt[bright] += 1
+        np.add(acc, img, out=acc, where=bright)  # in place, no gathered copies
+        cnt += bright
     valid = cnt > 0
     mean = np.where(valid, acc / np.maximum(cnt, 1), 0.0).astype(np.float32)
     step = max(2, int(np.sqrt(h * w / 20000)))

@@ -160,9 +160,10 @@ def runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     padded = np.zeros((h, w + 2), np.int8)
     padded[:, 1:-1] = mask
     d = np.diff(padded, axis=1)
-    r0, c0 = np.nonzero(d == 1)
-    _, c1 = np.nonzero(d == -1)
-    return r0, c0, c1
+    # one pass: in each row the changes alternate, a start (+1) then its stop (-1)
+    rr, cc = np.nonzero(d)
+    up = d[rr, cc] == 1
+    return rr[up], cc[up], cc[~up]
 
 
 def subpixel_edges(
@@ -194,9 +195,9 @@ def subpixel_edges(
     RowEdges
     """
     w = image.shape[1]
-    touches = bool(np.any(starts == 0) or np.any(stops == w))
-    s = np.clip(starts, 1, w - 1)
-    e = np.clip(stops, 1, w - 1)
+    touches = bool((starts == 0).any() or (stops == w).any())
+    s = np.minimum(np.maximum(starts, 1), w - 1)  # integer clip (np.clip costs ~30 us a call here)
+    e = np.minimum(np.maximum(stops, 1), w - 1)
     scale = 1.0 / gain
     t_out_l = image[rows, s - 1] * inv_background[rows, s - 1] * scale
     t_in_l = image[rows, s] * inv_background[rows, s] * scale

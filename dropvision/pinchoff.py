@@ -76,7 +76,6 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
     """
     out: set[int] = set()
     labels = seg.labels
-    hh, ww = roi.shape
     yb = int(round(bottom_row))
     cols_b = np.nonzero(labels[yb] == nozzle_body.label)[0]
     if cols_b.size == 0:
@@ -86,24 +85,8 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
     margin = max(0.02, 4.0 * ctx.noise_t)
     interior_margin = max(INTERIOR_THREAD_MARGIN, 4.0 * ctx.noise_t)
 
-    def darkest(y: int, xc: float) -> float:  # per row, within 2 px of the path
-        c = int(round(xc))
-        c0, c1 = max(0, c - 2), min(ww, c + 3)
-        return float((roi[y, c0:c1].astype(np.float32) * ctx.inv_background[y, c0:c1]).min()) / gain
-
     near, far = int(math.ceil(4.0 * sig)) + 3, int(math.ceil(4.0 * sig)) + 8
-
-    def beside(y: int, xc: float) -> float:  # per row, the mean of the median on each side of the path
-        c = int(round(xc))
-        sides = []
-        for lo, hi in ((c - far, c - near + 1), (c + near, c + far + 1)):
-            lo, hi = max(0, lo), min(ww, hi)
-            if hi > lo:
-                free = labels[y, lo:hi] == 0
-                if free.any():
-                    sides.append(float(np.median(roi[y, lo:hi][free].astype(np.float32)
-                                                 * ctx.inv_background[y, lo:hi][free])) / gain)
-        return float(np.mean(sides)) if sides else float("nan")
+    side_offsets = np.concatenate([np.arange(-far, -near + 1), np.arange(near, far + 1)])
 
     for b in seg.bodies:
         if b.nozzle or b.y0 <= yb or b.y0 - yb > 100:
@@ -114,7 +97,10 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
             out.add(b.label)
             continue
         rows = np.arange(yb, b.y0 + 1)
-        t_path = np.array([darkest(y, xb + (xt - xb) * (y - yb) / (b.y0 - yb)) for y in rows])
+        # the path's column per row, rounded half to even like Python's round
+        path_cols = np.round(xb + (xt - xb) * (rows - yb) / (b.y0 - yb)).astype(np.intp)
+        # per row the darkest pixel within 2 px of the path
+        t_path = _window_min(roi, ctx.inv_background, rows, path_cols, _DARKEST_OFFSETS) / gain
         # sub-pixel 50 % crossings of the two ends along the path (end row dark, next row not)
         # (a path that does not rise from an end has no crossing there: the row's middle)
         e_top = yb + (crossing_fraction(t_path[0], t_path[1], ctx.threshold) if t_path[1] > t_path[0] else 0.5)
@@ -123,7 +109,9 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         excess = expected - t_path[1:-1]
         # a thread darkens the path, not the rows beside it: a darker surround (a blurred holder's
         # halo the background model misses) darkens both and is no thread
-        t_side = np.array([beside(y, xb + (xt - xb) * (y - yb) / (b.y0 - yb)) for y in rows[1:-1]])
+        # per row the mean of the median of the free pixels on each side of the path
+        t_side = _sides_median_mean(roi, ctx.inv_background, labels, rows[1:-1], path_cols[1:-1],
+                                    side_offsets, gain)
         local = np.where(np.isfinite(t_side), t_side - t_path[1:-1], np.inf)
         if excess.size >= 3:  # judge the rows not adjacent to an end (their taper is unmodelled)
             judged, local, limit = excess[1:-1], local[1:-1], interior_margin
@@ -131,6 +119,56 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
             judged, limit = excess, margin
         if float(judged.min()) > limit and float(local.min()) > limit:
             out.add(b.label)
+    return out
+
+
+#: Columns of the path's darkest-pixel window, relative to the path (within 2 px)
+_DARKEST_OFFSETS = np.arange(-2, 3)
+
+
+def _gather(roi: np.ndarray, inv_background: np.ndarray, rows: np.ndarray, cols: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Transmission (float32, ``roi * inv_background``) at ``rows[:, None]``, ``cols``; inside the frame."""
+    inside = (cols >= 0) & (cols < roi.shape[1])
+    cc = np.minimum(np.maximum(cols, 0), roi.shape[1] - 1)
+    rr = np.broadcast_to(rows[:, None], cc.shape)
+    return roi[rr, cc].astype(np.float32) * inv_background[rr, cc], inside, cc
+
+
+def _window_min(roi: np.ndarray, inv_background: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                offsets: np.ndarray) -> np.ndarray:
+    """Per row the smallest transmission within ``cols + offsets`` (inside the frame), float64."""
+    t, inside, _ = _gather(roi, inv_background, rows, cols[:, None] + offsets)
+    return np.where(inside, t, np.float32(np.inf)).min(axis=1).astype(np.float64)
+
+
+def _sides_median_mean(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, rows: np.ndarray,
+                       cols: np.ndarray, offsets: np.ndarray, gain: float) -> np.ndarray:
+    """Per row the mean over the two sides of the path of the median free-pixel transmission / gain.
+
+    ``offsets`` holds the left side's columns, then as many of the right side's.  A side with no
+    free pixel (label 0) inside the frame is left out; NaN where both are.  The medians are taken
+    as `numpy.median` takes them (float32, the two middle values' mean in float32), so the
+    figures are those of the per-row ``np.median`` of the free pixels, bit for bit.
+    """
+    t, inside, cc = _gather(roi, inv_background, rows, cols[:, None] + offsets)
+    free = inside & (labels[np.broadcast_to(rows[:, None], cc.shape), cc] == 0)
+    half = offsets.size // 2
+    meds = np.full((rows.size, 2), np.nan)
+    for k, side in enumerate((slice(0, half), slice(half, None))):
+        ok = free[:, side]
+        n = ok.sum(axis=1)
+        srt = np.sort(np.where(ok, t[:, side], np.float32(np.inf)), axis=1)
+        has = n > 0
+        i_hi = np.maximum(n // 2, 0)
+        i_lo = np.maximum(n // 2 - 1, 0)
+        hi = np.take_along_axis(srt, i_hi[:, None], axis=1)[:, 0]
+        lo = np.take_along_axis(srt, i_lo[:, None], axis=1)[:, 0]
+        med = np.where(n % 2 == 1, hi, (lo + hi) / np.float32(2.0))
+        meds[has, k] = med[has].astype(np.float64) / gain
+    both = np.isfinite(meds).all(axis=1)
+    out = np.where(np.isnan(meds[:, 0]), meds[:, 1], meds[:, 0])
+    out[both] = (meds[both, 0] + meds[both, 1]) / 2.0
     return out
 
 

@@ -52,13 +52,15 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
+# one thread for BLAS too: OpenBLAS reads these when numpy loads it, so before the numpy import
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
-
-os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def baseline_frame(img: np.ndarray) -> list[float]:
@@ -281,7 +283,7 @@ def _in_memory(folder: Path):
 #: --stages: stage name -> (module file suffix, function name) whose cumulative time is the stage's
 STAGES = {
     "calibration pass": ("dropvision/calibration_pass.py", "calibrate_sequence"),
-    "  background estimate": ("dropvision/calibration.py", "estimate_background"),
+    "  background estimate": ("dropvision/background.py", "estimate_background"),
     "per-frame pipeline (all)": ("dropvision/frame.py", "measure_frame"),
     "  photometry": ("dropvision/frame.py", "measure_photometry"),
     "  ROI smoothing": ("dropvision/context.py", "smooth_roi"),
