@@ -382,15 +382,15 @@ def check_frames_table(frames: pd.DataFrame, source) -> None:
     missing = [c for c in FRAME_COLUMNS if c not in frames.columns]
     if missing:
         raise schema.SchemaError(f"{source}: missing column {missing[0]!r} of {schema.FRAMES.schema} "
-                                 f"(declared in identify/schema.py FRAMES)"
+                                 f"(declared in dvcore/schema.py FRAMES)"
                                  + (f"; also missing: {', '.join(missing[1:])}" if missing[1:] else ""))
     extra = [c for c in frames.columns if c not in FRAME_COLUMNS]
     if extra:
         raise schema.SchemaError(f"{source}: column {extra[0]!r} is not declared in {schema.FRAMES.schema} "
-                                 "(identify/schema.py FRAMES): declare it there or do not write it")
+                                 "(dvcore/schema.py FRAMES): declare it there or do not write it")
     if list(frames.columns) != FRAME_COLUMNS:
         raise schema.SchemaError(f"{source}: columns not in the order declared by {schema.FRAMES.schema} "
-                                 "(identify/schema.py FRAMES)")
+                                 "(dvcore/schema.py FRAMES)")
     # the same check a reader applies (dropvision.app.campaign reads shards back with it): dtypes,
     # missing values where not allowed, no infinities (an unmeasurable value is NaN and flagged)
     schema.check_table(frames, schema.FRAMES, source)
