@@ -24,6 +24,12 @@ def _interrupt(signum, frame):  # SIGTERM ends the sequence as Ctrl-C does
     raise KeyboardInterrupt
 
 
+#: Signals that end a watch cleanly (final tables of the frames so far). SIGINT is set
+#: explicitly: a process started in the background by a non-interactive shell inherits SIGINT
+#: ignored, and `kill -INT` would then do nothing.
+_ENDING_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
 def _run(args: argparse.Namespace) -> int:
     from dropvision.app.rerun_log import logger_from_args
     from dropvision.app.watch import WatchOptions, watch_sequence
@@ -46,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
                   f"{row['n_detached']} detached, row on disk {row['latency_ms']:.0f} ms after the file's last change"
                   + (f"; {row['error']}" if row.get("error") else ""), flush=True)
 
-    previous = signal.signal(signal.SIGTERM, _interrupt)
+    previous = {sig: signal.signal(sig, _interrupt) for sig in _ENDING_SIGNALS}
     try:
         with captured_warnings() as caught:
             try:
@@ -61,7 +67,8 @@ def _run(args: argparse.Namespace) -> int:
             finally:
                 print_warnings("dropvision watch", warning_lines(caught), args)
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
     if not args.quiet:
         print(_summary_line(res, args.out), flush=True)
     return 0
