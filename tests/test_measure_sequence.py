@@ -14,10 +14,8 @@ from dropvision.sequence import SequenceError
 from dropvision.measurement import MeasureResult, measure_sequence
 from dropvision.summary import FRAME_COLUMNS
 
-# ../shared/ beside the repository (as CI checks it out), else the workplace copy
-_SHARED = [Path(__file__).resolve().parents[2] / "shared", Path("/work/shared")]
-PENDANT = next((p / "realdata" / "menipy-pendant-drop" for p in _SHARED if (p / "realdata").is_dir()),
-               _SHARED[0] / "realdata" / "menipy-pendant-drop")
+# ../shared/ beside the repository, as CI checks it out (a missing folder is a failure)
+PENDANT = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "menipy-pendant-drop"
 
 
 @pytest.fixture(scope="module")

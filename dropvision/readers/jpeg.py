@@ -5,7 +5,7 @@ colour file straight to its luma plane, JFIF's Y = the BT.601 grey rule, returne
 (``cv2.imdecode``).
 
 Why imagecodecs: measured with ``tools/bench_decoders.py`` (one thread, full resolution, the six
-real 2048x1536 colour drop-watcher JPEGs of ``/work/shared/realdata/watcher-dod``), decoding to
+real 2048x1536 colour drop-watcher JPEGs of the development set, ``../shared/realdata/watcher-dod``), decoding to
 grey takes 3.95 ms with imagecodecs (libjpeg-turbo 3.1) against 4.1 ms with ``cv2.imdecode``
 (interleaved medians; the two are within a few per cent, both libjpeg-turbo) and gives the
 same array, bit for bit (tests/test_readers_formats.py); imagecodecs is already a dependency
