@@ -208,6 +208,41 @@ def smooth_scatter_variance(u1_um_per_ms, u2_um, y, design, *, starts: int = 6,
     return float(np.exp(best.x[1])), n - p, lr
 
 
+def cv_misfit_variance(cv_error, scatter_variance, fold_parameter_variance, fold_leverage) -> float:
+    """Mean squared misfit of the full fit at the training controls, from cross-validation errors.
+
+    A fold's error at a control it does not hold is e = misfit / (1 - h) + noise + the fold's
+    parameter error, h the *full* fit's leverage there; for leave-one-out least squares
+    1 / (1 - h) = 1 + h_f exactly, h_f = x (X_fᵀX_f)⁻¹ xᵀ the fold's leverage at the control
+    (its prediction variance over the scatter variance). So
+
+        misfit² ≈ mean_i (e_i² - s² - v_i) / (1 + h_f,i)²,
+
+    s² the drop scatter variance and v_i the fold's parameter variance at control i, clipped at
+    0. Without the two corrections the fold's larger parameter variance and its extrapolated
+    misfit at the edge of the grid (up to (1 + h_f)² ≈ 2-4 at a corner) read as model
+    discrepancy of the full fit.
+
+    Parameters
+    ----------
+    cv_error : array_like, shape (n,)
+        Cross-validation errors (prediction - measured), the output's unit.
+    scatter_variance : float
+        Drop scatter variance s² (unit²).
+    fold_parameter_variance, fold_leverage : array_like, shape (n,)
+        v_i (unit²) and h_f,i (dimensionless) of the fold that predicted control i.
+
+    Returns
+    -------
+    float
+        The misfit variance (unit²), at least 0.
+    """
+    e, v, h = (np.asarray(a, float).ravel() for a in (cv_error, fold_parameter_variance, fold_leverage))
+    if e.size == 0:
+        return 0.0
+    return max(0.0, float(np.mean((e**2 - float(scatter_variance) - v) / (1.0 + h) ** 2)))
+
+
 # ---- bias of the chosen polynomial against a more flexible one (issue 23) ---------------------
 
 #: Orders of the flexible polynomial the chosen order's bias is measured against: the most

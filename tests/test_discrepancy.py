@@ -111,3 +111,48 @@ def test_polynomial_bias_variance_matches_the_spread_of_b_without_bias():
     b_all, v_all = np.array(b_all), np.array(v_all)
     np.testing.assert_allclose(np.mean(b_all**2, axis=0), np.mean(v_all, axis=0), rtol=0.2)
     assert np.all(np.mean(np.maximum(0.0, b_all**2 - v_all), axis=0) < 0.5 * np.mean(v_all, axis=0))
+
+
+# ---- the cross-validation misfit carried back to the full fit -------------------------------------
+
+from identify.discrepancy import cv_misfit_variance  # noqa: E402
+
+
+def _loo(u1, u2, y, n1, n2):
+    """Leave-one-out errors of a polynomial and the fold's leverage at the left-out control."""
+    X = design_matrix(u1, u2, poly_terms(n1, n2))
+    e, h_f = np.empty(y.size), np.empty(y.size)
+    for i in range(y.size):
+        keep = np.arange(y.size) != i
+        beta, *_ = np.linalg.lstsq(X[keep], y[keep], rcond=None)
+        e[i] = X[i] @ beta - y[i]
+        h_f[i] = X[i] @ np.linalg.solve(X[keep].T @ X[keep], X[i])
+    beta, *_ = np.linalg.lstsq(X, y, rcond=None)
+    return e, h_f, y - X @ beta
+
+
+def test_cv_misfit_is_the_full_fits_misfit_for_leave_one_out():
+    """Noise-free curved law, a plane fitted: the leave-one-out errors carried back by (1 + h_f)
+    are the full fit's residuals exactly, while the raw errors overstate the misfit."""
+    a, b = np.meshgrid(np.linspace(-1, 1, 5), np.linspace(-1, 1, 5))
+    u1, u2 = a.ravel(), b.ravel()
+    y = 0.3 * u1**2 + 0.2 * np.sin(2.0 * u2) * u1
+    e, h_f, r = _loo(u1, u2, y, 1, 1)
+    assert cv_misfit_variance(e, 0.0, np.zeros_like(e), h_f) == pytest.approx(np.mean(r**2), rel=1e-10)
+    assert np.mean(e**2) > 1.3 * np.mean(r**2)  # what the uncorrected estimate would read
+
+
+def test_cv_misfit_of_pure_scatter_is_near_zero():
+    """No misfit, scatter s² = 1: E[e²] = s² (1 + h_f) and the fold's parameter variance is s² h_f,
+    so the estimate (pooled over 300 campaigns) is 0 within its sampling error."""
+    rng = np.random.default_rng(3)
+    a, b = np.meshgrid(np.linspace(-1, 1, 5), np.linspace(-1, 1, 5))
+    u1, u2 = a.ravel(), b.ravel()
+    es, vs, hs = [], [], []
+    for _ in range(300):
+        e, h_f, _ = _loo(u1, u2, 1.0 + 0.5 * u1 - u2 + rng.standard_normal(u1.size), 2, 1)
+        es.append(e), vs.append(h_f), hs.append(h_f)
+    e, v, h = map(np.concatenate, (es, vs, hs))
+    raw = np.mean((e**2 - 1.0 - v) / (1 + h) ** 2)
+    assert abs(raw) < 0.05
+    assert cv_misfit_variance(e, 1.0, v, h) == pytest.approx(max(0.0, raw))
