@@ -241,8 +241,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
       fold's leverage to the full fit's), h_i the fold's leverage x (X_fᵀX_f)⁻¹ xᵀ there. For
       leave-one-out least squares e_i = r_i / (1 - h_full,i) and 1 / (1 - h_full,i) = 1 + h_i
       exactly, so the fold's misfit at a control it does not hold (an edge it extrapolates to)
-      is carried back to the full fit's; without the two corrections the discrepancy was
-      overstated (on laws with curvature the intervals covered 99.5 %);
+      is carried back to the full fit's (:func:`identify.discrepancy.cv_misfit_variance`);
     * ``local``: a Gaussian process of the cross-validation errors over (u1, u2)
       (:func:`identify.discrepancy.fit_discrepancy`, only where its discrepancy variance is not
       zero), so that `local_model_std` widens the interval where the misfit concentrates (a
@@ -273,9 +272,9 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
     groups = np.column_stack([u1, u2])
     cv_err = {k: np.full(n, np.nan) for k in INTERVAL_OUTPUTS}
     targets = {"pinchoff": measured["pinchoff_us"], "volume_adjuster": vol_target, "velocity_adjuster": vel_target}
-    # leverage of each fold's polynomial at its held-out controls over the full fit's there
-    leverage_ratio = {k: np.full(n, np.nan) for k in targets}
-    leverage_fold = {k: np.full(n, np.nan) for k in targets}
+    # leverage at each training control of the fold's polynomial that predicted it, and of the full fit
+    h_fold = {k: np.full(n, np.nan) for k in targets}
+    h_full = {k: _leverage(getattr(model, k), u1, u2, u1, u2) for k in targets}
     for idx in grouped_kfold(groups, folds, seed, layout="round_robin"):
         train = np.setdiff1d(np.arange(n), idx)
         try:
@@ -287,14 +286,12 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         for k in INTERVAL_OUTPUTS:
             cv_err[k][idx] = g[k].to_numpy() - measured[k][idx]
         for k in targets:
-            leverage_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
-            leverage_ratio[k][idx] = leverage_fold[k][idx] / _leverage(getattr(model, k), u1, u2, u1[idx], u2[idx])
-    # what of the parameter variance at a held-out control the fold's polynomials carry: its
-    # leverage there over the full fit's (volume: the pinch-off's and the volume adjuster's, averaged)
-    fold_ratio = {"pinchoff_us": leverage_ratio["pinchoff"], "jetting_velocity_m_s": leverage_ratio["velocity_adjuster"],
-                  "inflight_volume_nl": 0.5 * (leverage_ratio["pinchoff"] + leverage_ratio["volume_adjuster"])}
-    fold_leverage = {"pinchoff_us": leverage_fold["pinchoff"], "jetting_velocity_m_s": leverage_fold["velocity_adjuster"],
-                     "inflight_volume_nl": 0.5 * (leverage_fold["pinchoff"] + leverage_fold["volume_adjuster"])}
+            h_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
+    # per output, the polynomials its parameter variance comes from (volume: both, averaged)
+    sources = {"pinchoff_us": ("pinchoff",), "inflight_volume_nl": ("pinchoff", "volume_adjuster"),
+               "jetting_velocity_m_s": ("velocity_adjuster",)}
+    fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in sources.items()}
+    fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in sources.items()}
     # parameter variance at the training controls
     ctrl, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
     inv = np.asarray(inv).ravel()
@@ -326,11 +323,9 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         ok = np.isfinite(e)
         cv_mse = float(np.mean(e[ok] ** 2)) if ok.any() else float("nan")
         # the fold's parameter variance at its held-out control (not the full model's: a fold lacks
-        # the point it predicts, and at the edge of the grid it extrapolates)
-        seen = np.isfinite(fold_ratio[k])
-        fold_var = var_mc[k][inv] * np.where(seen, fold_ratio[k], 1.0)
-        model_var = cv_misfit_variance(e[ok], drop_var, fold_var[ok], np.where(seen, fold_leverage[k], 0.0)[ok]) \
-            if ok.any() else 0.0
+        # the point it predicts, and at the edge of the grid it extrapolates); ok: a fold was fitted
+        fold_var = var_mc[k][inv] * fold_ratio[k]
+        model_var = cv_misfit_variance(e[ok], drop_var, fold_var[ok], fold_leverage[k][ok]) if ok.any() else 0.0
         if source == "sequence_se":  # lack of fit seen in-sample counts too (at least)
             model_var = max(model_var, float(resid @ resid) / max(1, n - p) - drop_var)
         entry = {"drop_std": float(np.sqrt(drop_var)), "dof": int(dof), "source": source,
