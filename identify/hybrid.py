@@ -158,8 +158,14 @@ class HybridModel:
         * ``one_drop_low/high`` (the prediction interval): where *one individual drop* lies:
           the mean-drop variance plus the drop-to-drop scatter ``drop_std`` estimated from the
           training data (repeats where present, else the sequences' own standard errors, else
-          the residuals of the fit), Student-t with the scatter's degrees of freedom;
-          ``one_drop_std``.
+          the residuals of the fit or of its flexible reference polynomials); ``one_drop_std``.
+
+        Both intervals are ``mean +- q std`` with q Student's t of the scatter's degrees of
+        freedom (``intervals.scatter[output].dof``): the parameter variance and the model
+        discrepancy are measured in units of a drop scatter estimated from that many residuals,
+        as the textbook interval of a regression mean is; with a stated measurement term the
+        dof are the Welch-Satterthwaite ones (that term counted as known), so q tends to the
+        normal quantile where it dominates; the normal quantile where no dof are stored.
 
         ``mean_drop_dominant_term`` and ``one_drop_dominant_term`` name the largest variance
         term of each interval ("parameters", "model_discrepancy", "measurement", "drop_scatter");
@@ -205,17 +211,18 @@ class HybridModel:
             s_drop = sc.get("drop_std")
             s_meas = _measurement_std(meas, k, mean)
             s_conf = float(np.sqrt(s_mc**2 + s_model**2 + s_meas**2))
+            dof = sc.get("dof")
+            q = _quantile(level, dof, s_mc**2 + s_model**2, s_meas**2) if dof else z
             terms = {"parameters": s_mc**2, "model_discrepancy": s_model**2, "measurement": s_meas**2}
             entry = {"mean": mean, "nominal": float(nominal[k]), "level": float(level),
                      "parameters_only_low": float(lo), "parameters_only_high": float(hi),
                      "parameter_std": s_mc, "model_std": s_model, "model_std_source": model_source,
                      "measurement_std": s_meas, "measurement_source": meas.get("source") if meas else None,
-                     "mean_drop_std": s_conf, "mean_drop_low": mean - z * s_conf, "mean_drop_high": mean + z * s_conf,
+                     "mean_drop_std": s_conf, "mean_drop_low": mean - q * s_conf, "mean_drop_high": mean + q * s_conf,
                      "mean_drop_dominant_term": _dominant(terms)}
             if s_drop is not None:
-                dof = sc.get("dof")
-                q = float(special.stdtrit(dof, 0.5 + level / 2)) if dof else z
                 s_pred = float(np.sqrt(s_conf**2 + float(s_drop) ** 2))
+                q = _quantile(level, dof, s_mc**2 + s_model**2 + float(s_drop) ** 2, s_meas**2) if dof else z
                 terms["drop_scatter"] = float(s_drop) ** 2
                 entry.update({"drop_std": float(s_drop), "one_drop_std": s_pred,
                               "one_drop_low": mean - q * s_pred, "one_drop_high": mean + q * s_pred,
@@ -378,6 +385,21 @@ U1_REFERENCE_CHI2 = 3.841
 def _dominant(terms: dict) -> str:
     """Name of the largest variance term (the first on ties)."""
     return max(terms, key=lambda t: terms[t])
+
+
+def _quantile(level: float, dof: float, estimated_var: float, known_var: float) -> float:
+    """Two-sided Student-t quantile of an interval whose variance is ``estimated_var`` (scaled by
+    the drop scatter, estimated with ``dof`` degrees of freedom: the parameter Monte Carlo, the
+    model discrepancy measured beyond that scatter, the scatter itself) plus ``known_var`` (the
+    stated systematic measurement term, no dof of its own): Welch-Satterthwaite effective dof
+    dof (estimated + known)² / estimated², so the quantile is t(dof) without a stated term and
+    tends to the normal one where that term dominates."""
+    from scipy import special
+
+    total = estimated_var + known_var
+    nu = float(dof) * (total / estimated_var) ** 2 if estimated_var > 0 else np.inf
+    p = 0.5 + level / 2
+    return float(special.ndtri(p)) if not np.isfinite(nu) or nu > 1e7 else float(special.stdtrit(nu, p))
 
 
 def local_model_std(scatter: dict, u1: float, u2: float) -> tuple[float, str]:

@@ -209,6 +209,30 @@ def _leverage(fit, u1_train, u2_train, u1, u2) -> np.ndarray:
     return np.einsum("ij,ij->i", x, np.linalg.lstsq(X.T @ X, x.T, rcond=None)[0].T)
 
 
+#: Per output, the polynomials of the hybrid chain it depends on (volume: pinch-off and adjuster),
+#: and the output's own polynomial (whose terms count against the residual degrees of freedom).
+POLYNOMIALS_OF = {"pinchoff_us": ("pinchoff",), "inflight_volume_nl": ("pinchoff", "volume_adjuster"),
+                  "jetting_velocity_m_s": ("velocity_adjuster",)}
+OWN_POLYNOMIAL = {"pinchoff_us": "pinchoff", "inflight_volume_nl": "volume_adjuster",
+                  "jetting_velocity_m_s": "velocity_adjuster"}
+
+
+def _flexible_scatter(model: HybridModel, flexible: dict | None, names, own: str, output: str, u1, u2,
+                      y) -> tuple[float, int] | None:
+    """Residual variance of ``output`` at the training controls when the flexible reference
+    polynomials (``flexible``, :func:`_flexible_fits`) replace the chosen ones in the chain, and
+    its degrees of freedom (n minus the terms of the output's own flexible polynomial); None
+    where the output's own polynomial has no flexible reference."""
+    from dataclasses import replace
+
+    if not flexible or own not in flexible:
+        return None
+    ref = replace(model, **{name: flexible[name] for name in names if name in flexible})
+    r = np.asarray(y, float) - ref.predict_grid(u1, u2)[output].to_numpy()
+    dof = len(r) - len(flexible[own].terms)
+    return (float(r @ r) / dof, int(dof)) if dof >= 1 else None
+
+
 def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
                    seed: int, notes: list, mc_samples: int = 400, standard_errors: dict | None = None,
                    measurement: dict | None = None, flexible: dict | None = None,
@@ -288,8 +312,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         for k in targets:
             h_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
     # per output, the polynomials its parameter variance comes from (volume: both, averaged)
-    sources = {"pinchoff_us": ("pinchoff",), "inflight_volume_nl": ("pinchoff", "volume_adjuster"),
-               "jetting_velocity_m_s": ("velocity_adjuster",)}
+    sources = POLYNOMIALS_OF
     fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in sources.items()}
     fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in sources.items()}
     # parameter variance at the training controls
@@ -319,6 +342,9 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
                                           seed=seed)
             if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
                 drop_var, source = est[0], "smooth_scatter"
+            flex = _flexible_scatter(model, flexible, sources[k], OWN_POLYNOMIAL[k], k, u1, u2, y)
+            if flex is not None and flex[0] < drop_var:
+                drop_var, dof, source = flex[0], flex[1], "flexible_residuals"
         e = cv_err[k]
         ok = np.isfinite(e)
         cv_mse = float(np.mean(e[ok] ** 2)) if ok.any() else float("nan")
@@ -401,7 +427,9 @@ def _interval_notes(scatter: dict, fits: dict) -> list:
                "smooth_scatter": "the scatter about the chosen polynomial plus a smooth (Gaussian-process) "
                                  "departure that the residuals show (restricted maximum likelihood), so that the "
                                  "misfit of the chosen order is not taken for drop scatter",
-               "residuals": "residuals of the fit"}[sc["source"]]
+               "residuals": "residuals of the fit",
+               "flexible_residuals": "residuals of the flexible reference polynomials (they leave less residual "
+                                     "variance than the chosen order, whose excess is misfit, not drop scatter)"}[sc["source"]]
         loc = sc.get("local")
         uneven = ""
         if loc:

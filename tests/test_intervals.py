@@ -343,3 +343,27 @@ def test_campaign_pixel_size_check_sets_the_term(small, tmp_path):
     assert sc["inflight_volume_nl"]["drop_std"] == pytest.approx(0.004 / np.sqrt(20))
     assert sc["jetting_velocity_m_s"]["drop_std"] == pytest.approx(5e-5)
     assert sc["inflight_volume_nl"]["model_std"] > sc["inflight_volume_nl"]["drop_std"]
+
+
+def test_drop_scatter_from_the_flexible_reference_where_it_fits_better(tmp_path):
+    """Exponential laws, seed 0: the chosen velocity adjuster (1, 1) leaves residual variance that
+    holds its misfit; the (2, 3) reference leaves less per degree of freedom, so the drop scatter
+    is taken from it (16 dof), and the cross-validated misfit beyond it becomes model discrepancy
+    (before: residuals of (1, 1), model_std 0, the mean-drop velocity interval covering the truth at
+    80 % of that seed's points). Reference: an independent least-squares fit of the (2, 3) terms."""
+    from identify.polynomial import design_matrix, poly_terms
+
+    grid = [(float(a), float(b)) for a in np.linspace(50, 80, 5) for b in np.linspace(20, 35, 5)]
+    rep = fit_hybrid(family_dataset(tmp_path / "d", "exponential", grid, 1.0, 0), arx=False, seed=0)
+    sc = rep.model.intervals["scatter"]["jetting_velocity_m_s"]
+    f = rep.model.velocity_adjuster
+    assert (f.n1, f.n2) == (1, 1)
+    tr = rep.training
+    X = design_matrix(*f.normalised(tr.u1_um_per_ms.to_numpy(), tr.u2_um.to_numpy()), poly_terms(2, 3))
+    y = tr.velocity_adjustment_m_s.to_numpy()
+    r = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    assert sc["source"] == "flexible_residuals" and sc["dof"] == 25 - 9
+    assert sc["drop_std"] == pytest.approx(np.sqrt(r @ r / 16), rel=1e-9)
+    assert sc["drop_std"] < sc["in_sample_rmse"] * np.sqrt(25 / 22)  # the chosen order's residual std
+    assert sc["model_std"] > 0.3 * sc["drop_std"]
+    assert any("jetting_velocity_m_s" in n and "flexible reference polynomials" in n for n in rep.notes)
