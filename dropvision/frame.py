@@ -311,11 +311,92 @@ def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentat
     logger.log_frame(ref, image, t_full, labels, edges, boxes, None, roi_origin_xy=(ctx.c0, ctx.r0))
 
 
+#: Fewest frames for which `stream_frames` forks worker processes (below, threads: forking two
+#: processes costs some 10-20 ms, a frame ~3 ms of decoding and measuring).
+MIN_FRAMES_FOR_PROCESSES = 32
+#: Set to 1 to keep `stream_frames` on threads (no forked processes).
+NO_FORK_ENV = "DROPVISION_NO_FORK"
+
+# what a forked worker measures: (sequence, context, calibration frames), set just before the
+# pool forks its processes (they inherit it: nothing is pickled on the way in)
+_FORK_STATE: tuple | None = None
+
+
+def _measure_index(seq, ctx: FrameContext, decoded: dict, i: int, logger=None) -> FrameRecord:
+    """Decode frame ``i`` of ``seq`` (or take it from ``decoded``) and measure it."""
+    image = decoded.pop(i, None)
+    if image is not None:
+        return measure_frame(image, ctx, seq.meta.frames[i], logger)
+    fr = seq.read(i)
+    if fr.image is None:
+        return FrameRecord(fr.ref.index, fr.ref.file, fr.ref.page, fr.ref.delay_us, fr.ref.repeat, error=fr.error)
+    return measure_frame(fr.image, ctx, fr.ref, logger)
+
+
+def _forked_worker_init() -> None:
+    """In a forked worker: the sequence's lock and open multi-frame files are the parent's
+    (a lock held at the fork, file offsets shared with the parent): start its own."""
+    seq = _FORK_STATE[0]
+    reset = getattr(seq, "after_fork", None)
+    if reset is not None:
+        reset()
+
+
+def _measure_chunk(indices) -> list:
+    seq, ctx, decoded = _FORK_STATE
+    return [_measure_index(seq, ctx, decoded, i) for i in indices]
+
+
+def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
+    """Whether `stream_frames` measures in forked processes: on Linux, with at least two workers
+    and :data:`MIN_FRAMES_FOR_PROCESSES` frames, no Rerun logger (it lives in this process), only
+    from a top-level process (not inside a pool's or a campaign's worker: no nested pools) that
+    runs no other Python thread (forking a threaded process risks a lock held at the fork), and
+    unless :data:`NO_FORK_ENV` is set. The per-frame work holds the GIL for much of its time, so
+    two threads measure hardly faster than one; two processes nearly twice as fast."""
+    import multiprocessing
+    import os
+    import threading
+
+    return (sys.platform == "linux" and workers >= 2 and n_frames >= MIN_FRAMES_FOR_PROCESSES
+            and logger is None and not os.environ.get(NO_FORK_ENV)
+            and multiprocessing.parent_process() is None and threading.active_count() == 1)
+
+
+def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, bar):
+    """`stream_frames` in ``workers`` forked processes, contiguous chunks of frames, in order."""
+    import multiprocessing
+    import warnings
+    from concurrent.futures import ProcessPoolExecutor
+
+    global _FORK_STATE
+    indices = list(indices)
+    size = max(4, -(-len(indices) // (4 * workers)))  # ~4 chunks per worker: balanced, few messages
+    chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
+    _FORK_STATE = (seq, ctx, decoded)
+    try:
+        with warnings.catch_warnings():  # Python >= 3.12 warns of any fork once a thread exists
+            warnings.simplefilter("ignore", DeprecationWarning)
+            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
+                                       initializer=_forked_worker_init)
+            with pool:
+                for recs in pool.map(_measure_chunk, chunks):
+                    for rec in recs:
+                        yield rec
+                        if bar is not None:
+                            bar.update()
+    finally:
+        _FORK_STATE = None
+        decoded.clear()
+
+
 def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, progress: bool = False,
                   decoded: dict | None = None):
     """Measure frames of an open sequence, yielding their `FrameRecord` in order.
 
-    At most ``2 * workers`` frames are decoded at once (one thread when logging).
+    Where :func:`processes_usable` says so, ``workers`` forked processes measure contiguous
+    chunks of frames; otherwise ``workers`` threads, at most ``2 * workers`` frames decoded at
+    once (one thread when logging). The records are the same either way.
 
     Parameters
     ----------
@@ -325,7 +406,7 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
         Frames to measure.
     ctx : FrameContext
     workers : int
-        Threads (cv2 releases the GIL).
+        Processes or threads.
     logger : object, optional
         Rerun logger.
     progress : bool
@@ -341,24 +422,18 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
     """
     decoded = {} if decoded is None else decoded
 
-    def work(i):
-        image = decoded.pop(i, None)
-        if image is not None:
-            return measure_frame(image, ctx, seq.meta.frames[i], logger)
-        fr = seq.read(i)
-        if fr.image is None:
-            return FrameRecord(fr.ref.index, fr.ref.file, fr.ref.page, fr.ref.delay_us, fr.ref.repeat, error=fr.error)
-        return measure_frame(fr.image, ctx, fr.ref, logger)
-
     bar = None
     if progress:
         from tqdm import tqdm  # optional progress bar: imported only when asked for
 
         bar = tqdm(total=len(indices), desc="measure", unit="frame", file=sys.stderr)
     try:
+        if processes_usable(len(indices), workers, logger):
+            yield from _stream_forked(seq, indices, ctx, workers, decoded, bar)
+            return
         if workers <= 1 or logger is not None:
             for i in indices:
-                yield work(i)
+                yield _measure_index(seq, ctx, decoded, i, logger)
                 if bar is not None:
                     bar.update()
             return
@@ -366,14 +441,14 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
             pending: deque = deque()
             it = iter(indices)
             for i in it:
-                pending.append(pool.submit(work, i))
+                pending.append(pool.submit(_measure_index, seq, ctx, decoded, i))
                 if len(pending) >= 2 * workers:
                     break
             while pending:
                 rec = pending.popleft().result()
                 nxt = next(it, None)
                 if nxt is not None:
-                    pending.append(pool.submit(work, nxt))
+                    pending.append(pool.submit(_measure_index, seq, ctx, decoded, nxt))
                 yield rec
                 if bar is not None:
                     bar.update()

@@ -161,6 +161,13 @@ class Sequence:
         except Exception:  # pragma: no cover - interpreter shutdown
             pass
 
+    def after_fork(self) -> None:
+        """In a forked child: a lock of its own (the parent's may have been held at the fork) and
+        no open multi-frame files (their offsets are shared with the parent); they are reopened
+        when read. The once-per-sequence colour note keeps its state."""
+        self._open_files = OrderedDict()
+        self._lock = threading.Lock()
+
     @property
     def open_files(self) -> tuple[str, ...]:
         """Files (relative paths) of several frames each, kept open right now, oldest first."""

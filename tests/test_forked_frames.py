@@ -1,0 +1,99 @@
+"""`dropvision.frame.stream_frames` in forked processes measures exactly what threads measure.
+
+The per-frame work holds the GIL much of its time, so on a long sequence `stream_frames` forks
+``workers`` processes (`dropvision.frame.processes_usable`). Checked here on the shipped samples:
+PNG files (one frame per file), a 16-bit multi-page TIFF stack (one file shared by every frame:
+the forked children must not share its open handle and file offset with the parent,
+`Sequence.after_fork`) and colour PNGs (the once-per-sequence colour note is not repeated by
+every child); and that an error raised in a child reaches the caller with its message.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dropvision import frame as F
+from dropvision.calibration_pass import calibrate_sequence
+from dropvision.config import MeasureConfig
+from dropvision.sequence import RGBConvertedWarning, SequenceError, open_sequence
+from dropvision.sequence_writer import write_image
+
+SAMPLES = Path(__file__).resolve().parents[1] / "sample_frames"
+linux_only = pytest.mark.skipif(sys.platform != "linux", reason="the forked path runs on Linux only")
+
+
+def _calibrated(name: str):
+    seq = open_sequence(SAMPLES / name)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RGBConvertedWarning)  # the colour sample's note, tested elsewhere
+        _, _, ctx = calibrate_sequence(seq, MeasureConfig())
+    return seq, ctx
+
+
+@linux_only
+@pytest.mark.parametrize("name", ["u55_u30", "satellite_dust_tiff16", "colour_ink_u70_u25"])
+def test_forked_processes_measure_what_threads_measure(name, monkeypatch):
+    seq, ctx = _calibrated(name)
+    n = len(seq)
+    monkeypatch.setenv(F.NO_FORK_ENV, "1")
+    threads = list(F.stream_frames(seq, range(n), ctx, 2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no child repeats the colour note (or warns at all)
+        forked = list(F._stream_forked(seq, range(n), ctx, 2, {}, None))
+    assert len(forked) == len(threads) == n
+    assert [r.index for r in forked] == list(range(n))
+    assert sum(len(r.bodies) for r in forked) > 0 and np.isfinite([r.attached_volume_nl for r in forked]).any()
+    assert [repr(r) for r in forked] == [repr(r) for r in threads]
+
+
+@linux_only
+def test_the_stack_is_still_readable_in_the_parent_after_the_children():
+    """The children read the TIFF stack through handles of their own: the parent's reads after
+    them (and interleaved with its own cached handle) still give the right pages."""
+    seq, ctx = _calibrated("satellite_dust_tiff16")
+    before = [seq.read(i).image.copy() for i in (0, len(seq) - 1)]
+    assert seq.open_files  # the parent holds the stack open while the children run
+    list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, None))
+    after = [seq.read(i).image for i in (0, len(seq) - 1)]
+    for a, b in zip(before, after):
+        np.testing.assert_array_equal(a, b)
+
+
+@linux_only
+def test_an_error_in_a_child_reaches_the_caller(tmp_path):
+    """A frame of another size raises SequenceError in the child that reads it; the caller gets
+    it, naming the file."""
+    import shutil
+
+    folder = tmp_path / "seq"
+    shutil.copytree(SAMPLES / "u55_u30", folder)
+    src = open_sequence(folder)
+    bad = src.meta.frames[40].file
+    (folder / bad).unlink()
+    write_image(folder / bad, src.read(39).image[:-8])  # a frame of another size
+    seq = open_sequence(folder)
+    _, _, ctx = calibrate_sequence(seq, MeasureConfig())
+    with pytest.raises(SequenceError, match="image size") as err:
+        list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, None))
+    assert bad in str(err.value)
+
+
+def test_when_processes_are_used(monkeypatch):
+    monkeypatch.delenv(F.NO_FORK_ENV, raising=False)
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    n = F.MIN_FRAMES_FOR_PROCESSES
+    assert F.processes_usable(n, 2) is (sys.platform == "linux")
+    assert not F.processes_usable(n - 1, 2)  # short sequence: threads
+    assert not F.processes_usable(n, 1)
+    assert not F.processes_usable(n, 2, logger=object())  # the Rerun logger lives in this process
+    monkeypatch.setattr(threading, "active_count", lambda: 2)
+    assert not F.processes_usable(n, 2)  # another thread runs: no fork
+    monkeypatch.setattr(threading, "active_count", lambda: 1)
+    monkeypatch.setenv(F.NO_FORK_ENV, "1")
+    assert not F.processes_usable(n, 2)
