@@ -60,7 +60,10 @@ class MeasureConfig:
         added to the calibrated blur for the volume correction): a 50 % edge moves by the noise
         over the edge slope, so noisy low-contrast frames need it to stay within 1 %.
     workers : int
-        Decoding/measuring threads (cv2 releases the GIL).
+        Decoding/measuring workers: forked processes on Linux for a sequence of at least
+        `dropvision.frame.MIN_FRAMES_FOR_PROCESSES` frames measured from a top-level process
+        with no other thread (`dropvision.frame.processes_usable`; the environment variable
+        ``DROPVISION_NO_FORK=1`` keeps threads), threads otherwise. Same results either way.
     dead_time_us : float
         Default firing-trigger-to-piston delay (µs) when the waveform does not give one
         (`identify.waveform.DEAD_TIME_US`).

@@ -363,31 +363,50 @@ def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
             and multiprocessing.parent_process() is None and threading.active_count() == 1)
 
 
+class WorkerProcessDied(RuntimeWarning):
+    """A forked worker process of `stream_frames` died (killed, out of memory, a crash in a
+    decoder); the frames it had not returned are measured again with threads."""
+
+
 def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, bar):
-    """`stream_frames` in ``workers`` forked processes, contiguous chunks of frames, in order."""
+    """`stream_frames` in ``workers`` forked processes, contiguous chunks of frames, in order.
+    If a worker process dies, the frames not yet returned are measured with threads (and a
+    :class:`WorkerProcessDied` warning says so) instead of losing the sequence."""
     import multiprocessing
     import warnings
     from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
 
     global _FORK_STATE
     indices = list(indices)
     size = max(4, -(-len(indices) // (4 * workers)))  # ~4 chunks per worker: balanced, few messages
     chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
-    _FORK_STATE = (seq, ctx, decoded)
+    done = 0
+    _FORK_STATE = (seq, ctx, dict(decoded))
+    decoded.clear()
     try:
         with warnings.catch_warnings():  # Python >= 3.12 warns of any fork once a thread exists
             warnings.simplefilter("ignore", DeprecationWarning)
             pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
                                        initializer=_forked_worker_init)
-            with pool:
-                for recs in pool.map(_measure_chunk, chunks):
-                    for rec in recs:
-                        yield rec
-                        if bar is not None:
-                            bar.update()
+        with pool:
+            for recs in pool.map(_measure_chunk, chunks):
+                for rec in recs:
+                    yield rec
+                    done += 1
+                    if bar is not None:
+                        bar.update()
+    except BrokenProcessPool as exc:
+        rest = indices[done:]
+        warnings.warn(f"{seq.meta.path}: a worker process died ({exc}); measuring the remaining {len(rest)} "
+                      "frame(s) with threads", WorkerProcessDied, stacklevel=3)
+        with ThreadPoolExecutor(max_workers=workers) as tpool:
+            for rec in tpool.map(lambda i: _measure_index(seq, ctx, {}, i), rest):
+                yield rec
+                if bar is not None:
+                    bar.update()
     finally:
         _FORK_STATE = None
-        decoded.clear()
 
 
 def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, progress: bool = False,

@@ -97,3 +97,32 @@ def test_when_processes_are_used(monkeypatch):
     monkeypatch.setattr(threading, "active_count", lambda: 1)
     monkeypatch.setenv(F.NO_FORK_ENV, "1")
     assert not F.processes_usable(n, 2)
+
+
+@linux_only
+def test_a_dead_worker_process_falls_back_to_threads(monkeypatch):
+    """A worker process that dies (here: exits at its third chunk) breaks the pool; the frames
+    not yet returned are measured with threads, with a warning, and the records are complete
+    and the same."""
+    seq, ctx = _calibrated("u55_u30")
+    n = len(seq)
+    monkeypatch.setenv(F.NO_FORK_ENV, "1")
+    threads = list(F.stream_frames(seq, range(n), ctx, 2))
+    monkeypatch.setattr(F, "_measure_chunk", _dying_chunk)
+    with pytest.warns(F.WorkerProcessDied, match="remaining"):
+        forked = list(F._stream_forked(seq, range(n), ctx, 2, {}, None))
+    assert [r.index for r in forked] == list(range(n))
+    assert [repr(r) for r in forked] == [repr(r) for r in threads]
+
+
+_REAL_CHUNK = F._measure_chunk
+
+
+def _dying_chunk(indices):
+    """`dropvision.frame._measure_chunk`, but the worker process exits at its third chunk (module
+    level: the pool sends it to the children by name)."""
+    import os
+
+    if indices[0] >= 2 * len(indices):
+        os._exit(3)
+    return _REAL_CHUNK(indices)
