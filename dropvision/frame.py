@@ -440,6 +440,7 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
         With ``error`` set (and nothing measured) for an unreadable frame.
     """
     decoded = {} if decoded is None else decoded
+    forked = processes_usable(len(indices), workers, logger)  # before the bar starts its monitor thread
 
     bar = None
     if progress:
@@ -447,7 +448,7 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
 
         bar = tqdm(total=len(indices), desc="measure", unit="frame", file=sys.stderr)
     try:
-        if processes_usable(len(indices), workers, logger):
+        if forked:
             yield from _stream_forked(seq, indices, ctx, workers, decoded, bar)
             return
         if workers <= 1 or logger is not None:

@@ -126,3 +126,20 @@ def _dying_chunk(indices):
     if indices[0] >= 2 * len(indices):
         os._exit(3)
     return _REAL_CHUNK(indices)
+
+
+def test_processes_are_decided_before_the_progress_bar_starts(monkeypatch):
+    """tqdm starts a monitor thread with its first bar, and a process running another thread
+    does not fork: the decision must come first, or a terminal (bar shown) never gets processes."""
+    from tqdm import tqdm
+
+    seq, ctx = _calibrated("u55_u30")
+    seen = []
+
+    def spy(n_frames, workers, logger=None):
+        seen.append(len(tqdm._instances))
+        return False
+
+    monkeypatch.setattr(F, "processes_usable", spy)
+    recs = list(F.stream_frames(seq, range(5), ctx, 2, progress=True))
+    assert len(recs) == 5 and seen == [0]
