@@ -8,8 +8,9 @@
 4. `dropvision.pinchoff.thread_joined_labels`: bodies still joined to it by a thin thread;
 5. `dropvision.bodies.measure_body` / `describe_detached`: the detached bodies.
 
-`stream_frames` measures a sequence's frames in order with a few threads, decoding at most
-``2 * workers`` frames at once, so memory does not grow with the sequence length.
+`stream_frames` measures a sequence's frames in order with a few forked processes (Linux, a
+long sequence, see `processes_usable`) or threads, decoding at most ``2 * workers`` frames (or
+chunks of frames) at once, so memory does not grow with the sequence length.
 """
 
 from __future__ import annotations
@@ -314,6 +315,9 @@ def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentat
 #: Fewest frames for which `stream_frames` forks worker processes (below, threads: forking two
 #: processes costs some 10-20 ms, a frame ~3 ms of decoding and measuring).
 MIN_FRAMES_FOR_PROCESSES = 32
+#: Most frames in one chunk sent to a forked worker (chunks are ~1/4 of a worker's share, at most
+#: this: few messages, and little work in flight when the caller stops).
+MAX_CHUNK_FRAMES = 32
 #: Set to 1 to keep `stream_frames` on threads (no forked processes).
 NO_FORK_ENV = "DROPVISION_NO_FORK"
 
@@ -333,27 +337,58 @@ def _measure_index(seq, ctx: FrameContext, decoded: dict, i: int, logger=None) -
     return measure_frame(fr.image, ctx, fr.ref, logger)
 
 
-def _forked_worker_init() -> None:
-    """In a forked worker: the sequence's lock and open multi-frame files are the parent's
-    (a lock held at the fork, file offsets shared with the parent): start its own."""
-    seq = _FORK_STATE[0]
-    reset = getattr(seq, "after_fork", None)
+def _forked_worker_init(parent_pid: int) -> None:
+    """In a forked worker: die with the parent (``kill -9`` of it leaves no worker behind),
+    leave Ctrl-C to the parent (it ends the workers), and give the sequence a lock and open
+    multi-frame files of its own (the parent's lock may have been held at the fork, and an
+    inherited file's offset is shared with the parent)."""
+    import signal
+
+    from dvcore.process import die_with_parent
+
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    reset = getattr(_FORK_STATE[0], "after_fork", None)
     if reset is not None:
         reset()
 
 
-def _measure_chunk(indices) -> list:
+def _measure_chunk(indices) -> tuple[list, list]:
+    """In a forked worker: the records of ``indices`` and the warnings they raised (category,
+    message), for the parent to give in order (a child's own would be lost or printed)."""
+    import warnings
+
     seq, ctx, decoded = _FORK_STATE
-    return [_measure_index(seq, ctx, decoded, i) for i in indices]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        recs = [_measure_index(seq, ctx, decoded, i) for i in indices]
+    return recs, [(w.category, str(w.message)) for w in caught]
+
+
+def _give_warnings(seq, caught) -> None:
+    """Issue in this process the warnings a forked worker recorded; the colour -> grey note only
+    if it is the sequence's first (as `dropvision.sequence.Sequence.read` does)."""
+    import warnings
+
+    from dropvision.sequence_meta import RGBConvertedWarning
+
+    for category, message in caught:
+        first = getattr(seq, "first_colour_note", None)
+        if issubclass(category, RGBConvertedWarning) and first is not None and not first():
+            continue
+        warnings.warn(message, category, stacklevel=3)
 
 
 def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
     """Whether `stream_frames` measures in forked processes: on Linux, with at least two workers
     and :data:`MIN_FRAMES_FOR_PROCESSES` frames, no Rerun logger (it lives in this process), only
     from a top-level process (not inside a pool's or a campaign's worker: no nested pools) that
-    runs no other Python thread (forking a threaded process risks a lock held at the fork), and
-    unless :data:`NO_FORK_ENV` is set. The per-frame work holds the GIL for much of its time, so
-    two threads measure hardly faster than one; two processes nearly twice as fast."""
+    runs no other Python thread (a notebook's, a live viewer's: forking a threaded process risks
+    a lock held at the fork), and unless :data:`NO_FORK_ENV` is set. The native threads of
+    OpenBLAS and OpenCV are there in any process that ran them; both libraries reset their
+    thread pools in a forked child, which measures exactly what a thread measures (tests/
+    test_forked_frames.py). The per-frame work holds the GIL for much of its time, so two
+    threads measure hardly faster than one; two processes nearly twice as fast."""
     import multiprocessing
     import os
     import threading
@@ -368,45 +403,87 @@ class WorkerProcessDied(RuntimeWarning):
     decoder); the frames it had not returned are measured again with threads."""
 
 
-def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, bar):
-    """`stream_frames` in ``workers`` forked processes, contiguous chunks of frames, in order.
-    If a worker process dies, the frames not yet returned are measured with threads (and a
-    :class:`WorkerProcessDied` warning says so) instead of losing the sequence."""
+def _progress_bar(n: int, progress: bool):
+    if not progress:
+        return None
+    from tqdm import tqdm  # optional progress bar: imported only when asked for
+
+    return tqdm(total=n, desc="measure", unit="frame", file=sys.stderr)
+
+
+def _end_workers(pool) -> None:
+    """Stop ``pool`` now: nothing queued runs, and its workers (busy on a chunk) are terminated."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        if p.is_alive():
+            p.terminate()
+    for p in procs:
+        p.join(timeout=2)
+
+
+def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, progress: bool = False):
+    """`stream_frames` in ``workers`` forked processes: contiguous chunks of frames (at most
+    :data:`MAX_CHUNK_FRAMES`), at most ``2 * workers`` chunks in flight, records in order; the
+    workers' warnings given here, in order. The processes are forked before the progress bar
+    starts its monitor thread. If the caller stops early or is interrupted, the workers are
+    terminated at once; if a worker dies, the frames not yet returned are measured with threads
+    (and a :class:`WorkerProcessDied` warning says so) instead of losing the sequence."""
     import multiprocessing
+    import os
     import warnings
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
     global _FORK_STATE
     indices = list(indices)
-    size = max(4, -(-len(indices) // (4 * workers)))  # ~4 chunks per worker: balanced, few messages
+    size = min(MAX_CHUNK_FRAMES, max(4, -(-len(indices) // (4 * workers))))
     chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
-    done = 0
+    done, bar, finished = 0, None, False
     _FORK_STATE = (seq, ctx, dict(decoded))
     decoded.clear()
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_worker_init,
+                               initargs=(os.getpid(),), mp_context=multiprocessing.get_context("fork"))
     try:
-        with warnings.catch_warnings():  # Python >= 3.12 warns of any fork once a thread exists
+        pending: deque = deque()
+        it = iter(chunks)
+        with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
             warnings.simplefilter("ignore", DeprecationWarning)
-            pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("fork"),
-                                       initializer=_forked_worker_init)
-        with pool:
-            for recs in pool.map(_measure_chunk, chunks):
-                for rec in recs:
-                    yield rec
-                    done += 1
-                    if bar is not None:
-                        bar.update()
+            for c in it:  # the first submit forks every worker
+                pending.append(pool.submit(_measure_chunk, c))
+                if len(pending) >= 2 * workers:
+                    break
+        bar = _progress_bar(len(indices), progress)
+        while pending:
+            recs, caught = pending.popleft().result()
+            nxt = next(it, None)
+            if nxt is not None:
+                pending.append(pool.submit(_measure_chunk, nxt))
+            _give_warnings(seq, caught)
+            for rec in recs:
+                yield rec
+                done += 1
+                if bar is not None:
+                    bar.update()
+        finished = True
     except BrokenProcessPool as exc:
         rest = indices[done:]
         warnings.warn(f"{seq.meta.path}: a worker process died ({exc}); measuring the remaining {len(rest)} "
                       "frame(s) with threads", WorkerProcessDied, stacklevel=3)
+        bar = bar if bar is not None else _progress_bar(len(indices), progress)
         with ThreadPoolExecutor(max_workers=workers) as tpool:
             for rec in tpool.map(lambda i: _measure_index(seq, ctx, {}, i), rest):
                 yield rec
                 if bar is not None:
                     bar.update()
     finally:
+        if finished:
+            pool.shutdown(wait=True)
+        else:  # stopped early, interrupted, an error or a dead worker: no waiting for chunks in flight
+            _end_workers(pool)
         _FORK_STATE = None
+        if bar is not None:
+            bar.close()
 
 
 def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, progress: bool = False,
@@ -440,17 +517,11 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
         With ``error`` set (and nothing measured) for an unreadable frame.
     """
     decoded = {} if decoded is None else decoded
-    forked = processes_usable(len(indices), workers, logger)  # before the bar starts its monitor thread
-
-    bar = None
-    if progress:
-        from tqdm import tqdm  # optional progress bar: imported only when asked for
-
-        bar = tqdm(total=len(indices), desc="measure", unit="frame", file=sys.stderr)
+    if processes_usable(len(indices), workers, logger):  # before any progress bar starts its thread
+        yield from _stream_forked(seq, indices, ctx, workers, decoded, progress)
+        return
+    bar = _progress_bar(len(indices), progress)
     try:
-        if forked:
-            yield from _stream_forked(seq, indices, ctx, workers, decoded, bar)
-            return
         if workers <= 1 or logger is not None:
             for i in indices:
                 yield _measure_index(seq, ctx, decoded, i, logger)

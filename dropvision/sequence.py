@@ -161,6 +161,13 @@ class Sequence:
         except Exception:  # pragma: no cover - interpreter shutdown
             pass
 
+    def first_colour_note(self) -> bool:
+        """True the first time it is called for this sequence (the colour -> grey note is given
+        once per sequence, however many colour frames follow, from whichever thread)."""
+        with self._lock:
+            first, self._colour_noted = not self._colour_noted, True
+        return first
+
     def after_fork(self) -> None:
         """In a forked child: a lock of its own (the parent's may have been held at the fork) and
         no open multi-frame files (their offsets are shared with the parent); they are reopened
@@ -224,11 +231,7 @@ class Sequence:
         as_grey = isinstance(img, ColourLuma)  # the reader applied the grey rule itself
         if as_grey:
             img = img.view(np.ndarray)
-        if warn and ((img.ndim == 3 and img.shape[2] > 1) or as_grey):
-            with self._lock:  # one note per sequence, however many colour frames follow
-                warn, self._colour_noted = not self._colour_noted, True
-        else:
-            warn = False
+        warn = warn and ((img.ndim == 3 and img.shape[2] > 1) or as_grey) and self.first_colour_note()
         if as_grey and warn:
             _note_colour(_where(ref), 3)
         img = _to_grey(img, _where(ref), reader.bgr, warn and not as_grey)

@@ -4,8 +4,10 @@ The per-frame work holds the GIL much of its time, so on a long sequence `stream
 ``workers`` processes (`dropvision.frame.processes_usable`). Checked here on the shipped samples:
 PNG files (one frame per file), a 16-bit multi-page TIFF stack (one file shared by every frame:
 the forked children must not share its open handle and file offset with the parent,
-`Sequence.after_fork`) and colour PNGs (the once-per-sequence colour note is not repeated by
-every child); and that an error raised in a child reaches the caller with its message.
+`Sequence.after_fork`); a colour frame in a grey sequence (the children's warnings reach the
+caller, the colour note once per sequence, as with threads); that an error raised in a child
+reaches the caller with its message; that a caller stopping early leaves no worker running; and
+that the workers are forked before a progress bar starts its thread.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ def test_forked_processes_measure_what_threads_measure(name, monkeypatch):
     monkeypatch.setenv(F.NO_FORK_ENV, "1")
     threads = list(F.stream_frames(seq, range(n), ctx, 2))
     with warnings.catch_warnings():
-        warnings.simplefilter("error")  # no child repeats the colour note (or warns at all)
+        warnings.simplefilter("error")  # nothing to note: the calibration pass saw the sequence
         forked = list(F._stream_forked(seq, range(n), ctx, 2, {}, None))
     assert len(forked) == len(threads) == n
     assert [r.index for r in forked] == list(range(n))
@@ -143,3 +145,112 @@ def test_processes_are_decided_before_the_progress_bar_starts(monkeypatch):
     monkeypatch.setattr(F, "processes_usable", spy)
     recs = list(F.stream_frames(seq, range(5), ctx, 2, progress=True))
     assert len(recs) == 5 and seen == [0]
+
+
+def _with_colour_frame(tmp_path, index=50):
+    """A copy of the grey u55_u30 sample whose frame ``index`` is written in colour (RGB)."""
+    import shutil
+
+    folder = tmp_path / "seq"
+    shutil.copytree(SAMPLES / "u55_u30", folder)
+    seq = open_sequence(folder)
+    name = seq.meta.frames[index].file
+    grey = seq.read(index).image
+    (folder / name).unlink()
+    write_image(folder / name, np.dstack([grey, grey, grey]))
+    return folder, name
+
+
+@linux_only
+def test_a_childs_warnings_reach_the_caller_once(tmp_path, monkeypatch):
+    folder, name = _with_colour_frame(tmp_path)
+    results = {}
+    for mode in ("threads", "forked"):
+        seq = open_sequence(folder)
+        _, _, ctx = calibrate_sequence(seq, MeasureConfig())  # grey calibration frames: no note yet
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            if mode == "threads":
+                monkeypatch.setenv(F.NO_FORK_ENV, "1")
+                recs = list(F.stream_frames(seq, range(len(seq)), ctx, 2))
+            else:
+                recs = list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}))
+        notes = [w for w in caught if issubclass(w.category, RGBConvertedWarning)]
+        assert len(notes) == 1 and name in str(notes[0].message), (mode, [str(w.message) for w in caught])
+        assert not seq.first_colour_note()  # noted for the sequence, in this process
+        results[mode] = [repr(r) for r in recs]
+    assert results["forked"] == results["threads"]
+
+
+@linux_only
+def test_stopping_early_ends_the_workers_at_once():
+    import multiprocessing
+    import time
+
+    seq, ctx = _calibrated("u55_u30")
+    gen = F._stream_forked(seq, range(len(seq)), ctx, 2, {})
+    first = [next(gen) for _ in range(3)]
+    assert [r.index for r in first] == [0, 1, 2] and multiprocessing.active_children()
+    t = time.perf_counter()
+    gen.close()
+    assert time.perf_counter() - t < 2.0
+    assert F._FORK_STATE is None
+    # terminated; the pool's own thread may reap a child first, and for a moment the Process
+    # object then still reads alive (both wait for the same pid): poll briefly
+    while multiprocessing.active_children() and time.perf_counter() - t < 3.0:
+        time.sleep(0.02)
+    assert not multiprocessing.active_children()
+
+
+@linux_only
+def test_workers_are_forked_before_the_progress_bar(monkeypatch):
+    import multiprocessing
+
+    seq, ctx = _calibrated("u55_u30")
+    seen = []
+    monkeypatch.setattr(F, "_progress_bar", lambda n, progress: seen.append(len(multiprocessing.active_children())))
+    assert len(list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, True))) == len(seq)
+    assert seen == [2]
+
+
+_KILLED_PARENT = """
+import multiprocessing, sys
+sys.path.insert(0, {tests!r})
+from test_forked_frames import _calibrated, F
+seq, ctx = _calibrated("u55_u30")
+for k, rec in enumerate(F._stream_forked(seq, list(range(len(seq))) * 50, ctx, 2, {{}})):
+    if k == 0:
+        print(" ".join(str(p.pid) for p in multiprocessing.active_children()), flush=True)
+"""
+
+
+@linux_only
+def test_workers_die_with_a_killed_parent(tmp_path):
+    """kill -9 of the measuring process: its forked workers do not go on measuring (the kernel
+    kills them, PR_SET_PDEATHSIG, `dvcore.process.die_with_parent`)."""
+    import signal
+    import subprocess
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(_KILLED_PARENT.format(tests=str(Path(__file__).resolve().parent)))
+    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        kids = [int(k) for k in p.stdout.readline().split()]
+    finally:
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        p.stdout.close()
+    assert len(kids) == 2
+
+    def running(pid):
+        try:
+            state = Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0]
+        except (FileNotFoundError, IndexError):
+            return False
+        return state not in ("Z", "X")  # a zombie is dead, waiting to be reaped
+
+    t = time.perf_counter()
+    while any(running(k) for k in kids) and time.perf_counter() - t < 5.0:
+        time.sleep(0.02)
+    assert not any(running(k) for k in kids)

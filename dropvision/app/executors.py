@@ -16,11 +16,12 @@ from __future__ import annotations
 import contextlib
 import importlib
 import os
-import sys
 import threading
 import time
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from typing import Iterator
+
+from dvcore.process import die_with_parent
 
 
 class SerialExecutor(Executor):
@@ -45,17 +46,7 @@ def _exit_with_parent(parent_pid: int, poll_s: float = 0.25) -> None:
     worker was re-parented). Dask ``LocalCluster`` workers need neither: their nannies already
     end them with the client process.
     """
-    if sys.platform.startswith("linux"):
-        try:
-            import ctypes
-            import signal
-
-            libc = ctypes.CDLL(None, use_errno=True)
-            libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG = 1
-        except (OSError, AttributeError):  # pragma: no cover - no usable libc
-            pass
-    if os.getppid() != parent_pid:  # the parent died before the line above
-        os._exit(1)
+    die_with_parent(parent_pid)
 
     def watch() -> None:
         while True:

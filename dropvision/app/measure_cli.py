@@ -71,7 +71,7 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
-    p.add_argument("--workers", type=int, default=2, help="decoding/measuring workers (default 2): processes on Linux for 32 frames or more, else threads; DROPVISION_NO_FORK=1 keeps threads")
+    p.add_argument("--workers", type=int, default=2, help="decoding/measuring workers (default 2): processes on Linux for 32 frames or more, else threads (always with --rerun); DROPVISION_NO_FORK=1 keeps threads")
     add_output_args(p)
     add_metadata_args(p)
     add_rerun_args(p)
