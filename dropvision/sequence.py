@@ -170,10 +170,16 @@ class Sequence:
 
     def after_fork(self) -> None:
         """In a forked child: a lock of its own (the parent's may have been held at the fork) and
-        no open multi-frame files (their offsets are shared with the parent); they are reopened
-        when read. The once-per-sequence colour note keeps its state."""
-        self._open_files = OrderedDict()
+        none of the parent's open multi-frame files (their offsets are shared with the parent):
+        the child's copies are closed (the parent's stay open) and reopened when read. The
+        once-per-sequence colour note keeps its state."""
+        inherited, self._open_files = self._open_files, OrderedDict()
         self._lock = threading.Lock()
+        for handle in inherited.values():
+            try:
+                handle.close()
+            except Exception:  # noqa: BLE001 - a copy we only drop; the parent's is untouched
+                pass
 
     @property
     def open_files(self) -> tuple[str, ...]:
