@@ -385,8 +385,8 @@ def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
     from a top-level process (not inside a pool's or a campaign's worker: no nested pools) that
     runs no other Python thread (a notebook's, a live viewer's: forking a threaded process risks
     a lock held at the fork), and unless :data:`NO_FORK_ENV` is set. The native threads of
-    OpenBLAS and OpenCV are there in any process that ran them; both libraries reset their
-    thread pools in a forked child, which measures exactly what a thread measures (tests/
+    OpenBLAS and OpenCV are there in any process that ran them and are not copied into a forked
+    child; measured, the children measure exactly what threads measure (tests/
     test_forked_frames.py). The per-frame work holds the GIL for much of its time, so two
     threads measure hardly faster than one; two processes nearly twice as fast."""
     import multiprocessing
