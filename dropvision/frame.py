@@ -422,6 +422,23 @@ def _end_workers(pool) -> None:
         p.join(timeout=2)
 
 
+def _in_order(pool, fn, items, depth: int):
+    """``fn(item)`` for every item, run on ``pool``, yielded in the items' order, with at most
+    ``depth`` submitted and not yet yielded (memory stays bounded, whatever the length)."""
+    pending: deque = deque()
+    it = iter(items)
+    for item in it:
+        pending.append(pool.submit(fn, item))
+        if len(pending) >= depth:
+            break
+    while pending:
+        result = pending.popleft().result()
+        for item in it:  # one more, if any
+            pending.append(pool.submit(fn, item))
+            break
+        yield result
+
+
 def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, progress: bool = False):
     """`stream_frames` in ``workers`` forked processes: contiguous chunks of frames (at most
     :data:`MAX_CHUNK_FRAMES`), at most ``2 * workers`` chunks in flight, records in order; the
@@ -445,20 +462,11 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
     pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_worker_init,
                                initargs=(os.getpid(),), mp_context=multiprocessing.get_context("fork"))
     try:
-        pending: deque = deque()
-        it = iter(chunks)
         with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
             warnings.simplefilter("ignore", DeprecationWarning)
-            for c in it:  # the first submit forks every worker
-                pending.append(pool.submit(_measure_chunk, c))
-                if len(pending) >= 2 * workers:
-                    break
+            pool.submit(int).result()  # the first submit forks every worker: now, before the bar's thread
         bar = _progress_bar(len(indices), progress)
-        while pending:
-            recs, caught = pending.popleft().result()
-            nxt = next(it, None)
-            if nxt is not None:
-                pending.append(pool.submit(_measure_chunk, nxt))
+        for recs, caught in _in_order(pool, _measure_chunk, chunks, 2 * workers):
             _give_warnings(seq, caught)
             for rec in recs:
                 yield rec
@@ -472,7 +480,7 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
                       "frame(s) with threads", WorkerProcessDied, stacklevel=3)
         bar = bar if bar is not None else _progress_bar(len(indices), progress)
         with ThreadPoolExecutor(max_workers=workers) as tpool:
-            for rec in tpool.map(lambda i: _measure_index(seq, ctx, {}, i), rest):
+            for rec in _in_order(tpool, lambda i: _measure_index(seq, ctx, {}, i), rest, 2 * workers):
                 yield rec
                 if bar is not None:
                     bar.update()
@@ -529,17 +537,7 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
                     bar.update()
             return
         with ThreadPoolExecutor(max_workers=workers) as pool:
-            pending: deque = deque()
-            it = iter(indices)
-            for i in it:
-                pending.append(pool.submit(_measure_index, seq, ctx, decoded, i))
-                if len(pending) >= 2 * workers:
-                    break
-            while pending:
-                rec = pending.popleft().result()
-                nxt = next(it, None)
-                if nxt is not None:
-                    pending.append(pool.submit(_measure_index, seq, ctx, decoded, nxt))
+            for rec in _in_order(pool, lambda i: _measure_index(seq, ctx, decoded, i), indices, 2 * workers):
                 yield rec
                 if bar is not None:
                     bar.update()

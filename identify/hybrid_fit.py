@@ -217,17 +217,17 @@ OWN_POLYNOMIAL = {"pinchoff_us": "pinchoff", "inflight_volume_nl": "volume_adjus
                   "jetting_velocity_m_s": "velocity_adjuster"}
 
 
-def _flexible_scatter(model: HybridModel, flexible: dict | None, names, own: str, output: str, u1, u2,
-                      y) -> tuple[float, int] | None:
+def _flexible_scatter(model: HybridModel, flexible: dict | None, output: str, u1, u2, y) -> tuple[float, int] | None:
     """Residual variance of ``output`` at the training controls when the flexible reference
-    polynomials (``flexible``, :func:`_flexible_fits`) replace the chosen ones in the chain, and
-    its degrees of freedom (n minus the terms of the output's own flexible polynomial); None
-    where the output's own polynomial has no flexible reference."""
+    polynomials (``flexible``, :func:`_flexible_fits`) replace the chosen ones in the chain
+    (:data:`POLYNOMIALS_OF`), and its degrees of freedom (n minus the terms of the output's own
+    flexible polynomial); None where the output's own polynomial has no flexible reference."""
     from dataclasses import replace
 
+    own = OWN_POLYNOMIAL[output]
     if not flexible or own not in flexible:
         return None
-    ref = replace(model, **{name: flexible[name] for name in names if name in flexible})
+    ref = replace(model, **{name: flexible[name] for name in POLYNOMIALS_OF[output] if name in flexible})
     r = np.asarray(y, float) - ref.predict_grid(u1, u2)[output].to_numpy()
     dof = len(r) - len(flexible[own].terms)
     return (float(r @ r) / dof, int(dof)) if dof >= 1 else None
@@ -280,8 +280,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
     from identify.discrepancy import SCATTER_LIKELIHOOD_RATIO_THRESHOLD, cv_misfit_variance, fit_discrepancy, \
         smooth_scatter_variance
 
-    fits = {"pinchoff_us": model.pinchoff, "inflight_volume_nl": model.volume_adjuster,
-            "jetting_velocity_m_s": model.velocity_adjuster}
+    fits = {k: getattr(model, name) for k, name in OWN_POLYNOMIAL.items()}
     n = len(u1)
     pred = model.predict_grid(u1, u2)
     r_p = measured["pinchoff_us"] - model.pinchoff.predict(u1, u2)
@@ -312,9 +311,8 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         for k in targets:
             h_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
     # per output, the polynomials its parameter variance comes from (volume: both, averaged)
-    sources = POLYNOMIALS_OF
-    fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in sources.items()}
-    fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in sources.items()}
+    fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
+    fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
     # parameter variance at the training controls
     ctrl, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
     inv = np.asarray(inv).ravel()
@@ -342,7 +340,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
                                           seed=seed)
             if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
                 drop_var, source = est[0], "smooth_scatter"
-            flex = _flexible_scatter(model, flexible, sources[k], OWN_POLYNOMIAL[k], k, u1, u2, y)
+            flex = _flexible_scatter(model, flexible, k, u1, u2, y)
             if flex is not None and flex[0] < drop_var:
                 drop_var, dof, source = flex[0], flex[1], "flexible_residuals"
         e = cv_err[k]
