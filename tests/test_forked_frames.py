@@ -254,3 +254,34 @@ def test_workers_die_with_a_killed_parent(tmp_path):
     while any(running(k) for k in kids) and time.perf_counter() - t < 5.0:
         time.sleep(0.02)
     assert not any(running(k) for k in kids)
+
+
+class _InheritedHandle(UserWarning):
+    """Reported by `_chunk_checking_handles`: a worker found the parent's open file in its cache."""
+
+
+def _chunk_checking_handles(indices):
+    """`dropvision.frame._measure_chunk`, reporting (as a warning) a handle the parent had open
+    (tagged ``_dv_parent``) still in the worker's cache when the chunk starts."""
+    seq = F._FORK_STATE[0]
+    inherited = [f for f, h in seq._open_files.items() if getattr(h, "_dv_parent", False)]
+    recs, caught = _REAL_CHUNK(indices)
+    return recs, caught + [(_InheritedHandle, f"chunk at {indices[0]}: {inherited}")] * bool(inherited)
+
+
+@linux_only
+def test_workers_do_not_read_through_the_parents_open_file(monkeypatch):
+    """The parent holds the TIFF stack open at the fork; no worker may use that handle (a shared
+    file offset: pages read by one process would move the other's), whatever the timing."""
+    seq, ctx = _calibrated("satellite_dust_tiff16")
+    seq.read(0)
+    assert seq.open_files == ("stack.tif",)
+    for handle in seq._open_files.values():
+        handle._dv_parent = True
+    monkeypatch.setattr(F, "_measure_chunk", _chunk_checking_handles)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        recs = list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}))
+    assert len(recs) == len(seq)
+    assert not [str(w.message) for w in caught if issubclass(w.category, _InheritedHandle)]
+    assert seq.open_files == ("stack.tif",)  # the parent's own is still open
