@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import sys
 from collections import deque
+from contextlib import contextmanager
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -382,25 +383,103 @@ def _give_warnings(seq, caught) -> None:
 def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
     """Whether `stream_frames` measures in forked processes: on Linux, with at least two workers
     and :data:`MIN_FRAMES_FOR_PROCESSES` frames, no Rerun logger (it lives in this process), only
-    from a top-level process (not inside a pool's or a campaign's worker: no nested pools) that
-    runs no other Python thread (a notebook's, a live viewer's: forking a threaded process risks
-    a lock held at the fork), and unless :data:`NO_FORK_ENV` is set. The native threads of
-    OpenBLAS and OpenCV are there in any process that ran them and are not copied into a forked
-    child; measured, the children measure exactly what threads measure (tests/
-    test_forked_frames.py). The per-frame work holds the GIL for much of its time, so two
-    threads measure hardly faster than one; two processes nearly twice as fast."""
+    from a top-level process (not inside a pool's or a campaign's worker: no nested pools), unless
+    :data:`NO_FORK_ENV` is set, and only while this process runs **one thread at the operating
+    system's level** (`dvcore.process.os_thread_count`). Any other thread -- a notebook's, a
+    viewer's, or a native pool's (OpenBLAS started with NumPy, OpenCV's after its first parallel
+    call) -- may hold a lock at the instant of the fork, and the child that needs it waits for
+    ever (issue 29: a worker blocked in ``pthread_mutex_lock`` inside ``cv2.findContours`` after
+    the calibration had used OpenCV's pool). With one thread there is no such lock; the command
+    line keeps it so (OpenBLAS on one thread, OpenCV's pool never started: :func:`serial_native_pools`).
+    The per-frame work holds the GIL for much of its time, so two threads measure hardly faster
+    than one; two processes nearly twice as fast."""
     import multiprocessing
     import os
     import threading
 
+    from dvcore.process import os_thread_count
+
     return (sys.platform == "linux" and workers >= 2 and n_frames >= MIN_FRAMES_FOR_PROCESSES
             and logger is None and not os.environ.get(NO_FORK_ENV)
-            and multiprocessing.parent_process() is None and threading.active_count() == 1)
+            and multiprocessing.parent_process() is None and threading.active_count() == 1
+            and os_thread_count() == 1)
+
+
+@contextmanager
+def serial_native_pools(active: bool = True):
+    """While ``active``: OpenCV runs its functions on the calling thread, so that its thread pool
+    is never started and the process stays single-threaded up to the fork of the frame workers
+    (:func:`processes_usable`). Its thread count is given back afterwards (setting it starts no
+    thread). `dropvision.measurement.measure_sequence` wraps a measurement that will fork in it."""
+    if not active:
+        yield
+        return
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(0)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
 
 
 class WorkerProcessDied(RuntimeWarning):
     """A forked worker process of `stream_frames` died (killed, out of memory, a crash in a
     decoder); the frames it had not returned are measured again with threads."""
+
+
+class WorkerProcessStalled(WorkerProcessDied):
+    """The forked workers of `stream_frames` used no CPU for :data:`STALL_S` seconds while a
+    result was awaited (a worker blocked for ever, e.g. on a lock held at the fork); they are
+    killed and the frames not yet returned are measured with threads."""
+
+
+#: Seconds without CPU progress of every worker process, while their result is awaited, after
+#: which `stream_frames` takes them for stalled (:class:`WorkerProcessStalled`). A busy worker
+#: uses CPU even on a loaded machine; one blocked on a lock uses none. The environment variable
+#: :data:`STALL_ENV` sets another value.
+STALL_S = 10.0
+STALL_ENV = "DROPVISION_WORKER_STALL_S"
+
+
+class _Stalled(Exception):
+    """Raised by `_Watchdog.result` when the workers made no progress for its ``stall_s``."""
+
+
+class _Watchdog:
+    """A future's result, waited for in short polls; while it is awaited, the worker processes'
+    CPU time (`dvcore.process.cpu_ticks`) must move at least once every ``stall_s`` seconds, or
+    :class:`_Stalled` is raised: a wait with a bound, never an endless one."""
+
+    def __init__(self, pids, stall_s: float, poll_s: float = 0.2):
+        self.pids, self.stall_s, self.poll_s = list(pids), stall_s, poll_s
+
+    def result(self, future):
+        import time
+        from concurrent.futures import wait
+
+        from dvcore.process import cpu_ticks
+
+        last, since = cpu_ticks(self.pids), time.monotonic()
+        while not wait([future], timeout=self.poll_s).done:
+            ticks, now = cpu_ticks(self.pids), time.monotonic()
+            if ticks is None or ticks != last:  # working (or a worker gone: the pool breaks)
+                last, since = ticks, now
+            elif now - since > self.stall_s:
+                raise _Stalled(f"no CPU used by the worker processes for {now - since:.0f} s")
+        return future.result()
+
+
+def _stall_s() -> float:
+    import os
+
+    raw = os.environ.get(STALL_ENV)
+    try:
+        value = float(raw) if raw else STALL_S
+    except ValueError:
+        value = STALL_S
+    return value if value > 0 else STALL_S
 
 
 def _progress_bar(n: int, progress: bool):
@@ -411,20 +490,39 @@ def _progress_bar(n: int, progress: bool):
     return tqdm(total=n, desc="measure", unit="frame", file=sys.stderr)
 
 
-def _end_workers(pool) -> None:
-    """Stop ``pool`` now: nothing queued runs, and its workers (busy on a chunk) are terminated."""
+def _end_workers(pool, kill: bool = False) -> None:
+    """Stop ``pool`` now: nothing queued runs, and its workers (busy on a chunk, or blocked) are
+    terminated (killed with ``kill``, or when a termination is not enough within 2 s). Bounded:
+    it never waits on a worker for longer."""
     procs = list((getattr(pool, "_processes", None) or {}).values())
     pool.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         if p.is_alive():
-            p.terminate()
+            p.kill() if kill else p.terminate()
     for p in procs:
         p.join(timeout=2)
+        if p.is_alive():
+            p.kill()
+            p.join(timeout=2)
 
 
-def _in_order(pool, fn, items, depth: int):
+def _close_workers(pool, timeout_s: float = 5.0) -> None:
+    """Let ``pool``'s idle workers exit (every chunk returned), waiting at most ``timeout_s``
+    for each; a worker still there then (blocked at its exit) is killed."""
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False)
+    for p in procs:
+        p.join(timeout=timeout_s)
+    if any(p.is_alive() for p in procs):
+        _end_workers(pool, kill=True)
+
+
+def _in_order(pool, fn, items, depth: int, result=None):
     """``fn(item)`` for every item, run on ``pool``, yielded in the items' order, with at most
-    ``depth`` submitted and not yet yielded (memory stays bounded, whatever the length)."""
+    ``depth`` submitted and not yet yielded (memory stays bounded, whatever the length);
+    ``result(future)`` waits for each (default ``future.result()``; the forked workers' watchdog
+    bounds the wait)."""
+    result = result or (lambda f: f.result())
     pending: deque = deque()
     it = iter(items)
     for item in it:
@@ -432,11 +530,11 @@ def _in_order(pool, fn, items, depth: int):
         if len(pending) >= depth:
             break
     while pending:
-        result = pending.popleft().result()
+        value = result(pending.popleft())
         for item in it:  # one more, if any
             pending.append(pool.submit(fn, item))
             break
-        yield result
+        yield value
 
 
 def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, progress: bool = False):
@@ -444,8 +542,10 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
     :data:`MAX_CHUNK_FRAMES`), at most ``2 * workers`` chunks in flight, records in order; the
     workers' warnings given here, in order. The processes are forked before the progress bar
     starts its monitor thread. If the caller stops early or is interrupted, the workers are
-    terminated at once; if a worker dies, the frames not yet returned are measured with threads
-    (and a :class:`WorkerProcessDied` warning says so) instead of losing the sequence."""
+    terminated at once; if a worker dies, or the workers use no CPU for :data:`STALL_S` seconds
+    while a result is awaited (`_Watchdog`), they are ended and the frames not yet returned are
+    measured with threads (a :class:`WorkerProcessDied` or :class:`WorkerProcessStalled` warning
+    says so) instead of losing the sequence or waiting for ever. Every wait on a worker is bounded."""
     import multiprocessing
     import os
     import warnings
@@ -456,7 +556,7 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
     indices = list(indices)
     size = min(MAX_CHUNK_FRAMES, max(4, -(-len(indices) // (4 * workers))))
     chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
-    done, bar, finished = 0, None, False
+    done, bar, finished, stalled = 0, None, False, False
     _FORK_STATE = (seq, ctx, dict(decoded))
     decoded.clear()
     pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_worker_init,
@@ -464,9 +564,12 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
     try:
         with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
             warnings.simplefilter("ignore", DeprecationWarning)
-            pool.submit(int).result()  # the first submit forks every worker: now, before the bar's thread
+            first = pool.submit(int)  # the first submit forks every worker: now, before the bar's thread
+        pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
+        watchdog = _Watchdog(pids, _stall_s())
+        watchdog.result(first)
         bar = _progress_bar(len(indices), progress)
-        for recs, caught in _in_order(pool, _measure_chunk, chunks, 2 * workers):
+        for recs, caught in _in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
             _give_warnings(seq, caught)
             for rec in recs:
                 yield rec
@@ -474,10 +577,13 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
                 if bar is not None:
                     bar.update()
         finished = True
-    except BrokenProcessPool as exc:
+    except (BrokenProcessPool, _Stalled) as exc:
+        stalled = isinstance(exc, _Stalled)
+        _end_workers(pool, kill=True)  # before measuring on: a stalled worker holds no CPU, but memory
         rest = indices[done:]
-        warnings.warn(f"{seq.meta.path}: a worker process died ({exc}); measuring the remaining {len(rest)} "
-                      "frame(s) with threads", WorkerProcessDied, stacklevel=3)
+        what = "the worker processes stalled" if stalled else "a worker process died"
+        warnings.warn(f"{seq.meta.path}: {what} ({exc}); measuring the remaining {len(rest)} frame(s) with threads",
+                      WorkerProcessStalled if stalled else WorkerProcessDied, stacklevel=3)
         bar = bar if bar is not None else _progress_bar(len(indices), progress)
         with ThreadPoolExecutor(max_workers=workers) as tpool:
             for rec in _in_order(tpool, lambda i: _measure_index(seq, ctx, {}, i), rest, 2 * workers):
@@ -486,8 +592,8 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
                     bar.update()
     finally:
         if finished:
-            pool.shutdown(wait=True)
-        else:  # stopped early, interrupted, an error or a dead worker: no waiting for chunks in flight
+            _close_workers(pool)
+        else:  # stopped early, interrupted, an error, a dead or stalled worker: no waiting for chunks in flight
             _end_workers(pool)
         _FORK_STATE = None
         if bar is not None:

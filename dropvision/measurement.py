@@ -29,7 +29,7 @@ import dropvision.quality as q
 from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
-from dropvision.frame import FrameRecord, stream_frames
+from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
 from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
@@ -126,28 +126,13 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         raise SequenceError(f"{meta.path}: no frames")
     errors: list[dict] = []
     decoded: dict = {}
-    cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
-    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
-        # the scale would come from walls that are out of focus: a blurred holder's width, not the nozzle's
+    # frames measured in forked processes (decided again at the fork): OpenCV's pool is not started
+    # meanwhile, so that this process still runs one thread when it forks (issue 29)
+    try:
+        with serial_native_pools(processes_usable(n, max(1, config.workers), logger)):
+            records, cal, sigma, ctx = _measure_frames(seq, config, logger, progress, errors, decoded)
+    finally:
         seq.close()
-        raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
-                            f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
-                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
-    if logger is not None:
-        logger.log_calibration(cal, shape=cal.shape)
-    seq_flags = []
-    if np.isfinite(sigma) and sigma > config.max_blur_px:
-        seq_flags.append(q.BLURRED)
-    if 1.0 - cal.liquid_level < config.min_contrast:
-        seq_flags.append(q.LOW_CONTRAST)
-    records: list[FrameRecord] = []
-    for rec in stream_frames(seq, range(n), ctx, max(1, config.workers), logger, progress, decoded):
-        if rec.error is not None:
-            errors.append({"file": rec.file, "page": rec.page, "delay_us": rec.delay_us, "reason": rec.error})
-            continue
-        rec.flags = seq_flags + rec.flags
-        records.append(rec)
-    seq.close()
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
     summary.update(source_keys(meta))
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
@@ -162,3 +147,30 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         with atomic_dir(out_dir, inputs=inputs, overwrite=overwrite, kind="measurement") as tmp:
             write_result(result, tmp, csv=csv)
     return result
+
+
+def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: list, decoded: dict):
+    """The calibration pass and every frame of ``seq`` measured: (records, calibration, blur
+    sigma, frame context); unreadable frames go to ``errors``."""
+    meta = seq.meta
+    cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
+    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
+        # the scale would come from walls that are out of focus: a blurred holder's width, not the nozzle's
+        raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
+                            f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
+                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
+    if logger is not None:
+        logger.log_calibration(cal, shape=cal.shape)
+    seq_flags = []
+    if np.isfinite(sigma) and sigma > config.max_blur_px:
+        seq_flags.append(q.BLURRED)
+    if 1.0 - cal.liquid_level < config.min_contrast:
+        seq_flags.append(q.LOW_CONTRAST)
+    records: list[FrameRecord] = []
+    for rec in stream_frames(seq, range(len(seq)), ctx, max(1, config.workers), logger, progress, decoded):
+        if rec.error is not None:
+            errors.append({"file": rec.file, "page": rec.page, "delay_us": rec.delay_us, "reason": rec.error})
+            continue
+        rec.flags = seq_flags + rec.flags
+        records.append(rec)
+    return records, cal, sigma, ctx

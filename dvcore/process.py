@@ -22,3 +22,29 @@ def die_with_parent(parent_pid: int) -> None:
             pass
     if os.getppid() != parent_pid:  # the parent died before the line above
         os._exit(1)
+
+
+def os_thread_count() -> int | None:
+    """How many threads this process runs at the operating system's level (Python's and native
+    ones: OpenBLAS's, OpenCV's pool, a decoder's), read from ``/proc/self/task`` on Linux; None
+    where that cannot be read. One means no other thread exists that could hold a lock at the
+    moment of a fork: the only state in which forking is provably safe."""
+    try:
+        return len(os.listdir("/proc/self/task"))
+    except OSError:
+        return None
+
+
+def cpu_ticks(pids) -> int | None:
+    """User + system CPU time (clock ticks) of the processes ``pids`` together, from
+    ``/proc/PID/stat`` (Linux); None where any cannot be read (gone, or not Linux). A process
+    blocked for ever on a lock uses none: a watchdog reads this to tell working from stalled."""
+    total = 0
+    for pid in pids:
+        try:
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                fields = f.read().rsplit(b")", 1)[1].split()
+        except (OSError, IndexError):
+            return None
+        total += int(fields[11]) + int(fields[12])  # utime, stime: fields 14 and 15 of stat(5)
+    return total

@@ -87,8 +87,11 @@ def test_an_error_in_a_child_reaches_the_caller(tmp_path):
 
 
 def test_when_processes_are_used(monkeypatch):
+    import dvcore.process
+
     monkeypatch.delenv(F.NO_FORK_ENV, raising=False)
     monkeypatch.setattr(threading, "active_count", lambda: 1)
+    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 1)
     n = F.MIN_FRAMES_FOR_PROCESSES
     assert F.processes_usable(n, 2) is (sys.platform == "linux")
     assert not F.processes_usable(n - 1, 2)  # short sequence: threads
@@ -97,6 +100,9 @@ def test_when_processes_are_used(monkeypatch):
     monkeypatch.setattr(threading, "active_count", lambda: 2)
     assert not F.processes_usable(n, 2)  # another thread runs: no fork
     monkeypatch.setattr(threading, "active_count", lambda: 1)
+    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 3)
+    assert not F.processes_usable(n, 2)  # a native pool's threads (OpenBLAS, OpenCV): no fork
+    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 1)
     monkeypatch.setenv(F.NO_FORK_ENV, "1")
     assert not F.processes_usable(n, 2)
 
@@ -285,3 +291,130 @@ def test_workers_do_not_read_through_the_parents_open_file(monkeypatch):
     assert len(recs) == len(seq)
     assert not [str(w.message) for w in caught if issubclass(w.category, _InheritedHandle)]
     assert seq.open_files == ("stack.tif",)  # the parent's own is still open
+
+
+# --- issue 29: a fork may not inherit a lock held by another thread; a stalled worker is caught ---
+
+_NATIVE_POOLS = """
+import json, os, sys
+os.environ["OPENBLAS_NUM_THREADS"] = "1"  # as the command line sets it
+sys.path.insert(0, {tests!r})
+import cv2, numpy as np
+from dvcore.process import os_thread_count
+from dropvision import frame as F
+n = F.MIN_FRAMES_FOR_PROCESSES
+seen = {{"start": [os_thread_count(), F.processes_usable(n, 2)]}}
+from test_forked_frames import _calibrated
+with F.serial_native_pools():
+    seq, ctx = _calibrated("u55_u30")  # the calibration pass, OpenCV's pool held off
+    seen["after_calibration_serial"] = [os_thread_count(), F.processes_usable(n, 2)]
+cv2.setNumThreads(4)
+a = np.random.default_rng(0).random((1500, 1500), dtype=np.float32)
+cv2.GaussianBlur(a, (0, 0), 4.0)  # OpenCV's pool runs: its threads stay
+seen["after_opencv_pool"] = [os_thread_count(), F.processes_usable(n, 2)]
+recs = list(F.stream_frames(seq, range(len(seq)), ctx, 2))
+seen["measured"] = [len(recs), len(seq)]
+print(json.dumps(seen))
+"""
+
+
+@linux_only
+def test_no_fork_once_a_native_pool_has_run(tmp_path):
+    """A fresh command-line-like process (one BLAS thread) runs one thread, and keeps it so
+    through a calibration with OpenCV's pool held off: it may fork. Once OpenCV's pool has run,
+    its threads stay (one of them could hold a lock at the fork: the issue-29 hang), and
+    `stream_frames` measures with threads instead, the records complete."""
+    import json
+    import subprocess
+
+    script = tmp_path / "pools.py"
+    script.write_text(_NATIVE_POOLS.format(tests=str(Path(__file__).resolve().parent)))
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen["start"] == [1, True]
+    assert seen["after_calibration_serial"] == [1, True]
+    assert seen["after_opencv_pool"][0] > 1 and seen["after_opencv_pool"][1] is False
+    assert seen["measured"][0] == seen["measured"][1] > F.MIN_FRAMES_FOR_PROCESSES
+
+
+_HELD_AT_FORK = """
+import json, os, sys, threading, warnings
+sys.path.insert(0, {tests!r})
+from test_forked_frames import _calibrated, F
+os.environ[F.STALL_ENV] = "1"
+seq, ctx = _calibrated("u55_u30")
+os.environ[F.NO_FORK_ENV] = "1"
+threads = [repr(r) for r in F.stream_frames(seq, range(len(seq)), ctx, 2)]
+del os.environ[F.NO_FORK_ENV]
+held = threading.Lock()
+real_measure, real_bar = F.measure_frame, F._progress_bar
+
+def measure_needing_the_lock(*args, **kw):  # like cv2.findContours waiting on its pool's mutex
+    with held:
+        pass
+    return real_measure(*args, **kw)
+
+def bar_after_the_fork(n, progress):  # the holder lets go, in this process only
+    if held.locked():
+        held.release()
+    return real_bar(n, progress)
+
+F.measure_frame, F._progress_bar = measure_needing_the_lock, bar_after_the_fork
+held.acquire()  # held at the instant of the fork: every child inherits it locked, with no owner
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    forked = [repr(r) for r in F._stream_forked(seq, range(len(seq)), ctx, 2, {{}})]
+import multiprocessing
+print(json.dumps({{"same": forked == threads, "n": len(forked),
+                  "warnings": [(w.category.__name__, str(w.message)) for w in caught],
+                  "children_left": len(multiprocessing.active_children())}}))
+"""
+
+
+@linux_only
+def test_a_lock_held_at_the_fork_is_caught_and_the_frames_measured(tmp_path):
+    """The race provoked on purpose: a lock is held at the instant the workers are forked, and
+    every frame needs it. Each child waits for ever (no CPU used); the watchdog sees it within
+    its stall time (1 s here), kills the workers and measures every frame with threads, with a
+    `WorkerProcessStalled` warning; the records are those of threads. Run in a process of its own
+    with a time limit: without the watchdog it would hang."""
+    import json
+    import subprocess
+
+    script = tmp_path / "held.py"
+    script.write_text(_HELD_AT_FORK.format(tests=str(Path(__file__).resolve().parent)))
+    r = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr[-2000:]
+    seen = json.loads(r.stdout.strip().splitlines()[-1])
+    assert seen["same"] and seen["n"] > F.MIN_FRAMES_FOR_PROCESSES
+    stalls = [m for c, m in seen["warnings"] if c == "WorkerProcessStalled"]
+    assert len(stalls) == 1 and "stalled" in stalls[0] and "with threads" in stalls[0], seen["warnings"]
+    assert seen["children_left"] == 0
+
+
+@linux_only
+def test_the_watchdog_bounds_a_wait_on_a_blocked_process(monkeypatch):
+    """A result awaited from a process that uses no CPU (here: `sleep`) raises after the stall
+    time instead of waiting; a process that works keeps the wait going."""
+    import subprocess
+    from concurrent.futures import Future
+
+    sleeper = subprocess.Popen(["sleep", "30"])
+    try:
+        with pytest.raises(F._Stalled, match="no CPU"):
+            F._Watchdog([sleeper.pid], stall_s=0.5, poll_s=0.05).result(Future())
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    done = Future()
+    done.set_result(7)
+    assert F._Watchdog([sleeper.pid], stall_s=0.5).result(done) == 7
+
+
+def test_stall_time_from_the_environment(monkeypatch):
+    monkeypatch.setenv(F.STALL_ENV, "2.5")
+    assert F._stall_s() == 2.5
+    for bad in ("x", "-1", "0"):
+        monkeypatch.setenv(F.STALL_ENV, bad)
+        assert F._stall_s() == F.STALL_S

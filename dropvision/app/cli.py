@@ -3,10 +3,19 @@
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import sys
-import warnings
+import os
+
+# Before NumPy loads OpenBLAS (the commands import it when they run): one BLAS thread. The
+# measurement's solves are small (more threads only slow them on a loaded machine), and a process
+# that runs no thread but its own can fork its frame workers safely
+# (`dropvision.frame.processes_usable`). A value the user set is kept.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import sys  # noqa: E402
+import warnings  # noqa: E402
 
 from dvcore.errors import run_command
 from dvcore.atomic import OutputError
