@@ -91,7 +91,7 @@ def test_sharp_edges_against_a_clipped_background_are_measured_with_a_wider_unce
     assert abs(s["inflight_volume_nl"] - truth.loc[both, "drop_volume_nl"].mean()) <= 2 * s["inflight_volume_uncertainty_nl"]
 
 
-@pytest.mark.skipif(not PENDANT.is_dir(), reason="../shared/realdata not present")
+@pytest.mark.usefixtures("realdata_dir")
 @pytest.mark.parametrize("exposure", [1.2, 1.4])
 def test_clipped_pendant_drop_within_3_percent(tmp_path, exposure):
     img = cv2.imread(str(PENDANT / "gota_pendiente_1.png"), cv2.IMREAD_UNCHANGED)

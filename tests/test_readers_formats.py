@@ -166,7 +166,7 @@ def test_jpeg_pixel_limit_from_header(tmp_path, monkeypatch):
         reader_for(path).decode(path, None)
 
 
-def test_jpeg_decode_identical_to_opencv(tmp_path):
+def test_jpeg_decode_identical_to_opencv(tmp_path, realdata_dir):
     """The JPEG reader (imagecodecs' libjpeg-turbo) gives the same arrays, bit for bit, as the
     OpenCV path it replaced (``IMREAD_GRAYSCALE`` for colour, ``IMREAD_UNCHANGED`` for grey):
     the real colour frames of ../shared/realdata (2048x1536 watcher, 752x480 pendant drops) and
@@ -174,8 +174,8 @@ def test_jpeg_decode_identical_to_opencv(tmp_path):
     from dropvision.readers.base import ColourLuma
     from dropvision.readers.jpeg import JpegReader
 
-    real = sorted((Path(__file__).resolve().parents[2] / "shared" / "realdata").glob("*/*/*.jpg"))
-    assert len(real) >= 10  # ../shared is beside the project (a missing folder is a failure)
+    real = sorted(realdata_dir.glob("*/*/*.jpg"))
+    assert len(real) >= 12  # the eight watcher frames and four pendant drops
     rng = np.random.default_rng(3)
     made = []
     for k, (h, w) in enumerate([(37, 53), (64, 64), (333, 200)]):
