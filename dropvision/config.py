@@ -62,7 +62,9 @@ class MeasureConfig:
     workers : int
         Decoding/measuring workers: forked processes on Linux for a sequence of at least
         `dropvision.frame.MIN_FRAMES_FOR_PROCESSES` frames measured from a top-level process
-        running no other Python thread (`dropvision.frame.processes_usable`; the environment variable
+        running no other thread, native ones included (`dropvision.frame.processes_usable`: the
+        command line runs one BLAS thread and holds OpenCV's pool off; in Python, set
+        ``OPENBLAS_NUM_THREADS=1`` before NumPy is imported; the environment variable
         ``DROPVISION_NO_FORK=1`` keeps threads), threads otherwise. Same results either way.
     dead_time_us : float
         Default firing-trigger-to-piston delay (µs) when the waveform does not give one
