@@ -45,7 +45,10 @@ sys.exit(cli.main(sys.argv[1:]))
 """
 
 
-def _spin(native: bool) -> None:  # pragma: no cover - a busy loop in its own process
+def _spin(native: bool, parent_pid: int) -> None:  # pragma: no cover - a busy loop in its own process
+    from dvcore.process import die_with_parent
+
+    die_with_parent(parent_pid)  # no busy loop left behind, however this tool ends
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     if native:
         import cv2
@@ -83,10 +86,12 @@ def main(argv=None) -> int:
     work = args.keep or Path(tmp.name)
     work.mkdir(parents=True, exist_ok=True)
     seq = _sequence(work, args.frames)
-    spinners = [multiprocessing.get_context("spawn").Process(target=_spin, args=(args.busy_native,), daemon=True)
+    spinners = [multiprocessing.get_context("spawn").Process(target=_spin, args=(args.busy_native, os.getpid()),
+                                                                 daemon=True)
                 for _ in range(args.busy)]
     for p in spinners:
         p.start()
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(143))  # a kill ends the spinners too (finally)
     counts = dict(runs=0, forked=0, threads=0, hung=0, stalled=0, died=0, failed=0)
     walls: list[float] = []
     env = {k: v for k, v in os.environ.items() if k != "DROPVISION_NO_FORK"}
