@@ -438,6 +438,9 @@ def test_outputs_inside_the_input_are_refused_whatever_overwrite_says(model_path
                             "--rerun", str(root / "seq" / "c.rrd")]) == 2
     line = _one_error_line(capsys.readouterr().err, "dropvision campaign")
     assert "lies inside the input" in line and not (tmp_path / "cds").exists()
+    assert dropvision_main(["measure", str(root / "seq"), "--out", str(tmp_path / "m"),
+                            "--rerun", str(root / "seq" / "m.rrd")]) == 2
+    assert "lies inside the input" in _one_error_line(capsys.readouterr().err, "dropvision measure")
     assert sorted(p.name for p in (root / "seq").iterdir()) == ["sequence.json"]
 
 
