@@ -18,7 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
-    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "Quality",
+    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "PREDICTION", "Quality",
     "QUALITY_CODES", "RANGES", "check_table", "check_document", "markdown",
 ]
 
@@ -402,8 +402,37 @@ TUNING_RUN = Document("tuning_run", "tuning.json", "identify.tuning-run/1", (
     F("versions", "object", "", "software versions"),
 ), "What a tuning run was run for (`identify tune`); the shots are tuning.parquet.")
 
+# ----------------------------------------------------------------------------- prediction
+_OUT = "an output's entry: mean, std and parameters_only_low/high (Monte Carlo)"
+_INTERVALS = ("; with the three intervals: mean_drop_* (confidence), one_drop_* (prediction), their stds, "
+              "dominant terms and variance shares")
+_BLANK = " (its numbers null when the output is impossible, see `impossible`)"
+PREDICTION = Document("prediction", "identify predict --json", "identify.prediction/1", (
+    F("schema", "str", "", "document id"),
+    F("pinchoff_us", "float", "us", "nominal pinch-off instant" + _BLANK),
+    F("grown_volume_at_pinchoff_nl", "float", "nl", "nominal grown volume at pinch-off" + _BLANK),
+    F("inflight_volume_nl", "object", "nl", _OUT + _INTERVALS + _BLANK),
+    F("jetting_velocity_m_s", "object", "m/s", _OUT + _INTERVALS + _BLANK),
+    F("pinchoff_us_mc", "object", "us", _OUT + _BLANK),
+    F("grown_volume_at_pinchoff_mc_nl", "object", "nl", _OUT + _BLANK),
+    F("pinchoff_us_intervals", "object", "us", "the three intervals of the pinch-off instant" + _BLANK),
+    F("level", "float", "", "level of the intervals"),
+    F("interval_note", "str", "", "what each interval covers"),
+    F("measurement", "object", "", "the training campaign's systematic measurement uncertainty (null: none "
+      "recorded)"),
+    F("extrapolation", "bool", "", "(u1, u2) lies outside the training region (convex hull of the training "
+      "controls): the polynomials are unchecked there; null when the model records no training controls"),
+    F("training_region", "object", "", "the training region's bounds (u1_um_per_ms, u2_um), shape and number of "
+      "controls; null: unknown"),
+    F("impossible", "object", "", "output -> why its prediction is physically impossible (a negative volume, "
+      "a pinch-off not after the dead time, a jetting velocity <= 0): such an output is null, not a value; "
+      "{} when none"),
+    F("notes", "list", "", "sentences on the extrapolation and the impossible outputs (empty when none)"),
+), "`identify predict --json`: one JSON object on stdout (Python: `HybridModel.predict` warns with "
+   "`identify.hybrid.ExtrapolationWarning` and gives NaN for an impossible output).")
+
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
-DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN, PREDICTION)}
 
 
 class Quality:
@@ -478,7 +507,9 @@ QUALITY_CODES: dict[str, str] = {
 #: Generous for real rigs. sequence.json is read with them (docs/FORMAT.md; a value outside is a
 #: ``SequenceError`` naming the key, the value and the range; diameters: also outer > inner when
 #: both given) and a model file's scalars are checked against the same upper limits
-#: (``identify.model_file.MODEL_RANGES``).
+#: (``identify.model_file.MODEL_RANGES``). The measured quantities at the end bound the columns of a
+#: training dataset (``identify.dataset_checks``: a value outside names the column and the likely
+#: unit mistake, e.g. velocities in mm/s labelled m/s).
 RANGES: dict[str, tuple[float, float, str]] = {
     "pixel_size_um": (0.01, 1000.0, "µm"),
     "nozzle_diameter_um": (1.0, 10000.0, "µm"),
@@ -493,6 +524,12 @@ RANGES: dict[str, tuple[float, float, str]] = {
     "density_kg_m3": (10.0, 1e5, "kg/m³"),
     "viscosity_mPa_s": (1e-3, 1e7, "mPa·s"),
     "surface_tension_mN_m": (0.1, 1e4, "mN/m"),
+    # measured (dataset columns): a drop-on-demand jet flies at ~1-10 m/s; its pinch-off comes tens
+    # to hundreds of µs after the trigger; its drops are pl to tens of nl (10 µl: a 2.7 mm sphere)
+    "jetting_velocity_m_s": (0.0, 100.0, "m/s"),
+    "flow_velocity_m_s": (-100.0, 100.0, "m/s"),
+    "pinchoff_us": (0.0, 1e4, "µs"),
+    "volume_nl": (-1e4, 1e4, "nl"),
 }
 
 

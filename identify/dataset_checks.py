@@ -255,6 +255,7 @@ def validate(ds: Dataset, *, min_controls: int = 3) -> Dataset:
             f"{f_ts}: no sequence usable for the ECM: each needs at least {MIN_RUN_SAMPLES} contiguous "
             "attached samples from delay 0 past the dead time")
     _check_plausible(ds, f_ts, f_su, f_js)
+    _check_ranges(ds, f_ts, f_su)
     return ds
 
 
@@ -328,6 +329,42 @@ def _check_plausible(ds: Dataset, f_ts: str, f_su: str, f_js: str) -> None:
         raise DatasetError(
             f"{f_ts}: column grown_volume_nl (max {top:.4g} nl) is {top / top_ref:.3g} x the nozzle "
             f"cross-section x largest stroke, above the plausible {hi:g}: volumes in pl labelled nl?")
+
+
+#: Dataset columns bounded by an accepted physical range (``dvcore.schema.RANGES`` key), per file.
+_RANGED_COLUMNS = (
+    ("summary", "jetting_velocity_m_s", "jetting_velocity_m_s"),
+    ("summary", "flow_velocity_at_max_stroke_m_s", "flow_velocity_m_s"),
+    ("summary", "pinchoff_us", "pinchoff_us"),
+    ("summary", "inflight_volume_nl", "volume_nl"),
+    ("summary", "grown_volume_at_pinchoff_nl", "volume_nl"),
+    ("timeseries", "flow_velocity_m_s", "flow_velocity_m_s"),
+    ("timeseries", "grown_volume_nl", "volume_nl"),
+)
+#: The unit 1000 x smaller than the column's: what a value 1000 x too large was probably written in.
+_SMALLER_UNIT = {"m/s": "mm/s", "µs": "ns", "nl": "pl"}
+
+
+def _check_ranges(ds: Dataset, f_ts: str, f_su: str) -> None:
+    """Refuse a column value outside its accepted physical range (``dvcore.schema.RANGES``): one
+    line naming the file, the column, the value (and its sequence) and the likely unit mistake."""
+    frames = {"summary": (ds.summary, f_su), "timeseries": (ds.timeseries, f_ts)}
+    for which, col, key in _RANGED_COLUMNS:
+        df, fname = frames[which]
+        lo, hi, unit = schema.RANGES[key]
+        v = df[col].to_numpy(float)
+        bad = np.isfinite(v) & ((v < lo) | (v > hi))
+        if not bad.any():
+            continue
+        i = int(np.flatnonzero(bad)[np.argmax(np.abs(v[bad]))])
+        value = float(v[i])
+        why = ""
+        if abs(value) > hi and lo <= value / 1000.0 <= hi and unit in _SMALLER_UNIT:
+            why = f": looks like {_SMALLER_UNIT[unit]} labelled {unit}"
+        raise DatasetError(
+            f"{fname}: column {col} has {value:.6g} {unit} (sequence {_fmt_id(df['sequence_id'].iloc[i])}; "
+            f"{int(bad.sum())} value(s) outside the plausible {lo:g}..{hi:g} {unit} of a drop-on-demand "
+            f"jet){why}")
 
 
 def load_dataset(path, *, min_controls: int = 3) -> Dataset:

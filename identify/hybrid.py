@@ -26,6 +26,7 @@ model.json is in :mod:`identify.model_file`, the fit in :mod:`identify.hybrid_fi
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -85,7 +86,58 @@ class HybridModel:
         return Waveform(float(u1), float(u2), self.u3_um_per_ms, self.hold_us)
 
     def predict(self, u1: float, u2: float) -> dict:
-        """Nominal prediction: dict of :data:`identify.montecarlo.OUTPUTS` (+ ECM flow velocity at max stroke)."""
+        """Nominal prediction: dict of :data:`identify.montecarlo.OUTPUTS` (+ ECM flow velocity at max stroke).
+
+        Outside the training region of (u1, u2) it warns (:class:`ExtrapolationWarning`); an
+        output that is physically impossible there (:func:`impossible_outputs`: a negative
+        volume, a pinch-off not after the dead time, a jetting velocity <= 0) is NaN, with the
+        value the polynomials gave in the warning: it is not a measurement of anything.
+        :meth:`nominal` gives the raw values without checks.
+        """
+        out = self.nominal(u1, u2)
+        check = self.check_prediction(u1, u2, out)
+        for k in check["impossible"]:
+            out[k] = float("nan")
+        if check["notes"]:
+            warnings.warn(ExtrapolationWarning(" ".join(check["notes"])), stacklevel=2)
+        return out
+
+    def inside_training_region(self, u1: float, u2: float) -> bool | None:
+        """Whether (u1, u2) lies in the training region (convex hull of the training controls,
+        :class:`identify.design.Region`); None when the model records no usable controls."""
+        if self.controls is None:
+            return None
+        from identify.design import Region
+
+        try:
+            return bool(Region(self.controls).inside(u1, u2)[0])
+        except ValueError:  # controls spanning no area
+            return None
+
+    def check_prediction(self, u1: float, u2: float, values: dict) -> dict:
+        """What to say about a prediction at (u1, u2): ``extrapolation`` (True outside the
+        training region, None when unknown), ``training_region`` (its bounds, or None),
+        ``impossible`` (output -> why its value cannot be physical, :func:`impossible_outputs`)
+        and ``notes`` (sentences)."""
+        inside = self.inside_training_region(u1, u2)
+        region = None
+        if inside is not None:
+            from identify.design import Region
+
+            region = Region(self.controls).to_dict()
+        impossible = impossible_outputs(values, self.dead_time_us)
+        notes = []
+        if inside is False:
+            notes.append(f"(u1, u2) = ({u1:g} um/ms, {u2:g} um) lies outside the training region (u1 "
+                         f"{region['u1_um_per_ms'][0]:g}-{region['u1_um_per_ms'][1]:g} um/ms, u2 "
+                         f"{region['u2_um'][0]:g}-{region['u2_um'][1]:g} um, {region['shape']}): extrapolation, "
+                         "the polynomials are unchecked there.")
+        notes += [f"{k}: {why}; not a value (null/NaN)." for k, why in impossible.items()]
+        return {"extrapolation": None if inside is None else not inside, "training_region": region,
+                "impossible": impossible, "notes": notes}
+
+    def nominal(self, u1: float, u2: float) -> dict:
+        """The raw nominal prediction of :meth:`predict`, without the region and physics checks."""
         w = self.waveform(u1, u2)
         t_p = float(self.pinchoff.predict(u1, u2))
         modal = modal_form(self.ecm_coefficients)
@@ -380,6 +432,44 @@ class HybridModel:
 #: polynomial is significant there: b² > var(b) times the 95 % quantile of χ²(1) (a pointwise
 #: Wald test at 5 %; with no bias it fires at about 5 % of controls).
 U1_REFERENCE_CHI2 = 3.841
+
+
+class ExtrapolationWarning(UserWarning):
+    """A prediction outside the model's training region of (u1, u2), or a physically impossible
+    output there (:meth:`HybridModel.predict`)."""
+
+
+def impossible_outputs(values: dict, dead_time_us: float) -> dict[str, str]:
+    """Outputs whose value cannot be physical, output -> why: a negative volume (grown at
+    pinch-off, in flight), a pinch-off not after the dead time (the drop cannot separate before
+    the piston moves; the volumes, taken at that instant, then too), a jetting velocity <= 0 (a
+    drop that does not leave). Such values come
+    from polynomials extrapolated where they mean nothing; they are reported as missing with
+    this reason, never as a number (a clipped 0 nl would read as "no drop", which the model
+    cannot say either). Keys absent from ``values`` or NaN are skipped."""
+    out = {}
+
+    def value(k):
+        v = values.get(k)
+        v = v.get("mean") if isinstance(v, dict) else v
+        return None if v is None or not np.isfinite(v) else float(v)
+
+    for k in ("grown_volume_at_pinchoff_nl", "inflight_volume_nl"):
+        v = value(k)
+        if v is not None and v < 0:
+            out[k] = f"{v:.4g} nl predicted, a negative volume"
+    v = value("pinchoff_us")
+    if v is not None and v <= dead_time_us:
+        out["pinchoff_us"] = (f"{v:.4g} us predicted, not after the dead time {dead_time_us:g} us (the drop cannot "
+                              "separate before the piston moves)")
+    if "pinchoff_us" in out:  # both volumes are read off the growth at the pinch-off instant
+        for k in ("grown_volume_at_pinchoff_nl", "inflight_volume_nl"):
+            if k in values and k not in out:
+                out[k] = "taken at an impossible pinch-off instant"
+    v = value("jetting_velocity_m_s")
+    if v is not None and v <= 0:
+        out["jetting_velocity_m_s"] = f"{v:.4g} m/s predicted, a drop that does not leave the nozzle"
+    return out
 
 
 def _dominant(terms: dict) -> str:

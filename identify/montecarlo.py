@@ -614,7 +614,7 @@ def run_monte_carlo(
     dead = model.dead_time_us
     d_um = model.nozzle_inner_diameter_um
     c_nom = coeff_array(model.ecm_coefficients)
-    nominal = model.predict(u1, u2)
+    nominal = model.nominal(u1, u2)  # raw: the checks are the caller's (HybridModel.predict)
     if samples == 1:
         s = {k: np.array([nominal[k]]) for k in OUTPUTS}
         coeffs = c_nom

@@ -3,6 +3,7 @@ and one line, bugs with exit 1 and a report line; malformed model files, absurd 
 unreachable Rerun viewers, killed campaigns and implausible datasets (generated in tmp_path)."""
 
 import errno
+import shutil
 import json
 import os
 import signal
@@ -373,3 +374,160 @@ def test_volumes_in_wrong_units_refused(good_dataset, tmp_path, factor, hint):
 
 def test_paper_grid_dataset_is_plausible(tmp_path):
     load_dataset(make_synthetic_dataset(tmp_path / "paper", seed=2).path)  # no false alarm
+
+
+def test_velocities_in_mm_s_labelled_m_s_refused(good_dataset, tmp_path, capsys):
+    """Issue 29 item 6: velocities 1000 x too large (mm/s in the m/s columns) fitted without a word
+    (1430.98 m/s predicted); refused naming the file, the column, the value and the unit slip."""
+    ds = load_dataset(good_dataset.path)
+    top = float(ds.summary["jetting_velocity_m_s"].max())
+    assert 0.1 < top < 100  # the reference: a drop-on-demand jet at ~1 m/s
+    ds.summary["jetting_velocity_m_s"] *= 1000.0
+    ds.summary["flow_velocity_at_max_stroke_m_s"] *= 1000.0
+    ds.timeseries["flow_velocity_m_s"] *= 1000.0
+    out = _save(ds, tmp_path / "mm_s")
+    with pytest.raises(DatasetError, match=r"summary.parquet: column jetting_velocity_m_s has 1\d{3}\.?\d* m/s") as exc:
+        load_dataset(out)
+    assert "looks like mm/s labelled m/s" in str(exc.value) and f"{1000 * top:.6g}" in str(exc.value)
+    assert identify_main(["fit", str(out), "--out", str(tmp_path / "m.json"), "--no-arx"]) == 2
+    line = _one_error_line(capsys.readouterr().err, "identify fit")
+    assert "jetting_velocity_m_s" in line and "mm/s" in line and not (tmp_path / "m.json").exists()
+    ds = load_dataset(good_dataset.path)  # a pinch-off in ns labelled us: the same rule
+    ds.summary["pinchoff_us"] *= 1000.0
+    with pytest.raises(DatasetError, match=r"column pinchoff_us has .* looks like ns labelled µs"):
+        load_dataset(_save(ds, tmp_path / "ns"))
+
+
+# ----------------------------------------------------------------------------- 9. issue 29
+def _tree_hashes(folder: Path) -> dict:
+    import hashlib
+
+    return {p.relative_to(folder).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_outputs_inside_the_input_are_refused_whatever_overwrite_says(model_path, tmp_path, capsys):
+    """Item 1: `identify fit DS --out DS/summary.parquet --overwrite` wrote the model over the data
+    (and `--out DS/manifest.json` broke the campaign's resume). Every output (model, report,
+    recording, tuning folder) inside or onto an input is refused before any work, inputs intact."""
+    ds = tmp_path / "ds"
+    shutil.copytree(model_path.parent / "ds", ds)
+    (ds / "manifest.json").write_text('{"schema": "dropvision.manifest/1", "sequences": {}}')
+    before = _tree_hashes(ds)
+    cases = [
+        ["fit", str(ds), "--out", str(ds / "summary.parquet"), "--overwrite", "--no-arx"],
+        ["fit", str(ds), "--out", str(ds / "manifest.json"), "--overwrite", "--no-arx"],
+        ["fit", str(ds), "--out", str(ds / "new" / "model.json"), "--no-arx"],
+        ["fit", str(ds), "--out", str(ds), "--overwrite", "--no-arx"],
+        ["fit", str(ds), "--out", str(tmp_path / "m.json"), "--rerun", str(ds / "fit.rrd"), "--no-arx"],
+        ["report", str(model_path), "--dataset", str(ds), "--out", str(ds / "rep"), "--overwrite"],
+        ["tune", str(model_path), "--volume-nl", "18", "--rig", "folder", "--rig-folder", str(ds),
+         "--out", str(ds / "tuning"), "--overwrite"],
+    ]
+    for argv in cases:
+        assert identify_main(argv) == 2, argv
+        line = _one_error_line(capsys.readouterr().err, f"identify {argv[0]}")
+        assert "the output" in line and str(ds) in line, line
+        assert _tree_hashes(ds) == before, argv
+    assert not (tmp_path / "m.json").exists()
+    # the campaign: a recording inside a sequence folder would change its input hash
+    root = tmp_path / "root"
+    (root / "seq").mkdir(parents=True)
+    (root / "seq" / "sequence.json").write_text("{}")
+    assert dropvision_main(["campaign", str(root), "--out", str(tmp_path / "cds"), "--workers", "1",
+                            "--rerun", str(root / "seq" / "c.rrd")]) == 2
+    line = _one_error_line(capsys.readouterr().err, "dropvision campaign")
+    assert "lies inside the input" in line and not (tmp_path / "cds").exists()
+    assert dropvision_main(["measure", str(root / "seq"), "--out", str(tmp_path / "m"),
+                            "--rerun", str(root / "seq" / "m.rrd")]) == 2
+    assert "lies inside the input" in _one_error_line(capsys.readouterr().err, "dropvision measure")
+    assert sorted(p.name for p in (root / "seq").iterdir()) == ["sequence.json"]
+
+
+def test_predict_far_outside_the_training_region_flags_and_never_shows_impossible_values(model_path, capsys):
+    """Item 5: far outside the training region the JSON carried no extrapolation flag and showed a
+    negative volume and pinch-off; `model.predict` returned them silently."""
+    from dvcore import schema
+    from identify.hybrid import ExtrapolationWarning, HybridModel
+
+    m = HybridModel.from_json(model_path)
+    raw = m.nominal(500.0, 200.0)
+    assert raw["pinchoff_us"] <= m.dead_time_us  # the reference: the polynomial extrapolated into nonsense
+    with pytest.warns(ExtrapolationWarning, match=r"outside the training region .* pinchoff_us: -?\d"):
+        got = m.predict(u1=500, u2=200)
+    assert np.isnan(got["pinchoff_us"]) and np.isnan(got["inflight_volume_nl"])
+    assert got["jetting_velocity_m_s"] == pytest.approx(raw["jetting_velocity_m_s"])  # possible: kept, warned
+    inside = m.predict(u1=70, u2=25)  # no warning inside (warnings are errors here)
+    assert all(np.isfinite(v) for v in inside.values())
+    assert identify_main(["predict", str(model_path), "--u1", "500", "--u2", "200", "--samples", "200", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)  # valid JSON (no NaN)
+    assert res["schema"] == schema.PREDICTION.schema and set(res) == set(schema.PREDICTION.key_names)
+    assert res["extrapolation"] is True and res["training_region"]["u1_um_per_ms"] == [50.0, 80.0]
+    assert {"pinchoff_us", "inflight_volume_nl", "grown_volume_at_pinchoff_nl"} <= set(res["impossible"])
+    assert res["pinchoff_us"] is None and res["inflight_volume_nl"]["mean"] is None
+    assert res["inflight_volume_nl"]["one_drop_low"] is None and res["pinchoff_us_intervals"]["mean"] is None
+    assert any("outside the training region" in n for n in res["notes"])
+
+    def numbers(x):
+        if isinstance(x, dict):
+            return [v for k, e in x.items() if k not in ("training_region", "variance_shares") for v in numbers(e)]
+        return [x] if isinstance(x, (int, float)) and not isinstance(x, bool) else []
+
+    shown = {k: res[k] for k in ("pinchoff_us", "grown_volume_at_pinchoff_nl", "pinchoff_us_mc")}
+    assert numbers(shown) == []  # no plain value of an impossible output
+    assert res["jetting_velocity_m_s"]["mean"] > 0
+    assert identify_main(["predict", str(model_path), "--u1", "500", "--u2", "200", "--samples", "200"]) == 0
+    cap = capsys.readouterr()
+    assert "outside the training region" in cap.err and "pinchoff_us: " in cap.err and "n/a" in cap.out
+    assert identify_main(["predict", str(model_path), "--u1", "70", "--u2", "25", "--samples", "200", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["extrapolation"] is False and res["impossible"] == {} and res["notes"] == []
+
+
+def test_campaign_whose_sequences_all_fail_exits_2_without_a_dataset(tmp_path, monkeypatch, capsys):
+    """Item 7: every sequence failing (here: a full disk) gave exit 0 and an empty dataset."""
+    import dropvision.app.campaign as campaign
+
+    root = tmp_path / "root"
+    for name in ("a", "b", "c"):
+        (root / name).mkdir(parents=True)
+        (root / name / "sequence.json").write_text("{}")
+
+    def full_disk(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp_path / "ds" / "shards"))
+
+    monkeypatch.setattr(campaign, "open_sequence", full_disk)
+    out = tmp_path / "ds"
+    assert dropvision_main(["campaign", str(root), "--out", str(out), "--workers", "1", "--no-progress"]) == 2
+    line = _one_error_line(capsys.readouterr().err, "dropvision campaign")
+    assert "all 3 sequences failed" in line and "first: a: OSError: [Errno 28] No space left on device" in line
+    assert not any((out / f).exists() for f in ("timeseries.parquet", "summary.parquet", "dataset.json"))
+    manifest = json.loads((out / "manifest.json").read_text())  # the errors are kept for the rerun
+    assert {e["status"] for e in manifest["sequences"].values()} == {"failed"}
+    monkeypatch.undo()  # sequences that fail on their own (empty sequence.json): the same
+    assert dropvision_main(["campaign", str(root), "--out", str(tmp_path / "ds2"), "--workers", "1",
+                            "--no-progress"]) == 2
+    assert "all 3 sequences failed" in _one_error_line(capsys.readouterr().err, "dropvision campaign")
+
+
+def test_campaign_discovery_never_walks_a_link_to_the_root_of_the_file_system(tmp_path):
+    """Item 11: a link to / in the campaign root walked the whole file system (/proc included:
+    1.76 GB after 90 s). Links that lead back above themselves (/, a parent: loops) and links
+    into /proc, /sys, /dev are not followed; a link to a real rig folder still is."""
+    from dropvision.app.campaign import find_sequences
+
+    root = tmp_path / "campaign"
+    for name in ("s1", "deep/s2"):
+        (root / name).mkdir(parents=True)
+        (root / name / "sequence.json").write_text("{}")
+    rig = tmp_path / "rig" / "s3"
+    rig.mkdir(parents=True)
+    (rig / "sequence.json").write_text("{}")
+    (root / "everything").symlink_to("/", target_is_directory=True)
+    (root / "up").symlink_to(tmp_path, target_is_directory=True)            # a loop through the parent
+    (root / "deep" / "back").symlink_to(root, target_is_directory=True)     # a loop to the root
+    (root / "procs").symlink_to("/proc/self", target_is_directory=True)
+    (root / "rig_link").symlink_to(tmp_path / "rig", target_is_directory=True)  # assembled from links: followed
+    assert find_sequences(root) == [root / "deep" / "s2", root / "rig_link" / "s3", root / "s1"]
+    with pytest.raises(FileNotFoundError, match="system folder /proc"):
+        find_sequences("/proc/self")

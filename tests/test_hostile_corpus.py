@@ -1,6 +1,7 @@
 """The hostile-input tier: one generated case of every family of tools/hostile_corpus.py
 (corrupt metadata values and documents, frame entries, corrupt frames, lying metadata, output
-locations, links out of the folder, model files, identify arguments, lying datasets) runs
+locations, links out of the folder, model files, identify arguments, lying datasets, identify outputs
+onto or inside the dataset) runs
 through the real command lines: no traceback, hang, runaway memory, silent wrong answer, read
 outside the folder or changed input. The full corpus (>= 400 cases) is the tool itself."""
 

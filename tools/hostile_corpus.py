@@ -459,6 +459,19 @@ def identify_cases(bases, work) -> list[Case]:
     dataset_variant("interval_0", lambda ts, su, m: (ts, su, {**m, "sample_interval_us": 0}))
     dataset_variant("one_sequence", lambda ts, su, m: (ts[ts.sequence_id == ts.sequence_id.iloc[0]],
                                                        su.iloc[:1], m))
+    dataset_variant("velocity_mm_s_as_m_s", lambda ts, su, m: (
+        ts.assign(flow_velocity_m_s=ts.flow_velocity_m_s * 1000),
+        su.assign(jetting_velocity_m_s=su.jetting_velocity_m_s * 1000,
+                  flow_velocity_at_max_stroke_m_s=su.flow_velocity_at_max_stroke_m_s * 1000), m))
+    # outputs onto or inside the input dataset, whatever --overwrite says (issue 29 item 1)
+    for name, target in (("model_over_summary", "summary.parquet"), ("model_over_manifest", "manifest.json"),
+                         ("model_inside_dataset", "model.json")):
+        folder = work / "identify" / "outputs" / name / "ds"
+        shutil.copytree(ds, folder)
+        (folder / "manifest.json").write_text('{"schema": "dropvision.manifest/1", "sequences": {}}')
+        cases.append(Case("identify outputs", name, [PY, "-m", "identify.app.cli", "fit", str(folder), "--out",
+                                                     str(folder / target), "--overwrite", "--no-arx"],
+                          folder, "refuse"))
     return cases
 
 

@@ -60,6 +60,7 @@ from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
 from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, to_json, write_bytes
 from dvcore.jsonio import load_json_hardened
+from dvcore.outputs import check_outside_inputs
 from dvcore.versions import software_versions
 
 MANIFEST_SCHEMA = schema.MANIFEST.schema
@@ -87,25 +88,73 @@ class CampaignResult:
         }
 
 
+class CampaignFailed(RuntimeError):
+    """Every sequence of a campaign failed: no dataset is written (``manifest.json`` records each
+    sequence's error; a partly failed campaign writes its dataset and lists the failures).
+
+    Attributes
+    ----------
+    result : CampaignResult
+        What the run did (``failed``: sequence id -> error).
+    """
+
+    def __init__(self, result: CampaignResult, root):
+        self.result = result
+        sid, error = next(iter(sorted(result.failed.items())), ("?", "unknown error"))
+        n = len(result.failed)
+        super().__init__(
+            f"{root}: {'the only sequence' if n == 1 else f'all {n} sequences'} failed, no dataset written "
+            f"(first: {sid}: {' '.join(str(error).split())}); each error is in "
+            f"{Path(result.dataset_dir) / 'manifest.json'}")
+
+
 # ----------------------------------------------------------------------------- discovery
+#: Trees of the operating system that hold no data and never end (``/proc/<pid>/root`` leads back
+#: to ``/``): never walked, whatever link leads there.
+SPECIAL_TREES = ("/proc", "/sys", "/dev")
+
+
+def _within(path: str, tree: str) -> bool:
+    return path == tree or path.startswith(tree.rstrip(os.sep) + os.sep)
+
+
 def find_sequences(root) -> list[Path]:
     """Every folder below ``root`` (including itself) that holds a sequence.json, sorted.
 
     Linked folders are followed (campaigns are often assembled from links to the rigs' folders),
-    each real folder once; hidden folders are skipped. The paths returned are below ``root`` as
-    written (the links are not resolved), so sequence ids name the campaign's own layout.
+    each real folder once; hidden folders are skipped. A link to a folder that holds the link
+    itself (``/``, a parent folder: a loop) is not followed, nor one into the system's special
+    trees (:data:`SPECIAL_TREES`), so a stray link to ``/`` cannot walk the whole file system.
+    The paths returned are below ``root`` as written (the links are not resolved), so sequence
+    ids name the campaign's own layout.
     """
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: campaign root is not a folder")
+    real_root = os.path.realpath(root)
+    special = [t for t in SPECIAL_TREES if _within(real_root, t)]
+    if special:
+        raise FileNotFoundError(f"{root}: lies in the system folder {special[0]}, not a campaign root")
     found, seen = [], set()
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         real = os.path.realpath(dirpath)
-        if real in seen:  # a link loop, or two links to one folder
+        if real in seen:  # two links to one folder
             dirnames[:] = []
             continue
         seen.add(real)
-        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        keep = []
+        for d in sorted(dirnames):
+            if d.startswith("."):
+                continue
+            path = os.path.join(dirpath, d)
+            if os.path.islink(path):
+                target = os.path.realpath(path)
+                # a loop (the target holds this folder or the root) or a special tree: not followed
+                if (_within(real, target) or _within(real_root, target)
+                        or any(_within(target, t) for t in SPECIAL_TREES)):
+                    continue
+            keep.append(d)
+        dirnames[:] = keep
         if "sequence.json" in filenames:
             found.append(Path(dirpath))
     return sorted(found)
@@ -329,7 +378,11 @@ def run_campaign(
     ------
     dvcore.atomic.OutputError
         ``dataset_dir`` is a sequence folder, lies inside one or contains one, or holds files
-        we did not write (without ``overwrite``).
+        we did not write (without ``overwrite``); the Rerun recording lies inside a sequence
+        folder.
+    CampaignFailed
+        Every sequence failed (none measured or unchanged): no dataset is written, the manifest
+        records the errors.
     """
     check_executor_args(workers, dask_local=dask_local, scheduler=scheduler)  # before touching dataset_dir
     given = check_overrides(overrides, labels)  # a bad option: refused before any work
@@ -341,6 +394,8 @@ def run_campaign(
     folders = find_sequences(root)
     if not folders:
         raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) found")
+    # a recording inside a sequence folder would change its input hash (and the campaign's resume)
+    check_outside_inputs(folders, None if rerun_options is None else rerun_options.path)
     claim_dir(dataset_dir, inputs=folders, overwrite=overwrite, kind="campaign-dataset",
               is_ours=_is_campaign_dataset)
     for folder in (dataset_dir, dataset_dir / "shards"):
@@ -455,6 +510,10 @@ def run_campaign(
         _write_manifest(manifest_writer, manifest)  # every sequence submitted, as pending or done
         drain()
     bar.close()
+    if not result.measured and not result.skipped:
+        # nothing measured: no empty dataset passed off as a result (the manifest keeps the errors)
+        _write_manifest(manifest_writer, manifest)
+        raise CampaignFailed(result, root)
     assemble_dataset(dataset_dir, entries, parts)
     _write_manifest(manifest_writer, manifest)
     return result

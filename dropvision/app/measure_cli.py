@@ -16,6 +16,7 @@ from dropvision.app.options import (
     warning_lines,
 )
 from dvcore.errors import UsageError
+from dvcore.outputs import check_outside_inputs
 from dvcore.rerun_options import add_rerun_args
 
 _SOURCES = ("orientation", "pixel_size", "delay", "nozzle_outer_diameter", "nozzle_inner_diameter", "waveform",
@@ -33,6 +34,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"{seq}: no such folder")
     overrides, labels = overrides_from_args(args)
     config = MeasureConfig(workers=args.workers)
+    check_outside_inputs([seq], getattr(args, "rerun", None))  # a recording in the sequence changes it
     logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
     with captured_warnings() as caught:
         try:

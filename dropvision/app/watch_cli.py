@@ -17,6 +17,7 @@ from pathlib import Path
 from dropvision.app.options import add_metadata_args, captured_warnings, overrides_from_args, print_warnings, \
     warning_lines
 from dvcore.errors import UsageError
+from dvcore.outputs import check_outside_inputs
 from dvcore.rerun_options import add_rerun_args
 
 
@@ -38,6 +39,7 @@ def _run(args: argparse.Namespace) -> int:
     folder = Path(args.folder)
     if not folder.is_dir():
         raise UsageError(f"{folder}: no such folder")
+    check_outside_inputs([folder], getattr(args, "rerun", None))  # a recording in the watched folder changes it
     for name in ("frames", "idle_s", "settle_s"):
         value = getattr(args, name)
         if value is not None and not value > 0:

@@ -18,9 +18,11 @@ import math
 import sys
 
 
+from dvcore import schema
 from dvcore.errors import UsageError, run_command
 from dvcore.rerun_options import add_rerun_args
 from dvcore.atomic import OutputError, check_output_file
+from dvcore.outputs import check_outside_inputs
 
 OUTPUT_UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_volume_nl": "nl",
                 "jetting_velocity_m_s": "m/s"}
@@ -81,6 +83,8 @@ def cmd_fit(args) -> int:
     from identify.dataset_checks import load_dataset
     from identify.hybrid_fit import fit_hybrid
 
+    # model, report and recording: never onto or inside the dataset, whatever --overwrite says
+    check_outside_inputs([args.dataset], args.out, args.report, getattr(args, "rerun", None))
     check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=_is_model_file)
     if args.report is not None:  # refuse a report folder that is not ours before the fit
         from dvcore.atomic import check_output_dir
@@ -186,7 +190,7 @@ def cmd_predict(args) -> int:
     _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res, model=m))
     mc = res.summary()
     iv = m.interval_prediction(args.u1, args.u2, level=args.level, mc=res)
-    nominal = m.predict(args.u1, args.u2)
+    nominal = m.nominal(args.u1, args.u2)  # raw values; checked below (region, physics)
     # Same keys as `identify paper`: nominal pinch-off and grown volume, Monte Carlo spreads of
     # the in-flight volume and jetting velocity (and of the first two under *_mc keys).
     summary = {
@@ -208,23 +212,34 @@ def cmd_predict(args) -> int:
     summary["level"] = args.level
     summary["interval_note"] = INTERVAL_NOTE
     summary["measurement"] = (m.intervals or {}).get("measurement")
+    # outside the training region: flagged; a physically impossible output (negative volume,
+    # pinch-off before the piston moves, velocity <= 0) is null with its reason, never a number
+    check = m.check_prediction(args.u1, args.u2, {
+        "pinchoff_us": nominal["pinchoff_us"], "grown_volume_at_pinchoff_nl": nominal["grown_volume_at_pinchoff_nl"],
+        "inflight_volume_nl": summary["inflight_volume_nl"], "jetting_velocity_m_s": summary["jetting_velocity_m_s"]})
+    for k in check["impossible"]:
+        for key in _IMPOSSIBLE_ENTRIES[k]:
+            summary[key] = _without_values(summary[key])
+    summary.update(check)
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps({"schema": PREDICTION_SCHEMA, **summary}))
         return 0
-    if m.controls is not None:
-        from identify.design import Region
-
-        if not Region(m.controls).inside(args.u1, args.u2)[0]:
-            print("warning: (u1, u2) outside the training region: extrapolation", file=sys.stderr)
+    for note in check["notes"]:
+        print(f"warning: {note}", file=sys.stderr)
     pct = f"{100 * args.level:g} %"
     print(f"u1 = {args.u1} um/ms, u2 = {args.u2} um ({args.samples} Monte Carlo samples)")
-    print(f"  {'pinchoff_us':30s} {nominal['pinchoff_us']:.4g} us (nominal)")
-    print(f"  {'grown_volume_at_pinchoff_nl':30s} {nominal['grown_volume_at_pinchoff_nl']:.4g} nl (nominal)")
+    for k in ("pinchoff_us", "grown_volume_at_pinchoff_nl"):
+        shown = "n/a (impossible, see the warning)" if k in check["impossible"] else (
+            f"{nominal[k]:.4g} {OUTPUT_UNITS[k]} (nominal)")
+        print(f"  {k:30s} {shown}")
     print(f"  {'quantity':30s} {'mean':>9s}   {'mean drop ' + pct + ' (confidence)':>30s}   "
           f"{'one drop ' + pct + ' (prediction)':>30s}   widest term (mean drop / one drop)")
     for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
                    ("jetting_velocity_m_s", "jetting_velocity_m_s")):
         e = summary[key]
+        if k in check["impossible"]:
+            print(f"  {k:30s} {'n/a':>9s}   (impossible, see the warning)")
+            continue
         pred = f"[{e['one_drop_low']:.5g}, {e['one_drop_high']:.5g}]" if e["one_drop_available"] else "n/a"
         print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['mean_drop_low'], e['mean_drop_high']):>30s}   "
               f"{pred:>30s} {OUTPUT_UNITS[k]:3s} {e['mean_drop_dominant_term']} / {e['one_drop_dominant_term']}")
@@ -232,7 +247,7 @@ def cmd_predict(args) -> int:
                    ("jetting_velocity_m_s", "jetting_velocity_m_s")):
         from identify.hybrid import widening_reason
 
-        why = widening_reason(k, summary[key])
+        why = None if k in check["impossible"] else widening_reason(k, summary[key])
         if why:
             print(f"note: {why}")
     print(f"note: {INTERVAL_NOTE}")
@@ -243,6 +258,25 @@ def cmd_predict(args) -> int:
         print("note: this model file has no drop scatter (fitted before intervals existed): refit it for the "
               "prediction interval", file=sys.stderr)
     return 0
+
+
+#: The schema id of `identify predict --json` (its keys: ``dvcore.schema.PREDICTION``).
+PREDICTION_SCHEMA = schema.PREDICTION.schema
+
+#: The JSON entries that carry an output's value, blanked when that output is impossible.
+_IMPOSSIBLE_ENTRIES = {
+    "pinchoff_us": ("pinchoff_us", "pinchoff_us_mc", "pinchoff_us_intervals"),
+    "grown_volume_at_pinchoff_nl": ("grown_volume_at_pinchoff_nl", "grown_volume_at_pinchoff_mc_nl"),
+    "inflight_volume_nl": ("inflight_volume_nl",),
+    "jetting_velocity_m_s": ("jetting_velocity_m_s",),
+}
+
+
+def _without_values(entry):
+    """An output's entry with its values (numbers) null: its flags and names are kept."""
+    if isinstance(entry, dict):
+        return {k: (None if isinstance(v, float) and k != "level" else v) for k, v in entry.items()}
+    return None
 
 
 INTERVAL_FIELDS = ("level", "mean_drop_low", "mean_drop_high", "mean_drop_std", "one_drop_low",
@@ -279,13 +313,15 @@ def cmd_tune(args) -> int:
     _check_samples(args.samples)
     if args.shots < 1:
         raise UsageError(f"--shots must be >= 1, got {args.shots}")
-    check_output_dir(args.out, inputs=[args.model], overwrite=args.overwrite)  # refused before any shot
+    inputs = [args.model, args.rig_folder]  # the operator's shot folders are inputs too
+    check_outside_inputs(inputs, args.out, getattr(args, "rerun", None))
+    check_output_dir(args.out, inputs=inputs, overwrite=args.overwrite)  # refused before any shot
     m = _load_model(args.model)
     rig = load_rig(args.rig, viscosity_factor=args.viscosity_factor, nozzle_diameter_factor=args.nozzle_diameter_factor,
                    seed=args.seed, rig_folder=args.rig_folder, rig_timeout_s=args.rig_timeout_s)
 
     def show(so_far):
-        write_tuning(so_far, args.out, inputs=[args.model], overwrite=args.overwrite)  # every shot kept
+        write_tuning(so_far, args.out, inputs=inputs, overwrite=args.overwrite)  # every shot kept
         if args.json:
             return
         r = so_far.shots[-1]
@@ -302,7 +338,7 @@ def cmd_tune(args) -> int:
                velocity_tolerance_percent=args.velocity_tolerance_percent, prior_bias_percent=args.prior_bias_percent,
                bias_lengthscale=args.bias_lengthscale, samples=args.samples, seed=args.seed, model_path=args.model,
                progress=show)
-    write_tuning(res, args.out, inputs=[args.model], overwrite=args.overwrite)
+    write_tuning(res, args.out, inputs=inputs, overwrite=args.overwrite)
     _with_recording(args, lambda rec, lg: lg.log_tuning(rec, res, model=m))
     if args.json:
         from dvcore.atomic import to_json

@@ -739,7 +739,7 @@ def log_model_fit(rec: rr.RecordingStream, dataset: Any, model: Any, arx_selecti
         name = names[i] + (f" ({row.sequence_id})" if names[i] in dup else "")
         t = g.delay_us.to_numpy(float)
         vol, vel = model.simulate(row.u1_um_per_ms, row.u2_um, t)
-        nominal = model.predict(row.u1_um_per_ms, row.u2_um)
+        nominal = model.nominal(row.u1_um_per_ms, row.u2_um)
         pin = (float(row.pinchoff_us), float(getattr(row, "grown_volume_at_pinchoff_nl", math.nan)))
         log_sequence_fit(rec, name, t, g.grown_volume_nl.to_numpy(float), vol,
                          measured_flow_m_s=g.flow_velocity_m_s.to_numpy(float), simulated_flow_m_s=vel,
