@@ -50,6 +50,7 @@ from pathlib import Path
 from typing import Callable, Iterable, Iterator
 
 from dvcore import __version__, schema
+from dvcore.errors import UsageError
 from dvcore.jsonio import loads_strict
 
 #: Marker file of every folder dropvision writes.
@@ -62,9 +63,10 @@ _LEFTOVER = re.compile(r"^\.dvtmp\..+\.(tmp|old)$")
 _OWNER = re.compile(r"\.(\d+)\.[a-z0-9_]{8}\.(tmp|old)$")
 
 
-class OutputError(Exception):
-    """An output location that would destroy something we did not write, or that overlaps an
-    input: the user can fix it (another ``--out``, or ``--overwrite``). Exit status 2."""
+class OutputError(UsageError):
+    """An output location that would destroy something we did not write, that overlaps an
+    input, or that another run writes: the user can fix it (another ``--out``, or
+    ``--overwrite``). Exit status 2; its message names the folder (printed as it is)."""
 
 
 def _tmp_prefix(name: str) -> str:
@@ -309,17 +311,28 @@ def _cwd() -> Path | None:
         return None
 
 
-def _must_stay(final: Path) -> str | None:
-    """Why the existing folder ``final`` may not be renamed (a mount point, the working folder
-    or a parent of it), else None."""
+def _fixed_in_place(final: Path) -> str | None:
+    """Why the existing folder ``final`` can never be renamed, whoever asks (a mount point, a
+    folder in a folder we may not write), else None. Such a folder carries its lock itself."""
     try:
         if not final.is_dir() or final.is_symlink():
             return None
         here = final.absolute()
         if os.path.ismount(here) or os.stat(here).st_dev != os.stat(here.parent).st_dev:
             return "a mount point"
+        if not os.access(here.parent, os.W_OK):
+            return "in a folder we may not write"
     except OSError:
         return None
+    return None
+
+
+def _must_stay(final: Path) -> str | None:
+    """Why the existing folder ``final`` may not be renamed now (`_fixed_in_place`, or it is
+    the working folder or a parent of it), else None."""
+    fixed = _fixed_in_place(final)
+    if fixed is not None or not final.is_dir():
+        return fixed
     cwd = _cwd()
     real = _resolved(final)
     if cwd is not None and (cwd == real or real in cwd.parents):
@@ -342,8 +355,8 @@ def _busy(final: Path, fd: int) -> OutputError:
 
 def _acquire(final: Path) -> _Held:
     """Lock ``final`` for this process (see `output_lock`)."""
-    if _must_stay(final) is not None or (final.is_dir() and not os.access(final.absolute().parent, os.W_OK)):
-        # never renamed: the folder itself carries the lock
+    if _fixed_in_place(final) is not None:
+        # never renamed by anyone: the folder itself carries the lock
         fd = os.open(final, os.O_RDONLY | os.O_DIRECTORY | os.O_CLOEXEC)
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -107,8 +107,11 @@ class Journal:
 
         line = to_json(row, indent=None).encode("utf-8")  # ends with "\n"
         view = memoryview(line)
-        while view:  # a regular file takes it in one write; a short write is continued
-            view = view[os.write(self._fd, view):]
+        try:
+            while view:  # a regular file takes it in one write; a short write is continued
+                view = view[os.write(self._fd, view):]
+        except OSError as exc:  # a full disk: named by the journal, not by the input
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
 
     def close(self) -> None:
         if self._fd >= 0:
