@@ -30,6 +30,7 @@ import math
 import os
 import queue
 import shutil
+import stat
 import statistics
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -359,6 +360,9 @@ def _settled(folder: Path, pending: dict, done: dict, unlisted: dict, opts: Watc
         try:
             st = os.stat(folder / name)
         except OSError:  # gone (renamed away, deleted)
+            del pending[name]
+            continue
+        if not stat.S_ISREG(st.st_mode):  # a FIFO or device named like a frame: never opened here
             del pending[name]
             continue
         key = (st.st_size, st.st_mtime_ns)
