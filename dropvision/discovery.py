@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import posixpath
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path, PurePath
 
@@ -131,6 +132,26 @@ def _delays_of_file(folder: Path, rel: str, refused: dict, lone_ok: bool = False
                         f"'frame_01150us.png'){cut} and no frames list in sequence.json")
 
 
+def not_regular(path: Path) -> str | None:
+    """What ``path`` is when it exists but is not a regular file (links followed): "a FIFO",
+    "a character device", "a block device", "a socket" or "a folder"; None for a regular file
+    or one that cannot be looked at (reported when it is read)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    for test, kind in ((stat.S_ISREG, None), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"), (stat.S_ISDIR, "a folder")):
+        if test(mode):
+            return kind
+    return "not a regular file"
+
+
+def shown_name(name: str) -> str:
+    """A file name as it can be printed: bytes that are not UTF-8 (surrogate escapes) as ``\\xNN``."""
+    return name.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+
+
 def is_regular_file(path: Path) -> bool:
     try:
         return path.is_file()
@@ -179,11 +200,19 @@ def _scan_folder(folder: Path, folder_real: str, refused: dict, allow_outside: b
         if (p.suffix.lower() not in IMAGE_SUFFIXES or p.name.startswith(".")
                 or p.name.lower().startswith("truth") or (only is not None and p.name not in only)):
             continue
+        try:
+            p.name.encode("utf-8")
+        except UnicodeEncodeError:  # Parquet and JSON hold UTF-8 text only: refused before any work
+            raise SequenceError(f"{folder / shown_name(p.name)}: the file name is not valid UTF-8 text "
+                                "(shown with \\x escapes); rename the file") from None
         target = None if allow_outside else outside_folder(folder_real, p)
+        kind = not_regular(p) if target is None else None
         if target is not None:
             refused[p.name] = refusal_reason(target)
-        elif not is_regular_file(p):
+        elif kind == "a folder" or not (kind is not None or is_regular_file(p)):
             continue
+        elif kind is not None:  # a FIFO or device named like a frame: reported, never opened
+            refused[p.name] = f"{kind}, not a regular file; not read"
         names.append(p.name)
     names.sort(key=_natural_key)
     if not names:
@@ -222,7 +251,9 @@ def list_from_rate(folder: Path, video, rate: tuple[float, float, int], json_pat
         if target is not None:
             raise SequenceError(f"{path}: {refusal_reason(target)}")
         if not is_regular_file(path):
-            raise SequenceError(f"{path}: named by 'video' in sequence.json but missing")
+            kind = not_regular(path)
+            raise SequenceError(f"{path}: named by 'video' in sequence.json but "
+                                + (f"it is {kind}, not a regular file" if kind else "missing"))
         names = [rel]
     else:
         names = _scan_folder(folder, folder_real, refused, allow_outside, only)
@@ -288,6 +319,10 @@ def list_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
                                     f"be accessed ({getattr(exc, 'strerror', None) or exc})"
                                     ) from None
             if not present:
+                kind = not_regular(path)
+                if kind is not None:
+                    raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but it is {kind}, "
+                                        "not a regular file")
                 raise SequenceError(f"{where}: listed in sequence.json frames[{i}] but missing")
         page = entry.get("page")
         if page is not None:

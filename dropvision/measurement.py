@@ -33,7 +33,7 @@ from dropvision.frame import FrameRecord, processes_usable, serial_native_pools,
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
 from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
-from dvcore.atomic import atomic_dir, check_output_dir
+from dvcore.atomic import atomic_dir, check_output_dir, output_lock
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
     import pandas as pd
@@ -118,8 +118,24 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         raise TypeError("measure_sequence: overrides apply to a sequence folder, not to an open Sequence")
     seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir, overrides=overrides, labels=labels)
     inputs = [] if isinstance(seq, ArraySequence) else [seq.meta.path]  # in memory: no folder
-    if out_dir is not None:  # before any work: the output may destroy nothing
+    if out_dir is None:
+        return _measure(seq, None, inputs, config, progress, logger, csv, overwrite)
+    try:  # before any work: the output may destroy nothing, and no other run writes it
         check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
+        lock = output_lock(out_dir)
+        lock.__enter__()
+    except BaseException:
+        seq.close()
+        raise
+    try:
+        return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite)
+    finally:
+        lock.__exit__(None, None, None)
+
+
+def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,
+             overwrite: bool) -> MeasureResult:
+    """`measure_sequence` after its checks (the output folder locked)."""
     meta = seq.meta
     n = len(seq)
     if n == 0:

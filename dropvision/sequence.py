@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import os
+import stat
 import threading
 import warnings
 from collections import Counter, OrderedDict
@@ -35,11 +36,13 @@ from dropvision.readers import (
     IMAGE_SUFFIXES, VIDEO_SUFFIXES, ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage,
     reader_for,
 )
-from dropvision.discovery import (is_regular_file, list_from_folder, list_from_frames, list_from_rate, outside_folder,
+from dropvision.discovery import (is_regular_file, list_from_folder, list_from_frames, list_from_rate, not_regular,
+                                  outside_folder,
                                   parse_delay_from_name, read_frame_rate, refusal_reason)
 from dropvision.orientation import ORIENTATIONS, original_to_canonical, swaps_axes, to_canonical
 from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none,
                                   merge_overrides, ranged_value, validate_diameters, validate_ink, validate_waveform)
+import dropvision.readers.base as readers_base
 from dropvision.readers.base import ColourLuma, is_number
 from dvcore.jsonio import load_json_hardened
 from dvcore.schema import RANGES
@@ -221,15 +224,19 @@ class Sequence:
         if ref.file in self._refused:
             raise UnreadableImage(self._refused[ref.file])
         try:
-            size = path.stat().st_size
+            st = path.stat()
         except FileNotFoundError:
             raise SequenceError(f"{path}: image file is missing") from None
         except (OSError, ValueError) as exc:
             raise UnreadableImage(f"cannot access file ({getattr(exc, 'strerror', None) or exc})"
                                   ) from None
+        if not stat.S_ISREG(st.st_mode):  # a FIFO would block the reader, a device read without end
+            raise UnreadableImage(f"{not_regular(path) or 'not a regular file'}, not a regular file; not read")
+        size = st.st_size
         if size == 0:
             raise UnreadableImage("zero-byte file")
         reader = reader_for(path)
+        self._check_header_size(reader, path, ref)
         try:
             img = self._decode_native(reader, path, ref)
         except InvalidImage as exc:
@@ -245,6 +252,21 @@ class Sequence:
             raise SequenceError(f"{path}{_page_txt(ref)}: unsupported pixel type {img.dtype} "
                                 "(8-bit or 16-bit unsigned grey images are read)")
         return to_canonical(img, self.meta.orientation)
+
+    def _check_header_size(self, reader: Reader, path: Path, ref: FrameRef) -> None:
+        """Refuse, before decoding, a frame whose header states another size than the first
+        frame's (a 9999x9999 RGBA PNG is not decoded to be refused after)."""
+        if not all(self.meta.shape):  # the first frame is being looked for: no size yet
+            return
+        stated = reader.header_size(path, ref.page)
+        if stated is None or not 0 < stated[0] * stated[1] <= readers_base.MAX_PIXELS:
+            return  # an empty or oversized header: the reader refuses it (a skipped frame)
+        rows, cols = self.meta.shape if not swaps_axes(self.meta.orientation) else self.meta.shape[::-1]
+        if stated != (cols, rows):
+            first = self.meta.shape
+            width, height = stated if not swaps_axes(self.meta.orientation) else stated[::-1]
+            raise SequenceError(f"{path}{_page_txt(ref)}: image size {width}x{height} (canonical, WxH, from its "
+                                f"header) differs from the first frame's {first[1]}x{first[0]}")
 
     def _decode_native(self, reader: Reader, path: Path, ref: FrameRef) -> np.ndarray:
         """Decode one frame with its reader; files holding several frames stay open in a small

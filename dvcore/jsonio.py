@@ -4,7 +4,11 @@
 would accept but no measurement file should hold: more than :data:`MAX_JSON_BYTES`, text that
 is not UTF-8, ``NaN``/``Infinity``, an integer literal of more than :data:`MAX_JSON_INT_DIGITS`
 digits (whose conversion is quadratic), a number too large for a float, nesting deeper than
-:data:`MAX_JSON_DEPTH`, and a top level that is not an object.
+:data:`MAX_JSON_DEPTH`, a key given twice in one object (json.loads keeps the last one
+silently), and a top level that is not an object.
+
+:func:`unique_keys` is the ``object_pairs_hook`` that refuses duplicate keys; every JSON
+document dropvision reads goes through it (:func:`loads_strict` for text at hand).
 """
 
 from __future__ import annotations
@@ -13,7 +17,8 @@ import json
 import math
 from pathlib import Path
 
-__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_JSON_INT_DIGITS", "JsonRefused", "load_json_hardened"]
+__all__ = ["MAX_JSON_BYTES", "MAX_JSON_DEPTH", "MAX_JSON_INT_DIGITS", "JsonRefused", "load_json_hardened",
+           "loads_strict", "unique_keys"]
 
 #: Largest JSON file read (bytes), deepest nesting of its containers, longest integer literal.
 MAX_JSON_BYTES = 64 * 1024 ** 2
@@ -41,6 +46,24 @@ def _json_float(text: str) -> float:
     if not math.isfinite(value):
         raise JsonRefused(f"number {text[:40]} is too large to represent")
     return value
+
+
+def unique_keys(pairs: list) -> dict:
+    """``object_pairs_hook`` of every JSON read: the object as a dict, refusing a key given twice
+    (:class:`JsonRefused` naming it) instead of keeping the last one silently."""
+    obj = dict(pairs)
+    if len(obj) != len(pairs):
+        seen = set()
+        for key, _value in pairs:
+            if key in seen:
+                raise JsonRefused(f"key {key!r} given twice in one object")
+            seen.add(key)
+    return obj
+
+
+def loads_strict(text):
+    """``json.loads`` refusing duplicate keys (:class:`JsonRefused`, a ValueError)."""
+    return json.loads(text, object_pairs_hook=unique_keys)
 
 
 def _json_depth_ok(obj) -> bool:
@@ -76,7 +99,7 @@ def load_json_hardened(path, error: type[Exception] = ValueError) -> dict:
     ------
     error
         Unreadable, larger than :data:`MAX_JSON_BYTES`, not UTF-8 (a BOM is skipped), invalid
-        JSON, NaN/Infinity, an integer of more than :data:`MAX_JSON_INT_DIGITS` digits, a number
+        JSON, a key given twice in one object, NaN/Infinity, an integer of more than :data:`MAX_JSON_INT_DIGITS` digits, a number
         too large for a float, nesting deeper than :data:`MAX_JSON_DEPTH`, or not an object.
     """
     path = Path(path)
@@ -93,7 +116,7 @@ def load_json_hardened(path, error: type[Exception] = ValueError) -> dict:
         raise error(f"{path}: not UTF-8 text") from None
     try:
         obj = json.loads(text, parse_constant=_json_constant, parse_int=_json_int,
-                         parse_float=_json_float)
+                         parse_float=_json_float, object_pairs_hook=unique_keys)
     except JsonRefused as exc:
         raise error(f"{path}: invalid JSON ({exc})") from None
     except RecursionError:

@@ -461,6 +461,7 @@ class Quality:
     NEIGHBOURS = "inconsistent_with_neighbours"
     IMPLAUSIBLE = "implausible_physics"
     NOZZLE_OUT_OF_FOCUS = "nozzle_out_of_focus"
+    UNREADABLE = "unreadable"
 
 
 #: Quality code -> explanation (docs/FORMAT.md lists them).
@@ -499,6 +500,8 @@ QUALITY_CODES: dict[str, str] = {
     Quality.NOZZLE_OUT_OF_FOCUS: "the nozzle walls are out of focus (the drops are sharper): the tip plane and "
                                  "the liquid next to it are located only to the walls' blur; attached and grown "
                                  "volumes kept with that in their uncertainty",
+    Quality.UNREADABLE: "the frame could not be read or decoded (its error says why): nothing measured; such a "
+                        "frame is listed in summary.json errors, and only the live journal has a row of it",
 }
 
 

@@ -440,7 +440,7 @@ def test_outputs_inside_the_input_are_refused_whatever_overwrite_says(model_path
     assert "lies inside the input" in line and not (tmp_path / "cds").exists()
     assert dropvision_main(["measure", str(root / "seq"), "--out", str(tmp_path / "m"),
                             "--rerun", str(root / "seq" / "m.rrd")]) == 2
-    assert "lies inside the input" in _one_error_line(capsys.readouterr().err, "dropvision measure")
+    assert "inside the input folder" in _one_error_line(capsys.readouterr().err, "dropvision measure")
     assert sorted(p.name for p in (root / "seq").iterdir()) == ["sequence.json"]
 
 

@@ -5,6 +5,7 @@ reported in summary.json["errors"]; never a traceback, a hang or a silent wrong 
 Every input is generated in tmp_path (no stored files)."""
 
 import json
+import os
 import shutil
 import struct
 import time
@@ -402,3 +403,87 @@ def test_links_resolving_inside_the_folder_are_read(seq, tmp_path, capsys):
     doc["frames"][10]["file"] = f"alias/{name}"
     _write_doc(seq, doc)
     assert _measured(seq, tmp_path, capsys) == []
+
+
+# --- 7. issue 29: duplicate keys, names, special files, page chains, header sizes ------------
+
+def test_duplicate_key_in_sequence_json_is_refused(seq, tmp_path, capsys):
+    text = json.dumps(_doc(seq))
+    (seq / "sequence.json").write_text('{"pixel_size_um": 99.0, ' + text[1:])  # the file's own value last
+    _exit2(seq, tmp_path, capsys, str(seq / "sequence.json"), "'pixel_size_um' given twice")
+    nested = _doc(seq)
+    (seq / "sequence.json").write_text(json.dumps(nested).replace('"delay_us":', '"delay_us": 1, "delay_us":', 1))
+    _exit2(seq, tmp_path, capsys, "sequence.json", "'delay_us' given twice")
+
+
+def test_json_documents_we_read_refuse_duplicate_keys(tmp_path):
+    from dvcore.atomic import foreign_files
+    from dvcore.jsonio import JsonRefused, loads_strict
+
+    with pytest.raises(JsonRefused, match="'a' given twice"):
+        loads_strict('{"a": 1, "b": {"a": 2}, "a": 3}')
+    assert loads_strict('{"a": 1, "b": {"a": 2}}') == {"a": 1, "b": {"a": 2}}
+    (tmp_path / "x.txt").write_text("user")  # a marker listing it twice under "files" is no marker of ours
+    (tmp_path / ".dropvision-output.json").write_text(
+        '{"schema": "dropvision.output-marker/1", "files": [], "files": ["x.txt"]}')
+    assert foreign_files(tmp_path) == ["x.txt"]
+
+
+def test_frame_name_that_is_not_utf8_is_refused_up_front(seq, tmp_path, capsys):
+    doc = _doc(seq)
+    del doc["frames"]
+    _write_doc(seq, doc)
+    bad = os.fsencode(str(seq)) + b"/frame_\xff_00525us.png"
+    with open(bad, "wb") as fh:
+        fh.write((seq / _frames_of(seq)[0]).read_bytes())
+    line = _exit2(seq, tmp_path, capsys, "frame_\\xff_00525us.png", "not valid UTF-8")
+    assert str(seq) in line
+    assert not (tmp_path / "out").exists()
+
+
+def _frames_of(folder):
+    return sorted(p.name for p in folder.iterdir() if p.suffix == ".png")
+
+
+def test_fifo_among_frames_is_named_for_what_it_is(seq, tmp_path, capsys):
+    name = _frames(seq)[3]
+    (seq / name).unlink()
+    os.mkfifo(seq / name)  # a reader opening it would wait forever
+    _exit2(seq, tmp_path, capsys, name, "a FIFO, not a regular file")
+    doc = _doc(seq)
+    del doc["frames"]  # a folder scan: reported as a skipped frame, never opened
+    _write_doc(seq, doc)
+    errors = _measured(seq, tmp_path, capsys)
+    assert [e["file"] for e in errors] == [name] and "a FIFO, not a regular file" in errors[0]["reason"]
+
+
+def test_cyclic_tiff_page_chain_is_reported_without_raw_tifffile_lines(seq, tmp_path, capsys):
+    folder = tmp_path / "stack"
+    folder.mkdir()
+    doc = _doc(seq)
+    pages = [cv2.imread(str(seq / e["file"]), cv2.IMREAD_UNCHANGED) for e in doc["frames"]]
+    delays = [e["delay_us"] for e in doc["frames"]]
+    write_multipage_tiff(folder / "s.tif", pages, delays)
+    with tifffile.TiffFile(folder / "s.tif") as tif:
+        offsets, head = [p.offset for p in tif.pages], tif.tiff
+    data = bytearray((folder / "s.tif").read_bytes())
+    (n_tags,) = struct.unpack_from(head.tagnoformat, data, offsets[10])
+    struct.pack_into(head.offsetformat, data, offsets[10] + head.tagnosize + n_tags * head.tagsize, offsets[3])
+    (folder / "s.tif").write_bytes(bytes(data))  # page 10 points back to page 3
+    doc["frames"] = [{"file": "s.tif", "page": i, "delay_us": d} for i, d in enumerate(delays)]
+    _write_doc(folder, doc)
+    capsys.readouterr()
+    errors = _measured(folder, tmp_path, capsys)
+    assert "tifffile" not in capsys.readouterr().err
+    assert errors and all(e["file"] == "s.tif" for e in errors)
+    assert "circular" in errors[0]["reason"] and "page chain is cut" in errors[0]["reason"]
+
+
+def test_png_header_of_another_size_is_refused_before_decoding(seq, tmp_path, capsys, monkeypatch):
+    name = _frames(seq)[6]
+    _forged_png(seq / name, 9999, 9999, 6, bit_depth=16)  # 16-bit RGBA: 800 MB to decode
+    decoded = []
+    real = png_reader.read_png
+    monkeypatch.setattr(png_reader, "read_png", lambda p: (decoded.append(Path(p).name), real(p))[1])
+    _exit2(seq, tmp_path, capsys, name, "9999x9999", "from its header", "differs from the first frame's 192x480")
+    assert name not in decoded and decoded  # the others were decoded, this one never

@@ -4,6 +4,7 @@ Every refusal is exit status 2 with one line naming the path, before anything is
 the inputs are byte-identical afterwards (hashes before/after).
 """
 
+import errno
 import hashlib
 import json
 import os
@@ -132,16 +133,35 @@ def test_rerun_file_that_is_not_a_recording_is_never_replaced(seq, tmp_path, cap
     assert f.read_text() == "not a recording" and not (tmp_path / "o").exists()
 
 
-def test_synth_refuses_a_users_folder_and_replaces_on_request(tmp_path, capsys):
+def test_synth_overwrite_never_empties_a_folder_it_did_not_write(tmp_path, capsys, monkeypatch):
     out = tmp_path / "s"
     out.mkdir()
     (out / "notes.txt").write_text("x")
-    argv = ["synth", str(out), "--delays", "0:200:100", "--no-progress"]
+    argv = ["synth", str(out), "--delays", "0:200:100", "--no-progress", "--size", "64x96"]
     _refused(capsys, argv, "notes.txt")
-    assert os.listdir(out) == ["notes.txt"]
-    assert main([*argv, "--overwrite"]) == 0
-    assert not (out / "notes.txt").exists() and (out / "sequence.json").exists()
-    assert main(argv) == 0  # now ours: replaced without asking
+    _refused(capsys, [*argv, "--overwrite"], "not written by dropvision", str(out))
+    monkeypatch.chdir(out)  # the user stands in it: still refused, never emptied nor removed
+    _refused(capsys, ["synth", ".", "--delays", "0:200:100", "--no-progress", "--overwrite"], "notes.txt")
+    _refused(capsys, ["synth", "..", "--delays", "0:200:100", "--no-progress", "--overwrite"], "not written")
+    assert os.listdir(out) == ["notes.txt"] and os.getcwd() == str(out)
+    # a folder of ours: replaced without asking; --overwrite keeps a file the user added to it
+    ours = tmp_path / "ours"
+    argv = ["synth", str(ours), "--delays", "0:200:100", "--no-progress", "--size", "64x96"]
+    assert main(argv) == 0
+    (ours / "notes.txt").write_text("mine")
+    _refused(capsys, argv, "notes.txt", "--overwrite")
+    assert main([*argv[:3], "0:100:100", *argv[4:], "--overwrite"]) == 0  # 2 frames instead of 3
+    assert (ours / "notes.txt").read_text() == "mine"
+    assert len(json.loads((ours / "sequence.json").read_text())["frames"]) == 2
+    assert len([f for f in os.listdir(ours) if f.endswith(".png")]) == 2  # our earlier third frame removed
+    # rendered again while the user stands inside it: written in place, the folder never moved
+    (ours / "notes.txt").unlink()
+    monkeypatch.chdir(ours)
+    inode = os.stat(ours).st_ino
+    assert main(["synth", ".", "--delays", "0:300:100", "--no-progress", "--size", "64x96"]) == 0
+    assert os.stat(ours).st_ino == inode and os.path.samefile(os.getcwd(), ours)
+    assert len(json.loads((ours / "sequence.json").read_text())["frames"]) == 4
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".dvtmp")]
     capsys.readouterr()
 
 
@@ -245,3 +265,183 @@ def test_remove_leftovers_touches_only_our_names(tmp_path):
         (tmp_path / n).write_text("x")
     remove_leftovers(tmp_path)
     assert sorted(os.listdir(tmp_path)) == sorted([".notes.tmp", "a.tmp", ".dvtmp-other"])
+
+
+# ----------------------------------------------------------------------------- one run per output (issue 29)
+def _holder(folder: Path):
+    """Another process holding the output lock of ``folder`` until its stdin closes."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from dvcore.atomic import output_lock\n"
+            "with output_lock(sys.argv[1]):\n    print('held', flush=True); sys.stdin.read()\n")
+    proc = subprocess.Popen([sys.executable, "-c", code, str(folder)], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1])})
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_an_output_written_by_a_live_run_is_refused_at_once(grid, seq, tmp_path, capsys):
+    out = tmp_path / "o"
+    assert main(["measure", str(seq), "--out", str(out)]) == 0  # an earlier result of ours
+    before = tree_hashes(out)
+    proc = _holder(out)
+    try:
+        for argv in (["measure", str(seq), "--out", str(out)],
+                     ["watch", str(seq), "--out", str(out), "--idle-s", "0.1"],
+                     ["campaign", str(grid), "--out", str(out), "--workers", "1", "--no-progress"]):
+            _refused(capsys, argv, str(out), f"another dropvision run (process {proc.pid}) is writing this output")
+        assert tree_hashes(out) == before
+    finally:
+        proc.kill()  # killed: the operating system releases its lock
+        proc.wait()
+        proc.stdin.close()
+        proc.stdout.close()
+    assert main(["measure", str(seq), "--out", str(out)]) == 0
+    assert sorted(n for n in os.listdir(tmp_path) if n.startswith(".dvtmp")) == []  # lock file removed after
+
+
+def test_cleanup_removes_only_temporaries_of_dead_runs(tmp_path):
+    import subprocess
+    import sys
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    live = ".dvtmp.manifest.json.%d.abcd_123.tmp" % os.getppid()
+    stale = ".dvtmp.manifest.json.%d.abcd_123.tmp" % dead.pid
+    for name in (live, stale, ".dvtmp.x.json.ab12cd.tmp"):
+        (tmp_path / name).write_text("{")
+    remove_leftovers(tmp_path)
+    assert sorted(os.listdir(tmp_path)) == [live]
+    write_text(tmp_path / "a.json", "{}")  # our temporary names carry our process id
+    mine = []
+    real = os.replace
+    try:
+        os.replace = lambda src, dst: (mine.append(Path(src).name), real(src, dst))[1]
+        write_text(tmp_path / "b.json", "{}")
+    finally:
+        os.replace = real
+    assert mine and f".{os.getpid()}." in mine[0] and mine[0].startswith(".dvtmp.b.json.")
+
+
+# ----------------------------------------------------------------------------- mount points, devices
+def _ours_with(folder: Path, text: str) -> None:
+    with atomic_dir(folder) as tmp:
+        write_text(tmp / "a.txt", text)
+        write_text(tmp / "old.txt", "x")
+
+
+def test_a_mount_point_is_written_in_place_never_renamed(tmp_path, monkeypatch):
+    out = tmp_path / "mnt"
+    _ours_with(out, "1")
+    inode = os.stat(out).st_ino
+    real = os.path.ismount
+    monkeypatch.setattr(os.path, "ismount", lambda p: Path(p) == out or real(p))
+
+    def no_rename_of_the_mount(src, dst, *, _real=os.replace):
+        if Path(src) == out or Path(dst) == out:
+            raise OSError(errno.EBUSY, "Device or resource busy", str(src))
+        return _real(src, dst)
+
+    monkeypatch.setattr(os, "replace", no_rename_of_the_mount)
+    with atomic_dir(out) as tmp:
+        assert tmp.parent == out  # staged on the mounted volume itself
+        write_text(tmp / "a.txt", "2")
+    assert os.stat(out).st_ino == inode and (out / "a.txt").read_text() == "2"
+    assert sorted(os.listdir(out)) == [MARKER, "a.txt"]  # our earlier old.txt removed
+    assert os.listdir(tmp_path) == ["mnt"]
+
+
+@pytest.mark.parametrize("code", [errno.EBUSY, errno.EXDEV])
+def test_a_folder_that_cannot_be_renamed_is_replaced_file_by_file(tmp_path, monkeypatch, code):
+    out = tmp_path / "out"
+    _ours_with(out, "1")
+    real = os.replace
+
+    def refuse_the_folder(src, dst):
+        if Path(src) == out:  # a bind mount: the kernel refuses to move it
+            raise OSError(code, os.strerror(code), str(src), None, str(dst))
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", refuse_the_folder)
+    with atomic_dir(out) as tmp:
+        write_text(tmp / "a.txt", "2")
+    assert (out / "a.txt").read_text() == "2" and sorted(os.listdir(out)) == [MARKER, "a.txt"]
+    assert os.listdir(tmp_path) == ["out"]  # no empty .dvtmp.*.old left beside it
+
+
+def test_a_cross_device_failure_names_the_folder_and_leaves_nothing(seq, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "o"
+    assert main(["measure", str(seq), "--out", str(out)]) == 0
+    before = tree_hashes(out)
+    real = os.replace
+
+    def cross_device(src, dst):
+        if Path(dst) == out or Path(dst).parent == out or Path(src) == out:
+            raise OSError(errno.EXDEV, "Invalid cross-device link", str(src), None, str(dst))
+        return real(src, dst)
+
+    monkeypatch.setattr(os, "replace", cross_device)
+    _refused(capsys, ["measure", str(seq), "--out", str(out)], str(out), "cannot move the result into place",
+             "Invalid cross-device link")
+    assert tree_hashes(out) == before
+    assert sorted(os.listdir(tmp_path)) == sorted(["o", "user"])
+
+
+# ----------------------------------------------------------------------------- modes, a full disk
+@pytest.mark.parametrize("mask, file_mode, dir_mode", [(0o022, 0o644, 0o755), (0o027, 0o640, 0o750)])
+def test_outputs_follow_the_umask(tmp_path, mask, file_mode, dir_mode):
+    from dropvision.app.live_journal import Journal
+
+    old = os.umask(mask)
+    try:
+        with atomic_dir(tmp_path / "out") as tmp:
+            write_text(tmp / "a.json", "{}")
+            (tmp / "sub").mkdir()
+        claimed = claim_dir(tmp_path / "ds")
+        write_text(claimed / "m.json", "{}")
+        Journal(claimed / "j.jsonl").close()
+    finally:
+        os.umask(old)
+    out = tmp_path / "out"
+    assert oct(out.stat().st_mode & 0o777) == oct(dir_mode)
+    assert oct((out / "sub").stat().st_mode & 0o777) == oct(dir_mode)
+    for f in (out / "a.json", out / MARKER, claimed / "m.json", claimed / MARKER, claimed / "j.jsonl"):
+        assert oct(f.stat().st_mode & 0o777) == oct(file_mode), f
+    assert oct(claimed.stat().st_mode & 0o777) == oct(dir_mode)
+
+
+def test_a_full_disk_names_the_output_being_written(seq, tmp_path, monkeypatch, capsys):
+    import pandas as pd
+
+    def full(self, *args, **kwargs):  # what pyarrow raises: an errno, no file name
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(pd.DataFrame, "to_parquet", full)
+    out = tmp_path / "o"
+    err = _refused(capsys, ["measure", str(seq), "--out", str(out)], f"{out}: No space left on device")
+    assert str(seq) not in err.replace(str(out), "")
+    assert not out.exists() and not [n for n in os.listdir(tmp_path) if n.startswith(".dvtmp")]
+
+    def no_fsync(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(os, "fsync", no_fsync)
+    with pytest.raises(OSError, match="No space left") as caught:
+        write_text(tmp_path / "x.json", "{}")
+    assert caught.value.filename == str(tmp_path / "x.json") and os.listdir(tmp_path) == sorted(os.listdir(tmp_path))
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".dvtmp")]
+
+
+# ----------------------------------------------------------------------------- recordings
+def test_a_recording_inside_the_output_or_the_input_is_refused_before_measuring(seq, tmp_path, capsys):
+    out = tmp_path / "o4"
+    before = tree_hashes(seq)
+    _refused(capsys, ["measure", str(seq), "--out", str(out), "--rerun", str(out / "rec.rrd")],
+             str(out / "rec.rrd"), "inside the output folder")
+    assert not out.exists()
+    _refused(capsys, ["measure", str(seq), "--out", str(out), "--rerun", str(seq / "rec.rrd")],
+             str(seq / "rec.rrd"), "inside the input folder")
+    _refused(capsys, ["watch", str(seq), "--out", str(out), "--rerun", str(seq / "rec.rrd"), "--idle-s", "0.1"],
+             "inside the input folder")
+    assert tree_hashes(seq) == before and not out.exists()

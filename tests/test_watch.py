@@ -225,3 +225,25 @@ def test_sequences_one_after_the_other(rendered, tmp_path, capsys):
     for seq in ("seq_a", "seq_b"):
         _assert_same(out / seq, measure_sequence(root / seq))
     assert sorted(p.name for p in root.iterdir()) == ["seq_a", "seq_b"]  # nothing written there
+
+
+def test_live_row_of_an_undecodable_frame_says_so_in_its_quality():
+    from dropvision.app.live_journal import live_row
+    from dropvision.frame import FrameRecord
+
+    bad = live_row(FrameRecord(3, "f_00150us.png", None, 150.0, 0, error="f_00150us.png: cannot decode PNG"), 4)
+    assert bad["quality"] == schema.Quality.UNREADABLE and bad["error"]
+    assert schema.Quality.UNREADABLE in schema.QUALITY_CODES
+    good = live_row(FrameRecord(3, "f_00150us.png", None, 150.0, 0), 4)
+    assert good["quality"] == "ok" and good["error"] is None
+
+
+def test_a_fifo_named_like_a_frame_is_never_opened(rendered, tmp_path, capsys):
+    import shutil
+
+    src = Path(shutil.copytree(rendered, tmp_path / "src"))
+    os.mkfifo(src / "f_99999us.png")  # not in the frames list; opening it would wait for a writer forever
+    out = tmp_path / "out"
+    assert main(["watch", str(src), "--out", str(out), "--frames", "100", "--idle-s", "0.3", "-q"]) == 0
+    assert json.loads((out / WATCH_JSON).read_text())["left_out"] == []
+    assert len(read_journal(out)) == len(_frame_names(src))

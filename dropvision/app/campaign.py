@@ -58,7 +58,7 @@ from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
-from dvcore.atomic import atomic_dir, claim_dir, remove_leftovers, to_json, write_bytes
+from dvcore.atomic import atomic_dir, claim_dir, output_lock, remove_leftovers, to_json, write_bytes
 from dvcore.jsonio import load_json_hardened
 from dvcore.outputs import check_outside_inputs
 from dvcore.versions import software_versions
@@ -398,125 +398,126 @@ def run_campaign(
     check_outside_inputs(folders, None if rerun_options is None else rerun_options.path)
     claim_dir(dataset_dir, inputs=folders, overwrite=overwrite, kind="campaign-dataset",
               is_ours=_is_campaign_dataset)
-    for folder in (dataset_dir, dataset_dir / "shards"):
-        remove_leftovers(folder)
-    manifest_path = dataset_dir / "manifest.json"
-    manifest = _load_manifest(manifest_path)
-    old = manifest.get("sequences", {})
-    # threads do not change results; options do
-    config_repr = repr(dataclasses.replace(config, workers=0)) + (f" {sorted(given.items())!r}" if given else "")
-    # the previous run's entries of the current sequences stay until each is looked at again, so
-    # that a run stopped part-way never loses a finished sequence from the manifest
-    current = [sequence_id(root, f) for f in folders]
-    entries: dict[str, dict] = {sid: old[sid] for sid in current if sid in old}
-    result = CampaignResult(dataset_dir=dataset_dir)
-    manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
-    manifest_writer = ManifestWriter(manifest_path)
-    _write_manifest(manifest_writer, manifest)
-    if rerun_options is not None:
-        rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
-        if not rerun_options.enabled:
-            rerun_options = None
-    bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
-    parts: dict[str, ShardPart] = {}
-
-    def read_part(sid: str) -> None:
-        """Read an ok shard's share of the dataset now, while the workers measure the others
-        (the final assembly then only concatenates). A shard that cannot be read is left to
-        the final assembly, which reports it as before."""
-        try:
-            part = shard_part(dataset_dir, sid, entries[sid])
-        except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
-            return
-        if part is not None:
-            parts[sid] = part
-
-    def record(future, sid: str) -> None:
-        """One finished sequence into the manifest's entries (the caller then rewrites the
-        manifest: a kill loses nothing)."""
-        try:
-            out = future.result()
-        except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
-            out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
-        if out.get("warnings"):
-            result.warnings[sid] = out["warnings"]
-        part = out.get("part")
-        entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
-        if out["status"] == "ok":
-            result.measured.append(sid)
-            if part is not None and part.input_hash == entries[sid].get("input_hash"):
-                parts[sid] = part  # read by the worker
-            else:
-                read_part(sid)
-        else:
-            result.failed[sid] = out["error"]
-        bar.update(1)
-
-    # The client's serial work per sequence is kept far below a task's time, so that many
-    # workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
-    # submitted at once and its worker computes the input hash (the client only hashes sequences
-    # measured before, to know whether to skip them); finished sequences are recorded in
-    # batches, all that finished since the last manifest rewrite, with one rewrite per batch;
-    # each finished shard is read into its dataset part at once (`shard_part`).
-    with contextlib.ExitStack() as stack:
-        executor = None
-        pending = {}
-
-        def drain() -> None:
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in sorted(done, key=pending.get):
-                    record(future, pending.pop(future))
-                _write_manifest(manifest_writer, manifest)
-
-        for sid, folder in zip(current, folders):
-            shard = shard_name(sid)
-            prev = old.get(sid, {})
-            digest = None
-            if prev.get("status") == "ok":
-                digest = input_hash(folder, config_repr)
-            if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
-                dataset_dir / "shards" / shard, digest
-            ):
-                entries[sid] = prev
-                result.skipped.append(sid)
-                read_part(sid)
-                bar.update(1)
-                continue
-            entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
-                            "error": None}
-            if executor is None:
-                executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
-                stack.callback(drain)  # on an error below too, before the executor closes
-            if isinstance(executor, SerialExecutor):
-                _write_manifest(manifest_writer, manifest)  # the sequence being measured, as pending
-            future = executor.submit(
-                measure_to_shard,
-                str(folder),
-                str(dataset_dir / "shards" / shard),
-                digest,
-                config,
-                None if rerun_options is None else rerun_options.for_sequence(sid),
-                given or None,
-                labels,
-                config_repr,
-                sid,
-            )
-            if future.done():  # the serial executor finishes inside submit
-                record(future, sid)
-                _write_manifest(manifest_writer, manifest)
-            else:
-                pending[future] = sid
-        _write_manifest(manifest_writer, manifest)  # every sequence submitted, as pending or done
-        drain()
-    bar.close()
-    if not result.measured and not result.skipped:
-        # nothing measured: no empty dataset passed off as a result (the manifest keeps the errors)
+    with output_lock(dataset_dir):  # no other run writes it (nor cleans up its temporaries)
+        for folder in (dataset_dir, dataset_dir / "shards"):
+            remove_leftovers(folder)
+        manifest_path = dataset_dir / "manifest.json"
+        manifest = _load_manifest(manifest_path)
+        old = manifest.get("sequences", {})
+        # threads do not change results; options do
+        config_repr = repr(dataclasses.replace(config, workers=0)) + (f" {sorted(given.items())!r}" if given else "")
+        # the previous run's entries of the current sequences stay until each is looked at again, so
+        # that a run stopped part-way never loses a finished sequence from the manifest
+        current = [sequence_id(root, f) for f in folders]
+        entries: dict[str, dict] = {sid: old[sid] for sid in current if sid in old}
+        result = CampaignResult(dataset_dir=dataset_dir)
+        manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
+        manifest_writer = ManifestWriter(manifest_path)
         _write_manifest(manifest_writer, manifest)
-        raise CampaignFailed(result, root)
-    assemble_dataset(dataset_dir, entries, parts)
-    _write_manifest(manifest_writer, manifest)
-    return result
+        if rerun_options is not None:
+            rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
+            if not rerun_options.enabled:
+                rerun_options = None
+        bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
+        parts: dict[str, ShardPart] = {}
+
+        def read_part(sid: str) -> None:
+            """Read an ok shard's share of the dataset now, while the workers measure the others
+            (the final assembly then only concatenates). A shard that cannot be read is left to
+            the final assembly, which reports it as before."""
+            try:
+                part = shard_part(dataset_dir, sid, entries[sid])
+            except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
+                return
+            if part is not None:
+                parts[sid] = part
+
+        def record(future, sid: str) -> None:
+            """One finished sequence into the manifest's entries (the caller then rewrites the
+            manifest: a kill loses nothing)."""
+            try:
+                out = future.result()
+            except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
+                out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
+            if out.get("warnings"):
+                result.warnings[sid] = out["warnings"]
+            part = out.get("part")
+            entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
+            if out["status"] == "ok":
+                result.measured.append(sid)
+                if part is not None and part.input_hash == entries[sid].get("input_hash"):
+                    parts[sid] = part  # read by the worker
+                else:
+                    read_part(sid)
+            else:
+                result.failed[sid] = out["error"]
+            bar.update(1)
+
+        # The client's serial work per sequence is kept far below a task's time, so that many
+        # workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
+        # submitted at once and its worker computes the input hash (the client only hashes sequences
+        # measured before, to know whether to skip them); finished sequences are recorded in
+        # batches, all that finished since the last manifest rewrite, with one rewrite per batch;
+        # each finished shard is read into its dataset part at once (`shard_part`).
+        with contextlib.ExitStack() as stack:
+            executor = None
+            pending = {}
+
+            def drain() -> None:
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in sorted(done, key=pending.get):
+                        record(future, pending.pop(future))
+                    _write_manifest(manifest_writer, manifest)
+
+            for sid, folder in zip(current, folders):
+                shard = shard_name(sid)
+                prev = old.get(sid, {})
+                digest = None
+                if prev.get("status") == "ok":
+                    digest = input_hash(folder, config_repr)
+                if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
+                    dataset_dir / "shards" / shard, digest
+                ):
+                    entries[sid] = prev
+                    result.skipped.append(sid)
+                    read_part(sid)
+                    bar.update(1)
+                    continue
+                entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
+                                "error": None}
+                if executor is None:
+                    executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
+                    stack.callback(drain)  # on an error below too, before the executor closes
+                if isinstance(executor, SerialExecutor):
+                    _write_manifest(manifest_writer, manifest)  # the sequence being measured, as pending
+                future = executor.submit(
+                    measure_to_shard,
+                    str(folder),
+                    str(dataset_dir / "shards" / shard),
+                    digest,
+                    config,
+                    None if rerun_options is None else rerun_options.for_sequence(sid),
+                    given or None,
+                    labels,
+                    config_repr,
+                    sid,
+                )
+                if future.done():  # the serial executor finishes inside submit
+                    record(future, sid)
+                    _write_manifest(manifest_writer, manifest)
+                else:
+                    pending[future] = sid
+            _write_manifest(manifest_writer, manifest)  # every sequence submitted, as pending or done
+            drain()
+        bar.close()
+        if not result.measured and not result.skipped:
+            # nothing measured: no empty dataset passed off as a result (the manifest keeps the errors)
+            _write_manifest(manifest_writer, manifest)
+            raise CampaignFailed(result, root)
+        assemble_dataset(dataset_dir, entries, parts)
+        _write_manifest(manifest_writer, manifest)
+        return result
 
 
 # ----------------------------------------------------------------------------- synthetic campaign
@@ -549,6 +550,13 @@ def synth_campaign(out, u1_values, u2_values, *, repeats_per_point: int = 1, see
     """
     check_executor_args(workers)  # before the output folder is touched
     out = claim_dir(out, overwrite=overwrite, kind="synthetic-campaign")
+    with output_lock(out):
+        return _synth_jobs(out, u1_values, u2_values, repeats_per_point, seed, workers, progress, overrides, overwrite)
+
+
+def _synth_jobs(out: Path, u1_values, u2_values, repeats_per_point: int, seed: int, workers, progress: bool,
+                overrides: dict | None, overwrite: bool) -> list[Path]:
+    """The sequences of `synth_campaign` (``out`` claimed and locked)."""
     jobs = []
     for i, (u1, u2) in enumerate((a, b) for a in u1_values for b in u2_values):
         for r in range(repeats_per_point):

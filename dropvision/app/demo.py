@@ -15,7 +15,6 @@ Run ``python -m dropvision.app.demo --help`` for options (``--quick`` for a smal
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -37,6 +36,7 @@ from identify.hybrid import widening_reason
 from identify.hybrid_fit import fit_hybrid
 from identify.physics import SynthPhysics, drop_history
 from identify.tuning import tune
+from dvcore.jsonio import loads_strict
 
 REPO = Path(__file__).resolve().parents[2]  # dropvision/app/demo.py -> repository root
 SAMPLE_FRAMES = REPO / "sample_frames"
@@ -82,7 +82,7 @@ def measure_samples(out: Path, rerun: bool) -> list[dict]:
         finally:
             if logger is not None:
                 logger.close()
-        truth = json.loads((seq / "truth.json").read_text())
+        truth = loads_strict((seq / "truth.json").read_text())
         s = res.summary
         rows.append({"sequence": seq.name, "frames": len(res.frames), "seconds": dt, "summary": s, "truth": truth})
     return rows

@@ -8,7 +8,6 @@ whole line (`Journal`), so a kill leaves whole rows; `read_journal` drops a cut 
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
@@ -16,6 +15,7 @@ from pathlib import Path
 import dropvision.quality as q
 from dropvision.frame import FrameRecord
 from dvcore import schema
+from dvcore.jsonio import loads_strict
 
 __all__ = ["JOURNAL", "Journal", "live_row", "read_journal", "journal_table"]
 
@@ -44,7 +44,7 @@ def read_journal(out_dir) -> list[dict]:
     rows = []
     for line in data.split(b"\n")[:-1]:  # the part after the last newline is cut: left out
         try:
-            row = json.loads(line)
+            row = loads_strict(line)
         except ValueError:
             continue
         if isinstance(row, dict) and isinstance(row.get("file"), str):
@@ -88,7 +88,9 @@ def live_row(rec: FrameRecord, cal_frames: int) -> dict:
         "drop_volume_nl": main.volume_nl if main else math.nan,
         "drop_z_um": main.z_um if main else math.nan,
         "drop_x_um": main.x_um if main else math.nan,
-        "quality": q.join(rec.flags), "blur_px": rec.blur_px, "gain": rec.gain, "error": rec.error,
+        # a frame that could not be read says so in its quality too, never "ok" beside its error
+        "quality": q.join([*rec.flags, q.UNREADABLE] if rec.error is not None else rec.flags),
+        "blur_px": rec.blur_px, "gain": rec.gain, "error": rec.error,
         "calibration_frames": cal_frames,
     }
 
@@ -98,15 +100,18 @@ class Journal:
 
     def __init__(self, path: Path):
         self.path = path
-        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+        self._fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)  # the umask applies
 
     def append(self, row: dict) -> None:
         from dvcore.atomic import to_json
 
         line = to_json(row, indent=None).encode("utf-8")  # ends with "\n"
         view = memoryview(line)
-        while view:  # a regular file takes it in one write; a short write is continued
-            view = view[os.write(self._fd, view):]
+        try:
+            while view:  # a regular file takes it in one write; a short write is continued
+                view = view[os.write(self._fd, view):]
+        except OSError as exc:  # a full disk: named by the journal, not by the input
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.path)) from None
 
     def close(self) -> None:
         if self._fd >= 0:

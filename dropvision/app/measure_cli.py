@@ -15,8 +15,8 @@ from dropvision.app.options import (
     add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
     warning_lines,
 )
+from dvcore.atomic import check_side_file
 from dvcore.errors import UsageError
-from dvcore.outputs import check_outside_inputs
 from dvcore.rerun_options import add_rerun_args
 
 _SOURCES = ("orientation", "pixel_size", "delay", "nozzle_outer_diameter", "nozzle_inner_diameter", "waveform",
@@ -32,9 +32,10 @@ def _run(args: argparse.Namespace) -> int:
     seq = Path(args.seq_dir)
     if not seq.exists():
         raise UsageError(f"{seq}: no such folder")
+    # a recording inside --out would be lost with the folder's replacement; inside the input, refused
+    check_side_file(getattr(args, "rerun", None), replaced=[args.out], inputs=[seq if seq.is_dir() else seq.parent])
     overrides, labels = overrides_from_args(args)
     config = MeasureConfig(workers=args.workers)
-    check_outside_inputs([seq], getattr(args, "rerun", None))  # a recording in the sequence changes it
     logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
     with captured_warnings() as caught:
         try:

@@ -51,7 +51,8 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("out", help="output sequence folder (replaced only if it holds nothing but an earlier "
                    "result of ours)")
     p.add_argument("--overwrite", action="store_true",
-                   help="replace an existing OUT folder and everything in it")
+                   help="write into an OUT folder of ours that holds other files too: our earlier "
+                   "files are replaced, the others kept (a folder dropvision did not write is refused)")
     p.add_argument("--u1", type=float, default=70.0, help="stroke velocity u1 (µm/ms), default 70")
     p.add_argument("--u2", type=float, default=25.0, help="stroke u2 (µm), default 25")
     p.add_argument("--format", choices=("png", "tiff", "tiff-stack"), default="png")

@@ -30,6 +30,7 @@ import math
 import os
 import queue
 import shutil
+import stat
 import statistics
 import time
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -45,7 +46,8 @@ from dropvision.result_writer import write_result
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
 from dvcore import schema
-from dvcore.atomic import atomic_dir, check_output_dir, foreign_files, write_json, write_text
+from dvcore.jsonio import loads_strict
+from dvcore.atomic import atomic_dir, check_output_dir, foreign_files, output_lock, write_json, write_text
 
 __all__ = ["WATCH_JSON", "WatchOptions", "WatchResult", "watch_sequence", "watch_sequences"]
 
@@ -130,7 +132,7 @@ def _start_out(out: Path, folder: Path, overwrite: bool) -> list[dict]:
     journal, state = out / JOURNAL, out / WATCH_JSON
     if mode != "new" and journal.is_file() and JOURNAL not in foreign_files(out):
         try:
-            same = json.loads(state.read_text(encoding="utf-8")).get("sequence") == str(folder)
+            same = loads_strict(state.read_text(encoding="utf-8")).get("sequence") == str(folder)
         except (OSError, ValueError, AttributeError):
             same = False
         if same:
@@ -177,7 +179,7 @@ class _ListedCount:
         if key != self._key:
             self._key = key
             try:
-                doc = json.loads(self.path.read_text(encoding="utf-8"))
+                doc = loads_strict(self.path.read_text(encoding="utf-8"))
             except (OSError, ValueError, RecursionError):
                 doc = None
             frames = doc.get("frames") if isinstance(doc, dict) else None
@@ -245,15 +247,22 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
     dropvision.sequence.SequenceError
         FOLDER missing, or a sequence that cannot be measured (as ``dropvision measure``).
     dvcore.atomic.OutputError
-        OUT overlaps FOLDER or holds files we did not write (without ``overwrite``).
+        OUT overlaps FOLDER, holds files we did not write (without ``overwrite``), or another
+        run writes it (OUT is locked for the watch's life: `dvcore.atomic.output_lock`).
     """
-    from watchdog.observers import Observer  # the command's own dependency, imported when it runs
-
     folder = Path(folder).absolute()
     out = Path(out_dir)
     if not folder.is_dir():
         raise SequenceError(f"{folder}: no such folder")
-    opts = options
+    check_output_dir(out, inputs=[folder], overwrite=options.overwrite)
+    with output_lock(out):  # held to the end: a second watch (or measure) on OUT is refused at once
+        return _watch_locked(folder, out, options, logger, report, stop)
+
+
+def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, stop) -> WatchResult:
+    """`watch_sequence` with OUT locked."""
+    from watchdog.observers import Observer  # the command's own dependency, imported when it runs
+
     rows = _start_out(out, folder, opts.overwrite)
     n_resumed = len(rows)
     done: dict[str, tuple[int, int]] = {}  # complete file -> (size, mtime_ns) it was taken at
@@ -351,6 +360,9 @@ def _settled(folder: Path, pending: dict, done: dict, unlisted: dict, opts: Watc
         try:
             st = os.stat(folder / name)
         except OSError:  # gone (renamed away, deleted)
+            del pending[name]
+            continue
+        if not stat.S_ISREG(st.st_mode):  # a FIFO or device named like a frame: never opened here
             del pending[name]
             continue
         key = (st.st_size, st.st_mtime_ns)
@@ -514,7 +526,7 @@ def _sequence_folders(root: Path) -> list[Path]:
 def _finished(out: Path) -> bool:
     """An earlier watch of this sequence ended by itself (not interrupted): its tables are final."""
     try:
-        doc = json.loads((out / WATCH_JSON).read_text(encoding="utf-8"))
+        doc = loads_strict((out / WATCH_JSON).read_text(encoding="utf-8"))
     except (OSError, ValueError, RecursionError):
         return False
     return isinstance(doc, dict) and doc.get("state") == "finished" and doc.get("ended_by") != "interrupt"
@@ -561,6 +573,13 @@ def watch_sequences(root, out_root, options: WatchOptions = WatchOptions(), *, l
     if not root.is_dir():
         raise SequenceError(f"{root}: no such folder")
     claim_dir(out_root, inputs=[root], overwrite=options.overwrite, kind="live measurements")
+    with output_lock(out_root):  # held to the end: a second watch on OUT_ROOT is refused at once
+        return _watch_all(root, out_root, options, logger_for, report, announce)
+
+
+def _watch_all(root: Path, out_root: Path, options: WatchOptions, logger_for, report, announce
+               ) -> tuple[list[WatchResult], dict[str, str]]:
+    """`watch_sequences` with OUT_ROOT claimed and locked."""
     results: list[WatchResult] = []
     failed: dict[str, str] = {}
     watched: set[str] = set()

@@ -17,7 +17,7 @@ from pathlib import Path
 from dropvision.app.options import add_metadata_args, captured_warnings, overrides_from_args, print_warnings, \
     warning_lines
 from dvcore.errors import UsageError
-from dvcore.outputs import check_outside_inputs
+from dvcore.atomic import check_side_file
 from dvcore.rerun_options import add_rerun_args
 
 
@@ -39,11 +39,12 @@ def _run(args: argparse.Namespace) -> int:
     folder = Path(args.folder)
     if not folder.is_dir():
         raise UsageError(f"{folder}: no such folder")
-    check_outside_inputs([folder], getattr(args, "rerun", None))  # a recording in the watched folder changes it
     for name in ("frames", "idle_s", "settle_s"):
         value = getattr(args, name)
         if value is not None and not value > 0:
             raise UsageError(f"--{name.replace('_', '-')}: must be > 0, got {value:g}")
+    # a recording inside the watched folder or inside an OUT replaced at the end: refused before any work
+    check_side_file(getattr(args, "rerun", None), replaced=[] if args.sequences else [args.out], inputs=[folder])
     overrides, labels = overrides_from_args(args)
     options = WatchOptions(frames=args.frames, idle_s=args.idle_s, settle_s=args.settle_s,
                            config=MeasureConfig(workers=args.workers), csv=args.csv, overwrite=args.overwrite,

@@ -179,6 +179,12 @@ class Reader:
         """
         raise NotImplementedError
 
+    def header_size(self, path: Path, page: int | None) -> tuple[int, int] | None:
+        """(width, height) of ``page`` as the file's header states it, read without decoding
+        pixels, or None (the format's reader does not tell, or the header cannot be read). The
+        sequence checks it against the first frame's size before decoding."""
+        return None
+
     def open(self, path: Path) -> OpenImage:
         """Open ``path`` to decode several of its pages cheaply; the caller closes it.
 

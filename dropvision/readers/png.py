@@ -329,3 +329,15 @@ class PngReader(Reader):
     def significant_bits(self, path: Path, page: int | None) -> int | None:
         """Grey significant bits from the ``sBIT`` chunk (:func:`png_significant_bits`)."""
         return png_significant_bits(path)
+
+    def header_size(self, path: Path, page: int | None) -> tuple[int, int] | None:
+        """(width, height) from the IHDR chunk (the first 24 bytes), None when it cannot be read."""
+        try:
+            with open(path, "rb") as fh:
+                data = fh.read(24)
+        except OSError:
+            return None
+        if len(data) < 24 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+            return None
+        width, height = struct.unpack_from(">II", data, 16)
+        return int(width), int(height)

@@ -19,10 +19,12 @@ files itself.
 
 from __future__ import annotations
 
-import json
+import contextlib
 import logging
 import math
+import re
 import struct
+import threading
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -33,6 +35,7 @@ import dropvision.readers.base as base
 from dropvision.readers.base import (
     ImageInfo, InvalidImage, OpenImage, Reader, UnreadableImage, check_pixels, is_number,
 )
+from dvcore.jsonio import loads_strict
 
 __all__ = ["TiffReader", "OpenTiff"]
 
@@ -42,6 +45,34 @@ _TIME_UNIT_TO_US = {"s": 1e6, "ms": 1e3, "us": 1.0, "µs": 1.0, "μs": 1.0, "ns"
 _TIFFFILE_LOG = logging.getLogger("tifffile")
 if _TIFFFILE_LOG.level == logging.NOTSET:
     _TIFFFILE_LOG.setLevel(logging.ERROR)
+
+
+class _Captured(logging.Handler):
+    """tifffile's log lines (a circular page chain, a bad page offset) kept per thread, never
+    printed: the problem is reported in our words, with the file it concerns."""
+
+    def __init__(self):
+        super().__init__(logging.DEBUG)
+        self.local = threading.local()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        with contextlib.suppress(Exception):
+            text = re.sub(r"^<[^>]*>\s*", "", record.getMessage())  # "<tifffile.TiffPages @8> ..."
+            self.local.last = " ".join(text.split())[:200]
+
+    def count_pages(self, tif: tifffile.TiffFile) -> int:
+        """``len(tif.pages)`` (which walks the page chain), remembering on ``tif`` why the walk
+        stopped early when tifffile said so (e.g. a circular page chain)."""
+        self.local.last = None
+        n = len(tif.pages)
+        if getattr(tif, "_dv_chain_note", None) is None:
+            tif._dv_chain_note = self.local.last
+        return n
+
+
+_CAPTURED = _Captured()
+_TIFFFILE_LOG.addHandler(_CAPTURED)
+_TIFFFILE_LOG.propagate = False  # no raw tifffile line on the terminal
 
 _LENGTH_UNIT_TO_UM = {"m": 1e6, "cm": 1e4, "mm": 1e3, "um": 1.0, "µm": 1.0, "μm": 1.0,
                       "micron": 1.0, "microns": 1.0, "nm": 1e-3}
@@ -93,7 +124,7 @@ def _json_description(page) -> dict | None:
     if not desc or not desc.lstrip().startswith("{"):
         return None
     try:
-        obj = json.loads(desc)
+        obj = loads_strict(desc)
     except (ValueError, RecursionError):
         return None
     return obj if isinstance(obj, dict) else None
@@ -158,16 +189,18 @@ def _chain_cut(tif: tifffile.TiffFile) -> bool:
 
 
 def _page_array(tif: tifffile.TiffFile, path: Path, page: int | None) -> np.ndarray:
-    n_pages = len(tif.pages)
+    n_pages = _CAPTURED.count_pages(tif)
     if page is None and n_pages > 1:
         raise InvalidImage(f"{path}: multi-page TIFF ({n_pages} pages) needs a 'page' in its "
                            "sequence.json frames entry")
     page = 0 if page is None else page
     if page >= n_pages:
         if _chain_cut(tif):
+            why = getattr(tif, "_dv_chain_note", None)
             raise UnreadableImage(f"cannot decode TIFF (page {page} cannot be found: the page "
-                                  f"chain is cut after page {n_pages - 1}; truncated or "
-                                  "corrupt file)")
+                                  f"chain is cut after page {n_pages - 1}"
+                                  + (f", {why}" if why and "circular" in why else "")
+                                  + "; truncated or corrupt file)")
         raise InvalidImage(f"{path}: page {page} does not exist (the TIFF has {n_pages} pages)")
     pg = tif.pages[page]
     key = getattr(pg, "keyframe", None) or pg
@@ -226,7 +259,7 @@ class TiffReader(Reader):
         """Number of pages and the delays stored in OME-XML or per-page JSON descriptions;
         ``complete`` is False when the page chain is cut (truncated or corrupt file)."""
         with tifffile.TiffFile(path) as tif:
-            n_pages = len(tif.pages)
+            n_pages = _CAPTURED.count_pages(tif)
             return ImageInfo(n_pages, _page_delays(tif), complete=not _chain_cut(tif))
 
     def decode(self, path: Path, page: int | None) -> np.ndarray:

@@ -92,8 +92,9 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
     progress : bool or None
         tqdm progress bar (None: only on a terminal).
     overwrite : bool
-        Replace an existing folder as a whole even if it holds files we did not write (a
-        sequence must not mix frames of two renders, so nothing is merged).
+        Write into an existing folder of ours (it carries our marker) that holds files we did
+        not write: our earlier files are replaced or removed (a sequence never mixes frames of
+        two renders), the others are kept. A folder we never wrote is refused even so.
 
     Returns
     -------
@@ -101,10 +102,10 @@ def write_synthetic_sequence(config: SynthConfig, out_dir, *, progress: bool | N
         The sequence folder.
     """
     out = Path(out_dir)
-    check_output_dir(out, overwrite="replace" if overwrite else False)
+    check_output_dir(out, overwrite="marked" if overwrite else False)
     p = plan(config)
     rows = []
-    with atomic_dir(out, overwrite="replace" if overwrite else False, kind="synthetic-sequence") as tmp:
+    with atomic_dir(out, overwrite="marked" if overwrite else False, kind="synthetic-sequence") as tmp:
         if config.format == "tiff-stack":
             pages = []
             for img, truth in synthesize(config, progress=progress, synth_plan=p):
