@@ -597,8 +597,8 @@ def claim_dir(folder, *, inputs: Iterable = (), overwrite: bool = False, kind: s
 
 def check_output_file(path, *, inputs: Iterable = (), overwrite: bool = False,
                       is_ours: Callable[[Path], bool] | None = None) -> Path:
-    """Check that writing the file ``path`` destroys nothing: it may not be an input, nor a
-    folder, and an existing file is replaced only when ``is_ours(path)`` (one of our own
+    """Check that writing the file ``path`` destroys nothing: it may not be an input, lie inside
+    an input folder, nor be a folder, and an existing file is replaced only when ``is_ours(path)`` (one of our own
     earlier results) or ``overwrite``.
 
     Raises
@@ -606,10 +606,7 @@ def check_output_file(path, *, inputs: Iterable = (), overwrite: bool = False,
     OutputError
     """
     path = Path(path)
-    out_r = _resolved(path)
-    for inp in inputs:
-        if inp is not None and _resolved(inp) == out_r:
-            raise OutputError(f"{path}: the output would replace the input {inp}; choose another output")
+    check_not_input(path, inputs)  # not an input, nor inside an input folder (a dataset's own files)
     if path.is_dir():
         raise OutputError(f"{path}: is a folder; give a file name")
     for parent in path.parents:
