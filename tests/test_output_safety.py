@@ -445,3 +445,19 @@ def test_a_recording_inside_the_output_or_the_input_is_refused_before_measuring(
     _refused(capsys, ["watch", str(seq), "--out", str(out), "--rerun", str(seq / "rec.rrd"), "--idle-s", "0.1"],
              "inside the input folder")
     assert tree_hashes(seq) == before and not out.exists()
+
+
+def test_an_output_file_inside_an_input_folder_is_refused(tmp_path):
+    """A file output (a model, a table) may not replace an input nor go inside an input folder,
+    whatever --overwrite says: it would change (or destroy) the data read."""
+    from dvcore.atomic import OutputError, check_output_file
+
+    ds = tmp_path / "ds"
+    ds.mkdir()
+    (ds / "summary.parquet").write_bytes(b"data")
+    for target, message in ((ds / "summary.parquet", "would replace the input"),
+                            (ds / "model.json", "lies inside the input")):
+        with pytest.raises(OutputError, match=message):
+            check_output_file(target, inputs=[ds], overwrite=True)
+    assert check_output_file(tmp_path / "model.json", inputs=[ds]) == tmp_path / "model.json"
+    assert (ds / "summary.parquet").read_bytes() == b"data"
