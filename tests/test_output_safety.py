@@ -455,9 +455,10 @@ def test_an_output_file_inside_an_input_folder_is_refused(tmp_path):
     ds = tmp_path / "ds"
     ds.mkdir()
     (ds / "summary.parquet").write_bytes(b"data")
-    for target, message in ((ds / "summary.parquet", "would replace the input"),
-                            (ds / "model.json", "lies inside the input")):
+    for target, inputs, message in ((ds / "summary.parquet", [ds / "summary.parquet"], "would replace the input"),
+                                    (ds / "summary.parquet", [ds], "lies inside the input"),
+                                    (ds / "model.json", [ds], "lies inside the input")):
         with pytest.raises(OutputError, match=message):
-            check_output_file(target, inputs=[ds], overwrite=True)
+            check_output_file(target, inputs=inputs, overwrite=True)
     assert check_output_file(tmp_path / "model.json", inputs=[ds]) == tmp_path / "model.json"
     assert (ds / "summary.parquet").read_bytes() == b"data"
