@@ -23,13 +23,14 @@ import numpy as np
 
 import dropvision.quality as q
 from dropvision.blur import edge_sigma_px, esf_sigma_px
-from dropvision.calibration import Calibration, CalibrationError, calibrate_frames
-from dropvision.classify import appearance, nozzle_edge_spread_px
+from dropvision.bodies import hanging_columns
+from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
+from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
-from dropvision.nozzle import find_nozzle
-from dropvision.segmentation import dark_mask, find_nozzle_body, segment
+from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line
+from dropvision.segmentation import dark_mask, fill_holes, find_nozzle_body, segment
 from dropvision.sequence import SequenceError
 from dropvision.volume import outline
 
@@ -146,6 +147,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         cal.nozzle_out_of_focus = True
         cal.notes.append(focus.note)
         cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
+        ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
@@ -438,6 +440,150 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
 #: tilt ``t`` left out is ``1 - cos t``: 0.14 % at 3 deg.
 AXIS_ALONG_COLUMNS_TILT_RAD = 0.0
 AXIS_ALONG_COLUMNS_SOURCE = "image columns (assumed: the nozzle walls are out of focus)"
+
+
+#: Fields of a `FrameContext` that follow the calibration's tip plane and axis (the region of interest).
+_REGION_FIELDS = ("r0", "c0", "c1", "height", "width", "inv_background", "background", "thr_image", "allowed",
+                  "opaque", "tip_roi", "axis_col", "tip_row", "tilt_rad", "sample_rows", "sample_cols")
+
+
+def jet_axis_col(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int]:
+    """The jet's axis column (full frame, px) from the line of the detached in-focus drops.
+
+    In each calibration frame the largest detached body that is in focus (edge spread within the
+    mist limit of the in-focus reference, `dropvision.classify.out_of_focus_reason`) and as dark
+    as half the liquid's depth, away from the region's edges: the main drop; its area centroid's
+    column (the axis of a body of revolution).  The median over the frames.
+
+    Returns
+    -------
+    (column, number of frames it comes from); (NaN, 0) without any such body.
+    """
+    cols = []
+    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    for img in images:
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        hh, ww = seg.labels.shape
+        best = None
+        for b in sorted(seg.bodies, key=lambda b: -b.area_px):
+            if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
+                continue
+            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=ctx.liquid_level)
+            if (1.0 - app.min_transmission >= depth_min
+                    and out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor,
+                                            ctx.mist_blur_offset_px) is None):
+                best = b
+                break
+        if best is not None:
+            _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
+            cols.append(float(np.mean(cc)) + best.x0 + ctx.c0)
+    return (float(np.median(cols)), len(cols)) if cols else (float("nan"), 0)
+
+
+def detached_liquid_level(images, background: np.ndarray, threshold: float, opaque: np.ndarray | None,
+                          face: tuple[float, float]) -> float:
+    """The liquid's interior transmission from the detached bodies (the median over the frames of
+    `dropvision.calibration.interior_level`); NaN without any.
+
+    Detached: dark bodies touching no edge of the frame and wholly below the face line ``face``
+    (``row = a + b * col``).  A blurred holder's lower part (and a capillary's dark face in it) lies
+    below where its walls' silhouette ends and is no liquid, nor are its fragments or a vignetted
+    corner: their grey would lift the level, and the edge threshold with it.
+    """
+    levels = []
+    for img in images:
+        t = np.asarray(img, np.float32) / background
+        h, w = t.shape
+        n, lab, st, _ = cv2.connectedComponentsWithStats((t < threshold).astype(np.uint8), connectivity=8)
+        x0, y0, bw, bh = st[:, 0], st[:, 1], st[:, 2], st[:, 3]
+        face_row = face[0] + face[1] * (x0 + 0.5 * bw)
+        keep = (x0 > 0) & (y0 > face_row) & (x0 + bw < w) & (y0 + bh < h)
+        keep[0] = False
+        region = keep[lab]
+        if opaque is not None:
+            region &= ~opaque
+        lv = interior_level(t, region, threshold=threshold)
+        if np.isfinite(lv):
+            levels.append(lv)
+    return float(np.median(levels)) if levels else float("nan")
+
+
+def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> tuple[float, float] | None:
+    """The face line of the top body holding the axis column (full frame): ``row = a + b * col``.
+
+    The largest dark body touching the top edge whose columns hold ``axis_col``, its holes filled;
+    its lower outline's straight line (`dropvision.nozzle.fit_face_line`).  None without one.
+    """
+    mask = (np.asarray(transmission) < threshold).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    c = int(round(axis_col)) if np.isfinite(axis_col) else -1
+    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0
+           and stats[k, cv2.CC_STAT_LEFT] <= c < stats[k, cv2.CC_STAT_LEFT] + stats[k, cv2.CC_STAT_WIDTH]]
+    if not top:
+        return None
+    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
+    body = fill_holes((lab == k).astype(np.uint8) * 255) > 0
+    cols, bottom = bottom_profile(body)
+    return fit_face_line(cols, bottom)
+
+
+def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first: np.ndarray, sigma_px: float,
+                            dtype, max_value: int, config: MeasureConfig, reach: float) -> FrameContext:
+    """With the nozzle walls out of focus, the jet's axis and the tip plane from what is in focus.
+
+    A blurred holder's midline is not the jet's axis (it is no nozzle, and the capillary sits
+    anywhere in it), and where its straight walls end is not the orifice: the axis is the line of
+    the detached in-focus drops (`jet_axis_col`), the tip plane the holder's face (the 50 % line
+    of its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
+    below that face (`dropvision.nozzle.protruding_columns`, with ``ctx.face_a``/``face_b``).
+    ``cal`` is updated (axis, tip, their sources, a note) and the region of interest rebuilt.
+    """
+    axis, n_frames = jet_axis_col(images, ctx)
+    if np.isfinite(axis):
+        cal.notes.append(f"the jet's axis is the line of the detached in-focus drops (column {axis:.1f}, "
+                         f"{n_frames} calibration frame(s)), not the out-of-focus nozzle's midline "
+                         f"({cal.axis_col:.1f}, {axis - cal.axis_col:+.1f} px)")
+        if not cal.axis_source.startswith("user"):
+            cal.axis_col, cal.axis_source = axis, "line of the detached in-focus drops (the nozzle is out of focus)"
+    face = holder_face(t_first, cal.threshold, cal.axis_col)
+    if face is not None:
+        level = detached_liquid_level(images, cal.background.background, cal.threshold, cal.background.opaque, face)
+        if np.isfinite(level) and abs(level - cal.liquid_level) > 0.01:
+            cal.notes.append(f"liquid interior level {level:.3f} from the detached bodies below the holder's face "
+                             f"(the out-of-focus holder below its walls' end gave {cal.liquid_level:.3f})")
+            cal.liquid_level, cal.threshold = level, edge_threshold(level)
+            face = holder_face(t_first, cal.threshold, cal.axis_col) or face
+    if face is not None and not cal.tip_source.startswith("user"):
+        tip = face[0] + face[1] * cal.axis_col
+        if abs(tip - cal.tip_row) > 0.5:
+            cal.notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "
+                             f"walls' silhouette ends: row {cal.tip_row:.1f})")
+        cal.tip_row, cal.tip_source = float(tip), "the out-of-focus holder's face (straight fit of its 50 % line)"
+    new = FrameContext.build(cal, sigma_px, dtype, max_value, config, attached_half_width_px=reach)
+    ctx = replace(ctx, **{f: getattr(new, f) for f in _REGION_FIELDS + ("threshold", "liquid_level", "thr_image")})
+    if face is not None:
+        ctx = replace(ctx, face_a=face[0], face_b=face[1])
+        if liquid_seen_hanging(images, ctx):
+            ctx = replace(ctx, face_liquid_seen=True)
+            cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
+                             "at the axis below the face is taken as its meniscus in every frame")
+    return ctx
+
+
+def liquid_seen_hanging(images, ctx: FrameContext) -> bool:
+    """Whether a calibration frame shows liquid hanging in focus below an out-of-focus face
+    (`dropvision.bodies.hanging_columns`)."""
+    for img in images:
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+        if body is not None:
+            found = hanging_columns(roi, ctx, seg, body, 1.0)
+            if found is not None and found.liquid:
+                return True
+    return False
 
 
 def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
