@@ -112,6 +112,10 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             pixel_size_tolerance=config.pixel_size_tolerance_fraction,
             edge_position_floor_px=config.edge_position_floor_px,
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
+            # without a nozzle, its detached drops are measured where the frame's orientation is known (stated
+            # or detected): an undetected one is refused, naming what each edge shows
+            allow_no_nozzle=(meta.nozzle_tip_row is None
+                             and not str((meta.sources or {}).get("orientation", "")).startswith("default")),
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
@@ -120,22 +124,30 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
-    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
     max_value = 2 ** int(meta.bit_depth) - 1
-    clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
-    sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
-    reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal) for img in images)
+    nozzle, sigma, reach = None, float("nan"), 0.0
+    if cal.nozzle_found:
+        nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
+        clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
+        sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
+        reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal)
+                    for img in images)
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config, attached_half_width_px=reach)
     noise = noise_smoothing(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.sigma_px, config, default_noise_t=ctx.noise_t)
     ctx = replace(ctx, clipped_level=cal.clipped_level, noise_t=noise.noise_t, smooth_px=noise.smooth_px,
                   sigma_px=noise.sigma_px)
-    walls = wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma, cal.liquid_level, config)
+    walls = None if nozzle is None else wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma,
+                                                       cal.liquid_level, config)
     if walls is not None:
         ctx = replace(ctx, wall_rows=walls.rows, wall_cols=walls.cols, wall_inv_background=walls.inv_background,
                       blur_ref_px=walls.blur_px, sharpness_ref=walls.sharpness,
                       max_frame_blur_px=walls.max_frame_blur_px, min_wall_contrast=walls.min_wall_contrast)
     found = detached_appearances(images, ctx)
-    focus = focus_reference(found, _nozzle_edge_spread(first, ctx), sigma, ctx.sigma_px, ctx.smooth_px, config)
+    if nozzle is None and not found.size:
+        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: no nozzle: no dark body touches the top edge "
+                            "of the frame, and no detached drop to measure without it")
+    spread_px = _nozzle_edge_spread(first, ctx) if nozzle is not None else float("nan")
+    focus = focus_reference(found, spread_px, sigma, ctx.sigma_px, ctx.smooth_px, config)
     sigma = focus.sigma_px
     ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, edge_blur_ref_source=focus.edge_blur_ref_source,
                   mist_blur_factor=focus.mist_blur_factor, sigma_px=focus.effective_sigma_px,
@@ -144,9 +156,10 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
         ctx = replace(ctx, wall_rows=None, wall_cols=None, wall_inv_background=None,
                       max_frame_blur_px=float("inf"), tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD)
-        cal.nozzle_out_of_focus = True
-        cal.notes.append(focus.note)
-        cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
+        if nozzle is not None:
+            cal.nozzle_out_of_focus = True
+            cal.notes.append(focus.note)
+            cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
         ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
@@ -447,25 +460,28 @@ _REGION_FIELDS = ("r0", "c0", "c1", "height", "width", "inv_background", "backgr
                   "opaque", "tip_roi", "axis_col", "tip_row", "tilt_rad", "sample_rows", "sample_cols")
 
 
-def jet_axis_col(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int]:
-    """The jet's axis column (full frame, px) from the line of the detached in-focus drops.
+def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int, float]:
+    """The jet's axis column (full frame, px) from the line of the detached in-focus drops, and the
+    liquid's interior level from those bodies.
 
-    In each calibration frame the largest detached body that is in focus (edge spread within the
-    mist limit of the in-focus reference, `dropvision.classify.out_of_focus_reason`) and as dark
-    as half the liquid's depth, away from the region's edges: the main drop; its area centroid's
-    column (the axis of a body of revolution).  The median over the frames.
+    In each calibration frame the detached bodies in focus (edge spread within the mist limit of
+    the in-focus reference, `dropvision.classify.out_of_focus_reason`) and as dark as half the
+    liquid's depth, away from the region's edges; the largest is the main drop, its area
+    centroid's column on the axis of a body of revolution.  The axis is the median over the
+    frames; the level the median of `dropvision.calibration.interior_level` over their bodies
+    (mist, a holder's fragments or a vignetted corner are no liquid).
 
     Returns
     -------
-    (column, number of frames it comes from); (NaN, 0) without any such body.
+    (column, number of frames it comes from, level); (NaN, 0, NaN) without any such body.
     """
-    cols = []
+    cols, levels = [], []
     depth_min = 0.5 * (1.0 - ctx.liquid_level)
     for img in images:
         roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
         seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
         hh, ww = seg.labels.shape
-        best = None
+        liquid = []
         for b in sorted(seg.bodies, key=lambda b: -b.area_px):
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
@@ -474,40 +490,21 @@ def jet_axis_col(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[floa
             if (1.0 - app.min_transmission >= depth_min
                     and out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor,
                                             ctx.mist_blur_offset_px) is None):
-                best = b
-                break
-        if best is not None:
-            _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
-            cols.append(float(np.mean(cc)) + best.x0 + ctx.c0)
-    return (float(np.median(cols)), len(cols)) if cols else (float("nan"), 0)
-
-
-def detached_liquid_level(images, background: np.ndarray, threshold: float, opaque: np.ndarray | None,
-                          face: tuple[float, float]) -> float:
-    """The liquid's interior transmission from the detached bodies (the median over the frames of
-    `dropvision.calibration.interior_level`); NaN without any.
-
-    Detached: dark bodies touching no edge of the frame and wholly below the face line ``face``
-    (``row = a + b * col``).  A blurred holder's lower part (and a capillary's dark face in it) lies
-    below where its walls' silhouette ends and is no liquid, nor are its fragments or a vignetted
-    corner: their grey would lift the level, and the edge threshold with it.
-    """
-    levels = []
-    for img in images:
-        t = np.asarray(img, np.float32) / background
-        h, w = t.shape
-        n, lab, st, _ = cv2.connectedComponentsWithStats((t < threshold).astype(np.uint8), connectivity=8)
-        x0, y0, bw, bh = st[:, 0], st[:, 1], st[:, 2], st[:, 3]
-        face_row = face[0] + face[1] * (x0 + 0.5 * bw)
-        keep = (x0 > 0) & (y0 > face_row) & (x0 + bw < w) & (y0 + bh < h)
-        keep[0] = False
-        region = keep[lab]
-        if opaque is not None:
-            region &= ~opaque
-        lv = interior_level(t, region, threshold=threshold)
+                liquid.append(b)
+        if not liquid:
+            continue
+        best = liquid[0]
+        _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
+        cols.append(float(np.mean(cc)) + best.x0 + ctx.c0)
+        region = np.isin(seg.labels, [b.label for b in liquid])
+        if ctx.opaque is not None:
+            region &= ~ctx.opaque
+        lv = interior_level(roi.astype(np.float32) * ctx.inv_background, region, threshold=ctx.threshold)
         if np.isfinite(lv):
             levels.append(lv)
-    return float(np.median(levels)) if levels else float("nan")
+    if not cols:
+        return float("nan"), 0, float("nan")
+    return float(np.median(cols)), len(cols), (float(np.median(levels)) if levels else float("nan"))
 
 
 def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> tuple[float, float] | None:
@@ -535,26 +532,28 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
 
     A blurred holder's midline is not the jet's axis (it is no nozzle, and the capillary sits
     anywhere in it), and where its straight walls end is not the orifice: the axis is the line of
-    the detached in-focus drops (`jet_axis_col`), the tip plane the holder's face (the 50 % line
-    of its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
+    the detached in-focus drops (`in_focus_drops`, which also gives the liquid's level: the liquid
+    below the walls' end is a blurred holder), the tip plane the holder's face (the 50 % line of
+    its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
     below that face (`dropvision.nozzle.protruding_columns`, with ``ctx.face_a``/``face_b``).
     ``cal`` is updated (axis, tip, their sources, a note) and the region of interest rebuilt.
     """
-    axis, n_frames = jet_axis_col(images, ctx)
+    axis, n_frames, level = in_focus_drops(images, ctx)
     if np.isfinite(axis):
         cal.notes.append(f"the jet's axis is the line of the detached in-focus drops (column {axis:.1f}, "
-                         f"{n_frames} calibration frame(s)), not the out-of-focus nozzle's midline "
-                         f"({cal.axis_col:.1f}, {axis - cal.axis_col:+.1f} px)")
+                         f"{n_frames} calibration frame(s))" + (
+                             f", not the out-of-focus nozzle's midline ({cal.axis_col:.1f}, "
+                             f"{axis - cal.axis_col:+.1f} px)" if np.isfinite(cal.axis_col) else ""))
         if not cal.axis_source.startswith("user"):
-            cal.axis_col, cal.axis_source = axis, "line of the detached in-focus drops (the nozzle is out of focus)"
-    face = holder_face(t_first, cal.threshold, cal.axis_col)
-    if face is not None:
-        level = detached_liquid_level(images, cal.background.background, cal.threshold, cal.background.opaque, face)
-        if np.isfinite(level) and abs(level - cal.liquid_level) > 0.01:
-            cal.notes.append(f"liquid interior level {level:.3f} from the detached bodies below the holder's face "
-                             f"(the out-of-focus holder below its walls' end gave {cal.liquid_level:.3f})")
-            cal.liquid_level, cal.threshold = level, edge_threshold(level)
-            face = holder_face(t_first, cal.threshold, cal.axis_col) or face
+            cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
+                                                   if cal.nozzle_found else
+                                                   "line of the detached in-focus drops (no nozzle found)")
+    if np.isfinite(level) and abs(level - cal.liquid_level) > 0.01:
+        cal.notes.append(f"liquid interior level {level:.3f} from the detached in-focus drops ("
+                         + ("the liquid below the out-of-focus walls' end, a blurred holder, gave "
+                            if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
+        cal.liquid_level, cal.threshold = level, edge_threshold(level)
+    face = holder_face(t_first, cal.threshold, cal.axis_col) if cal.nozzle_found else None
     if face is not None and not cal.tip_source.startswith("user"):
         tip = face[0] + face[1] * cal.axis_col
         if abs(tip - cal.tip_row) > 0.5:

@@ -163,7 +163,8 @@ class FrameContext:
         dy = row_roi + self.r0 - self.tip_row
         dx = col_roi + self.c0 - self.axis_col
         s, c = math.sin(self.tilt_rad), math.cos(self.tilt_rad)
-        return (dx * s + dy * c) * self.pixel_size_um, (dx * c - dy * s) * self.pixel_size_um
+        across = dx * c - (dy * s if s else 0.0)  # no tip plane (no nozzle): along the axis unknown, across known
+        return (dx * s + dy * c) * self.pixel_size_um, across * self.pixel_size_um
 
 
 def _kernel_size(sigma_px: float) -> int:
