@@ -85,6 +85,11 @@ class Calibration:
     nozzle_out_of_focus: bool = False
     #: False when no nozzle was found (`_without_nozzle`): no tip plane, no attached liquid.
     nozzle_found: bool = True
+    #: Width (px) of the meniscus at the tip plane in the first calibration frame and that frame's delay
+    #: (µs): the orifice's inner diameter when the meniscus rests there (`dropvision.calibration_pass.
+    #: rest_meniscus_width_px`; NaN: not measured).
+    rest_meniscus_width_px: float = float("nan")
+    rest_meniscus_delay_us: float = float("nan")
 
     @property
     def edge_position_uncertainty_px(self) -> float:
@@ -127,6 +132,7 @@ class Calibration:
             "pixel_size_disagreement_percent": self.pixel_size_disagreement_percent,
             "pixel_size_ratio": self.pixel_size_ratio,
             "pixel_size_ratio_uncertainty": self.pixel_size_ratio_uncertainty,
+            "rest_meniscus_width_px": self.rest_meniscus_width_px,
             "background": {
                 "method": "robust degree-4 polynomial fit to pixels away from dark bodies"
                 + (", static dust attenuation folded in" if self.background.n_frames >= 3 else ""),

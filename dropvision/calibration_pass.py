@@ -23,7 +23,7 @@ import numpy as np
 
 import dropvision.quality as q
 from dropvision.blur import edge_sigma_px, esf_sigma_px
-from dropvision.bodies import hanging_columns
+from dropvision.bodies import hanging_columns, measure_attached
 from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
@@ -162,6 +162,9 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
         ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
+    if nozzle is not None and not focus.nozzle_out_of_focus:
+        cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
+        cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
                   edge_noise_px=float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig
@@ -569,6 +572,30 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
             cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
                              "at the axis below the face is taken as its meniscus in every frame")
     return ctx
+
+
+def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) -> float:
+    """Width (px, across the axis) of the liquid at the tip plane in one frame: the orifice's inner
+    diameter when the meniscus rests there, pinned at its inner edge.
+
+    The attached liquid's outline in the rows wholly below the tip plane (at most ``rows``); a cap's
+    squared chord is nearly linear in the depth, so the squared chords are fitted by a line and
+    read at the plane.  NaN with fewer than 2 such rows (a meniscus flat at, or inside, the orifice)
+    or none at all.
+    """
+    roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    if body is None:
+        return float("nan")
+    att = measure_attached(roi, ctx, seg, body, 1.0)
+    r, left, right = outline(att.edges)
+    below = r > ctx.tip_roi + 0.5
+    r, chord = r[below][:rows], (right - left)[below][:rows]
+    if r.size < 2:
+        return float("nan")
+    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), ctx.tip_roi))
+    return float(np.sqrt(sq) * math.cos(ctx.tilt_rad)) if sq > 0 else float("nan")
 
 
 def liquid_seen_hanging(images, ctx: FrameContext) -> bool:
