@@ -150,7 +150,8 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     """
     ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
                     ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1))
-    if np.isfinite(ctx.face_a):  # an out-of-focus holder: only what hangs below its face is liquid
+    # an out-of-focus holder: only what hangs below its face is liquid
+    if np.isfinite(getattr(ctx, "face_a", float("nan"))):
         found = hanging_columns(roi, ctx, seg, body, gain)
         if found is None:
             return nothing_hangs(ed, 0.0)
@@ -189,7 +190,8 @@ def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body:
     return None if found is None else replace(found, first=found.first + x0, last=found.last + x0)
 
 
-def edges_in_the_halo(roi: np.ndarray, ctx: FrameContext, edges: RowEdges, found: Protrusion, gain: float) -> RowEdges:
+def edges_in_the_halo(roi: np.ndarray, ctx: FrameContext, edges: RowEdges, found: Protrusion,
+                      gain: float) -> RowEdges:
     """The liquid's edges in the rows within an out-of-focus face's halo (3 of its blur widths
     below the face), against the local background.
 

@@ -101,7 +101,8 @@ def inner_diameter_ratio(cal: Calibration, meta, dead_time_us: float | None = No
     if not d_in or not (np.isfinite(width) and width > 0):
         return float("nan")
     if dead_time_us is None or not cal.rest_meniscus_delay_us <= dead_time_us:
-        return float("nan")  # no waveform, or after the dead time: the meniscus may be anywhere (a pendant drop wets the face)
+        # no waveform, or after the dead time: the meniscus may be anywhere (a pendant drop wets the face)
+        return float("nan")
     return float(d_in / (width * cal.pixel_size_um))
 
 
