@@ -547,6 +547,10 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
                          f"{n_frames} calibration frame(s))" + (
                              f", not the out-of-focus nozzle's midline ({cal.axis_col:.1f}, "
                              f"{axis - cal.axis_col:+.1f} px)" if np.isfinite(cal.axis_col) else ""))
+        if np.isfinite(cal.axis_col) and abs(axis - cal.axis_col) > 0.25 * cal.nozzle_outer_diameter_px:
+            cal.notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
+                             f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
+                             "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
         if not cal.axis_source.startswith("user"):
             cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
                                                    if cal.nozzle_found else
