@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -34,6 +34,7 @@ from dropvision.segmentation import (
     find_nozzle_body,
 )
 from dropvision.edges import RowEdges, body_edges
+from dropvision.nozzle import Protrusion, protruding_columns
 from dropvision.volume import (
     equivalent_diameter_um,
     BodyVolume,
@@ -149,6 +150,17 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     """
     ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
                     ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1))
+    # an out-of-focus holder: only what hangs below its face is liquid
+    if np.isfinite(getattr(ctx, "face_a", float("nan"))):
+        found = hanging_columns(roi, ctx, seg, body, gain)
+        if found is None:
+            return nothing_hangs(ed, 0.0)
+        keep = (ed.right_px >= found.first - 0.5) & (ed.left_px <= found.last + 0.5)
+        ed = RowEdges(ed.row[keep], np.maximum(ed.left_px[keep], found.first - 0.5),
+                      np.minimum(ed.right_px[keep], found.last + 0.5), ed.touches)
+        ed = edges_in_the_halo(roi, ctx, ed, found, gain)
+        if not found.liquid:  # the face's blurred halo: no liquid, but as much could hide in it
+            return nothing_hangs(ed, integrate(ed, ctx.tilt_rad, ctx.tip_roi, 0.0).volume_px3 * ctx.nl_per_px3)
     clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
     bv = integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px)
     near = out_of_focus_nozzle_px3(bv, ctx.nozzle_blur_px) * ctx.nl_per_px3
@@ -159,6 +171,72 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                                                                        ctx.tilt_rad) * ctx.nl_per_px3,
                           plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                          ctx.tilt_rad) * ctx.nl_per_px3)
+
+
+def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
+                    gain: float) -> Protrusion | None:
+    """What reaches below an out-of-focus holder's face (``ctx.face_a``, ``ctx.face_b``) at the axis, and
+    whether it is liquid (`dropvision.nozzle.protruding_columns`; columns in region px), or None."""
+    limit = ctx.mist_blur_factor * ctx.edge_blur_ref_px + ctx.mist_blur_offset_px
+    x0, x1 = body.x0, body.x1
+    y1 = min(roi.shape[0], body.y1 + int(math.ceil(3.0 * limit)) + 2)
+    mask = seg.labels[:body.y1, x0:x1] == body.label
+    t = roi[:y1, x0:x1].astype(np.float32) * ctx.inv_background[:y1, x0:x1]
+    if gain != 1.0:
+        t /= np.float32(gain)
+    face = ctx.face_a + ctx.face_b * (np.arange(x0, x1) + ctx.c0) - ctx.r0
+    found = protruding_columns(mask, t, face, ctx.axis_roi - x0, 0.5 * (ctx.threshold + ctx.liquid_level), limit,
+                               judge_focus=not ctx.face_liquid_seen)
+    return None if found is None else replace(found, first=found.first + x0, last=found.last + x0)
+
+
+def edges_in_the_halo(roi: np.ndarray, ctx: FrameContext, edges: RowEdges, found: Protrusion,
+                      gain: float) -> RowEdges:
+    """The liquid's edges in the rows within an out-of-focus face's halo (3 of its blur widths
+    below the face), against the local background.
+
+    There the halo darkens the background beside the liquid and the frame's 50 % line runs
+    around both: the liquid's edge is half-way between its own level and the row's background
+    beside it (the median of the 8 columns beyond each side of the protrusion), its outermost
+    crossings within the protrusion's columns by linear interpolation (a lens spot inside is
+    liquid).  A row without a pixel that dark holds no liquid.  Rows below the halo are unchanged.
+    """
+    blur = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) and ctx.nozzle_blur_px > 0 else 0.0
+    y_end = min(roi.shape[0], int(math.ceil(ctx.tip_roi + 3.0 * blur)) + 1)
+    y_start = max(0, int(math.floor(ctx.tip_roi)))
+    halo = (edges.row >= y_start) & (edges.row < y_end)
+    if not halo.any():
+        return edges
+    ww = roi.shape[1]
+    side = np.r_[np.arange(found.first - 9, found.first - 1), np.arange(found.last + 2, found.last + 10)]
+    side = side[(side >= 0) & (side < ww)]
+    if side.size == 0:
+        return edges
+    rows, lefts, rights = [], [], []
+    for y in np.unique(edges.row[halo]):
+        t = roi[y].astype(np.float32) * ctx.inv_background[y] / np.float32(gain)
+        thr = 0.5 * float(np.median(t[side])) * (1.0 + ctx.liquid_level)
+        dark = np.nonzero(t[found.first:found.last + 1] < thr)[0]
+        if dark.size == 0:
+            continue
+        a, b = found.first + int(dark[0]), found.first + int(dark[-1])  # outermost: a lens spot inside is liquid
+        left = a - 0.5 if a == 0 else a - 1 + (t[a - 1] - thr) / (t[a - 1] - t[a])
+        right = b + 0.5 if b == ww - 1 else b + (thr - t[b]) / (t[b + 1] - t[b])
+        rows.append(y)
+        lefts.append(left)
+        rights.append(right)
+    keep = ~halo
+    return RowEdges(np.r_[np.asarray(rows, int), edges.row[keep]].astype(edges.row.dtype),
+                    np.r_[lefts, edges.left_px[keep]], np.r_[rights, edges.right_px[keep]], edges.touches)
+
+
+def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
+    """The attached liquid of a frame where nothing hangs below the face: 0 nl (not NaN), no bottom
+    row (nothing to be joined to) and no neck; its uncertainty ``hidden_nl``, the volume of the
+    face's halo below the face line (as much liquid could hide in it); ``edges`` kept for the viewer."""
+    return AttachedLiquid(volume_nl=0.0, bottom_row=float("nan"), neck_px=float("nan"), leaves=False, edges=edges,
+                          volume_uncertainty_nl=float(hidden_nl), common_uncertainty_nl=0.0,
+                          plane_uncertainty_nl=float(hidden_nl))
 
 
 def _plane_sigma_px(ctx: FrameContext) -> float:

@@ -83,6 +83,13 @@ class Calibration:
     edge_position_terms_px: dict = field(default_factory=dict)
     #: The nozzle walls are out of focus (the sharpest detached body is the in-focus reference).
     nozzle_out_of_focus: bool = False
+    #: False when no nozzle was found (`_without_nozzle`): no tip plane, no attached liquid.
+    nozzle_found: bool = True
+    #: Width (px) of the meniscus at the tip plane in the first calibration frame and that frame's delay
+    #: (µs): the orifice's inner diameter when the meniscus rests there (`dropvision.calibration_pass.
+    #: rest_meniscus_width_px`; NaN: not measured).
+    rest_meniscus_width_px: float = float("nan")
+    rest_meniscus_delay_us: float = float("nan")
 
     @property
     def edge_position_uncertainty_px(self) -> float:
@@ -125,6 +132,7 @@ class Calibration:
             "pixel_size_disagreement_percent": self.pixel_size_disagreement_percent,
             "pixel_size_ratio": self.pixel_size_ratio,
             "pixel_size_ratio_uncertainty": self.pixel_size_ratio_uncertainty,
+            "rest_meniscus_width_px": self.rest_meniscus_width_px,
             "background": {
                 "method": "robust degree-4 polynomial fit to pixels away from dark bodies"
                 + (", static dust attenuation folded in" if self.background.n_frames >= 3 else ""),
@@ -155,6 +163,7 @@ def calibrate_frames(
     edge_position_floor_px: float = 0.05,
     max_value: int | None = None,
     clipped_limit: float = 0.01,
+    allow_no_nozzle: bool = False,
 ) -> Calibration:
     """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
 
@@ -180,6 +189,9 @@ def calibrate_frames(
         the frame gets its unclipped level from the nozzle walls (`unclipped_level`).
     clipped_limit : float
         Fraction of the background at the sensor maximum from which it is treated as clipped.
+    allow_no_nozzle : bool
+        Where no nozzle is found but the first frame holds detached dark bodies, calibrate
+        without it (`_without_nozzle`) instead of raising.
     """
     bg = estimate_background(spread)
     notes: list[str] = []
@@ -219,7 +231,12 @@ def calibrate_frames(
     # first pass at 50 % (half-way to the darkest body in a low-contrast frame, where the nozzle
     # itself may sit near 50 %), refined with the measured nozzle level
     darkest = darkest_level(t_first)
-    nozzle = find_nozzle(t_first, first_pass_threshold(darkest), expected)
+    try:
+        nozzle = find_nozzle(t_first, first_pass_threshold(darkest), expected)
+    except CalibrationError as exc:
+        if not (allow_no_nozzle and str(exc).startswith("no nozzle")):
+            raise
+        return _without_nozzle(exc, t_first, spread, bg, pixel_size_um, first_pass_threshold(darkest), notes, clipped)
     thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n, expected)
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
@@ -286,3 +303,50 @@ def calibrate_frames(
         pixel_size_ratio_uncertainty=ratio_u,
         clipped=clipped,
     )
+
+
+#: Tilt and its source when no nozzle is found: the image columns (stated, as for an out-of-focus nozzle).
+NO_NOZZLE_TILT_SOURCE = "image columns (assumed: no nozzle found)"
+
+
+def _without_nozzle(exc: CalibrationError, t_first: np.ndarray, spread: list[np.ndarray], bg: BackgroundModel,
+                    pixel_size_um: float, threshold: float, notes: list[str], clipped: dict | None) -> Calibration:
+    """A calibration without a nozzle, for a frame whose detached drops can still be measured.
+
+    Only when the first frame holds a dark body touching no edge of the frame of at least 50 px
+    (else ``exc`` is raised: nothing to measure).  No tip plane (NaN: no position along the axis),
+    no axis yet (the calibration pass takes the line of the detached drops), no outer width; the
+    liquid's interior level from those bodies.  Each drop's volume is its own (discs about its
+    own axis); what needs the nozzle (attached volume, its cross-checks) is not given.
+    """
+    h, w = t_first.shape
+    n, lab, st, _ = cv2.connectedComponentsWithStats((t_first < threshold).astype(np.uint8), connectivity=8)
+    x0, y0, bw, bh, area = st[:, 0], st[:, 1], st[:, 2], st[:, 3], st[:, 4]
+    inside = (x0 > 0) & (y0 > 0) & (x0 + bw < w) & (y0 + bh < h) & (area >= 50)
+    inside[0] = False
+    if not inside.any():
+        raise exc
+    levels = []
+    for img in spread:
+        t = np.asarray(img, np.float32) / bg.background
+        _, lab_i, st_i, _ = cv2.connectedComponentsWithStats((t < threshold).astype(np.uint8), connectivity=8)
+        keep = ((st_i[:, 0] > 0) & (st_i[:, 1] > 0) & (st_i[:, 0] + st_i[:, 2] < w) & (st_i[:, 1] + st_i[:, 3] < h)
+                & (st_i[:, 4] >= 50))
+        keep[0] = False
+        region = keep[lab_i]
+        if bg.opaque is not None:
+            region &= ~bg.opaque
+        lv = interior_level(t, region, threshold=threshold)
+        if np.isfinite(lv):
+            levels.append(lv)
+    liquid = float(np.median(levels)) if levels else float(np.percentile(t_first[inside[lab]], 2))
+    notes.append(f"{exc}: no nozzle found; the detached drops are measured each about its own axis, the jet's axis "
+                 "is their line, and what needs the nozzle (attached volume, tip plane, distance along the axis, "
+                 "pixel-size cross-checks) is not given")
+    nan = float("nan")
+    return Calibration(
+        shape=(h, w), pixel_size_um=float(pixel_size_um), pixel_size_source="sequence.json pixel_size_um",
+        tip_row=nan, tip_source="none (no nozzle found)", axis_col=nan, axis_source="none (no nozzle found)",
+        tilt_rad=0.0, tilt_source=NO_NOZZLE_TILT_SOURCE, liquid_level=liquid, nozzle_level=nan,
+        threshold=edge_threshold(liquid), nozzle_outer_diameter_px=nan, nozzle_outer_diameter_um_measured=nan,
+        pixel_size_disagreement_percent=nan, background=bg, notes=notes, clipped=clipped, nozzle_found=False)

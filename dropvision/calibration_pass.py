@@ -23,13 +23,14 @@ import numpy as np
 
 import dropvision.quality as q
 from dropvision.blur import edge_sigma_px, esf_sigma_px
-from dropvision.calibration import Calibration, CalibrationError, calibrate_frames
-from dropvision.classify import appearance, nozzle_edge_spread_px
+from dropvision.bodies import hanging_columns, measure_attached
+from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
+from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
-from dropvision.nozzle import find_nozzle
-from dropvision.segmentation import dark_mask, find_nozzle_body, segment
+from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line
+from dropvision.segmentation import dark_mask, fill_holes, find_nozzle_body, segment
 from dropvision.sequence import SequenceError
 from dropvision.volume import outline
 
@@ -111,6 +112,10 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             pixel_size_tolerance=config.pixel_size_tolerance_fraction,
             edge_position_floor_px=config.edge_position_floor_px,
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
+            # without a nozzle, its detached drops are measured where the frame's orientation is known (stated
+            # or detected): an undetected one is refused, naming what each edge shows
+            allow_no_nozzle=(meta.nozzle_tip_row is None
+                             and not str((meta.sources or {}).get("orientation", "")).startswith("default")),
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
@@ -119,22 +124,30 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
-    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
     max_value = 2 ** int(meta.bit_depth) - 1
-    clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
-    sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
-    reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal) for img in images)
+    nozzle, sigma, reach = None, float("nan"), 0.0
+    if cal.nozzle_found:
+        nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
+        clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
+        sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
+        reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal)
+                    for img in images)
     ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config, attached_half_width_px=reach)
     noise = noise_smoothing(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.sigma_px, config, default_noise_t=ctx.noise_t)
     ctx = replace(ctx, clipped_level=cal.clipped_level, noise_t=noise.noise_t, smooth_px=noise.smooth_px,
                   sigma_px=noise.sigma_px)
-    walls = wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma, cal.liquid_level, config)
+    walls = None if nozzle is None else wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma,
+                                                       cal.liquid_level, config)
     if walls is not None:
         ctx = replace(ctx, wall_rows=walls.rows, wall_cols=walls.cols, wall_inv_background=walls.inv_background,
                       blur_ref_px=walls.blur_px, sharpness_ref=walls.sharpness,
                       max_frame_blur_px=walls.max_frame_blur_px, min_wall_contrast=walls.min_wall_contrast)
     found = detached_appearances(images, ctx)
-    focus = focus_reference(found, _nozzle_edge_spread(first, ctx), sigma, ctx.sigma_px, ctx.smooth_px, config)
+    if nozzle is None and not found.size:
+        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: no nozzle: no dark body touches the top edge "
+                            "of the frame, and no detached drop to measure without it")
+    spread_px = _nozzle_edge_spread(first, ctx) if nozzle is not None else float("nan")
+    focus = focus_reference(found, spread_px, sigma, ctx.sigma_px, ctx.smooth_px, config)
     sigma = focus.sigma_px
     ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, edge_blur_ref_source=focus.edge_blur_ref_source,
                   mist_blur_factor=focus.mist_blur_factor, sigma_px=focus.effective_sigma_px,
@@ -143,10 +156,15 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
         ctx = replace(ctx, wall_rows=None, wall_cols=None, wall_inv_background=None,
                       max_frame_blur_px=float("inf"), tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD)
-        cal.nozzle_out_of_focus = True
-        cal.notes.append(focus.note)
-        cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
+        if nozzle is not None:
+            cal.nozzle_out_of_focus = True
+            cal.notes.append(focus.note)
+            cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
+        ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
+    if nozzle is not None and not focus.nozzle_out_of_focus:
+        cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
+        cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
     sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
                   edge_noise_px=float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig
@@ -438,6 +456,164 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
 #: tilt ``t`` left out is ``1 - cos t``: 0.14 % at 3 deg.
 AXIS_ALONG_COLUMNS_TILT_RAD = 0.0
 AXIS_ALONG_COLUMNS_SOURCE = "image columns (assumed: the nozzle walls are out of focus)"
+
+
+#: Fields of a `FrameContext` that follow the calibration's tip plane and axis (the region of interest).
+_REGION_FIELDS = ("r0", "c0", "c1", "height", "width", "inv_background", "background", "thr_image", "allowed",
+                  "opaque", "tip_roi", "axis_col", "tip_row", "tilt_rad", "sample_rows", "sample_cols")
+
+
+def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int, float]:
+    """The jet's axis column (full frame, px) from the line of the detached in-focus drops, and the
+    liquid's interior level from those bodies.
+
+    In each calibration frame the detached bodies in focus (edge spread within the mist limit of
+    the in-focus reference, `dropvision.classify.out_of_focus_reason`) and as dark as half the
+    liquid's depth, away from the region's edges; the largest is the main drop, its area
+    centroid's column on the axis of a body of revolution.  The axis is the median over the
+    frames; the level the median of `dropvision.calibration.interior_level` over their bodies
+    (mist, a holder's fragments or a vignetted corner are no liquid).
+
+    Returns
+    -------
+    (column, number of frames it comes from, level); (NaN, 0, NaN) without any such body.
+    """
+    cols, levels = [], []
+    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    for img in images:
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        hh, ww = seg.labels.shape
+        liquid = []
+        for b in sorted(seg.bodies, key=lambda b: -b.area_px):
+            if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
+                continue
+            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=ctx.liquid_level)
+            if (1.0 - app.min_transmission >= depth_min
+                    and out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor,
+                                            ctx.mist_blur_offset_px) is None):
+                liquid.append(b)
+        if not liquid:
+            continue
+        best = liquid[0]
+        _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
+        cols.append(float(np.mean(cc)) + best.x0 + ctx.c0)
+        region = np.isin(seg.labels, [b.label for b in liquid])
+        if ctx.opaque is not None:
+            region &= ~ctx.opaque
+        lv = interior_level(roi.astype(np.float32) * ctx.inv_background, region, threshold=ctx.threshold)
+        if np.isfinite(lv):
+            levels.append(lv)
+    if not cols:
+        return float("nan"), 0, float("nan")
+    return float(np.median(cols)), len(cols), (float(np.median(levels)) if levels else float("nan"))
+
+
+def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> tuple[float, float] | None:
+    """The face line of the top body holding the axis column (full frame): ``row = a + b * col``.
+
+    The largest dark body touching the top edge whose columns hold ``axis_col``, its holes filled;
+    its lower outline's straight line (`dropvision.nozzle.fit_face_line`).  None without one.
+    """
+    mask = (np.asarray(transmission) < threshold).astype(np.uint8)
+    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    c = int(round(axis_col)) if np.isfinite(axis_col) else -1
+    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0
+           and stats[k, cv2.CC_STAT_LEFT] <= c < stats[k, cv2.CC_STAT_LEFT] + stats[k, cv2.CC_STAT_WIDTH]]
+    if not top:
+        return None
+    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
+    body = fill_holes((lab == k).astype(np.uint8) * 255) > 0
+    cols, bottom = bottom_profile(body)
+    return fit_face_line(cols, bottom)
+
+
+def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first: np.ndarray, sigma_px: float,
+                            dtype, max_value: int, config: MeasureConfig, reach: float) -> FrameContext:
+    """With the nozzle walls out of focus, the jet's axis and the tip plane from what is in focus.
+
+    A blurred holder's midline is not the jet's axis (it is no nozzle, and the capillary sits
+    anywhere in it), and where its straight walls end is not the orifice: the axis is the line of
+    the detached in-focus drops (`in_focus_drops`, which also gives the liquid's level: the liquid
+    below the walls' end is a blurred holder), the tip plane the holder's face (the 50 % line of
+    its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
+    below that face (`dropvision.nozzle.protruding_columns`, with ``ctx.face_a``/``face_b``).
+    ``cal`` is updated (axis, tip, their sources, a note) and the region of interest rebuilt.
+    """
+    axis, n_frames, level = in_focus_drops(images, ctx)
+    if np.isfinite(axis):
+        cal.notes.append(f"the jet's axis is the line of the detached in-focus drops (column {axis:.1f}, "
+                         f"{n_frames} calibration frame(s))" + (
+                             f", not the out-of-focus nozzle's midline ({cal.axis_col:.1f}, "
+                             f"{axis - cal.axis_col:+.1f} px)" if np.isfinite(cal.axis_col) else ""))
+        if np.isfinite(cal.axis_col) and abs(axis - cal.axis_col) > 0.25 * cal.nozzle_outer_diameter_px:
+            cal.notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
+                             f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
+                             "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
+        if not cal.axis_source.startswith("user"):
+            cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
+                                                   if cal.nozzle_found else
+                                                   "line of the detached in-focus drops (no nozzle found)")
+    if np.isfinite(level) and abs(level - cal.liquid_level) > 0.01:
+        cal.notes.append(f"liquid interior level {level:.3f} from the detached in-focus drops ("
+                         + ("the liquid below the out-of-focus walls' end, a blurred holder, gave "
+                            if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
+        cal.liquid_level, cal.threshold = level, edge_threshold(level)
+    face = holder_face(t_first, cal.threshold, cal.axis_col) if cal.nozzle_found else None
+    if face is not None and not cal.tip_source.startswith("user"):
+        tip = face[0] + face[1] * cal.axis_col
+        if abs(tip - cal.tip_row) > 0.5:
+            cal.notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "
+                             f"walls' silhouette ends: row {cal.tip_row:.1f})")
+        cal.tip_row, cal.tip_source = float(tip), "the out-of-focus holder's face (straight fit of its 50 % line)"
+    new = FrameContext.build(cal, sigma_px, dtype, max_value, config, attached_half_width_px=reach)
+    ctx = replace(ctx, **{f: getattr(new, f) for f in _REGION_FIELDS + ("threshold", "liquid_level", "thr_image")})
+    if face is not None:
+        ctx = replace(ctx, face_a=face[0], face_b=face[1])
+        if liquid_seen_hanging(images, ctx):
+            ctx = replace(ctx, face_liquid_seen=True)
+            cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
+                             "at the axis below the face is taken as its meniscus in every frame")
+    return ctx
+
+
+def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) -> float:
+    """Width (px, across the axis) of the liquid at the tip plane in one frame: the orifice's inner
+    diameter when the meniscus rests there, pinned at its inner edge.
+
+    The attached liquid's outline in the rows wholly below the tip plane (at most ``rows``); a cap's
+    squared chord is nearly linear in the depth, so the squared chords are fitted by a line and
+    read at the plane.  NaN with fewer than 2 such rows (a meniscus flat at, or inside, the orifice)
+    or none at all.
+    """
+    roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    if body is None:
+        return float("nan")
+    att = measure_attached(roi, ctx, seg, body, 1.0)
+    r, left, right = outline(att.edges)
+    below = r > ctx.tip_roi + 0.5
+    r, chord = r[below][:rows], (right - left)[below][:rows]
+    if r.size < 2:
+        return float("nan")
+    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), ctx.tip_roi))
+    return float(np.sqrt(sq) * math.cos(ctx.tilt_rad)) if sq > 0 else float("nan")
+
+
+def liquid_seen_hanging(images, ctx: FrameContext) -> bool:
+    """Whether a calibration frame shows liquid hanging in focus below an out-of-focus face
+    (`dropvision.bodies.hanging_columns`)."""
+    for img in images:
+        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+        if body is not None:
+            found = hanging_columns(roi, ctx, seg, body, 1.0)
+            if found is not None and found.liquid:
+                return True
+    return False
 
 
 def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:

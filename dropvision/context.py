@@ -75,6 +75,12 @@ class FrameContext:
     mist_blur_factor: float = 1.2
     mist_blur_offset_px: float = 0.25
     compact_ratio: float = 2.0  # a compact body: at most this many equivalent diameters long
+    # the face of an out-of-focus holder (full frame, row = face_a + face_b * col; NaN: the nozzle is in
+    # focus): the attached liquid is only what hangs below it (`dropvision.nozzle.protruding_columns`)
+    face_a: float = float("nan")
+    face_b: float = 0.0
+    # liquid was seen hanging from it in focus in a calibration frame: a dark bump there is liquid
+    face_liquid_seen: bool = False
 
     @classmethod
     def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig,
@@ -97,11 +103,15 @@ class FrameContext:
             nozzle diameters wide), with a margin of a quarter nozzle diameter and 8 px.
         """
         h, w = cal.shape
-        r0 = max(0, int(math.floor(cal.tip_row)) - 8)
+        # no nozzle found (no tip plane, no outer width): the whole frame
+        r0 = max(0, int(math.floor(cal.tip_row)) - 8) if math.isfinite(cal.tip_row) else 0
         half = config.band_half_width * cal.nozzle_outer_diameter_px + abs(math.tan(cal.tilt_rad)) * (h - r0)
         half = max(half, 48.0, attached_half_width_px + 0.25 * cal.nozzle_outer_diameter_px + 8.0)
-        c0 = max(0, int(math.floor(cal.axis_col - half)))
-        c1 = min(w, int(math.ceil(cal.axis_col + half)) + 1)
+        if not (math.isfinite(half) and math.isfinite(cal.axis_col)):
+            c0, c1 = 0, w
+        else:
+            c0 = max(0, int(math.floor(cal.axis_col - half)))
+            c1 = min(w, int(math.ceil(cal.axis_col + half)) + 1)
         bg = np.ascontiguousarray(cal.background.background[r0:, c0:c1])
         allowed = opaque = None
         if cal.background.opaque is not None:
@@ -153,7 +163,8 @@ class FrameContext:
         dy = row_roi + self.r0 - self.tip_row
         dx = col_roi + self.c0 - self.axis_col
         s, c = math.sin(self.tilt_rad), math.cos(self.tilt_rad)
-        return (dx * s + dy * c) * self.pixel_size_um, (dx * c - dy * s) * self.pixel_size_um
+        across = dx * c - (dy * s if s else 0.0)  # no tip plane (no nozzle): along the axis unknown, across known
+        return (dx * s + dy * c) * self.pixel_size_um, across * self.pixel_size_um
 
 
 def _kernel_size(sigma_px: float) -> int:

@@ -100,7 +100,8 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
     seg = segment_frame(roi, ctx, rec.gain)
     edges: list[RowEdges] = []
-    nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    # no tip plane: the calibration found no nozzle (`dropvision.calibration`), nothing is attached
+    nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi) if np.isfinite(ctx.tip_roi) else None
     threads: set[int] = set()
     sources: dict[int, tuple[DarkBody, RowEdges]] = {}
     if nozzle_body is None:

@@ -17,6 +17,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -374,3 +375,155 @@ def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float)
     w = w[np.isfinite(w)]
     stat = float(np.std(w, ddof=1) / np.sqrt(w.size)) if w.size >= 2 else float("nan")
     return float(np.hypot(stat, np.sqrt(2.0) * edge_position_floor_px) * np.cos(nozzle.tilt_rad))
+
+
+# ----------------------------------------------------------------------------- an out-of-focus holder's face
+#: A column of the top body reaching this far (px) below the face line protrudes from it (the same
+#: margin as `_face_nozzle`'s: a 50 % line of a straight face scatters by less).
+FACE_PROTRUSION_PX = 1.5
+SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+
+def bottom_profile(body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(columns, lowest row) of a boolean body mask: its lower outline, one row per column it holds."""
+    body = np.asarray(body, bool)
+    cols = np.nonzero(body.any(axis=0))[0]
+    h = body.shape[0]
+    bottom = h - 1 - np.argmax(body[::-1, cols], axis=0)
+    return cols, bottom.astype(float)
+
+
+def fit_face_line(cols: np.ndarray, bottom: np.ndarray, band_px: float = 2.0) -> tuple[float, float] | None:
+    """The face of a holder block or nozzle plate: the straight line its lower outline follows.
+
+    A face is flat: its 50 % line is the longest straight stretch of the bottom profile (RANSAC
+    over pairs of columns, inliers within ``band_px``, refitted by least squares); liquid hanging
+    from it, a chamfer or a rounded corner at its ends are outliers.  The columns within 10 px
+    of the body's ends (its rounded corners) are not used.
+
+    Returns
+    -------
+    (a, b) or None
+        ``row = a + b * col``; None with fewer than 20 columns or no line holding 10 of them.
+    """
+    cols = np.asarray(cols, float)
+    bottom = np.asarray(bottom, float)
+    keep = (cols > cols.min() + 10) & (cols < cols.max() - 10) if cols.size else np.zeros(0, bool)
+    x, y = cols[keep], bottom[keep]
+    if x.size < 20:
+        return None
+    rng = np.random.default_rng(0)
+    best = None
+    for _ in range(300):
+        i, j = rng.choice(x.size, 2, replace=False)
+        if x[i] == x[j]:
+            continue
+        slope = (y[j] - y[i]) / (x[j] - x[i])
+        inl = np.abs(y - (y[i] + slope * (x - x[i]))) <= band_px
+        if best is None or inl.sum() > best.sum():
+            best = inl
+    if best is None or best.sum() < 10:
+        return None
+    b, a = np.polyfit(x[best], y[best], 1)
+    return float(a), float(b)
+
+
+@dataclass(frozen=True)
+class Protrusion:
+    """What reaches below an out-of-focus face at the jet's axis (`protruding_columns`).
+
+    ``first``, ``last``: its columns (inclusive); ``liquid``: dark and in focus (what hangs from the
+    orifice), else the face's own blurred halo (a ragged 50 % line, a capillary's blurred face);
+    ``reason`` says which test it failed.
+    """
+
+    first: int
+    last: int
+    liquid: bool
+    reason: str = ""
+
+
+def protruding_columns(body: np.ndarray, transmission: np.ndarray, face_rows: np.ndarray, axis_col: float,
+                       dark_limit: float, focus_limit_px: float, margin_px: float = FACE_PROTRUSION_PX, *,
+                       judge_focus: bool = True) -> Protrusion | None:
+    """What reaches below an out-of-focus face at the jet's axis, and whether it is liquid.
+
+    The columns of the body whose lowest row lies more than ``margin_px`` below the face line
+    form groups; the group holding the jet's axis column is what may hang from the orifice.  It
+    is liquid when it looks like liquid in the jet's plane (a person's two looks):
+
+    - dark: its darkest pixels below the face (2nd percentile) at most ``dark_limit`` (the halo
+      of a blurred holder beyond its own ragged 50 % line is grey);
+    - in focus: the lower edge of its deeper half (columns reaching at least half its depth
+      below the face) as sharp as the drops': per column, the step from its darkest pixel below
+      the face to the transmission 3 blur widths below its edge, over ``sqrt(2 pi)`` x the
+      gradient at the edge (the edge spread of `dropvision.classify.appearance`, with the local
+      step: liquid inside a halo has less contrast), median over the columns, at most
+      ``focus_limit_px`` (the mist limit).
+
+    Parameters
+    ----------
+    body : ndarray of bool
+        The top body (region rows from 0, its columns).
+    transmission : ndarray
+        The same pixels over the background, with at least ``3 * focus_limit_px + 2`` rows below the body.
+    face_rows : ndarray of float
+        The face line's row at every column.
+    axis_col : float
+        The jet's axis column (same columns).
+    dark_limit : float
+        Transmission liquid is darker than (half-way between the edge level and the liquid's).
+    focus_limit_px : float
+        Largest edge spread of a body in focus (px).
+    margin_px : float
+        Protrusion below the face line from which a column counts.
+    judge_focus : bool
+        False where liquid was already seen hanging there in focus (another frame of the
+        sequence): a dark protrusion is then its meniscus, however small (a bump of a few px
+        inside the halo has no edge of its own to judge).
+
+    Returns
+    -------
+    Protrusion or None (nothing reaches below the face at the axis).
+    """
+    cols, bottom = bottom_profile(body)
+    c = int(round(axis_col))
+    if cols.size == 0 or not 0 <= c < body.shape[1]:
+        return None
+    depth = np.full(body.shape[1], -np.inf)
+    depth[cols] = bottom - face_rows[cols]
+    prot = depth > margin_px
+    if not prot[c]:
+        return None
+    lo, hi = c, c
+    while lo > 0 and prot[lo - 1]:
+        lo -= 1
+    while hi < prot.size - 1 and prot[hi + 1]:
+        hi += 1
+    t = np.asarray(transmission, np.float32)
+    rows = np.arange(body.shape[0])[:, None]
+    below = body[:, lo:hi + 1] & (rows > face_rows[None, lo:hi + 1])
+    vals = t[:body.shape[0], lo:hi + 1][below]
+    p2 = float(np.percentile(vals, 2)) if vals.size else 1.0
+    if p2 > dark_limit:
+        return Protrusion(lo, hi, False, f"not dark: transmission {p2:.2f} > {dark_limit:.2f} below the face")
+    if not judge_focus:
+        return Protrusion(lo, hi, True)
+    span = np.arange(lo, hi + 1)
+    core = span[depth[span] >= 0.5 * depth[span].max()]
+    off = int(math.ceil(3.0 * focus_limit_px))
+    spreads = []
+    bottom_of = np.full(body.shape[1], -1)
+    bottom_of[cols] = bottom.astype(int)
+    for j in core:
+        b = bottom_of[j]
+        f = int(math.ceil(face_rows[j]))
+        if b + off >= t.shape[0] or b < 1:
+            continue
+        g = 0.5 * float(t[b + 1, j] - t[b - 1, j])
+        step = float(t[b + off, j] - t[f:b + 1, j].min())
+        spreads.append(step / (SQRT_2PI * g) if g > 0 else np.inf)
+    spread = float(np.median(spreads)) if spreads else np.inf
+    if spread > focus_limit_px:
+        return Protrusion(lo, hi, False, f"out of focus: edge spread {spread:.2f} px > {focus_limit_px:.2f} px")
+    return Protrusion(lo, hi, True)

@@ -101,7 +101,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     has_det = np.array([bool(r.bodies) for r in records], bool)
     dead_time = dead_time_us(meta, config)
     # --- plausibility of the pixel size (issue "hostile and lying input", lie 1) ----------
-    length_lie = check_pixel_size(cal, meta, config, flags, notes)
+    length_lie = check_pixel_size(cal, meta, config, flags, notes,
+                                  dead_time_us(meta, config) if getattr(meta, "waveform", None) else None)
     # --- pinch-off: an isolated detached delay is a foreign frame, not the pinch-off -----
     isolated = isolated_detached(delay, has_det)
     for k in np.nonzero(isolated)[0]:

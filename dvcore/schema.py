@@ -476,7 +476,9 @@ QUALITY_CODES: dict[str, str] = {
     Quality.ILLUMINATION: "the strobe intensity differs from the background model: segmentation not trusted",
     Quality.LOW_CONTRAST: "liquid too bright against the background for sub-pixel edges",
     Quality.BLURRED: "edges blurred beyond the limit (focus or motion)",
-    Quality.NO_NOZZLE: "the nozzle could not be located in the frame",
+    Quality.NO_NOZZLE: "the nozzle could not be located in the frame: its detached drops are measured (each about "
+                       "its own axis, the jet's axis their line), what needs the nozzle is NaN (attached volume, "
+                       "distance along the axis)",
     Quality.ATTACHED_LEAVES: "the attached liquid leaves the field of view: attached volume incomplete",
     Quality.DROP_LEAVES: "the main drop leaves the field of view: its volume is incomplete",
     Quality.OUT_OF_BAND: "the main drop crosses the edge of the measured column band",
@@ -487,7 +489,9 @@ QUALITY_CODES: dict[str, str] = {
     Quality.NO_REST_MENISCUS: "no frame shows the meniscus at rest (first delay after the dead time): "
                               "grown volume and flow unknown",
     Quality.PIXEL_SIZE_MISMATCH: "the given pixel size disagrees with the nozzle's outer diameter beyond the "
-                                 "tolerance: every length and volume is suspect (ratio in summary calibration)",
+                                 "tolerance, or with its inner diameter (the resting meniscus's width at the tip "
+                                 "plane): every length and volume is suspect (ratio in summary calibration, the "
+                                 "reason in its notes)",
     Quality.DELAY_INCONSISTENT: "the frame's delay contradicts the motion (pinch-off before the dead time, no "
                                 "growth during the stroke, drop going back up, implausible velocity): delays "
                                 "mislabelled or in the wrong unit",

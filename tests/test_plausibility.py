@@ -85,7 +85,9 @@ def test_pixel_size_unchecked_without_outer_diameter(honest, tmp_path):
     def edit(seq, meta):
         del meta["nozzle_outer_diameter_um"]
     res = measure_sequence(lie(honest, tmp_path, edit))
-    assert "pixel size unchecked (no nozzle_outer_diameter_um)" in res.summary["notes"]
+    # the outer diameter is not there to check it, the inner diameter is (issue 29): said so, nothing flagged
+    note = next(n for n in res.summary["notes"] if "no nozzle_outer_diameter_um" in n)
+    assert "checked against the inner diameter only" in note, note
     assert (res.frames.quality == "ok").all()
     assert np.isnan(res.summary["calibration"]["pixel_size_ratio"])
 
@@ -209,3 +211,62 @@ def test_inner_diameter_not_smaller_than_outer_is_noted():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert MeasureConfig().max_jetting_velocity_m_s == 20.0
+
+
+# --- the inner diameter cross-checks the pixel size (issue 29, item C) -----------------------------------
+def test_honest_resting_meniscus_is_the_inner_diameter(honest):
+    """The honest sequence: the resting meniscus's width at the tip plane is the 200 um orifice (42.3 px at
+    4.73 um) within 1 %, and nothing is flagged (the notes stay empty: see the first test)."""
+    s = honest[1].summary
+    assert s["calibration"]["rest_meniscus_width_px"] == pytest.approx(200.0 / 4.73, rel=0.01)
+    assert not honest[1].frames.quality.str.contains("pixel_size_mismatch").any()
+
+
+def _inner_mismatch(res):
+    assert res.frames.quality.str.contains("pixel_size_mismatch").all()
+    note = next(n for n in res.summary["notes"] if "inner diameter" in n)
+    ratio = float(note.split(" is ")[1].split(" x ")[0])
+    assert ratio == pytest.approx(0.5, abs=0.01), note  # the implied pixel size is half the given one
+    assert np.isnan(res.summary["inflight_volume_nl"]) and np.isnan(res.summary["jetting_velocity_m_s"])
+
+
+def test_doubled_pixel_size_without_outer_diameter_is_flagged(honest, tmp_path):
+    """Lie: pixel size x 2 and no outer diameter to check it against; the inner diameter is given."""
+    def edit(seq, meta):
+        meta["pixel_size_um"] *= 2
+        del meta["nozzle_outer_diameter_um"]
+    _inner_mismatch(measure_sequence(lie(honest, tmp_path, edit)))
+
+
+def test_doubled_pixel_size_and_outer_diameter_are_flagged(honest, tmp_path):
+    """Lie: pixel size and outer diameter both x 2 (they agree with each other, not with the inner)."""
+    def edit(seq, meta):
+        meta["pixel_size_um"] *= 2
+        meta["nozzle_outer_diameter_um"] *= 2
+    res = measure_sequence(lie(honest, tmp_path, edit))
+    assert res.summary["calibration"]["pixel_size_ratio"] == pytest.approx(1.0, abs=0.01)  # the outer check passes
+    _inner_mismatch(res)
+
+
+def test_doubled_pixel_size_in_a_tiff_stack_description_is_flagged(tmp_path):
+    """Lie: a multi-page TIFF whose description says pixel_size_um x 2 (sequence.json gives none, nor an
+    outer diameter: with one, the nozzle of the expected width is not found and the frame is refused)."""
+    import tifffile
+
+    from dropvision.sequence_writer import write_multipage_tiff
+
+    cfg = SynthConfig(delays_us=tuple(float(d) for d in range(0, 1401, 40)), format="tiff-stack", **SMALL)
+    seq = write_synthetic_sequence(cfg, tmp_path / "stack", progress=False)
+    meta = json.loads((seq / "sequence.json").read_text())
+    meta.pop("pixel_size_um", None)
+    meta.pop("nozzle_outer_diameter_um")
+    (seq / "sequence.json").write_text(json.dumps(meta))
+    tif = next(seq.glob("*.tif*"))
+    with tifffile.TiffFile(tif) as f:
+        pages = [p.asarray() for p in f.pages]
+        delays = [json.loads(p.description)["delay_us"] for p in f.pages]
+    tif.unlink()
+    write_multipage_tiff(tif, pages, delays, pixel_size_um=2 * cfg.pixel_size_um)
+    res = measure_sequence(seq)
+    assert res.summary["calibration"]["pixel_size_um"] == pytest.approx(2 * cfg.pixel_size_um)
+    _inner_mismatch(res)

@@ -28,6 +28,13 @@ def _within(value: float, ref: float, pct: float = 3.0) -> bool:
     return math.isfinite(value) and abs(value - ref) / ref * 100 <= pct
 
 
+#: Frames whose nozzle cannot be found (issue 29): the holder at the left edge does not reach the frame's
+#: edge as a dark body (vignetted dark corner, the background model lifts it), so there is no tip plane
+#: and no attached liquid to measure: quality ``no_nozzle`` and the attached volume NaN, the drops still
+#: measured (each about its own axis; the jet's axis is their line).
+NO_NOZZLE = {"watcher-dod/V1--86_V2-14_V3--5_w1-23_w2-11_w3-1_d1-6_d2-7"}
+
+
 @pytest.mark.parametrize("folder", FOLDERS, ids=[p.name if p.parent == REALDATA else str(p.relative_to(REALDATA)) for p in FOLDERS])
 def test_real_frame_meets_its_rules(folder):
     truth = json.loads((folder / "truth.json").read_text())
@@ -44,8 +51,18 @@ def test_real_frame_meets_its_rules(folder):
         assert int(row["n_satellites"]) in truth["satellites_accepted"], (row["n_satellites"], r.bodies)
         if truth.get("main_drop_compact", True):
             assert _within(v, truth["main_drop_volume_nl"]), (v, truth["main_drop_volume_nl"])
-        # a single frame of a foreign rig: no waveform, no delay series, so no flag of either kind
-        assert row["quality"] == "ok", row["quality"]
+        # the two bounds of score.py: nothing hangs from the capillary's face, the drops fly along its axis;
+        # NaN fails both here (score.py lets a NaN attached volume pass), except where no nozzle exists
+        name = str(folder.relative_to(REALDATA))
+        att, dx = float(row["attached_volume_nl"]), float(row["drop_x_um"])
+        if name in NO_NOZZLE:
+            assert math.isnan(att), att  # nothing to hang from: NaN, not a number from somewhere else
+        else:
+            assert math.isfinite(att) and att <= truth["attached_volume_nl_max"], att
+        assert math.isfinite(dx) and abs(dx) <= truth["drop_axis_offset_um_max"], dx
+        # a single frame of a foreign rig: no waveform, no delay series, so no flag of either kind; a frame
+        # without a nozzle says so
+        assert row["quality"] == ("no_nozzle" if name in NO_NOZZLE else "ok"), row["quality"]
     assert math.isfinite(u) and 0 < u < 0.03 * v, (v, u)
 
 
