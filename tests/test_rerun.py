@@ -378,8 +378,9 @@ def test_bad_inputs(tmp_path):
         logger.log_frame(ref, None, None, None, np.zeros((3, 3)), None, None)
     with pytest.raises(ValueError, match="unknown class 'blob'"):
         logger.log_frame(ref, None, None, None, None, [{"bbox": (0, 0, 1, 1), "class": "blob"}], None)
-    with pytest.raises(ValueError, match="tip_row and axis_col"):
-        logger.log_calibration({"tip_row": math.nan, "axis_col": 3.0})
+    # a frame without a nozzle (issue 29): no tip plane, the axis still drawn; nothing refused
+    logger.log_calibration({"tip_row": math.nan, "axis_col": 3.0}, shape=(ROWS, COLS))
+    assert logger._calibration.tip_row is None and logger._calibration.axis_col == 3.0 and logger._lines_logged
     with pytest.raises(TypeError, match="pass RerunOptions"):
         pickle.dumps(logger)
     logger.close()

@@ -385,8 +385,8 @@ _CHAR_WIDTH = 0.42
 
 @dataclass
 class _Calibration:
-    tip_row: float
-    axis_col: float
+    tip_row: float | None  # None: no nozzle found (no tip plane)
+    axis_col: float | None  # None: no jetting axis either
     tilt_rad: float
     pixel_size_um: float | None
 
@@ -465,18 +465,14 @@ class RerunLogger:
         ----------
         calib : object or mapping
             With ``tip_row``, ``axis_col`` (canonical full-frame pixel coords, integer pixel
-            centres), optional ``tilt_deg`` or ``tilt_rad`` (default 0, see module docstring),
+            centres; NaN where a frame has no nozzle: that line is not drawn), optional ``tilt_deg`` or ``tilt_rad`` (default 0, see module docstring),
             ``pixel_size_um`` and ``shape``; ``to_dict()`` (if present) fills the table.
         shape : (rows, cols), optional
             Image shape for the line extents; default ``calib.shape``, else the first frame's.
         """
         self._check_open()
-        tip_row = _finite(_get(calib, ("tip_row", "nozzle_tip_row")))
+        tip_row = _finite(_get(calib, ("tip_row", "nozzle_tip_row")))  # None: no nozzle, no tip plane
         axis_col = _finite(_get(calib, ("axis_col",)))
-        if tip_row is None or axis_col is None:
-            raise ValueError("log_calibration: calib needs finite tip_row and axis_col, got "
-                             f"tip_row={_get(calib, ('tip_row', 'nozzle_tip_row'))!r}, "
-                             f"axis_col={_get(calib, ('axis_col',))!r}")
         tilt_deg = _get(calib, ("tilt_deg",))
         if tilt_deg is None:
             tilt_rad = _get(calib, ("tilt_rad",), 0.0)
@@ -519,15 +515,17 @@ class RerunLogger:
             return
         rows, cols = shape
         t = math.tan(cal.tilt_rad)
-        ys = np.array([-0.5, rows - 0.5])
-        axis = np.column_stack([cal.axis_col + (ys - cal.tip_row) * t, ys])
-        xs = np.array([-0.5, cols - 0.5])
-        tip = np.column_stack([xs, cal.tip_row - (xs - cal.axis_col) * t])
         rr = self._rr
-        self.stream.log("/frame/axis", rr.LineStrips2D([axis + PIXEL_CENTRE_OFFSET],
-                        colors=(255, 255, 0), radii=-1.0, labels="axis", show_labels=False), static=True)
-        self.stream.log("/frame/tip_plane", rr.LineStrips2D([tip + PIXEL_CENTRE_OFFSET],
-                        colors=(0, 255, 255), radii=-1.0, labels="tip plane", show_labels=False), static=True)
+        if cal.axis_col is not None:  # through the tip, or (no nozzle) vertical through the drops' line
+            ys = np.array([-0.5, rows - 0.5])
+            axis = np.column_stack([cal.axis_col + (ys - (cal.tip_row or 0.0)) * t, ys])
+            self.stream.log("/frame/axis", rr.LineStrips2D([axis + PIXEL_CENTRE_OFFSET],
+                            colors=(255, 255, 0), radii=-1.0, labels="axis", show_labels=False), static=True)
+        if cal.tip_row is not None:
+            xs = np.array([-0.5, cols - 0.5])
+            tip = np.column_stack([xs, cal.tip_row - (xs - (cal.axis_col or 0.0)) * t])
+            self.stream.log("/frame/tip_plane", rr.LineStrips2D([tip + PIXEL_CENTRE_OFFSET], colors=(0, 255, 255),
+                            radii=-1.0, labels="tip plane", show_labels=False), static=True)
         self._lines_logged = True
 
     # -- per frame ------------------------------------------------------------------------------
@@ -681,7 +679,7 @@ class RerunLogger:
         """Main-drop centroid in Rerun pixel space: from the table (needs calibration), else bodies."""
         cal = self._calibration
         z_um, x_um = _finite(row.get("drop_z_um")), _finite(row.get("drop_x_um"))
-        if cal is not None and cal.pixel_size_um and z_um is not None:
+        if cal is not None and cal.pixel_size_um and z_um is not None and None not in (cal.tip_row, cal.axis_col):
             x_um = x_um or 0.0
             s, c = math.sin(cal.tilt_rad), math.cos(cal.tilt_rad)
             x = cal.axis_col + (z_um * s + x_um * c) / cal.pixel_size_um
