@@ -347,11 +347,13 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
             res = measure_sequence(seq, None, config)
         except SequenceError as exc:
             errors.append({"file": name, "reason": str(exc)})
+            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": str(exc)})
             continue
         s = res.summary
         if len(res.frames) != 1:
             reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
             errors.append({"file": name, "reason": reason})
+            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": reason})
             continue
         frames_parts.append(res.frames.assign(file=name))
         if res.bodies is not None and len(res.bodies):
@@ -370,9 +372,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
                             f"{first['reason']})")
     frames = pd.concat(frames_parts, ignore_index=True)
     bodies = pd.concat(bodies_parts, ignore_index=True) if bodies_parts else None
-    all_notes = [entry["notes"] for entry in per_shot]
+    all_notes = [entry["notes"] for entry in per_shot if "notes" in entry]
     common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
-    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot}
+    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
     table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in errors},
                         delay_us=float((overrides or {}).get("delay_us") or 0.0))
     summary = {

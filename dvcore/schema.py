@@ -264,8 +264,8 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
     F("quality_counts", "object", "", "shots per quality text"),
     F("errors", "list", "", "images that could not be measured: file, reason"),
     F("notes", "list", "", "notes common to every shot (the others are in the shots' notes column)"),
-    F("shots", "list", "", "per image: file, its labels, orientation and the *_source keys of summary.json, "
-      "calibration"),
+    F("shots", "list", "", "per image: file, its labels, then orientation, the *_source keys of a sequence's "
+      "summary.json, notes and calibration, or error (why it could not be measured)"),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
 ), "summary.json of a shot folder (`dropvision measure` over images with no delay to tell).")

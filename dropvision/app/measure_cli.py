@@ -28,6 +28,7 @@ def _run(args: argparse.Namespace) -> int:
     from dropvision.app.rerun_log import logger_from_args
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
+    from dropvision.readers import IMAGE_SUFFIXES
     from dropvision.sequence import open_sequence
     from dropvision.shots import find_shots
 
@@ -44,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
         raise UsageError(f"--label-pattern: {paths[0]} is a sequence (its frames tell their delays), not a folder "
                          "of shots; labels are read for shots only")
     seq, only = paths[0], None
-    if seq.is_file():  # an image file: a folder of one
+    if seq.is_file() and seq.suffix.lower() in IMAGE_SUFFIXES:  # an image file: a folder of one
         seq, only = seq.parent, [seq.name]
     check_outside_inputs([seq], getattr(args, "rerun", None))  # a recording in the sequence changes it
     logger = logger_from_args(args, "dropvision", recording_name=paths[0].resolve().name)
