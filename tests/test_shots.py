@@ -181,3 +181,26 @@ def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
     pd.testing.assert_series_equal(one.iloc[0].drop("file"), frames.loc[name], check_names=False)
     for _, row in table[table["quality"] == schema.Quality.NOT_MEASURED].iterrows():
         assert row["notes"] and math.isnan(row["drop_volume_nl"])  # one row per image, the reason in its notes
+
+
+# ----------------------------------------------------------------------------- 6. not a drop image
+def test_photographs_are_never_measured_as_ok(tmp_path, capsys):
+    """Photographs (scikit-image's bundled test images: a man with a camera, an astronaut, a cat, coins, a
+    rocket, grass) in a shot folder: each refused (a row not_measured, its reason) or flagged, none 'ok'."""
+    data = pytest.importorskip("skimage.data")
+    import cv2
+
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    for name in ("camera", "astronaut", "chelsea", "coins", "rocket", "grass"):
+        image = getattr(data, name)()
+        if image.ndim == 3:
+            image = cv2.cvtColor(image[..., :3], cv2.COLOR_RGB2GRAY)
+        cv2.imwrite(str(folder / f"{name}.png"), image)
+    with np.errstate(all="ignore"):
+        assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--pixel-size-um", "3", "-q"]) == 0
+    capsys.readouterr()
+    table = pd.read_parquet(tmp_path / "out" / "shots.parquet")
+    assert len(table) == 6 and not (table["quality"] == schema.Quality.OK).any(), table[["file", "quality"]]
+    assert table.loc[table["quality"] == schema.Quality.NOT_MEASURED, "notes"].str.len().gt(0).all()
+    assert not table["inflight"].any() and table["drop_volume_nl"].isna().all()
