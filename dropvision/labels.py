@@ -138,7 +138,7 @@ def labels_from_pattern(name: str, pattern: str | re.Pattern) -> dict[str, float
     rx = compile_pattern(pattern)
     m = rx.search(_stem(name))
     if m is None:
-        raise LabelError(f"{name}: the file name does not match the label pattern {rx.pattern!r}")
+        raise LabelError(f"{name}: the file name does not match the label pattern '{rx.pattern}'")
     out = {}
     for key, text in m.groupdict().items():
         if text is None:
@@ -157,9 +157,9 @@ def compile_pattern(pattern: str | re.Pattern) -> re.Pattern:
         try:
             rx = re.compile(pattern)
         except re.error as exc:
-            raise LabelError(f"label pattern {pattern!r}: not a regular expression ({exc})") from None
+            raise LabelError(f"label pattern '{pattern}': not a regular expression ({exc})") from None
     if not rx.groupindex:
-        raise LabelError(f"label pattern {rx.pattern!r}: no named group (write (?P<V1>[-\\d.]+) for a label V1)")
+        raise LabelError(f"label pattern '{rx.pattern}': no named group (write (?P<V1>[-\\d.]+) for a label V1)")
     return rx
 
 

@@ -174,9 +174,8 @@ def _read_labels(shots: ShotInput, label_pattern: str | None) -> None:
         table = folder / LABEL_TABLE
         if table.is_file():
             tables[folder] = read_label_table(table)
-    if len(shots.inputs) == 1 and shots.inputs[0] in tables:  # a folder: its table lists its images
-        listed = set(shots.names) | {p.name for p in shots.paths}
-        unknown = [f for f in tables[shots.inputs[0]] if f not in listed]
+    if shots.from_folder and shots.inputs[0] in tables:  # a folder: its table lists its images
+        unknown = [f for f in tables[shots.inputs[0]] if f not in set(shots.names)]
         if unknown:
             raise LabelError(f"{shots.inputs[0] / LABEL_TABLE}: {unknown[0]} is not an image of the folder")
     sources: dict[str, list[str]] = {}
@@ -289,8 +288,10 @@ def _median(values) -> float | None:
     return float(np.median(v)) if v.size else None
 
 
-def _finite_or_none(value) -> float | None:
-    return float(value) if value is not None and np.isfinite(value) else None
+def _extreme(values, fn) -> float | None:
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v)]
+    return float(fn(v)) if v.size else None
 
 
 def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
@@ -387,10 +388,8 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         "label_sources": shots.label_sources,
         "label_columns": label_columns(shots.label_names),
         "drop_volume_median_nl": _median(table["drop_volume_nl"]),
-        "drop_volume_min_nl": _finite_or_none(np.nanmin(table["drop_volume_nl"]) if table["drop_volume_nl"].notna().any()
-                                              else None),
-        "drop_volume_max_nl": _finite_or_none(np.nanmax(table["drop_volume_nl"]) if table["drop_volume_nl"].notna().any()
-                                              else None),
+        "drop_volume_min_nl": _extreme(table["drop_volume_nl"], np.min),
+        "drop_volume_max_nl": _extreme(table["drop_volume_nl"], np.max),
         "drop_sphere_diameter_median_um": _median(table["drop_sphere_diameter_um"]),
         "n_satellites_median": _median(table["n_satellites"].astype(float)),
         "trajectory_angle_median_mrad": _median(table["trajectory_angle_mrad"]),

@@ -167,8 +167,8 @@ SHOTS_FROM_FRAMES = ("delay_us", "drop_volume_nl", "drop_volume_uncertainty_nl",
 SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
     F("file", "str", "", "image file (relative to the shot folder; the path as given for files of several folders)",
       nullable=False),
-    F("delay_us", "float", "us", "strobe delay of the shot (--delay-us, else 0 assumed: summary.json shots[].delay_source)",
-      nullable=False),
+    F("delay_us", "float", "us", "strobe delay of the shot (--delay-us, else 0 assumed: summary.json "
+      "shots[].delay_source)", nullable=False),
     F("drop_volume_nl", "float", "nl", "volume of the main detached drop (frames.parquet drop_volume_nl)"),
     F("drop_volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
     F("drop_sphere_diameter_um", "float", "um", "diameter of the sphere of drop_volume_nl, (6 V / pi)^(1/3)"),
@@ -494,7 +494,8 @@ PREDICTION = Document("prediction", "identify predict --json", "identify.predict
    "`identify.hybrid.ExtrapolationWarning` and gives NaN for an impossible output).")
 
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
-DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN, PREDICTION)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
+                                 PREDICTION)}
 
 
 class Quality:

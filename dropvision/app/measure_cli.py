@@ -83,8 +83,9 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
     """A folder of shots (images with no delay to tell) or several image files: one row per image."""
     from dropvision.shots import measure_shots, one_line
 
-    if getattr(args, "rerun", None) is not None:
-        raise UsageError("--rerun: not available for a folder of shots yet (measure one image to record it)")
+    if args.rerun is not None or args.rerun_spawn or args.rerun_connect is not None:
+        raise UsageError("--rerun/--rerun-spawn/--rerun-connect: not available for a folder of shots yet (give one "
+                         "image file to see it)")
     check_outside_inputs(shots.inputs, None)
     with captured_warnings() as caught:
         try:
