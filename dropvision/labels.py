@@ -9,7 +9,8 @@ Pure functions, no image is read. A label is a name and a number. They come from
 - a regular expression with named groups where names are unusual (`labels_from_pattern`,
   ``--label-pattern``), which replaces the file-name rule;
 - a table beside the images (``shots.csv``: a ``file`` column and one column per label,
-  `read_label_table`).
+  `read_label_table`), or sequence.json's ``shots`` list (``[{"file": "a.jpg", "V1": -86}]``,
+  `labels_from_document`).
 
 `merge_labels` joins the sources of one file: the same name with two different values is an error
 naming the file. `varying_labels` tells a counter (a frame number) from labels that group files.
@@ -24,7 +25,7 @@ from pathlib import Path, PurePath
 
 from dropvision.sequence_meta import SequenceError
 
-__all__ = ["LabelError", "LABEL_TABLE", "labels_from_name", "labels_from_pattern", "read_label_table",
+__all__ = ["LabelError", "LABEL_TABLE", "labels_from_name", "labels_from_pattern", "read_label_table", "labels_from_document",
            "merge_labels", "varying_labels", "check_one_series", "compile_pattern"]
 
 #: The table of labels beside the images.
@@ -216,6 +217,50 @@ def read_label_table(path) -> dict[str, dict[str, float]]:
             if not _BARE_NUMBER.match(cell):
                 raise LabelError(f"{path} row {n}: {key} is {cell!r}, not a number")
             labels[key] = _number(cell, f"{path} row {n}")
+        out[file] = labels
+    return out
+
+
+def labels_from_document(entries, where) -> dict[str, dict[str, float]]:
+    """Labels of sequence.json's ``shots`` list: ``[{"file": "a.jpg", "V1": -86, ...}, ...]``.
+
+    Parameters
+    ----------
+    entries : list
+        The list as read from the JSON document.
+    where : str or Path
+        The document, named in errors.
+
+    Returns
+    -------
+    dict
+        File -> label name -> value (``null`` is no label).
+
+    Raises
+    ------
+    LabelError
+        Not a list of objects with a ``file``, a file listed twice, a value that is not a finite number
+        (booleans and strings included), a key that is not a label name.
+    """
+    if not isinstance(entries, list):
+        raise LabelError(f"{where}: 'shots' must be a list of objects (file and labels), got {type(entries).__name__}")
+    out: dict[str, dict[str, float]] = {}
+    for i, entry in enumerate(entries):
+        at = f"{where} shots[{i}]"
+        if not isinstance(entry, dict) or not isinstance(entry.get("file"), str) or not entry["file"].strip():
+            raise LabelError(f"{at}: must be an object with a 'file' (a string) and the labels")
+        file = entry["file"].strip().replace("\\", "/")
+        if file in out:
+            raise LabelError(f"{at}: {file} is listed twice")
+        labels = {}
+        for key, value in entry.items():
+            if key == "file" or value is None:
+                continue
+            if not isinstance(key, str) or not _BARE_NAME.match(key):
+                raise LabelError(f"{at}: {key!r} is not a label name (a letter, then letters or digits)")
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise LabelError(f"{at}: {key} is {value!r}, not a finite number")
+            labels[key] = float(value)
         out[file] = labels
     return out
 

@@ -28,8 +28,10 @@ import numpy as np
 
 from dropvision.config import MeasureConfig
 from dropvision.discovery import images_without_delay
-from dropvision.labels import LABEL_TABLE, LabelError, compile_pattern, labels_from_name, labels_from_pattern, \
-    merge_labels, read_label_table
+from dropvision.labels import (
+    LABEL_TABLE, LabelError, compile_pattern, labels_from_document, labels_from_name, labels_from_pattern, merge_labels,
+    read_label_table,
+)
 from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.sequence import SEQUENCE_JSON
 from dropvision.sequence_meta import SequenceError
@@ -63,8 +65,8 @@ class ShotInput:
     labels : dict
         Name -> label name -> value.
     label_sources : dict
-        Label name -> where it was read (``file names``, ``shots.csv``, ``--label-pattern``; several
-        joined by `` and ``).
+        Label name -> where it was read (``file names``, ``--label-pattern``, ``sequence.json`` (its
+        ``shots`` list), ``shots.csv``; several joined by `` and ``).
     from_folder : bool
         One folder was given (else image files).
     """
@@ -95,21 +97,30 @@ class ShotsResult:
     bodies: pd.DataFrame | None = None
 
 
+def _sequence_doc(folder: Path) -> dict | None:
+    """sequence.json of a folder when it is there and an object; None otherwise (open_sequence
+    reports a broken one)."""
+    json_path = folder / SEQUENCE_JSON
+    try:
+        if not json_path.is_file():
+            return None
+        doc = load_json_hardened(json_path, SequenceError)
+    except (OSError, SequenceError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
 def _is_sequence_folder(folder: Path, overrides: dict | None) -> bool:
     if overrides and any(overrides.get(k) is not None for k in _SEQUENCE_KEYS):
         return True
-    json_path = folder / SEQUENCE_JSON
     try:
-        present = json_path.is_file()
+        present = (folder / SEQUENCE_JSON).is_file()
     except OSError:
         return True
-    if not present:
-        return False
-    try:
-        doc = load_json_hardened(json_path, SequenceError)
-    except SequenceError:
-        return True  # open_sequence reports it
-    return not isinstance(doc, dict) or any(doc.get(k) is not None for k in _SEQUENCE_KEYS)
+    doc = _sequence_doc(folder)
+    if present and doc is None:
+        return True  # unreadable or not an object: open_sequence reports it
+    return doc is not None and any(doc.get(k) is not None for k in _SEQUENCE_KEYS)
 
 
 def find_shots(paths, *, overrides: dict | None = None, label_pattern: str | None = None) -> ShotInput | None:
@@ -169,22 +180,26 @@ def find_shots(paths, *, overrides: dict | None = None, label_pattern: str | Non
 def _read_labels(shots: ShotInput, label_pattern: str | None) -> None:
     """Fill ``shots.labels`` / ``label_sources`` from the names (or the pattern) and shots.csv."""
     rx = compile_pattern(label_pattern) if label_pattern else None
-    tables: dict[Path, dict] = {}
+    tables: dict[tuple[Path, str], dict] = {}  # (folder, source) -> file -> labels
     for folder in shots.inputs:
-        table = folder / LABEL_TABLE
-        if table.is_file():
-            tables[folder] = read_label_table(table)
-    if shots.from_folder and shots.inputs[0] in tables:  # a folder: its table lists its images
-        unknown = [f for f in tables[shots.inputs[0]] if f not in set(shots.names)]
-        if unknown:
-            raise LabelError(f"{shots.inputs[0] / LABEL_TABLE}: {unknown[0]} is not an image of the folder")
+        doc = _sequence_doc(folder)
+        if doc is not None and doc.get("shots") is not None:
+            tables[folder, SEQUENCE_JSON] = labels_from_document(doc["shots"], folder / SEQUENCE_JSON)
+        if (folder / LABEL_TABLE).is_file():
+            tables[folder, LABEL_TABLE] = read_label_table(folder / LABEL_TABLE)
+    if shots.from_folder:  # a folder: its tables list its images
+        for (folder, source), table in tables.items():
+            unknown = [f for f in table if f not in set(shots.names)]
+            if unknown:
+                raise LabelError(f"{folder / source}: {unknown[0]} is not an image of the folder")
     sources: dict[str, list[str]] = {}
     for path, name in zip(shots.paths, shots.names):
         given = [("--label-pattern", labels_from_pattern(path.name, rx)) if rx is not None
                  else ("file name", labels_from_name(path.name))]
-        table = tables.get(path.parent)
-        if table is not None and path.name in table:
-            given.append((LABEL_TABLE, table[path.name]))
+        for source in (SEQUENCE_JSON, LABEL_TABLE):
+            table = tables.get((path.parent, source))
+            if table is not None and path.name in table:
+                given.append((source, table[path.name]))
         labels, origin = merge_labels(str(path), given)
         shots.labels[name] = labels
         for key, where in origin.items():

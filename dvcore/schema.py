@@ -192,8 +192,8 @@ SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
       "in summary.json)", nullable=False),
 ), "One row per image of a shot folder (images with no delay to tell, each measured alone as a single frame), in "
    "file order. The labels follow the declared columns: one float column per label, named by the label as "
-   "written in the file name (`V1--86` gives a column `V1` = -86), the `shots.csv` header or the group of "
-   "--label-pattern; a label named like a declared column is named `label_<name>`; NaN where a file lacks it.")
+   "written in the file name (`V1--86` gives a column `V1` = -86), the `shots.csv` header, the key of "
+   "sequence.json's `shots` list or the group of --label-pattern; a label named like a declared column is named `label_<name>`; NaN where a file lacks it.")
 
 SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("schema_version", "str", "", "document id"),
@@ -251,8 +251,8 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
     F("n_shots", "int", "", "images found", nullable=False),
     F("n_measured", "int", "", "images measured (the others are in errors)", nullable=False),
     F("labels", "list", "", "label names, in the order of the shots.parquet columns"),
-    F("label_sources", "object", "", "label name -> where it was read: file names, shots.csv, --label-pattern "
-      "(several joined by ' and ')"),
+    F("label_sources", "object", "", "label name -> where it was read: file names, --label-pattern, sequence.json "
+      "(its shots list), shots.csv (several joined by ' and ')"),
     F("label_columns", "object", "", "label name -> its column in shots.parquet"),
     F("drop_volume_median_nl", "float", "nl", "median main-drop volume over the measured shots"),
     F("drop_volume_min_nl", "float", "nl", "smallest main-drop volume"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from dropvision.labels import (
-    LabelError, check_one_series, labels_from_name, labels_from_pattern, merge_labels, read_label_table,
+    LabelError, check_one_series, labels_from_document, labels_from_name, labels_from_pattern, merge_labels, read_label_table,
     varying_labels,
 )
 from dropvision.sequence import SequenceError
@@ -72,6 +72,23 @@ def test_label_table(tmp_path):
         with pytest.raises(LabelError, match=fragment) as info:
             read_label_table(path)
         assert str(info.value).startswith(str(path))
+
+
+def test_sequence_json_shots_list():
+    assert labels_from_document([{"file": "a.jpg", "V1": -86, "n": None}, {"file": "b.jpg"}], "s.json") == {
+        "a.jpg": {"V1": -86.0}, "b.jpg": {}}
+    for entries, fragment in [
+        ({"a.jpg": {}}, "'shots' must be a list"),
+        (["a.jpg"], "shots[0]: must be an object with a 'file'"),
+        ([{"file": "a.jpg", "V": True}], "shots[0]: V is True, not a finite number"),
+        ([{"file": "a.jpg", "V": "3"}], "shots[0]: V is '3', not a finite number"),
+        ([{"file": "a.jpg", "V": float("nan")}], "not a finite number"),
+        ([{"file": "a.jpg", "2V": 1}], "shots[0]: '2V' is not a label name"),
+        ([{"file": "a.jpg"}, {"file": "a.jpg"}], "shots[1]: a.jpg is listed twice"),
+    ]:
+        with pytest.raises(LabelError, match=r"^s.json") as info:
+            labels_from_document(entries, "s.json")
+        assert fragment in str(info.value)
 
 
 def test_merge_conflicting_sources_names_the_file():

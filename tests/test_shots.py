@@ -115,6 +115,15 @@ def test_image_files_and_the_label_table(synthetic_shots, tmp_path, capsys):
     res = measure_shots(copy, overrides={"pixel_size_um": 4.73})
     assert list(res.shots["nozzle"]) == [0.0, 1.0, 2.0, 3.0]
     assert res.summary["label_sources"]["nozzle"] == "shots.csv" and res.summary["label_sources"]["V"] == "file names"
+    # sequence.json: the settings of every shot (no frames list) and a shots list of labels
+    (copy / "sequence.json").write_text(json.dumps({"pixel_size_um": 4.73, "shots": [
+        {"file": images[0].name, "V": 7, "piezo": 1.5}]}))
+    res = measure_shots(copy)
+    assert res.summary["label_sources"] == {"V": "file names and sequence.json", "w": "file names",
+                                            "n": "file names", "piezo": "sequence.json", "nozzle": "shots.csv"}
+    assert res.shots["piezo"].iloc[0] == 1.5 and np.isnan(res.shots["piezo"].iloc[1])
+    assert res.summary["shots"][0]["pixel_size_source"] == "sequence.json"
+    (copy / "sequence.json").unlink()
     (copy / "shots.csv").write_text(f"file,V\n{images[1].name},9\n")
     assert main(["measure", str(copy), "--out", str(tmp_path / "bad"), "--pixel-size-um", "4.73"]) == 2
     err = capsys.readouterr().err.strip()
