@@ -444,11 +444,9 @@ def one_line(summary: dict, out) -> str:
     if med is not None:
         text += (f"; main drop volume median {med:.3g} nl ({summary['drop_volume_min_nl']:.3g}-"
                  f"{summary['drop_volume_max_nl']:.3g})")
-    else:
-        text += "; no main drop"
-    att = summary.get("attached_volume_median_nl")
-    if att is not None:
-        text += f", attached volume median {att:.3g} nl"
+    else:  # pendant drops: what hangs from the nozzle is what was measured
+        att = summary.get("attached_volume_median_nl")
+        text += "; no main drop" + (f", attached volume median {att:.4g} nl" if att is not None else "")
     labels = summary.get("labels") or []
     if labels:
         labelled = sum(1 for s in summary["shots"] if s["labels"])
