@@ -48,7 +48,7 @@ def _input_name(args) -> str | None:
     for name in _INPUT_ARGS:
         value = getattr(args, name, None)
         if isinstance(value, (list, tuple)):  # measure's several image files: each message names its own
-            value = value[0] if len(value) == 1 else None
+            return str(value[0]) if len(value) == 1 else None
         if value is not None:
             return str(value)
     return None
