@@ -7,6 +7,7 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
     res.frames, res.summary                                          # DataFrame, dict
     res = dropvision.measure(stack, delays_us=d, pixel_size_um=4.73) # frames in memory
     seq = dropvision.open_sequence(folder)                           # validate, read lazily
+    shots = dropvision.measure_shots("small_samples", overrides={"pixel_size_um": 3.0})  # .shots: a row per image
     dropvision.write_synthetic_sequence(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
     dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset
     dropvision.init_sequence("watcher", {"pixel_size_um": 3.0})      # images alone -> sequence.json
@@ -26,6 +27,7 @@ _LAZY = {
     "MeasureConfig": "dropvision.config:MeasureConfig",
     "MeasureResult": "dropvision.measurement:MeasureResult",
     "measure_sequence": "dropvision.measurement:measure_sequence",
+    "measure_shots": "dropvision.shots:measure_shots",
     "open_sequence": "dropvision.sequence:open_sequence",
     "sequence_from_arrays": "dropvision.sequence:sequence_from_arrays",
     "SequenceError": "dropvision.sequence:SequenceError",

@@ -232,6 +232,30 @@ def list_from_folder(folder: Path, folder_real: str, refused: dict,
             for page, delay in _delays_of_file(folder, name, refused, lone_ok)]
 
 
+def images_without_delay(folder: Path, allow_outside: bool = False) -> list[str] | None:
+    """The image files of a folder (natural order) when there are two or more and none tells a
+    delay (file name, TIFF metadata) nor holds several frames: independent shots
+    (`dropvision.shots`), each measured as a single frame. None otherwise (a sequence, or a folder
+    whose frames `list_from_folder` lists or refuses).  Links leading out of the folder are left
+    out unless allowed."""
+    folder_real = os.path.realpath(folder)
+    refused: dict[str, str] = {}
+    try:
+        names = _scan_folder(folder, folder_real, refused, allow_outside)
+    except SequenceError:
+        return None
+    names = [n for n in names if n not in refused]
+    if len(names) < 2:
+        return None
+    for name in names:
+        if PurePath(name).suffix.lower() in VIDEO_SUFFIXES or parse_delay_from_name(name) is not None:
+            return None
+        info = _probe(reader_for(folder / name), folder / name)
+        if info.n_pages > 1 or info.page_delays:
+            return None
+    return names
+
+
 def list_from_rate(folder: Path, video, rate: tuple[float, float, int], json_path: Path,
                       folder_real: str, refused: dict, allow_outside: bool,
                       only: frozenset | None = None) -> list[ListedFrame]:

@@ -39,6 +39,7 @@ from dropvision.readers import (
 from dropvision.discovery import (is_regular_file, list_from_folder, list_from_frames, list_from_rate, not_regular,
                                   outside_folder,
                                   parse_delay_from_name, read_frame_rate, refusal_reason)
+from dropvision.labels import check_one_series
 from dropvision.orientation import ORIENTATIONS, original_to_canonical, swaps_axes, to_canonical
 from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none,
                                   merge_overrides, ranged_value, validate_diameters, validate_ink, validate_waveform)
@@ -426,6 +427,8 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     if rate is not None:
         listed = list_from_rate(folder, doc.get("video"), rate, json_path, folder_real,
                                    refused, allow_outside_links, only)
+        if doc.get("video") is None:  # images of other settings (labels in their names) are no recording
+            check_one_series([item.file for item in listed], folder)
         sources["delay"] = f"frame_rate_hz ({source_of('frame_rate_hz')})"
     elif doc is not None and doc.get("frames") is not None:
         listed = list_from_frames(folder, doc["frames"], json_path, folder_real, refused,

@@ -47,6 +47,8 @@ def _one_line(text: str) -> str:
 def _input_name(args) -> str | None:
     for name in _INPUT_ARGS:
         value = getattr(args, name, None)
+        if isinstance(value, (list, tuple)):  # measure's several image files: each message names its own
+            return str(value[0]) if len(value) == 1 else None
         if value is not None:
             return str(value)
     return None

@@ -159,6 +159,42 @@ PER_DELAY = Table("per_delay", "per_delay.parquet", "dropvision.per-delay/1", (
     F("attached_fraction", "float", "", "fraction of the frames at this delay still attached"),
 ), "Statistics of the frames table over repeated frames at one delay.")
 
+#: Columns of shots.parquet taken as they are from the frames table (one place per concept).
+SHOTS_FROM_FRAMES = ("delay_us", "drop_volume_nl", "drop_volume_uncertainty_nl", "drop_length_um", "drop_diameter_um",
+                     "n_satellites", "drop_z_um", "drop_x_um", "attached_volume_nl", "attached_volume_uncertainty_nl",
+                     "inflight", "quality")
+
+SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
+    F("file", "str", "", "image file (relative to the shot folder; the path as given for files of several folders)",
+      nullable=False),
+    F("delay_us", "float", "us", "strobe delay of the shot (--delay-us, else 0 assumed: summary.json "
+      "shots[].delay_source)", nullable=False),
+    F("drop_volume_nl", "float", "nl", "volume of the main detached drop (frames.parquet drop_volume_nl)"),
+    F("drop_volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
+    F("drop_sphere_diameter_um", "float", "um", "diameter of the sphere of drop_volume_nl, (6 V / pi)^(1/3)"),
+    F("drop_sphere_diameter_uncertainty_um", "float", "um", "its standard uncertainty (one third of the volume's "
+      "relative uncertainty)"),
+    F("drop_length_um", "float", "um", "extent of the main drop along the jetting axis"),
+    F("drop_diameter_um", "float", "um", "extent of the main drop across the jetting axis"),
+    F("n_satellites", "int", "", "satellite drops (one touching the main drop included)"),
+    F("satellites_volume_nl", "float", "nl", "volume of the detached bodies other than the main drop's silhouette "
+      "(detached_volume_nl - drop_volume_nl of frames.parquet; a satellite touching the main drop is in the drop's)"),
+    F("drop_z_um", "float", "um", "main-drop centroid along the jetting axis from the tip plane"),
+    F("drop_x_um", "float", "um", "main-drop centroid across the jetting axis"),
+    F("trajectory_angle_mrad", "float", "mrad", "IEC 62899-302-3 trajectory angle: the projected angle, in the image "
+      "plane, between the jetting axis and the drop's path from the nozzle exit (axis at the tip plane) to the "
+      "main-drop centroid, atan(drop_x_um / drop_z_um); NaN with a note where the nozzle or the drop is not found"),
+    F("attached_volume_nl", "float", "nl", "liquid joined to the nozzle below the tip plane (pendant drop)"),
+    F("attached_volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
+    F("inflight", "bool", "", "the main drop is compact and in flight", nullable=False),
+    F("quality", "str", "", "'ok' or the quality codes joined by '; ' (table below)", nullable=False),
+    F("notes", "str", "", "what is particular to this shot, sentences joined by '; ' (notes common to every shot are "
+      "in summary.json)", nullable=False),
+), "One row per image of a shot folder (images with no delay to tell, each measured alone as a single frame), in "
+   "file order. The labels follow the declared columns: one float column per label, named by the label as "
+   "written in the file name (`V1--86` gives a column `V1` = -86), the `shots.csv` header, the key of "
+   "sequence.json's `shots` list or the group of --label-pattern; a label named like a declared column is named `label_<name>`; NaN where a file lacks it.")
+
 SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("schema_version", "str", "", "document id"),
     F("sequence", "str", "", "measured sequence folder"),
@@ -207,6 +243,32 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("waveform_source", "str", "", "where the waveform came from (null: not given)", required=False),
     F("bit_depth_source", "str", "", "where the bit depth came from", required=False),
 ), "One per measured sequence; with the versions and the configuration the result is reproducible.")
+
+SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summary/1", (
+    F("schema_version", "str", "", "document id"),
+    F("kind", "str", "", "\"shots\": a folder of independent shots (a sequence's summary.json has no kind)"),
+    F("inputs", "list", "", "the folder (or the image files) measured"),
+    F("n_shots", "int", "", "images found", nullable=False),
+    F("n_measured", "int", "", "images measured (the others are in errors)", nullable=False),
+    F("labels", "list", "", "label names, in the order of the shots.parquet columns"),
+    F("label_sources", "object", "", "label name -> where it was read: file names, --label-pattern, sequence.json "
+      "(its shots list), shots.csv (several joined by ' and ')"),
+    F("label_columns", "object", "", "label name -> its column in shots.parquet"),
+    F("drop_volume_median_nl", "float", "nl", "median main-drop volume over the measured shots"),
+    F("drop_volume_min_nl", "float", "nl", "smallest main-drop volume"),
+    F("drop_volume_max_nl", "float", "nl", "largest main-drop volume"),
+    F("drop_sphere_diameter_median_um", "float", "um", "median sphere-equivalent diameter of the main drop"),
+    F("n_satellites_median", "float", "", "median satellite count"),
+    F("trajectory_angle_median_mrad", "float", "mrad", "median trajectory angle"),
+    F("attached_volume_median_nl", "float", "nl", "median attached (pendant) volume"),
+    F("quality_counts", "object", "", "shots per quality text"),
+    F("errors", "list", "", "images that could not be measured: file, reason"),
+    F("notes", "list", "", "notes common to every shot (the others are in the shots' notes column)"),
+    F("shots", "list", "", "per image: file, its labels, then orientation, the *_source keys of a sequence's "
+      "summary.json, notes and calibration, or error (why it could not be measured)"),
+    F("software", "object", "", "versions of Python and of every package the result depends on"),
+    F("config", "object", "", "the measurement configuration (MeasureConfig)"),
+), "summary.json of a shot folder (`dropvision measure` over images with no delay to tell).")
 
 # ----------------------------------------------------------------------------- campaign dataset
 TIMESERIES = Table("timeseries", "timeseries.parquet", "dropvision.timeseries/1", (
@@ -431,8 +493,9 @@ PREDICTION = Document("prediction", "identify predict --json", "identify.predict
 ), "`identify predict --json`: one JSON object on stdout (Python: `HybridModel.predict` warns with "
    "`identify.hybrid.ExtrapolationWarning` and gives NaN for an impossible output).")
 
-TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
-DOCUMENTS = {d.name: d for d in (SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN, PREDICTION)}
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
+DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
+                                 PREDICTION)}
 
 
 class Quality:
@@ -462,6 +525,7 @@ class Quality:
     IMPLAUSIBLE = "implausible_physics"
     NOZZLE_OUT_OF_FOCUS = "nozzle_out_of_focus"
     UNREADABLE = "unreadable"
+    NOT_MEASURED = "not_measured"
 
 
 #: Quality code -> explanation (docs/FORMAT.md lists them).
@@ -506,6 +570,8 @@ QUALITY_CODES: dict[str, str] = {
                                  "volumes kept with that in their uncertainty",
     Quality.UNREADABLE: "the frame could not be read or decoded (its error says why): nothing measured; such a "
                         "frame is listed in summary.json errors, and only the live journal has a row of it",
+    Quality.NOT_MEASURED: "shots.parquet: the image could not be measured at all (the reason in its notes and in "
+                          "summary.json errors); its values are empty",
 }
 
 

@@ -28,17 +28,33 @@ def _run(args: argparse.Namespace) -> int:
     from dropvision.app.rerun_log import logger_from_args
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
+    from dropvision.readers import IMAGE_SUFFIXES
+    from dropvision.sequence import open_sequence
+    from dropvision.shots import find_shots
 
-    seq = Path(args.seq_dir)
-    if not seq.exists():
-        raise UsageError(f"{seq}: no such folder")
-    # a recording inside --out would be lost with the folder's replacement; inside the input, refused
-    check_side_file(getattr(args, "rerun", None), replaced=[args.out], inputs=[seq if seq.is_dir() else seq.parent])
+    paths = [Path(p) for p in args.seq_dir]
+    for p in paths:
+        if not p.exists():
+            raise UsageError(f"{p}: no such folder" if len(paths) == 1 else f"{p}: no such file")
     overrides, labels = overrides_from_args(args)
     config = MeasureConfig(workers=args.workers)
-    logger = logger_from_args(args, "dropvision", recording_name=seq.resolve().name)
+    shots = find_shots(paths, overrides=overrides, label_pattern=args.label_pattern)
+    if shots is not None:
+        return _run_shots(args, shots, config, overrides, labels)
+    if args.label_pattern is not None:
+        raise UsageError(f"--label-pattern: {paths[0]} is a sequence (its frames tell their delays), not a folder "
+                         "of shots; labels are read for shots only")
+    seq, only = paths[0], None
+    if seq.is_file() and seq.suffix.lower() in IMAGE_SUFFIXES:  # an image file: a folder of one
+        seq, only = seq.parent, [seq.name]
+    # a recording inside --out would be lost with the folder's replacement; inside the input, refused
+    check_side_file(getattr(args, "rerun", None), replaced=[args.out], inputs=[seq])
+    logger = logger_from_args(args, "dropvision", recording_name=paths[0].resolve().name)
     with captured_warnings() as caught:
         try:
+            if only is not None:
+                seq = open_sequence(seq, overrides=overrides, labels=labels, only_files=only)
+                overrides = labels = None  # applied when opened
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels)
         finally:
@@ -64,11 +80,54 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> int:
+    """A folder of shots (images with no delay to tell) or several image files: one row per image."""
+    from dropvision.shots import measure_shots, one_line
+
+    if args.rerun is not None or args.rerun_spawn or args.rerun_connect is not None:
+        raise UsageError("--rerun/--rerun-spawn/--rerun-connect: not available for a folder of shots yet (give one "
+                         "image file to see it)")
+    with captured_warnings() as caught:
+        try:
+            res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
+                                overwrite=args.overwrite)
+        finally:
+            print_warnings("dropvision measure", _grouped(warning_lines(caught), {p.name for p in shots.paths}), args)
+    s = res.summary
+    if args.quiet:
+        return 0
+    if args.verbose:
+        for name in s["labels"]:
+            print(f"label {name}: {s['label_sources'][name]}")
+        for note in s["notes"]:
+            print(f"note: {note}")
+        for err in s["errors"]:
+            print(f"skipped {err['file']}: {err['reason']}")
+    print(one_line(s, args.out))
+    sys.stdout.flush()
+    return 0
+
+
+def _grouped(lines: list[str], names: set[str]) -> list[str]:
+    """Warnings that differ only by the image they name (``<file>: <message>``) once, with the count."""
+    files: dict[str, list[str]] = {}
+    for text in lines:
+        head, sep, rest = text.partition(": ")
+        files.setdefault(rest if sep and head in names else text, []).append(head if sep and head in names else "")
+    return [message if not heads[0] else heads[0] + (f" and {len(heads) - 1} other image(s)" if len(heads) > 1 else "")
+            + ": " + message for message, heads in files.items()]
+
+
 def register(subparsers) -> None:
     """Add the ``measure`` sub-command."""
     p = subparsers.add_parser("measure", help="measure drop volumes, pinch-off and velocities of a strobe sequence")
-    p.add_argument("seq_dir", help="sequence folder (sequence.json and images, or images alone with options such "
-                   "as --pixel-size-um)")
+    p.add_argument("seq_dir", nargs="+", metavar="FOLDER_OR_IMAGES",
+                   help="sequence folder (sequence.json and images, or images alone with options such as "
+                   "--pixel-size-um); a folder of images with no delay to tell (one shot each, labels from their "
+                   "names: shots.parquet, one row per image); or image files (one: a folder of one; several: shots)")
+    p.add_argument("--label-pattern", metavar="REGEX", default=None,
+                   help="shots: read the labels from the file names with this regular expression of named groups, "
+                   "e.g. 'run(?P<run>\\d+)_(?P<V>[-\\d.]+)V' (default: the name-value tokens, V1--86 is V1 = -86)")
     p.add_argument("--out", required=True, help="output folder (written atomically; never the sequence folder, "
                    "inside it or around it; an existing folder only if it holds an earlier result of ours)")
     p.add_argument("--overwrite", action="store_true",

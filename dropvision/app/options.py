@@ -26,7 +26,8 @@ _METADATA_OPTIONS = (
      "nozzle outer diameter in µm; without a pixel size, the pixel size is this diameter over the nozzle's "
      "outer width measured in the first frame (px)"),
     ("--nozzle-inner-diameter-um", "nozzle_inner_diameter_um", float, "nozzle inner diameter in µm (flow velocity)"),
-    ("--delay-us", "delay_us", float, "strobe delay of a sequence of ONE frame (µs after the trigger)"),
+    ("--delay-us", "delay_us", float, "strobe delay of a sequence of ONE frame, or of every image of a folder of "
+     "shots (µs after the trigger)"),
     ("--frame-rate-hz", "frame_rate_hz", float, "frame rate of a video or numbered image stack (Hz)"),
     ("--first-frame-delay-us", "first_frame_delay_us", float, "with --frame-rate-hz: delay of the trigger frame (µs)"),
     ("--trigger-frame", "trigger_frame", int, "with --frame-rate-hz: index of the frame taken at --first-frame-delay-us"),
