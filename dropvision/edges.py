@@ -132,12 +132,21 @@ class RowEdges:
         Sub-pixel edge positions (column coordinates, pixel centres integers).
     touches : bool
         A run reaches the side of the region (the edge could not be located).
+    dark_t : float
+        The body's darkest level: the 2nd percentile of the transmission of its run pixels (a
+        lensing drop's dark rim; NaN when not measured).  With the liquid's calibrated interior
+        level it bounds the band of edge levels (`dropvision.volume.edge_definition_px`).
+    slope_t_per_px : float
+        Median slope of the transmission across the body's edges at the edge level (transmission
+        per px, from the two samples either side of each crossing; NaN when not measured).
     """
 
     row: np.ndarray
     left_px: np.ndarray
     right_px: np.ndarray
     touches: bool
+    dark_t: float = float("nan")
+    slope_t_per_px: float = float("nan")
 
     @property
     def chord_px(self) -> np.ndarray:
@@ -205,7 +214,27 @@ def subpixel_edges(
     t_out_r = image[rows, e] * inv_background[rows, e] * scale
     left = (s - 1) + crossing_fraction(t_in_l, t_out_l, threshold, from_bright=True)
     right = (e - 1) + crossing_fraction(t_in_r, t_out_r, threshold)
-    return RowEdges(np.asarray(rows), left.astype(float), right.astype(float), touches)
+    slope = float(np.median(np.concatenate([t_out_l - t_in_l, t_out_r - t_in_r]))) if rows.size else float("nan")
+    return RowEdges(np.asarray(rows), left.astype(float), right.astype(float), touches,
+                    slope_t_per_px=slope)
+
+
+def dark_level(image: np.ndarray, inv_background: np.ndarray, mask: np.ndarray, y0: int, x0: int,
+               gain: float = 1.0, max_pixels: int = 3000) -> float:
+    """The darkest level of a body: the 2nd percentile of its pixels' transmission (NaN if empty).
+
+    ``mask`` covers ``image[y0:, x0:]`` from its top-left corner (a body's box).  A large body is
+    sampled every few rows (about ``max_pixels`` pixels of its box: a percentile needs no more).
+    """
+    h, w = mask.shape
+    step = max(1, -(-(h * w) // max_pixels))
+    sub = mask[::step]
+    t = image[y0:y0 + h:step, x0:x0 + w][sub].astype(np.float32)
+    if t.size == 0:
+        return float("nan")
+    t *= inv_background[y0:y0 + h:step, x0:x0 + w][sub]
+    k = t.size // 50
+    return float(np.partition(t, k)[k]) / gain
 
 
 def body_edges(
@@ -242,4 +271,6 @@ def body_edges(
         return RowEdges(np.zeros(0, int), e, e, False)
     sub = labels[y0:y1, x0:x1] == label
     r, s, e = runs(sub)
-    return subpixel_edges(image, inv_background, r + y0, s + x0, e + x0, threshold, gain)
+    ed = subpixel_edges(image, inv_background, r + y0, s + x0, e + x0, threshold, gain)
+    ed.dark_t = dark_level(image, inv_background, sub, y0, x0, gain)
+    return ed
