@@ -71,6 +71,7 @@ class BodyVolume:
     top_chord_px: float = 0.0  # chord of the first integrated row (a cut at a plane: its area's share)
     dark_t: float = float("nan")  # the body's darkest level (`RowEdges.dark_t`): see edge_definition_px
     slope_t_per_px: float = float("nan")  # its edges' slope at the edge level (`RowEdges.slope_t_per_px`)
+    bright_t: float = float("nan")  # the background next to its edges (`RowEdges.bright_t`)
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -177,6 +178,7 @@ def integrate(
         float(edges.chord_px[keep][rows == rows.min()].max()),
         edges.dark_t,
         edges.slope_t_per_px,
+        edges.bright_t,
     )
 
 
@@ -219,26 +221,33 @@ def volume_uncertainty_px3(volume: BodyVolume, edge_sigma_px: float, tilt_rad: f
 
 
 def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float = 0.0) -> float:
-    """Standard uncertainty (px) of where a body's edge lies: the band of edge levels of its liquid.
+    """Standard uncertainty (px) of where a body's edge lies: the band of edge levels its own profile allows.
 
-    Every edge is placed half-way between the background (1) and the liquid's dark level
-    (`dropvision.edges.edge_threshold`).  A drop is a lens: it is not uniformly dark, and its
-    dark level is not one number.  The calibration's interior level (the median inside the
-    liquid, its bright spot left out) is one claim, the body's own darkest level (its rim: the
-    2nd percentile of its pixels, `dropvision.edges.dark_level`, less the 2.05 noise standard
-    deviations by which the 2nd percentile of noise lies below its mean) is the other; real
-    optics (a lens spot, a rim darkened by refraction, flare) justify any edge level between
-    half-way to either.  Across that band of levels the edge moves by ``D``: the band's width
-    over the edge's slope (`dropvision.edges.RowEdges.slope_t_per_px`).  With the true edge
-    anywhere in the band (a rectangular distribution) and the volume measured at the band's end
-    (half-way to the interior level), the error's standard deviation about the measured edge is
-    ``sqrt((D/2)^2 + D^2/12) = D / sqrt(3)``: the term, common to the body's edges.  The same
-    rule wherever the frame comes from: on a body as dark as the calibrated liquid it is zero.
+    Every edge is placed half-way between the background (1, the background model) and the
+    liquid's dark level (the calibration's interior level, `dropvision.edges.edge_threshold`).
+    Both ends of that contrast are claims the body's own profile can contradict:
+
+    - the dark end: a drop is a lens, not uniformly dark; its own darkest level (its rim: the 2nd
+      percentile of its pixels, `dropvision.edges.dark_level`, less the 2.05 noise standard
+      deviations by which the 2nd percentile of noise lies below its mean) claims it as well as
+      the calibrated interior median (its bright spot left out);
+    - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
+      one edge width out) is not the model's 1 where mist, flare, a diffraction halo or
+      JPEG ringing lie over it.
+
+    Real optics justify any edge level between half-way to the calibrated levels and half-way
+    between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
+    the edge moves by ``D``, the band's width over the edge's slope
+    (`dropvision.edges.RowEdges.slope_t_per_px`).  With the true edge anywhere in the band (a
+    rectangular distribution) and the volume measured at the band's end, the error's standard
+    deviation about the measured edge is ``sqrt((D/2)^2 + D^2/12) = D / sqrt(3)``: the term,
+    common to the body's edges.  The same rule wherever the frame comes from: on a body as dark
+    as the calibrated liquid over a background the model holds, it is zero.
 
     Parameters
     ----------
     volume : BodyVolume
-        From `integrate` (``dark_t``, ``slope_t_per_px``).
+        From `integrate` (``dark_t``, ``bright_t``, ``slope_t_per_px``).
     liquid_level : float
         The liquid's calibrated interior transmission.
     noise_t : float
@@ -247,13 +256,15 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
     Returns
     -------
     float
-        px (0 when the body is not darker than the liquid level, or its slope is unknown).
+        px (0 where nothing is measured: no slope, no dark level).
     """
-    dark = volume.dark_t + 2.05 * max(float(noise_t), 0.0) if np.isfinite(noise_t) else volume.dark_t
+    noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
+    dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
+    bright = volume.bright_t if np.isfinite(volume.bright_t) else 1.0
     slope = volume.slope_t_per_px
-    if not (np.isfinite(dark) and np.isfinite(liquid_level) and np.isfinite(slope) and slope > 0):
+    if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
         return 0.0
-    band_t = 0.5 * max(float(liquid_level) - dark, 0.0)  # between (1 + dark) / 2 and (1 + liquid) / 2
+    band_t = abs(0.5 * (bright + dark) - 0.5 * (1.0 + float(liquid_level)))
     return float(band_t / slope / math.sqrt(3.0))
 
 
@@ -441,6 +452,6 @@ def split_at_row(edges: RowEdges, row: int) -> tuple[RowEdges, RowEdges]:
         return RowEdges(np.concatenate([edges.row[sel], edges.row[at]]),
                         np.concatenate([edges.left_px[sel], half_l]),
                         np.concatenate([edges.right_px[sel], half_r]), edges.touches,
-                        edges.dark_t, edges.slope_t_per_px)
+                        edges.dark_t, edges.slope_t_per_px, edges.bright_t)
 
     return part(up), part(down)

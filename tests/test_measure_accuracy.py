@@ -151,6 +151,15 @@ def test_edge_definition_is_half_the_move_across_the_band_of_levels():
     with_def = volume_uncertainty_px3(v, 0.05, definition_px=d)
     assert with_def == pytest.approx(np.pi * v.area_px2 * np.hypot(0.05, d), rel=1e-9) and with_def > 2 * base
     # a body as dark as the liquid level: no band; the noise's pull on the 2nd percentile removed
-    same = integrate(_edges_at(_blurred_disc(0.25), edge_threshold(0.25)))
-    assert edge_definition_px(same, 0.25, noise_t=0.0) < 0.01
-    assert edge_definition_px(v, v.dark_t + 2.05 * 0.02, noise_t=0.02) == 0.0
+    t_same = _blurred_disc(0.25)
+    same = integrate(_edges_at(t_same, edge_threshold(0.25)))
+    assert same.bright_t == pytest.approx(1.0, abs=0.002)
+    clean = edge_definition_px(same, 0.25, noise_t=0.0)
+    assert clean < 0.003
+    assert edge_definition_px(v, v.dark_t + 2.05 * 0.02, noise_t=0.02) < 0.003
+    # mist over the background beside its right half (10 % darker): the bright end of the band moves
+    t_mist = t_same.copy()
+    t_mist[:, 54:] *= 0.9
+    misty = integrate(_edges_at(t_mist, edge_threshold(0.25)))
+    assert 0.95 < misty.bright_t < 0.985  # the right side's samples beyond column 54
+    assert edge_definition_px(misty, 0.25, noise_t=0.0) > 10 * clean
