@@ -42,6 +42,7 @@ from dropvision.volume import (
     integrate,
     neck_chord_px,
     top_chord_ratio,
+    edge_definition_px,
     plane_cut_uncertainty_px3,
     random_volume_uncertainty_px3,
     volume_uncertainty_px3,
@@ -167,8 +168,7 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
-                          common_uncertainty_nl=volume_uncertainty_px3(bv, ctx.edge_position_sigma_px,
-                                                                       ctx.tilt_rad) * ctx.nl_per_px3,
+                          common_uncertainty_nl=_common_px3(bv, ctx) * ctx.nl_per_px3,
                           plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                          ctx.tilt_rad) * ctx.nl_per_px3)
 
@@ -245,13 +245,19 @@ def _plane_sigma_px(ctx: FrameContext) -> float:
     return float(np.hypot(ctx.edge_position_sigma_px, nb))
 
 
+def _common_px3(volume: BodyVolume, ctx: FrameContext) -> float:
+    """The edges' common error (px^3): the sequence's edge-position error and the body's own edge
+    definition (`dropvision.volume.edge_definition_px`), with the blur correction's model error."""
+    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), getattr(ctx, "noise_t", 0.0))
+    return volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad, definition_px=definition)
+
+
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
     """Standard uncertainty (nl) of a body's volume: the sequence's common edge-position error
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad),
-             random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
+    parts = [_common_px3(volume, ctx), random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
     if plane:
         parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3

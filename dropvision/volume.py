@@ -69,6 +69,9 @@ class BodyVolume:
     blur_px3: float = 0.0  # blur correction added to volume_px3
     chord2_px2: float = 0.0  # sum of chord^2 x row weight (random edge noise: see volume_uncertainty_px3)
     top_chord_px: float = 0.0  # chord of the first integrated row (a cut at a plane: its area's share)
+    dark_t: float = float("nan")  # the body's darkest level (`RowEdges.dark_t`): see edge_definition_px
+    slope_t_per_px: float = float("nan")  # its edges' slope at the edge level (`RowEdges.slope_t_per_px`)
+    bright_t: float = float("nan")  # the background next to its edges (`RowEdges.bright_t`)
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -173,19 +176,24 @@ def integrate(
         c_vol * float(np.cos(tilt_rad)),
         chord2,
         float(edges.chord_px[keep][rows == rows.min()].max()),
+        edges.dark_t,
+        edges.slope_t_per_px,
+        edges.bright_t,
     )
 
 
 def volume_uncertainty_px3(volume: BodyVolume, edge_sigma_px: float, tilt_rad: float = 0.0,
-                           blur_fraction: float = 0.25) -> float:
+                           blur_fraction: float = 0.25, definition_px: float = 0.0) -> float:
     """Standard uncertainty (px^3) of a disc-integrated volume from errors common to its edges.
 
     An error ``d`` common to every edge of the silhouette (threshold level, background model,
     a clipped background) changes each slice ``pi c^2 / 4`` by ``pi c d / 2`` per edge, so the
     volume by ``pi d * sum(c)``: ``pi d`` times the silhouette's area (for a sphere of radius
-    ``R``, ``3 d / R`` relative).  The blur correction's model error, ``blur_fraction`` of the
-    correction, is added in quadrature.  `random_volume_uncertainty_px3` gives the part of
-    independent per-edge noise, `plane_cut_uncertainty_px3` that of a cut at the tip plane.
+    ``R``, ``3 d / R`` relative).  The edge's definition on this body (``definition_px``,
+    `edge_definition_px`) is such an error too, in quadrature with ``edge_sigma_px``.  The blur
+    correction's model error, ``blur_fraction`` of the correction, is added in quadrature.
+    `random_volume_uncertainty_px3` gives the part of independent per-edge noise,
+    `plane_cut_uncertainty_px3` that of a cut at the tip plane.
 
     Parameters
     ----------
@@ -197,6 +205,9 @@ def volume_uncertainty_px3(volume: BodyVolume, edge_sigma_px: float, tilt_rad: f
         Tilt of the axis (the slices are ``cos(tilt)`` thinner).
     blur_fraction : float
         Relative uncertainty of the blur correction.
+    definition_px : float
+        Standard uncertainty of where the body's edge lies, from the band of edge levels
+        (`edge_definition_px`, px; 0: none).
 
     Returns
     -------
@@ -204,8 +215,57 @@ def volume_uncertainty_px3(volume: BodyVolume, edge_sigma_px: float, tilt_rad: f
     """
     if volume.volume_px3 <= 0:
         return float("nan")
+    edge_sigma_px = math.hypot(edge_sigma_px, definition_px if np.isfinite(definition_px) else 0.0)
     edge = math.pi * volume.area_px2 * edge_sigma_px * math.cos(tilt_rad)
     return float(math.hypot(edge, blur_fraction * volume.blur_px3))
+
+
+def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float = 0.0) -> float:
+    """Standard uncertainty (px) of where a body's edge lies: the band of edge levels its own profile allows.
+
+    Every edge is placed half-way between the background (1, the background model) and the
+    liquid's dark level (the calibration's interior level, `dropvision.edges.edge_threshold`).
+    Both ends of that contrast are claims the body's own profile can contradict:
+
+    - the dark end: a drop is a lens, not uniformly dark; its own darkest level (its rim: the 2nd
+      percentile of its pixels, `dropvision.edges.dark_level`, less the 2.05 noise standard
+      deviations by which the 2nd percentile of noise lies below its mean) claims it as well as
+      the calibrated interior median (its bright spot left out);
+    - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
+      one edge width out) is not the model's 1 where mist, flare, a diffraction halo or
+      JPEG ringing lie over it.
+
+    Real optics justify any edge level between half-way to the calibrated levels and half-way
+    between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
+    the edge moves by ``D``, the band's width over the edge's slope
+    (`dropvision.edges.RowEdges.slope_t_per_px`).  With the true edge anywhere in the band (a
+    rectangular distribution) and the volume measured at the band's end, the error's standard
+    deviation about the measured edge is ``sqrt((D/2)^2 + D^2/12) = D / sqrt(3)``: the term,
+    common to the body's edges.  The same rule wherever the frame comes from: on a body as dark
+    as the calibrated liquid over a background the model holds, it is zero.
+
+    Parameters
+    ----------
+    volume : BodyVolume
+        From `integrate` (``dark_t``, ``bright_t``, ``slope_t_per_px``).
+    liquid_level : float
+        The liquid's calibrated interior transmission.
+    noise_t : float
+        Standard deviation of a pixel's transmission noise.
+
+    Returns
+    -------
+    float
+        px (0 where nothing is measured: no slope, no dark level).
+    """
+    noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
+    dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
+    bright = volume.bright_t if np.isfinite(volume.bright_t) else 1.0
+    slope = volume.slope_t_per_px
+    if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
+        return 0.0
+    band_t = abs(0.5 * (bright + dark) - 0.5 * (1.0 + float(liquid_level)))
+    return float(band_t / slope / math.sqrt(3.0))
 
 
 def random_volume_uncertainty_px3(volume: BodyVolume, edge_noise_px: float, tilt_rad: float = 0.0) -> float:
@@ -391,6 +451,7 @@ def split_at_row(edges: RowEdges, row: int) -> tuple[RowEdges, RowEdges]:
     def part(sel):
         return RowEdges(np.concatenate([edges.row[sel], edges.row[at]]),
                         np.concatenate([edges.left_px[sel], half_l]),
-                        np.concatenate([edges.right_px[sel], half_r]), edges.touches)
+                        np.concatenate([edges.right_px[sel], half_r]), edges.touches,
+                        edges.dark_t, edges.slope_t_per_px, edges.bright_t)
 
     return part(up), part(down)

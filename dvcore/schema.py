@@ -114,7 +114,8 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
       "where the walls show no edge)"),
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
     F("attached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of attached_volume_nl (edge position, "
-      "blur correction; dropvision.volume.volume_uncertainty_px3)"),
+      "the body's edge definition, blur correction; dropvision.volume.volume_uncertainty_px3, "
+      "dropvision.volume.edge_definition_px)"),
     F("grown_volume_uncertainty_nl", "float", "nl", "standard uncertainty of grown_volume_nl"),
     F("drop_volume_uncertainty_nl", "float", "nl", "standard uncertainty of drop_volume_nl"),
     F("detached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of detached_volume_nl"),

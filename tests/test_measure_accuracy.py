@@ -4,6 +4,7 @@
 import importlib.util
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -104,3 +105,61 @@ def test_realism_checks_fail_when_the_measurement_is_nan(tmp_path):
     with pytest.raises(AssertionError):
         check_realism(name, r)
     assert r["grown_nan"] >= 40 and r["drop_frames"] == 0  # what the checks see
+
+
+# --- the edge's definition on each body (issue 29) ----------------------------------------------------
+def _blurred_disc(interior: float, radius_px: float = 20.0, sigma_px: float = 1.2, n: int = 64):
+    import cv2
+
+    yy, xx = np.mgrid[0:n, 0:n]
+    k = 8
+    sub = (np.arange(k) + 0.5) / k - 0.5
+    cov = np.zeros((n, n))
+    for dy in sub:
+        for dx in sub:
+            cov += np.hypot(yy + dy - 31.7, xx + dx - 32.2) <= radius_px
+    cov /= k * k
+    t = 1.0 - cov * (1.0 - interior)
+    return cv2.GaussianBlur(t.astype(np.float32), (0, 0), sigma_px)
+
+
+def _edges_at(t, threshold):
+    from dropvision.edges import body_edges
+
+    labels = (t < threshold).astype(np.int32)
+    return body_edges(t, np.ones_like(t), labels, 1, (0, 0, t.shape[1], t.shape[0]), threshold)
+
+
+def test_edge_definition_is_half_the_move_across_the_band_of_levels():
+    """A body darker (0.05) than the calibrated liquid (0.25): its edge placed half-way to either
+    level moves by the band over the slope; that move, re-measured with the edge at both levels,
+    over sqrt(3) (a rectangular band, the value at its end) is the term (the linear estimate
+    within 10 %), and the volume's uncertainty holds it."""
+    from dropvision.edges import edge_threshold
+    from dropvision.volume import edge_definition_px, integrate, volume_uncertainty_px3
+
+    t = _blurred_disc(0.05)
+    at_liquid = _edges_at(t, edge_threshold(0.25))
+    at_rim = _edges_at(t, edge_threshold(0.05))
+    assert at_liquid.dark_t == pytest.approx(0.05, abs=0.01)
+    v = integrate(at_liquid)
+    moved = (v.volume_px3 - integrate(at_rim).volume_px3) / (np.pi * v.area_px2)  # common move of an edge
+    assert moved > 0.1
+    d = edge_definition_px(v, 0.25, noise_t=0.0)
+    assert d == pytest.approx(moved / np.sqrt(3.0), rel=0.1)
+    base = volume_uncertainty_px3(v, 0.05)
+    with_def = volume_uncertainty_px3(v, 0.05, definition_px=d)
+    assert with_def == pytest.approx(np.pi * v.area_px2 * np.hypot(0.05, d), rel=1e-9) and with_def > 2 * base
+    # a body as dark as the liquid level: no band; the noise's pull on the 2nd percentile removed
+    t_same = _blurred_disc(0.25)
+    same = integrate(_edges_at(t_same, edge_threshold(0.25)))
+    assert same.bright_t == pytest.approx(1.0, abs=0.002)
+    clean = edge_definition_px(same, 0.25, noise_t=0.0)
+    assert clean < 0.003
+    assert edge_definition_px(v, v.dark_t + 2.05 * 0.02, noise_t=0.02) < 0.003
+    # mist over the background beside its right half (10 % darker): the bright end of the band moves
+    t_mist = t_same.copy()
+    t_mist[:, 54:] *= 0.9
+    misty = integrate(_edges_at(t_mist, edge_threshold(0.25)))
+    assert 0.95 < misty.bright_t < 0.985  # the right side's samples beyond column 54
+    assert edge_definition_px(misty, 0.25, noise_t=0.0) > 10 * clean

@@ -19,7 +19,8 @@ tests/test_measure_accuracy.py.  Metrics (all errors signed unless "abs"):
 Realism tier (``--tier realism``): the rig presets of the synthesizer
 (`dropvision.synth.RIGS`: drop watcher from the side in a holder block with colour JPEG, mist,
 touching and dumbbell satellites, a bead; a clipped pendant drop; low contrast; tilted and
-dusty; a single frame), measured with the same goals.  Metrics (`compare_realism`):
+dusty; a single frame) and optics that are not Gaussian (an Airy pattern's diffraction rings, a
+defocus disc, both JPEG-coded), measured with the same goals.  Metrics (`compare_realism`):
 grown_max_pct, drop_max_pct, inflight_pct, velocity_pct, pinchoff_ok as above; attached_pct
 (abs attached-volume error, %, over frames holding at least half the largest attached volume:
 the pendant drop, the grown meniscus); satellite_frames / satellites_wrong (frames with a
@@ -87,6 +88,14 @@ REALISM = {
     "watcher-blurred-holder": dict(width_px=640, height_px=1024, tip_row=160.4, axis_col=319.6, seed=37),
     "watcher-blurred-single": dict(rig="watcher-blurred-holder", delays_us=(1300.0,), write_nozzle_diameters=False,
                                    seed=38),
+    # optics that are not Gaussian (issue 29; `dropvision.synth.render.psf_kernel`): a drop watcher
+    # whose lens shows diffraction rings (an Airy pattern, first dark ring 3 px: core sigma ~1 px,
+    # tails as rho^-3) on a lightly Gaussian-blurred image, grey JPEG at quality 80
+    "airy-jpeg": dict(rig="clean", psf="airy", psf_radius_px=3.0, blur_px=0.4, format="jpeg", jpeg_quality=80,
+                      seed=39),
+    # a defocused drop watcher: a uniform defocus disc of 2.5 px radius, colour JPEG at quality 85
+    "defocus-disc": dict(rig="clean", psf="disc", psf_radius_px=2.5, blur_px=0.3, format="jpeg", jpeg_quality=85,
+                         colour=True, seed=40),
 }
 
 
@@ -99,7 +108,7 @@ def realism_cases(full: bool = False) -> dict[str, dict]:
     out = {}
     for name, kw in REALISM.items():
         kw = dict(kw)
-        if name in ("low-contrast", "tilted-dusty") and not full:
+        if name in ("low-contrast", "tilted-dusty", "airy-jpeg", "defocus-disc") and not full:
             kw.update(width_px=320, height_px=800)
         if name not in SINGLE_FRAME:
             step = 10 if full else 20

@@ -9,7 +9,8 @@ layer, no images),
 
 Realism tier (docs/SYNTH_REALISM.md): options of :class:`SynthConfig` (all off by default, so
 a default render is bit-identical to the plain synthesizer) for rotated frames, a holder block,
-vignetting, a clipped background, colour sensors and JPEG, mist and dust on the drop path, a
+vignetting, a clipped background, colour sensors and JPEG, optics that are not Gaussian (an Airy
+pattern's rings, a defocus disc), mist and dust on the drop path, a
 bead on the orifice, touching/dumbbell satellites, a tail with a bulb, a static pendant drop
 and sequence.json without nozzle diameters; rig presets in :data:`RIGS`
 (``SynthConfig.for_rig(name, **overrides)``); per-body truth in truth_bodies.csv.

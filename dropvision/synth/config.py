@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field, fields
 import numpy as np
 
 from dropvision.orientation import ORIENTATIONS
-from dropvision.synth.render import CameraGeometry, Optics
+from dropvision.synth.render import PSFS, CameraGeometry, Optics
 from dropvision.synth.shapes import ShapeParams
 from identify.physics import SynthPhysics
 
@@ -123,6 +123,11 @@ class SynthConfig:
         scene); ``demosaic_blur_px`` blurs R and B a little.
     jpeg_quality : int
         JPEG quality (``format="jpeg"``), 1..100.
+    psf, psf_radius_px : str, float
+        A point-spread function that is not Gaussian, on top of ``blur_px`` (`PSFS`,
+        `dropvision.synth.render.psf_kernel`): ``"airy"`` (diffraction rings; ``psf_radius_px``
+        the first dark ring's radius) or ``"disc"`` (a defocus disc of that radius);
+        ``"gaussian"`` (default) adds nothing.
     mist : int
         Out-of-focus mist droplets per frame (they drift: new positions every frame).
     path_dust : int
@@ -177,6 +182,8 @@ class SynthConfig:
     colour_gains: tuple = DEFAULT_COLOUR_GAINS
     demosaic_blur_px: float = 0.0
     jpeg_quality: int = 95
+    psf: str = "gaussian"
+    psf_radius_px: float = 0.0
     mist: int = 0
     path_dust: int = 0
     cuvette_wall: float | None = None
@@ -219,6 +226,10 @@ class SynthConfig:
                 bad(name, "must be an integer >= 0")
         if self.cuvette_wall is not None and not 0 < self.cuvette_wall < 1:
             bad("cuvette_wall", "must be a fraction of the width in (0, 1) or None")
+        if self.psf not in PSFS:
+            bad("psf", f"must be one of {', '.join(PSFS)}")
+        if self.psf != "gaussian" and not (np.isfinite(self.psf_radius_px) and 0 < self.psf_radius_px <= 20):
+            bad("psf_radius_px", f"a {self.psf} point-spread function needs a radius in (0, 20] px")
         if self.scene not in SCENES:
             bad("scene", f"must be one of {', '.join(SCENES)}")
         if self.format == "jpeg" and self.bit_depth != 8:
@@ -291,7 +302,8 @@ class SynthConfig:
             supersample=self.supersample, vignetting=float(self.vignetting),
             exposure=float(self.exposure if exposure is None else exposure),
             colour_gains=colour_gains(self.colour_gains) if self.colour else None,
-            demosaic_blur_px=float(self.demosaic_blur_px), static_blur_px=float(self.holder_blur_px))
+            demosaic_blur_px=float(self.demosaic_blur_px), static_blur_px=float(self.holder_blur_px),
+            psf=self.psf, psf_radius_px=float(self.psf_radius_px))
 
     @property
     def needle_outer_diameter_um(self) -> float:

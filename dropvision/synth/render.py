@@ -13,7 +13,9 @@ Image formation per frame (intensities as fractions of full scale):
     T = 1 - c_liquid (1 - T_liquid') - c_nozzle (1 - T_nozzle)   (T_liquid' brightened by the lens spot)
     T = (T (1 - c_block) + c_block T_block') x shadows          (realism tier: holder block with its
                                                                reflections T_block', wedge, cuvette wall)
-    I = backlight(r, c) * vignetting(r, c) * dust(r, c) * GaussianBlur(T, sigma) * mist(r, c) * exposure
+    I = backlight(r, c) * vignetting(r, c) * dust(r, c) * PSF(GaussianBlur(T, sigma)) * mist(r, c) * exposure
+        (PSF: none, or a non-Gaussian point-spread function, `psf_kernel`: an Airy pattern's
+        diffraction rings or a defocus disc)
     DN = quantise((Poisson(I * full_well) + N(0, read_noise)) / full_well * (2^bits - 1))
     colour: DN_c = quantise(... x gain_c) per channel (gains with BT.601 luma 1)
 
@@ -32,7 +34,49 @@ import numpy as np
 from dropvision.synth.profiles import LiquidBody, Profile, QuadraticNeck
 
 __all__ = ["CameraGeometry", "body_coverage", "spot_mask", "coverage_image", "Optics", "Renderer",
-           "Structure", "polygon_coverage", "mist_map"]
+           "Structure", "polygon_coverage", "mist_map", "psf_kernel", "PSFS"]
+
+#: Point-spread functions of the optics: Gaussian only (``blur_sigma_px``), or a non-Gaussian one
+#: applied on top of it (`psf_kernel`).
+PSFS = ("gaussian", "airy", "disc")
+
+
+def psf_kernel(psf: str, radius_px: float, subsample: int = 5, rings: int = 6) -> np.ndarray | None:
+    """Normalised, pixel-integrated kernel of a non-Gaussian point-spread function (float32).
+
+    - ``"airy"``: the incoherent image of a point through a circular aperture,
+      ``(2 J1(v) / v)^2`` with ``v = 3.8317 rho / radius_px`` (``radius_px``: the first dark
+      ring's radius, ``0.61 lambda / NA``), cut at its ``rings``-th dark ring: diffraction rings on
+      both sides of every edge, a core about ``0.34 radius_px`` wide (Gaussian sigma) and tails
+      that fall as ``rho^-3`` (no finite second moment: no Gaussian blur model holds far out);
+    - ``"disc"``: a uniform disc of radius ``radius_px`` (geometric defocus), its edge sampled
+      ``subsample`` x ``subsample`` per pixel.
+
+    Returns None for ``"gaussian"`` (no kernel: the Gaussian blur alone).
+    """
+    if psf == "gaussian":
+        return None
+    if psf not in PSFS:
+        raise ValueError(f"psf must be one of {', '.join(PSFS)}, got {psf!r}")
+    if not (np.isfinite(radius_px) and radius_px > 0):
+        raise ValueError(f"psf {psf!r} needs a radius > 0 px, got {radius_px!r}")
+    from scipy.special import j1, jn_zeros
+
+    cut = float(jn_zeros(1, rings)[-1] / jn_zeros(1, 1)[0]) * radius_px if psf == "airy" else radius_px
+    half = int(np.ceil(cut)) + 1
+    offs = (np.arange(subsample) + 0.5) / subsample - 0.5
+    ax = (np.arange(-half, half + 1)[:, None] + offs[None, :]).ravel()
+    rho = np.hypot(ax[:, None], ax[None, :])
+    if psf == "airy":
+        v = 3.8317059702075125 * rho / radius_px
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = np.where(v > 1e-9, (2.0 * j1(v) / np.where(v > 1e-9, v, 1.0)) ** 2, 1.0)
+        k = np.where(rho <= cut, k, 0.0)
+    else:
+        k = (rho <= radius_px).astype(float)
+    n = 2 * half + 1
+    k = k.reshape(n, subsample, n, subsample).mean(axis=(1, 3))
+    return (k / k.sum()).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -248,6 +292,12 @@ class Optics:
         Extra Gaussian blur of the nozzle and the rig structures (holder block, reflections,
         wedge, cuvette wall): they lie out of the jet's focal plane (0: in focus, the plain image
         formation).
+    psf : str
+        Point-spread function (`PSFS`): ``"gaussian"`` (``blur_sigma_px`` alone), ``"airy"`` or
+        ``"disc"`` of ``psf_radius_px`` (`psf_kernel`), convolved after the Gaussian blur, with the
+        same transmission everywhere (the liquid, the nozzle and the rig structures alike).
+    psf_radius_px : float
+        The Airy pattern's first dark ring, or the defocus disc's radius (px).
     """
 
     blur_sigma_px: float = 0.8
@@ -266,6 +316,8 @@ class Optics:
     colour_gains: tuple | None = None
     demosaic_blur_px: float = 0.0
     static_blur_px: float = 0.0
+    psf: str = "gaussian"
+    psf_radius_px: float = 0.0
 
 
 class Renderer:
@@ -315,6 +367,7 @@ class Renderer:
             dust_map[r0:r1, c0:c1] *= 1.0 - depth * g
         self.dust_map = dust_map
         self.static = self.backlight * dust_map
+        self.psf = psf_kernel(optics.psf, optics.psf_radius_px)
         self.max_dn = float(2 ** optics.bit_depth - 1)
         self.dtype = np.uint8 if optics.bit_depth == 8 else np.uint16
 
@@ -372,7 +425,13 @@ class Renderer:
         trans = trans.astype(np.float32)
         if o.blur_sigma_px > 0:
             trans = cv2.GaussianBlur(trans, (0, 0), o.blur_sigma_px, borderType=cv2.BORDER_REPLICATE)
-        return trans * self.static
+        return self._psf(trans) * self.static
+
+    def _psf(self, trans: np.ndarray) -> np.ndarray:
+        """The non-Gaussian point-spread function applied (unchanged without one)."""
+        if self.psf is None:
+            return trans
+        return cv2.filter2D(np.asarray(trans, np.float32), -1, self.psf, borderType=cv2.BORDER_REPLICATE)
 
     def _intensity_static_blurred(self, cov: np.ndarray, t_liq: np.ndarray) -> np.ndarray:
         """`intensity` with the nozzle and structures out of focus: the liquid's transmission
@@ -389,7 +448,7 @@ class Renderer:
         trans = trans * self._nozzle_blurred
         if self.struct_keep is not None:
             trans = trans * self.struct_keep + self.struct_add
-        return trans * self.static
+        return self._psf(trans) * self.static
 
     def render(self, bodies, rng: np.random.Generator, mist=()) -> np.ndarray:
         """One quantised frame (uint8 or uint16; (H, W, 3) RGB with ``colour_gains``).

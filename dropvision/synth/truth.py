@@ -124,6 +124,8 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
         "colour_gains_normalised": list(colour_gains(cfg.colour_gains)) if cfg.colour else None,
         "format": cfg.format,
         "jpeg_quality": int(cfg.jpeg_quality) if cfg.format == "jpeg" else None,
+        "psf": cfg.psf,
+        "psf_radius_px": float(cfg.psf_radius_px) if cfg.psf != "gaussian" else None,
         "path_dust": [list(d) for d in p.path_dust],
         "mist_per_frame": int(cfg.mist),
         "satellite_mode": cfg.shape.satellite_mode,
