@@ -111,6 +111,23 @@ def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | No
     return min(runs_, key=lambda r: (med[r], -(r[1] - r[0])))
 
 
+def _straight_stretch(x: np.ndarray, y: np.ndarray, band_px: float, min_points: int = 10) -> np.ndarray | None:
+    """The points of the longest straight stretch of ``y(x)``: RANSAC over 300 pairs of points
+    (seeded: the same answer every time), inliers within ``band_px`` of the line through the pair.
+    A boolean mask, or None when no line holds ``min_points``."""
+    rng = np.random.default_rng(0)
+    best = None
+    for _ in range(300):
+        i, j = rng.choice(x.size, 2, replace=False)
+        if x[i] == x[j]:
+            continue
+        slope = (y[j] - y[i]) / (x[j] - x[i])
+        inl = np.abs(y - (y[i] + slope * (x - x[i]))) <= band_px
+        if best is None or inl.sum() > best.sum():
+            best = inl
+    return None if best is None or best.sum() < min_points else best
+
+
 def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int, int, float] | None:
     """A nozzle barely protruding from a holder block or plate: (first row, stop row, axis slope).
 
@@ -127,17 +144,8 @@ def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int
     # the face is the longest straight stretch of the bottom profile (a wedge or a rounded corner
     # beside it is not): RANSAC over pairs of columns, inliers within 1 px, refitted
     x = cols.astype(float)
-    rng = np.random.default_rng(0)
-    best = None
-    for _ in range(300):
-        i, j = rng.choice(cols.size, 2, replace=False)
-        if x[i] == x[j]:
-            continue
-        slope = (bottom[j] - bottom[i]) / (x[j] - x[i])
-        inl = np.abs(bottom - (bottom[i] + slope * (x - x[i]))) <= 1.0
-        if best is None or inl.sum() > best.sum():
-            best = inl
-    if best is None or best.sum() < 10:
+    best = _straight_stretch(x, bottom, 1.0)
+    if best is None:
         return None
     q = np.polyfit(x[best], bottom[best], 1)
     res = bottom - np.polyval(q, x)
@@ -412,17 +420,8 @@ def fit_face_line(cols: np.ndarray, bottom: np.ndarray, band_px: float = 2.0) ->
     x, y = cols[keep], bottom[keep]
     if x.size < 20:
         return None
-    rng = np.random.default_rng(0)
-    best = None
-    for _ in range(300):
-        i, j = rng.choice(x.size, 2, replace=False)
-        if x[i] == x[j]:
-            continue
-        slope = (y[j] - y[i]) / (x[j] - x[i])
-        inl = np.abs(y - (y[i] + slope * (x - x[i]))) <= band_px
-        if best is None or inl.sum() > best.sum():
-            best = inl
-    if best is None or best.sum() < 10:
+    best = _straight_stretch(x, y, band_px)
+    if best is None:
         return None
     b, a = np.polyfit(x[best], y[best], 1)
     return float(a), float(b)
