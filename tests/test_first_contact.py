@@ -157,6 +157,7 @@ def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, r
     assert main(["measure", str(folder), "--out", str(tmp_path / "r1"), "--pixel-size-um", "3"]) == 0
     out, err = capsys.readouterr()
     assert "measured 1 of 1 frames" in out
+    assert "main drop " in out and " nl, " in out and "nan" not in out  # what one frame shows (issue 30)
     # item 4: the colour note is one line, without its source line
     assert err.strip().splitlines() == [
         "dropvision measure: warning: frame.jpg: 3-channel image converted to grey (ITU-R BT.601 luminance; noted "

@@ -202,3 +202,11 @@ def test_per_frame_blur_and_contrast_flags(tmp_path):
     assert "blurred" in f.loc[blurred, "quality"] and np.isnan(f.loc[blurred, "grown_volume_nl"])
     assert f.loc[washed, "wall_contrast"] == pytest.approx(0.7 * others.wall_contrast.median(), rel=0.05)
     assert "low_contrast" in f.loc[washed, "quality"] and np.isnan(f.loc[washed, "grown_volume_nl"])
+
+
+def test_one_line_of_a_pendant_drop_says_its_volume(realdata_dir, tmp_path, capsys):
+    """A single frame's one-line result is what it shows (here the liquid hanging from the needle),
+    not the NaNs of a time series (pinch-off, in-flight volume, velocity)."""
+    assert main(["measure", str(PENDANT), "--out", str(tmp_path / "o")]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert "attached volume 7" in line and "nl" in line and "nan" not in line and "pinch-off" not in line

@@ -71,10 +71,13 @@ def _run(args: argparse.Namespace) -> int:
             print(f"{key}{shown}: {s.get(f'{key}_source') or 'not given'}")
         for note in s.get("notes") or []:
             print(f"note: {note}")
-    print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; pinch-off {s['pinchoff_us']} us, "
-          f"in-flight volume {s['inflight_volume_nl']:.4g} +- "
-          f"{s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} nl, "
-          f"jetting velocity {s['jetting_velocity_m_s']:.4g} m/s"
+    if s["n_frames"] == 1 and len(res.frames):  # one frame: what it shows, not a time series' NaNs
+        what = _one_frame(res.frames.iloc[0])
+    else:
+        what = (f"pinch-off {s['pinchoff_us']} us, in-flight volume {s['inflight_volume_nl']:.4g} +- "
+                f"{s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} nl, "
+                f"jetting velocity {s['jetting_velocity_m_s']:.4g} m/s")
+    print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; {what}"
           + (f"; {len(s['errors'])} frame(s) skipped" if s["errors"] else ""))
     sys.stdout.flush()
     return 0
@@ -138,3 +141,19 @@ def register(subparsers) -> None:
     add_metadata_args(p)
     add_rerun_args(p)
     p.set_defaults(func=_run)
+
+
+def _one_frame(row) -> str:
+    """The one-line result of a single frame (a shot, a pendant drop): its main drop and
+    satellites, the liquid hanging from the nozzle, its quality (frames.parquet has the rest)."""
+    import math
+
+    parts = []
+    v, u = float(row["drop_volume_nl"]), float(row["drop_volume_uncertainty_nl"])
+    if math.isfinite(v):
+        n = int(row["n_satellites"])
+        parts.append(f"main drop {v:.4g} +- {u:.2g} nl, {n} satellite{'' if n == 1 else 's'}")
+    a, ua = float(row["attached_volume_nl"]), float(row["attached_volume_uncertainty_nl"])
+    if math.isfinite(a) and (a > 0 or not parts):
+        parts.append(f"attached volume {a:.4g} +- {ua:.2g} nl")
+    return "; ".join(parts or ["nothing measured"]) + f"; quality {row['quality']}"
