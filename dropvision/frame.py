@@ -441,46 +441,28 @@ class WorkerProcessStalled(WorkerProcessDied):
 #: uses CPU even on a loaded machine; one blocked on a lock uses none. The environment variable
 #: :data:`STALL_ENV` sets another value.
 STALL_S = 10.0
-STALL_ENV = "DROPVISION_WORKER_STALL_S"
-
-
-class _Stalled(Exception):
-    """Raised by `_Watchdog.result` when the workers made no progress for its ``stall_s``."""
+STALL_ENV = "DROPVISION_WORKER_STALL_S"  # = dvcore.process.STALL_ENV
 
 
 class _Watchdog:
-    """A future's result, waited for in short polls; while it is awaited, the worker processes'
-    CPU time (`dvcore.process.cpu_ticks`) must move at least once every ``stall_s`` seconds, or
-    :class:`_Stalled` is raised: a wait with a bound, never an endless one."""
+    """A future's result, waited for with a bound (`dvcore.process.wait_working`): while it is
+    awaited, the worker processes ``pids`` must use CPU at least once every ``stall_s`` seconds,
+    or `dvcore.process.WorkersStalled` is raised: never an endless wait."""
 
     def __init__(self, pids, stall_s: float, poll_s: float = 0.2):
         self.pids, self.stall_s, self.poll_s = list(pids), stall_s, poll_s
 
     def result(self, future):
-        import time
-        from concurrent.futures import wait
+        from dvcore.process import wait_working
 
-        from dvcore.process import cpu_ticks
-
-        last, since = cpu_ticks(self.pids), time.monotonic()
-        while not wait([future], timeout=self.poll_s).done:
-            ticks, now = cpu_ticks(self.pids), time.monotonic()
-            if ticks is None or ticks != last:  # working (or a worker gone: the pool breaks)
-                last, since = ticks, now
-            elif now - since > self.stall_s:
-                raise _Stalled(f"no CPU used by the worker processes for {now - since:.0f} s")
+        wait_working([future], lambda: self.pids, self.stall_s, poll_s=self.poll_s)
         return future.result()
 
 
 def _stall_s() -> float:
-    import os
+    from dvcore.process import stall_s
 
-    raw = os.environ.get(STALL_ENV)
-    try:
-        value = float(raw) if raw else STALL_S
-    except ValueError:
-        value = STALL_S
-    return value if value > 0 else STALL_S
+    return stall_s(STALL_S)
 
 
 def _progress_bar(n: int, progress: bool):
@@ -489,33 +471,6 @@ def _progress_bar(n: int, progress: bool):
     from tqdm import tqdm  # optional progress bar: imported only when asked for
 
     return tqdm(total=n, desc="measure", unit="frame", file=sys.stderr)
-
-
-def _end_workers(pool, kill: bool = False) -> None:
-    """Stop ``pool`` now: nothing queued runs, and its workers (busy on a chunk, or blocked) are
-    terminated (killed with ``kill``, or when a termination is not enough within 2 s). Bounded:
-    it never waits on a worker for longer."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for p in procs:
-        if p.is_alive():
-            p.kill() if kill else p.terminate()
-    for p in procs:
-        p.join(timeout=2)
-        if p.is_alive():
-            p.kill()
-            p.join(timeout=2)
-
-
-def _close_workers(pool, timeout_s: float = 5.0) -> None:
-    """Let ``pool``'s idle workers exit (every chunk returned), waiting at most ``timeout_s``
-    for each; a worker still there then (blocked at its exit) is killed."""
-    procs = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False)
-    for p in procs:
-        p.join(timeout=timeout_s)
-    if any(p.is_alive() for p in procs):
-        _end_workers(pool, kill=True)
 
 
 def _in_order(pool, fn, items, depth: int, result=None):
@@ -553,6 +508,8 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
+    from dvcore.process import WorkersStalled, close_pool, end_pool, pool_pids
+
     global _FORK_STATE
     indices = list(indices)
     size = min(MAX_CHUNK_FRAMES, max(4, -(-len(indices) // (4 * workers))))
@@ -566,8 +523,7 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
         with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
             warnings.simplefilter("ignore", DeprecationWarning)
             first = pool.submit(int)  # the first submit forks every worker: now, before the bar's thread
-        pids = [p.pid for p in (getattr(pool, "_processes", None) or {}).values()]
-        watchdog = _Watchdog(pids, _stall_s())
+        watchdog = _Watchdog(pool_pids(pool), _stall_s())
         watchdog.result(first)
         bar = _progress_bar(len(indices), progress)
         for recs, caught in _in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
@@ -578,9 +534,9 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
                 if bar is not None:
                     bar.update()
         finished = True
-    except (BrokenProcessPool, _Stalled) as exc:
-        stalled = isinstance(exc, _Stalled)
-        _end_workers(pool, kill=True)  # before measuring on: a stalled worker holds no CPU, but memory
+    except (BrokenProcessPool, WorkersStalled) as exc:
+        stalled = isinstance(exc, WorkersStalled)
+        end_pool(pool, kill=True)  # before measuring on: a stalled worker holds no CPU, but memory
         rest = indices[done:]
         what = "the worker processes stalled" if stalled else "a worker process died"
         warnings.warn(f"{seq.meta.path}: {what} ({exc}); measuring the remaining {len(rest)} frame(s) with threads",
@@ -593,9 +549,9 @@ def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict,
                     bar.update()
     finally:
         if finished:
-            _close_workers(pool)
+            close_pool(pool)
         else:  # stopped early, interrupted, an error, a dead or stalled worker: no waiting for chunks in flight
-            _end_workers(pool)
+            end_pool(pool)
         _FORK_STATE = None
         if bar is not None:
             bar.close()

@@ -62,3 +62,46 @@ def test_parse_range_and_shard_names():
     with pytest.raises(ValueError, match="--u1"):
         parse_range("80:50:5", "--u1")
     assert shard_name("a/b") != shard_name("a_b")
+
+
+def test_the_local_pool_forks_only_a_single_threaded_process(monkeypatch):
+    """A process running other threads (a native pool's, a progress bar's) has its campaign workers
+    forked by a fork server instead of forking itself (issue 29: a lock held at the fork)."""
+    import sys
+
+    import dvcore.process
+    from dropvision.app.executors import _pool_context
+
+    if not sys.platform.startswith("linux"):
+        assert _pool_context() is None
+        return
+    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 1)
+    assert _pool_context().get_start_method() == "fork"
+    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 4)
+    assert _pool_context().get_start_method() == "forkserver"
+    with make_executor(2) as pool:  # and its workers run (their parent is the fork server)
+        assert pool.submit(pow, 3, 4).result(timeout=120) == 81
+
+
+def test_a_stalled_campaign_worker_stops_the_campaign_with_a_bound(monkeypatch):
+    """A local worker that uses no CPU (here asleep: as blocked on a lock) while its sequence is
+    awaited: after the stall time the workers are killed and `CampaignStalled` names the sequence;
+    never an endless wait."""
+    import multiprocessing
+    import time
+    from concurrent.futures import ProcessPoolExecutor
+
+    from dropvision.app.campaign import CampaignStalled, _wait_bounded
+    from dvcore.process import STALL_ENV
+
+    monkeypatch.setenv(STALL_ENV, "1")
+    pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("forkserver"))
+    try:
+        assert pool.submit(pow, 2, 2).result(timeout=120) == 4  # started
+        pending = {pool.submit(time.sleep, 60): "seq_07"}
+        with pytest.raises(CampaignStalled, match="seq_07.*rerun"):
+            _wait_bounded(pool, pending)
+        procs = list(pool._processes.values()) if pool._processes else []
+        assert all(not p.is_alive() for p in procs)
+    finally:
+        pool.shutdown(wait=False, cancel_futures=True)

@@ -400,9 +400,11 @@ def test_the_watchdog_bounds_a_wait_on_a_blocked_process(monkeypatch):
     import subprocess
     from concurrent.futures import Future
 
+    from dvcore.process import WorkersStalled
+
     sleeper = subprocess.Popen(["sleep", "30"])
     try:
-        with pytest.raises(F._Stalled, match="no CPU"):
+        with pytest.raises(WorkersStalled, match="no CPU"):
             F._Watchdog([sleeper.pid], stall_s=0.5, poll_s=0.05).result(Future())
     finally:
         sleeper.kill()

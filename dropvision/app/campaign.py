@@ -88,6 +88,38 @@ class CampaignResult:
         }
 
 
+#: Seconds without CPU used by any local worker process while sequences are awaited, after which
+#: the campaign stops with :class:`CampaignStalled` (`dvcore.process.wait_working`; the environment
+#: variable ``DROPVISION_WORKER_STALL_S`` sets another value).
+CAMPAIGN_STALL_S = 60.0
+
+
+class CampaignStalled(RuntimeError):
+    """The local worker processes used no CPU for :data:`CAMPAIGN_STALL_S` while sequences were
+    awaited (a worker blocked for ever): they are killed and the campaign stops, naming the
+    sequences in flight; the manifest keeps them pending, so a rerun measures them again."""
+
+
+def _wait_bounded(executor, pending: dict) -> set:
+    """The futures of ``pending`` (future -> sequence id) done next. On a local process pool the
+    wait has a bound (:data:`CAMPAIGN_STALL_S` without CPU in its workers: :class:`CampaignStalled`);
+    the serial executor's futures are done already; a Dask cluster's workers live elsewhere and
+    are watched by its own scheduler."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    from dvcore.process import WorkersStalled, end_pool, pool_pids, stall_s, wait_working
+
+    if not isinstance(executor, ProcessPoolExecutor):
+        return wait(pending, return_when=FIRST_COMPLETED)[0]
+    try:
+        return wait_working(pending, lambda: pool_pids(executor), stall_s(CAMPAIGN_STALL_S))[0]
+    except WorkersStalled as exc:
+        end_pool(executor, kill=True)
+        raise CampaignStalled(f"the worker processes stalled ({exc}) while measuring "
+                              f"{', '.join(sorted(map(str, pending.values())))}; they were stopped, and a "
+                              "rerun of the campaign measures these sequences again") from exc
+
+
 class CampaignFailed(RuntimeError):
     """Every sequence of a campaign failed: no dataset is written (``manifest.json`` records each
     sequence's error; a partly failed campaign writes its dataset and lists the failures).
@@ -465,7 +497,7 @@ def run_campaign(
 
             def drain() -> None:
                 while pending:
-                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    done = _wait_bounded(executor, pending)
                     for future in sorted(done, key=pending.get):
                         record(future, pending.pop(future))
                     _write_manifest(manifest_writer, manifest)

@@ -36,7 +36,7 @@ class SerialExecutor(Executor):
         return future
 
 
-def _exit_with_parent(parent_pid: int, poll_s: float = 0.25) -> None:
+def _exit_with_parent(parent_pid: int | None, poll_s: float = 0.25) -> None:
     """Initializer of every pool worker: it dies with the process that started it.
 
     A worker must never outlive a killed campaign (``kill -9`` of the main process leaves the
@@ -46,6 +46,8 @@ def _exit_with_parent(parent_pid: int, poll_s: float = 0.25) -> None:
     worker was re-parented). Dask ``LocalCluster`` workers need neither: their nannies already
     end them with the client process.
     """
+    if parent_pid is None:  # started by a fork server: it is the parent, and it ends with the campaign
+        parent_pid = os.getppid()
     die_with_parent(parent_pid)
 
     def watch() -> None:
@@ -120,8 +122,27 @@ def make_executor(
     if n == 1:
         yield SerialExecutor()
         return
-    with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(os.getpid(),)) as pool:
+    context = _pool_context()
+    # a worker's parent: this process, or the fork server (which ends when this process does)
+    parent = None if context is not None and context.get_start_method() == "forkserver" else os.getpid()
+    with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(parent,),
+                             mp_context=context) as pool:
         yield pool
+
+
+def _pool_context():
+    """How the local pool starts its workers: forked from this process only while it runs one
+    thread at the operating system's level (no other thread, a native pool's included, can then
+    hold a lock at the fork: `dvcore.process.os_thread_count`); otherwise forked by a fork server
+    (a fresh process running one thread, started once). Elsewhere than Linux, the default."""
+    import multiprocessing
+    import sys
+
+    from dvcore.process import os_thread_count
+
+    if not sys.platform.startswith("linux"):
+        return None
+    return multiprocessing.get_context("fork" if os_thread_count() == 1 else "forkserver")
 
 
 def _import_measurement() -> None:
