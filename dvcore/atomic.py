@@ -53,12 +53,20 @@ def _tmp_prefix(name: str) -> str:
     return f"{TMP_PREFIX}{name[:80]}."
 
 
+def _umask() -> int:
+    """The process's umask (read by setting it and back)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 def write_bytes(path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=_tmp_prefix(path.name), suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: the result follows the user's umask
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()

@@ -57,13 +57,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from dvcore import schema
+
 __all__ = [
     "SCHEMA", "TabularError", "RefitMismatchWarning", "TabularModel", "fit_table", "read_table",
     "REGRESSORS", "CLASSIFIERS", "output_kind",
 ]
 
-#: Schema id of the model file.
-SCHEMA = "identify.tabular-model/1"
+#: Schema id of the model file (its keys: ``dvcore.schema.TABULAR_MODEL``).
+SCHEMA = schema.TABULAR_MODEL.schema
 #: A column of non-negative integers with at most this many distinct values is a count output.
 MAX_COUNT_CLASSES = 12
 #: A continuation step ``P(n = k | n >= k)`` is a classifier only where both sides hold this many
@@ -611,6 +613,10 @@ class TabularModel:
 
         if d.get("schema") != SCHEMA:
             raise bad("schema", f"is {d.get('schema')!r}, expected {SCHEMA!r}")
+        try:
+            schema.check_document(d, schema.TABULAR_MODEL, source)
+        except schema.SchemaError as exc:
+            raise TabularError(str(exc)) from None
         names = {}
         for key in ("inputs", "outputs"):
             v = d.get(key)

@@ -9,11 +9,13 @@ command lines on a subset of the real sweep (skipped on a fresh clone without ..
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pandas as pd
 import pytest
 
+from dvcore import schema
 from identify.app.cli import main
 from identify.tabular import TabularError, TabularModel, fit_table
 
@@ -110,6 +112,8 @@ def test_model_file_refits_the_same_predictions(synthetic, tmp_path):
     pd.testing.assert_frame_equal(again.predict(test), pred)
     d = json.loads(path.read_text())
     assert "pickle" not in path.read_text() and d["training_rows"] == len(m.data)
+    schema.check_document(d, schema.TABULAR_MODEL, path)
+    assert set(d) == set(schema.TABULAR_MODEL.key_names)
     d["training_data"]["a"][0] += 1.0
     path.write_text(json.dumps(d))
     with pytest.raises(TabularError, match=r"model.json: invalid tabular model file: training_data does not match"):
@@ -142,6 +146,13 @@ def test_fit_and_predict_command_lines_on_the_real_sweep(realdata_dir, tmp_path,
     assert main(["predict", str(model), "--table", str(tmp_path / "rows.csv"), "--out", str(out)]) == 0
     p = pd.read_csv(out)
     assert len(p) == len(rows)
+    umask = os.umask(0o022)
+    os.umask(umask)
+    assert out.stat().st_mode & 0o777 == 0o666 & ~umask  # outputs follow the user's umask
+    fixed = [c.name for c in schema.TABULAR_PREDICTION.columns if "<" not in c.name]
+    assert list(p.columns) == list(rows.columns) + [
+        f"head_volume_px3_{s}" for s in ("mean", "mean_drop_low", "mean_drop_high", "one_drop_low", "one_drop_high")
+    ] + [f"n_drops_p{k}" for k in sorted(train.n_drops.unique())] + fixed
     lo, mid, hi = p["head_volume_px3_one_drop_low"], p["head_volume_px3_mean"], p["head_volume_px3_one_drop_high"]
     assert ((lo < mid) & (mid < hi)).all() and mid.between(2e5, 2e6).all()
     probs = p[[c for c in p.columns if c.startswith("n_drops_p")]]
