@@ -92,12 +92,15 @@ class RefitMismatchWarning(UserWarning):
 
 # ----------------------------------------------------------------------------- candidates
 def _huber_poly(degree: int, seed: int):
+    from sklearn.compose import TransformedTargetRegressor
     from sklearn.linear_model import HuberRegressor
     from sklearn.pipeline import make_pipeline
     from sklearn.preprocessing import PolynomialFeatures, StandardScaler
 
-    return make_pipeline(StandardScaler(), PolynomialFeatures(degree), StandardScaler(),
-                         HuberRegressor(alpha=1e-4, max_iter=5000))
+    # the target standardised too: the solver converges in a fraction of the iterations
+    return TransformedTargetRegressor(make_pipeline(StandardScaler(), PolynomialFeatures(degree), StandardScaler(),
+                                                    HuberRegressor(alpha=1e-4, max_iter=5000)),
+                                      transformer=StandardScaler())
 
 
 def _trees_l1(leaves: int, min_leaf: int, seed: int):
@@ -121,7 +124,7 @@ def _scale_model(n: int, seed: int):
     """The model of the residuals' size: median absolute residual on the inputs, shallow trees."""
     from sklearn.ensemble import HistGradientBoostingRegressor
 
-    return HistGradientBoostingRegressor(loss="absolute_error", learning_rate=0.05, max_iter=100,
+    return HistGradientBoostingRegressor(loss="absolute_error", learning_rate=0.1, max_iter=50,
                                          max_leaf_nodes=7, min_samples_leaf=max(20, n // 20),
                                          early_stopping=False, random_state=seed)
 
@@ -383,7 +386,14 @@ def _fit_continuous(name, X, y_raw, *, candidates, folds, seed, level, notes, q=
         s_oof = np.empty(rows.size)
         for tr, te in splits:
             s_oof[te] = np.maximum(_fit_quietly(_scale_model(tr.size, seed), Xo[tr], a[tr]).predict(Xo[te]), floor)
-        q_lo, q_hi = _conformal_quantiles(r / s_oof, level)
+        scores = r / s_oof
+        q_lo, q_hi = _conformal_quantiles(scores, level)
+        if not (math.isfinite(q_lo) and math.isfinite(q_hi)):
+            q_lo, q_hi = (q_lo if math.isfinite(q_lo) else float(scores.min()),
+                          q_hi if math.isfinite(q_hi) else float(scores.max()))
+            notes.append(f"{name}: {rows.size} rows are too few for a finite {100 * level:g} % conformal bound "
+                         f"(at least {math.ceil(2 / (1 - level)) - 1}): the most extreme residual is used, the "
+                         "one-drop interval may cover less")
     else:
         q_lo, q_hi = q["q_lo"], q["q_hi"]
     final = _fit_quietly(REGRESSORS[chosen](seed), Xo, yo, notes, f"{name}: {chosen}")
@@ -448,7 +458,7 @@ def _fit_count(name, X, y_raw, *, folds, seed, notes, chosen=None, classifiers=N
             continue
         Xs = X[at]
         cv = {}
-        pick = chosen[j] if chosen is not None else None
+        pick = chosen[j] if chosen is not None and j < len(chosen) else None
         if pick is None:
             splits = list(StratifiedKFold(folds, shuffle=True, random_state=seed).split(Xs, hit))
             for cand in classifiers or CLASSIFIERS:

@@ -170,3 +170,24 @@ def test_fit_and_predict_command_lines_on_the_real_sweep(realdata_dir, tmp_path,
     assert main(["fit", str(tmp_path / "dev.csv"), "--inputs", "V3,nope", "--outputs", "n_drops",
                  "--out", str(tmp_path / "m2.json")]) == 2
     assert "dev.csv: no input column 'nope'" in capsys.readouterr().err
+
+
+def test_report_maps_the_jetting_window_over_the_inputs_that_move_it(synthetic, tmp_path):
+    from identify.app.tabular_report import map_axes, write_table_report
+
+    m = synthetic[0]
+    assert set(map_axes(m)) == {0, 1}  # P(satellites) depends on a and b, not on c
+    index = write_table_report(tmp_path / "report", m)
+    page = index.read_text()
+    assert "jetting_window.png" in page and "boosted_trees_l1" in page
+    assert (tmp_path / "report" / "jetting_window.png").stat().st_size > 10_000
+
+
+def test_few_rows_still_give_a_finite_interval_and_say_so(tmp_path):
+    rng = np.random.default_rng(3)
+    small = _draw(rng, *_grid(rng, 25))
+    m = fit_table(small, ["a", "b", "c"], ["volume_px3"], candidates=["quadratic_huber"])
+    assert any("too few for a finite 95 % conformal bound" in n for n in m.notes)
+    m.save(tmp_path / "m.json")
+    p = TabularModel.from_json(tmp_path / "m.json").predict(small.head(3))
+    assert np.isfinite(p.filter(like="volume_px3").to_numpy()).all()

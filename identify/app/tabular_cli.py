@@ -63,13 +63,17 @@ def cmd_fit_table(args) -> int:
     from identify.tabular import fit_table, read_table
 
     inputs, outputs = _names(args.inputs, "--inputs"), _names(args.outputs, "--outputs")
-    for flag in ("report", "rerun", "rerun_spawn", "rerun_connect"):
+    for flag in ("rerun", "rerun_spawn", "rerun_connect"):
         if getattr(args, flag, None):
             raise UsageError(f"--{flag.replace('_', '-')} is not available for a table model (yet)")
     if args.no_arx or args.ecm_method != "oe" or args.adjuster_reference != "ecm":
         raise UsageError("--no-arx, --ecm-method and --adjuster-reference are hybrid-model options, not a table's")
-    check_outside_inputs([args.dataset], args.out)
+    check_outside_inputs([args.dataset], args.out, args.report)
     check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=is_table_model)
+    if args.report is not None:  # refuse a report folder that is not ours before the fit
+        from dvcore.atomic import check_output_dir
+
+        check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
     table = read_table(args.dataset)
     folds = 5 if args.folds is None else args.folds
     m = fit_table(table, inputs, outputs, folds=folds, seed=args.seed, source=str(args.dataset))
@@ -93,6 +97,10 @@ def cmd_fit_table(args) -> int:
         print(f"note: {n}")
     m.save(args.out)
     print(f"wrote {args.out}")
+    if args.report is not None:
+        from identify.app.tabular_report import write_table_report
+
+        print(f"wrote {write_table_report(args.report, m, inputs=[args.dataset, args.out], overwrite=args.overwrite)}")
     return 0
 
 
