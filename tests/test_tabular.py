@@ -48,7 +48,7 @@ def _grid(rng, rows):
 def synthetic():
     rng = np.random.default_rng(1)
     train = _draw(rng, *_grid(rng, 300), outliers=6)
-    test = _draw(rng, *_grid(rng, 3000))
+    test = _draw(rng, *_grid(rng, 3000), outliers=60)  # the same law: 2 % gross outliers
     m = fit_table(train, ["a", "b", "c"], ["volume_px3", "n_drops"], seed=0,
                   candidates=["quadratic_huber", "boosted_trees_l1"],
                   classifiers=["quadratic_logistic", "boosted_trees_isotonic"])
@@ -63,7 +63,7 @@ def test_volume_close_to_truth_and_one_drop_intervals_cover(synthetic):
     assert np.median(err) < 0.01  # the known surface, within the scatter's 1 %
     v = test["volume_px3"]
     covered = (v >= pred["volume_px3_one_drop_low"]) & (v <= pred["volume_px3_one_drop_high"])
-    assert 0.92 <= covered.mean() <= 0.985, covered.mean()
+    assert 0.93 <= covered.mean() <= 0.975, covered.mean()  # 95 % of drops of the same law, outliers included
     assert (pred["volume_px3_mean_drop_low"] <= pred["volume_px3_mean"]).all()
     assert (pred["volume_px3_mean"] <= pred["volume_px3_mean_drop_high"]).all()
     # the mean-drop (confidence) interval is narrower than one drop's and holds the true median mostly
