@@ -358,8 +358,9 @@ def _fit_continuous(name, X, y_raw, *, candidates, folds, seed, level, notes, q=
     if log and (finite.sum() - pos.sum()) and q is None:
         notes.append(f"{name}: {int(finite.sum() - pos.sum())} row(s) <= 0 of a positive output left out of its fit "
                      f"(a failed measurement, no logarithm; rule identify.tabular.POSITIVE_SHARE)")
-    if rows.size < MIN_ROWS:
-        raise TabularError(f"{name}: only {rows.size} row(s) with a measured value (at least {MIN_ROWS})")
+    if rows.size < max(MIN_ROWS, 2 * folds):
+        raise TabularError(f"{name}: only {rows.size} row(s) with a measured value (at least "
+                           f"{max(MIN_ROWS, 2 * folds)} for {folds}-fold cross-validation)")
     Xo, yo = X[rows], (np.log(y_raw[rows]) if log else y_raw[rows])
     splits = _folds(rows.size, folds, seed)
     cv = {}
@@ -444,8 +445,9 @@ def _fit_count(name, X, y_raw, *, folds, seed, notes, chosen=None, classifiers=N
 
     ok = np.isfinite(y_raw)
     X, y = X[ok], y_raw[ok].astype(int)
-    if y.size < MIN_ROWS:
-        raise TabularError(f"{name}: only {y.size} row(s) with a measured count (at least {MIN_ROWS})")
+    if y.size < max(MIN_ROWS, 2 * folds):
+        raise TabularError(f"{name}: only {y.size} row(s) with a measured count (at least "
+                           f"{max(MIN_ROWS, 2 * folds)} for {folds}-fold cross-validation)")
     classes = sorted(int(v) for v in np.unique(y))
     steps = []
     for j, k in enumerate(classes[:-1]):

@@ -29,6 +29,29 @@ REPORT_KIND = "identify-table-report"
 MAP_POINTS = 41
 
 
+_CSS = """body{font-family:sans-serif;max-width:1200px;margin:1em auto;padding:0 1em;color:#222}
+table{border-collapse:collapse;margin:0.5em 0 1.5em 0;font-size:0.9em}
+caption{text-align:left;font-weight:bold;padding:0.3em 0}
+th,td{border:1px solid #bbb;padding:0.2em 0.6em;text-align:right}th{background:#eee}
+img{max-width:100%;border:1px solid #ddd}figure{margin:1em 0}figcaption{font-size:0.9em;color:#555}"""
+
+
+def _cell(v) -> str:
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else ""
+    if isinstance(v, (float, np.floating)):
+        return "" if not np.isfinite(v) else f"{float(v):.5g}"
+    return str(v)
+
+
+def _html_table(df: pd.DataFrame, table_id: str, caption: str) -> str:
+    e = html.escape
+    head = "".join(f"<th>{e(str(c))}</th>" for c in df.columns)
+    body = "".join("<tr>" + "".join(f"<td>{e(_cell(v))}</td>" for v in r) + "</tr>" for r in df.itertuples(index=False))
+    return (f'<table id="{e(table_id)}"><caption>{e(caption)}</caption><thead><tr>{head}</tr></thead>'
+            f"<tbody>{body}</tbody></table>")
+
+
 def _held(model) -> np.ndarray:
     """Each input's training value nearest its median: where the inputs off the map are held."""
     X = model.data[model.inputs].to_numpy(float)
@@ -142,8 +165,6 @@ def write_table_report(out, model, *, inputs=(), overwrite: bool = False) -> Pat
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from identify.app.report import _CSS, _html_table
 
     ax_i, ax_j = map_axes(model)
     held = _held(model)
