@@ -692,7 +692,8 @@ class TabularModel:
             if len(model.counts[o].steps) != len(c["steps"]):
                 raise bad(f"counts.{o}.steps", "do not match the stored counts")
         model.notes = [str(x) for x in d.get("notes", [])] if isinstance(d.get("notes"), list) else []
-        _check_refit(model, d.get("check"), source)
+        saved = d.get("versions") if isinstance(d.get("versions"), dict) else {}
+        _check_refit(model, d.get("check"), source, saved)
         return model
 
 
@@ -714,7 +715,7 @@ def _sklearn_version() -> str:
     return sklearn.__version__
 
 
-def _check_refit(model: TabularModel, check, source) -> None:
+def _check_refit(model: TabularModel, check, source, saved_versions: dict) -> None:
     if not isinstance(check, dict) or not isinstance(check.get("predictions"), dict):
         raise TabularError(f"{source}: invalid tabular model file: check must hold the saved predictions")
     rows = check.get("rows")
@@ -733,9 +734,13 @@ def _check_refit(model: TabularModel, check, source) -> None:
         if dev > worst:
             worst, where = dev, c
     if worst > CHECK_RTOL:
+        from dvcore import __version__
+
+        then = f"scikit-learn {saved_versions.get('scikit-learn', '?')}, dropvision {saved_versions.get('dropvision', '?')}"
         warnings.warn(f"{source}: the model refitted from its stored rows differs from the saved predictions by up "
-                      f"to {worst:.2g} (relative, {where}); scikit-learn {_sklearn_version()} here: another version "
-                      "fits differently", RefitMismatchWarning, stacklevel=3)
+                      f"to {worst:.2g} (relative, {where}): fitted with {then}, refitted with scikit-learn "
+                      f"{_sklearn_version()}, dropvision {__version__} (another version fits differently; refit "
+                      "the model to save predictions of this one)", RefitMismatchWarning, stacklevel=3)
 
 
 def _build(inputs, outputs, frame, *, folds, seed, level, source, choices=None, candidates=None,

@@ -17,7 +17,7 @@ import pytest
 
 from dvcore import schema
 from identify.app.cli import main
-from identify.tabular import TabularError, TabularModel, fit_table
+from identify.tabular import RefitMismatchWarning, TabularError, TabularModel, fit_table
 
 T_SCALE = 0.01  # scatter of log volume: 1 % times a Student t(3)
 
@@ -114,6 +114,11 @@ def test_model_file_refits_the_same_predictions(synthetic, tmp_path):
     assert "pickle" not in path.read_text() and d["training_rows"] == len(m.data)
     schema.check_document(d, schema.TABULAR_MODEL, path)
     assert set(d) == set(schema.TABULAR_MODEL.key_names)
+    edited = json.loads(json.dumps(d))
+    edited["continuous"]["volume_px3"]["q_hi"] *= 1.5  # not what was fitted: the refit check says so
+    path.write_text(json.dumps(edited))
+    with pytest.warns(RefitMismatchWarning, match=r"differs from the saved predictions .* volume_px3_one_drop_high"):
+        TabularModel.from_json(path)
     d["training_data"]["a"][0] += 1.0
     path.write_text(json.dumps(d))
     with pytest.raises(TabularError, match=r"model.json: invalid tabular model file: training_data does not match"):
