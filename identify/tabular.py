@@ -218,7 +218,9 @@ def read_table(path) -> pd.DataFrame:
         raise TabularError(f"{path}: cannot read the table ({type(exc).__name__}: {' '.join(str(exc).split())})") from None
     if len(df) == 0:
         raise TabularError(f"{path}: the table has no rows")
-    return df
+    if not isinstance(df.index, pd.RangeIndex):  # a Parquet file's stored index: kept as column(s)
+        df = df.reset_index()
+    return df.reset_index(drop=True)
 
 
 def _columns(df: pd.DataFrame, names, source, what: str, *, finite: bool) -> np.ndarray:

@@ -127,6 +127,8 @@ def cmd_predict_table(args) -> int:
         m = TabularModel.from_json(args.model)
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
+    import pandas as pd
+
     if abs(args.level - m.level) > 1e-12:
         raise UsageError(f"{args.model}: its intervals are at {100 * m.level:g} % (fixed when fitted), "
                          f"not --level {args.level:g}")
@@ -134,7 +136,7 @@ def cmd_predict_table(args) -> int:
     clash = [c for c in pred.columns if c in table.columns]
     if clash:
         raise UsageError(f"{args.table}: already has a column {clash[0]!r} of the predictions (a prediction table?)")
-    result = table.join(pred)
+    result = pd.concat([table.reset_index(drop=True), pred.reset_index(drop=True)], axis=1)
     if out.suffix.lower() == ".csv":
         write_bytes(out, result.to_csv(index=False).encode("utf-8"))
     else:
