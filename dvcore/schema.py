@@ -18,7 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 __all__ = [
-    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "PREDICTION", "Quality",
+    "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "PREDICTION", "TABULAR_MODEL",
+    "TABULAR_PREDICTION", "Quality",
     "QUALITY_CODES", "RANGES", "check_table", "check_document", "markdown",
 ]
 
@@ -494,9 +495,56 @@ PREDICTION = Document("prediction", "identify predict --json", "identify.predict
 ), "`identify predict --json`: one JSON object on stdout (Python: `HybridModel.predict` warns with "
    "`identify.hybrid.ExtrapolationWarning` and gives NaN for an impossible output).")
 
-TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING)}
+# ----------------------------------------------------------------------------- table models (identify.tabular)
+TABULAR_MODEL = Document("tabular_model", "model.json", "identify.tabular-model/1", (
+    F("schema", "str", "", "document id"),
+    F("inputs", "list", "", "the parameter columns, in the user's units (e.g. V3, w1, w2, w3, d1, d2)"),
+    F("outputs", "list", "", "the measured columns modelled"),
+    F("kinds", "object", "", "output -> continuous | count (non-negative integers, at most 12 distinct values)"),
+    F("settings", "object", "", "folds (K of the K-fold cross-validation), seed, level (of the intervals)"),
+    F("training_rows", "int", "", "rows of training_data"),
+    F("training_sha256", "str", "", "SHA-256 of training_data (canonical JSON): an edit is refused"),
+    F("training_source", "str", "", "the table fitted (null: a table in memory)"),
+    F("training_data", "object", "", "column -> the training rows' values (null: an output not measured): the "
+      "model is refitted from them at load, deterministically given settings.seed (no pickled object)"),
+    F("continuous", "object", "", "per continuous output: candidate (the regressor chosen by CV), log (fitted on "
+      "the logarithm), q_lo, q_hi (conformal quantiles of the locally scaled out-of-fold residuals: one-drop "
+      "interval = fit + [q_lo, q_hi] x scale), rows_fitted, cv (every candidate's mean_abs_error, "
+      "median_error_percent, p90_error_percent)"),
+    F("counts", "object", "", "per count output: classes seen, steps (P(n = k | n >= k): k, model (the "
+      "calibrated classifier chosen by CV Brier, null: the constant rate), rate, cv)"),
+    F("training_region", "object", "", "low, high, step (grid step) per input, max_gap_steps (largest distance "
+      "between a training row and its nearest other one, in steps)"),
+    F("check", "object", "", "rows, predictions (column -> values on the first training rows): the refit at "
+      "load must reproduce them (else identify.tabular.RefitMismatchWarning)"),
+    F("notes", "list", "", "what the fit left out or noticed"),
+    F("versions", "object", "", "software versions (scikit-learn included)"),
+), "Models of a table's outputs on its parameters (`identify fit TABLE --inputs ... --outputs ...`, "
+   "identify.tabular).")
+
+TABULAR_PREDICTION = Table("tabular_prediction", "predictions.csv", "identify.tabular-prediction/1", (
+    F("<input table's columns>", "object", "", "every column of the --table, as read, in order"),
+    F("<o>_mean", "float", "of <o>", "per continuous output <o>: the fitted typical value (the median drop; "
+      "exp of the log fit for a positive output)"),
+    F("<o>_mean_drop_low", "float", "of <o>", "mean-drop (confidence) interval at the model's level: the fit's "
+      "uncertainty (delete-a-fold jackknife of the K fold models), no drop-to-drop scatter"),
+    F("<o>_mean_drop_high", "float", "of <o>", "its upper end"),
+    F("<o>_one_drop_low", "float", "of <o>", "one-drop (prediction) interval at the model's level: locally "
+      "scaled split-conformal on the out-of-fold residuals"),
+    F("<o>_one_drop_high", "float", "of <o>", "its upper end"),
+    F("<o>_p<k>", "float", "", "per count output <o> and count k seen in training: P(<o> = k); the largest k "
+      "seen: P(<o> >= k)"),
+    F("outside_training_region", "bool", "", "an input outside its min..max seen, or the row farther (in grid "
+      "steps) from every training row than any training row from its nearest other one: numbers unchecked",
+      nullable=False),
+    F("outside_training_region_why", "str", "", "why (empty inside)"),
+), "`identify predict model.json --table ROWS --out FILE` with a table model: one row per row of ROWS (CSV, "
+   "or Parquet by the suffix).")
+
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING,
+                               TABULAR_PREDICTION)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
-                                 PREDICTION)}
+                                 PREDICTION, TABULAR_MODEL)}
 
 
 class Quality:

@@ -9,6 +9,10 @@ The public API (loaded on first use, so ``import identify`` stays cheap)::
     model.design(volume_nl=18.9)                       # (u1, u2) for a target volume
     model.save("model.json"); identify.load_model("model.json")
     identify.tune(model, rig, volume_nl=20)            # closed loop on a rig (identify.tuning)
+
+    table = identify.read_table("sweep.csv")           # a table of settings and end-point measurements
+    tm = identify.fit_table(table, ["V3", "w1"], ["head_volume_px3", "n_drops"])  # identify.tabular
+    tm.predict(rows); tm.save("model.json"); identify.TabularModel.from_json("model.json")
 """
 
 from dvcore import __version__
@@ -29,6 +33,9 @@ _LAZY = {
     "tune": "identify.tuning:tune",
     "read_tuning": "identify.tuning:read_tuning",
     "CallableRig": "identify.tuning:CallableRig",
+    "fit_table": "identify.tabular:fit_table",
+    "read_table": "identify.tabular:read_table",
+    "TabularModel": "identify.tabular:TabularModel",
 }
 __all__ = ["__version__", *_LAZY]
 __getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)

@@ -259,6 +259,13 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("manifest_stale_entry", "dropvision/app/campaign.py",
            "if known is None or known[0] != entry:", "if known is None:",
            ("tests/test_campaign.py",), "manifest writer keeps a sequence's first text after it changed"),
+    Mutant("tabular_conformal_alpha", "identify/tabular.py",
+           "    k_lo = math.floor((n + 1) * alpha / 2)\n    k_hi = math.ceil((n + 1) * (1 - alpha / 2))",
+           "    k_lo = math.floor((n + 1) * alpha)\n    k_hi = math.ceil((n + 1) * (1 - alpha))",
+           ("tests/test_tabular.py",), "one-drop interval of a table model at 1 - 2 alpha (each tail alpha, not alpha/2)"),
+    Mutant("tabular_region_low_unchecked", "identify/tabular.py",
+           "for i in np.flatnonzero(X[:, j] < self.low[j]):", "for i in np.flatnonzero(X[:, j] < -np.inf):",
+           ("tests/test_tabular.py",), "an input below its training range is not flagged"),
 )
 
 

@@ -1,7 +1,9 @@
 """`identify` command line: fit, predict, design, paper.
 
     identify fit DATASET --out model.json
+    identify fit TABLE.csv --inputs A,B,... --outputs Y,N --out model.json   (a table: identify.tabular)
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
+    identify predict model.json --table ROWS.csv --out PREDICTIONS.csv       (a table model)
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
     identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
@@ -70,8 +72,11 @@ def _print_summary(summary: dict, header: str) -> None:
 
 def _is_model_file(path) -> bool:
     """True when ``path`` is a model.json written by identify (replacing it loses nothing)."""
+    from identify.app.tabular_cli import is_table_model
     from identify.hybrid import SCHEMA
 
+    if is_table_model(path):
+        return True
     try:
         with open(path, encoding="utf-8") as fh:
             return json.loads(fh.read(1 << 20)).get("schema") == SCHEMA
@@ -80,6 +85,12 @@ def _is_model_file(path) -> bool:
 
 
 def cmd_fit(args) -> int:
+    from pathlib import Path
+
+    if args.inputs is not None or args.outputs is not None or Path(args.dataset).is_file():
+        from identify.app.tabular_cli import cmd_fit_table
+
+        return cmd_fit_table(args)  # a table of settings and end-point measurements
     from identify.dataset_checks import load_dataset
     from identify.hybrid_fit import fit_hybrid
 
@@ -91,7 +102,7 @@ def cmd_fit(args) -> int:
 
         check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
     ds = load_dataset(args.dataset)
-    rep = fit_hybrid(ds, folds=args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
+    rep = fit_hybrid(ds, folds=10 if args.folds is None else args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
                      adjuster_reference=args.adjuster_reference, progress=sys.stderr.isatty())
     m = rep.model
     if rep.arx_selection is not None:
@@ -183,6 +194,13 @@ def _check_finite(summary: dict, path) -> None:
 
 
 def cmd_predict(args) -> int:
+    if args.table is not None:
+        from identify.app.tabular_cli import cmd_predict_table
+
+        return cmd_predict_table(args)
+    if args.u1 is None or args.u2 is None:
+        raise UsageError("the following arguments are required: --u1, --u2 (or --table ROWS.csv --out FILE "
+                         "with a table model)")
     _check_samples(args.samples)
     m = _load_model(args.model)
     want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
@@ -400,11 +418,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
-    f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder")
-    f.add_argument("dataset")
+    f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder, or models of a table's outputs")
+    f.add_argument("dataset", help="a dataset folder, or a .csv/.parquet table (with --inputs/--outputs)")
+    f.add_argument("--inputs", default=None, metavar="A,B,...", help="a table's parameter columns")
+    f.add_argument("--outputs", default=None, metavar="Y,N,...",
+                   help="a table's measured columns (a count such as n_drops: probabilities of each count)")
     f.add_argument("--out", required=True, help="model.json to write (an existing file only if it is a model of ours)")
     f.add_argument("--overwrite", action="store_true", help="replace an existing --out file that is not a model")
-    f.add_argument("--folds", type=int, default=10)
+    f.add_argument("--folds", type=int, default=None, help="cross-validation folds (default 10; a table: 5)")
     f.add_argument("--seed", type=int, default=0)
     f.add_argument("--no-arx", action="store_true", help="skip the ARX structure selection")
     f.add_argument("--ecm-method", default="oe", choices=["oe", "delta"])
@@ -417,8 +438,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     q = sub.add_parser("predict", help="predict drop volume/velocity with uncertainty")
     q.add_argument("model")
-    q.add_argument("--u1", type=_positive("--u1"), required=True, help="stroke velocity (um/ms)")
-    q.add_argument("--u2", type=_positive("--u2"), required=True, help="stroke (um)")
+    q.add_argument("--u1", type=_positive("--u1"), default=None, help="stroke velocity (um/ms)")
+    q.add_argument("--u2", type=_positive("--u2"), default=None, help="stroke (um)")
+    q.add_argument("--table", default=None, metavar="ROWS.csv",
+                   help="a table model: predict every row of this table (its input columns)")
+    q.add_argument("--out", default=None, metavar="FILE", help="with --table: the predictions (.csv or .parquet)")
+    q.add_argument("--overwrite", action="store_true", help="with --table: replace an --out that is not ours")
     q.add_argument("--samples", type=int, default=10_000)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--level", type=_level, default=0.95, help="level of both intervals (default 0.95)")

@@ -1,0 +1,151 @@
+"""`identify fit TABLE --inputs ... --outputs ...` and `identify predict MODEL --table ROWS --out FILE`.
+
+The table mode of the two commands (:mod:`identify.tabular`): a CSV or Parquet table of
+settings and end-point measurements instead of a dataset folder; :mod:`identify.app.cli`
+dispatches here.
+"""
+
+from __future__ import annotations
+
+import io
+import sys
+from pathlib import Path
+
+from dvcore.errors import UsageError
+
+#: Columns every prediction table of ours holds (how an earlier one is recognised, to be replaced).
+_OURS = ("outside_training_region", "outside_training_region_why")
+
+
+def _names(text: str | None, flag: str) -> list[str]:
+    if text is None:
+        raise UsageError(f"a table needs {flag} NAME,NAME,... (its columns)")
+    names = [s.strip() for s in text.split(",")]
+    if not all(names):
+        raise UsageError(f"{flag}: an empty column name in {text!r}")
+    return names
+
+
+def is_table_model(path) -> bool:
+    """True when ``path`` is a model file of :mod:`identify.tabular` (replacing it loses nothing)."""
+    import json
+
+    from identify.tabular import SCHEMA
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096).decode("utf-8", "replace")
+        return f'"schema": "{SCHEMA}"' in head or json.loads(head).get("schema") == SCHEMA
+    except (OSError, ValueError, AttributeError):
+        return False
+
+
+def _is_prediction_table(path) -> bool:
+    """True when ``path`` is a prediction table written by `identify predict --table`."""
+    path = Path(path)
+    try:
+        if path.suffix.lower() == ".csv":
+            with open(path, encoding="utf-8") as fh:
+                header = fh.readline().rstrip("\r\n").split(",")
+        else:
+            import pyarrow.parquet as pq
+
+            header = pq.read_schema(path).names
+        return all(c in header for c in _OURS)
+    except Exception:  # noqa: BLE001 - anything unreadable is not ours
+        return False
+
+
+def cmd_fit_table(args) -> int:
+    """Fit :class:`identify.tabular.TabularModel` on a table and write the model file."""
+    from dvcore.atomic import check_output_file
+    from dvcore.outputs import check_outside_inputs
+    from identify.tabular import fit_table, read_table
+
+    inputs, outputs = _names(args.inputs, "--inputs"), _names(args.outputs, "--outputs")
+    for flag in ("rerun", "rerun_spawn", "rerun_connect"):
+        if getattr(args, flag, None):
+            raise UsageError(f"--{flag.replace('_', '-')} is not available for a table model (yet)")
+    if args.no_arx or args.ecm_method != "oe" or args.adjuster_reference != "ecm":
+        raise UsageError("--no-arx, --ecm-method and --adjuster-reference are hybrid-model options, not a table's")
+    check_outside_inputs([args.dataset], args.out, args.report)
+    check_output_file(args.out, inputs=[args.dataset], overwrite=args.overwrite, is_ours=is_table_model)
+    if args.report is not None:  # refuse a report folder that is not ours before the fit
+        from dvcore.atomic import check_output_dir
+
+        check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
+    table = read_table(args.dataset)
+    folds = 5 if args.folds is None else args.folds
+    m = fit_table(table, inputs, outputs, folds=folds, seed=args.seed, source=str(args.dataset))
+    import pandas as pd
+
+    print(f"{len(table)} rows of {args.dataset}; inputs {', '.join(inputs)}; outputs "
+          + ", ".join(f"{o} ({m.kinds[o]})" for o in outputs))
+    with pd.option_context("display.width", 160, "display.max_columns", 20, "display.float_format", "{:.4g}".format):
+        print(f"\n{folds}-fold cross-validation of the candidates (mean_abs_error: of the fitted scale, "
+              "log for a positive output; brier: of the continuation step)")
+        print(m.cv_table().to_string(index=False))
+    for o, c in m.continuous.items():
+        print(f"{o}: {c.candidate}{' on log ' + o if c.log else ''}, fitted on {c.rows.size} rows; one drop "
+              f"{100 * m.level:g} %: fit + [{c.q_lo:.3g}, {c.q_hi:.3g}] x local scale of the residuals (conformal)")
+    for o, c in m.counts.items():
+        print(f"{o}: counts seen {c.classes} (the largest: that many or more)")
+    r = m.region
+    print("training region: " + ", ".join(f"{n} {lo:g}..{hi:g}" for n, lo, hi in zip(r.inputs, r.low, r.high))
+          + f"; nearest-row distance at most {r.max_gap:.3g} grid steps")
+    for n in m.notes:
+        print(f"note: {n}")
+    m.save(args.out)
+    print(f"wrote {args.out}")
+    if args.report is not None:
+        from identify.app.tabular_report import write_table_report
+
+        print(f"wrote {write_table_report(args.report, m, inputs=[args.dataset, args.out], overwrite=args.overwrite)}")
+    return 0
+
+
+def cmd_predict_table(args) -> int:
+    """Predict every row of ``--table`` and write ``--out`` (CSV or Parquet)."""
+    from dvcore.atomic import check_output_file, write_bytes
+    from dvcore.outputs import check_outside_inputs
+    from identify.tabular import RefitMismatchWarning, TabularModel, read_table
+
+    import warnings
+
+    if args.out is None:
+        raise UsageError("--table needs --out FILE.csv (or .parquet): where the predictions go")
+    out = Path(args.out)
+    if out.suffix.lower() not in (".csv", ".parquet"):
+        raise UsageError(f"{out}: the predictions are written as .csv or .parquet, got {out.suffix or 'no suffix'!r}")
+    if args.u1 is not None or args.u2 is not None:
+        raise UsageError("--u1/--u2 and --table exclude each other (a table model takes its inputs from the table)")
+    check_outside_inputs([args.model, args.table], out)
+    check_output_file(out, inputs=[args.model, args.table], overwrite=args.overwrite, is_ours=_is_prediction_table)
+    table = read_table(args.table)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RefitMismatchWarning)
+        m = TabularModel.from_json(args.model)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    import pandas as pd
+
+    if abs(args.level - m.level) > 1e-12:
+        raise UsageError(f"{args.model}: its intervals are at {100 * m.level:g} % (fixed when fitted), "
+                         f"not --level {args.level:g}")
+    pred = m.predict(table, source=str(args.table))
+    clash = [c for c in pred.columns if c in table.columns]
+    if clash:
+        raise UsageError(f"{args.table}: already has a column {clash[0]!r} of the predictions (a prediction table?)")
+    result = pd.concat([table.reset_index(drop=True), pred.reset_index(drop=True)], axis=1)
+    if out.suffix.lower() == ".csv":
+        write_bytes(out, result.to_csv(index=False).encode("utf-8"))
+    else:
+        buf = io.BytesIO()
+        result.to_parquet(buf, index=False)
+        write_bytes(out, buf.getvalue())
+    n_out = int(pred["outside_training_region"].sum())
+    print(f"wrote {out}: {len(pred)} rows, {n_out} outside the training region")
+    if n_out:
+        print(f"warning: {n_out} row(s) outside the training region (column outside_training_region_why): "
+              "their numbers are unchecked there", file=sys.stderr)
+    return 0
