@@ -329,8 +329,7 @@ def test_ecm_structure_selection_recovers_third_order_two_terms_and_delay(ecm_se
     # one-step prediction feeds noisy outputs back: its error is A(q) v, RMSE = sigma ||a||_2
     pred = evaluate(sel.model, seqs, mode="prediction")["rmse_nl"]
     assert pred == pytest.approx(sigma * np.linalg.norm(sel.model.a), rel=0.05)
-    assert sel.model.is_stable
-    assert elapsed < 20.0  # a few seconds on an idle core; loose bound for a shared machine
+    assert sel.model.is_stable  # (its time is a benchmark's figure, not a unit test's: tools/bench_*)
 
 
 def test_ecm_selection_at_half_percent_noise_stays_at_noise_floor():

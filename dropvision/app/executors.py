@@ -36,27 +36,44 @@ class SerialExecutor(Executor):
         return future
 
 
-def _exit_with_parent(parent_pid: int | None, poll_s: float = 0.25) -> None:
+def _exit_with_parent(parent_pid: int, via_server: bool = False, poll_s: float = 0.25) -> None:
     """Initializer of every pool worker: it dies with the process that started it.
 
     A worker must never outlive a killed campaign (``kill -9`` of the main process leaves the
     pool's workers orphaned, still measuring and writing shards). On Linux the kernel sends
     SIGKILL to the worker when its parent dies (``prctl(PR_SET_PDEATHSIG)``); everywhere a
     daemon watchdog thread also exits the worker as soon as ``os.getppid()`` changes (the
-    worker was re-parented). Dask ``LocalCluster`` workers need neither: their nannies already
-    end them with the client process.
+    worker was re-parented). A worker forked by a fork server (``via_server``) has the server
+    as its parent, and the server lives as long as any of its workers holds the campaign's
+    "alive" pipe: its thread watches the campaign's process ``parent_pid`` itself (gone, or a
+    zombie) and ends the worker, after which the server ends too. Dask ``LocalCluster``
+    workers need neither: their nannies already end them with the client process.
     """
-    if parent_pid is None:  # started by a fork server: it is the parent, and it ends with the campaign
-        parent_pid = os.getppid()
-    die_with_parent(parent_pid)
+    direct = os.getppid() if via_server else parent_pid
+    die_with_parent(direct)
 
     def watch() -> None:
         while True:
             time.sleep(poll_s)
-            if os.getppid() != parent_pid:
+            if os.getppid() != direct or (via_server and not _alive(parent_pid)):
                 os._exit(1)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` runs (exists and is no zombie: a killed process not yet reaped)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # pragma: no cover - another user's process of that number
+        return True
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            return f.read().rsplit(b")", 1)[1].split()[0] not in (b"Z", b"X")
+    except (OSError, IndexError):
+        return True  # no /proc: existence is all we can tell
 
 
 def check_executor_args(workers: int | None = None, *, dask_local: int | None = None,
@@ -123,9 +140,8 @@ def make_executor(
         yield SerialExecutor()
         return
     context = _pool_context()
-    # a worker's parent: this process, or the fork server (which ends when this process does)
-    parent = None if context is not None and context.get_start_method() == "forkserver" else os.getpid()
-    with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(parent,),
+    via_server = context is not None and context.get_start_method() == "forkserver"
+    with ProcessPoolExecutor(max_workers=n, initializer=_exit_with_parent, initargs=(os.getpid(), via_server),
                              mp_context=context) as pool:
         yield pool
 
