@@ -43,8 +43,10 @@ from dropvision.volume import (
     neck_chord_px,
     top_chord_ratio,
     edge_definition_px,
+    interpolation_error_px,
     plane_cut_uncertainty_px3,
     random_volume_uncertainty_px3,
+    tilt_model_uncertainty_px3,
     volume_uncertainty_px3,
 )
 
@@ -245,11 +247,30 @@ def _plane_sigma_px(ctx: FrameContext) -> float:
     return float(np.hypot(ctx.edge_position_sigma_px, nb))
 
 
+def common_edge_sigma_px(ctx: FrameContext) -> float:
+    """The sequence's measured edge-position error common to a body (px): the calibration's terms
+    (background level, clipped background) without its fixed sub-pixel floor, which a volume
+    replaces by the measured sub-pixel error of each edge (`edge_noise_total_px`)."""
+    total = float(ctx.edge_position_sigma_px)
+    floor = float(getattr(ctx, "edge_floor_px", 0.0))
+    return math.sqrt(max(total * total - floor * floor, 0.0))
+
+
+def edge_noise_total_px(ctx: FrameContext) -> float:
+    """Independent error of one edge (px): the noise over the edge's slope (``ctx.edge_noise_px``)
+    and the sub-pixel interpolation's error at the calibrated blur
+    (`dropvision.volume.interpolation_error_px`), in quadrature."""
+    return float(math.hypot(ctx.edge_noise_px, interpolation_error_px(ctx.sigma_px)))
+
+
 def _common_px3(volume: BodyVolume, ctx: FrameContext) -> float:
-    """The edges' common error (px^3): the sequence's edge-position error and the body's own edge
-    definition (`dropvision.volume.edge_definition_px`), with the blur correction's model error."""
+    """The edges' common error (px^3): the sequence's measured edge-position error
+    (`common_edge_sigma_px`) and the body's own edge definition
+    (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
+    slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
     definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), getattr(ctx, "noise_t", 0.0))
-    return volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad, definition_px=definition)
+    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx), ctx.tilt_rad, definition_px=definition)
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -257,7 +278,7 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [_common_px3(volume, ctx), random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
+    parts = [_common_px3(volume, ctx), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.tilt_rad)]
     if plane:
         parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3

@@ -192,8 +192,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         velocity = velocity_se = float("nan")
     if delay_lie:
         velocity = velocity_se = float("nan")
-    total = cal.edge_position_uncertainty_px
-    floor_share = cal.edge_position_terms_px.get("edge floor", 0.0) / total if total > 0 else 0.0
+    floor_share = 0.0  # volumes carry no fixed floor: their sub-pixel error is in each frame's random part
     scatter = frame_scatter_nl(delay, vol_used, attached)
     meniscus_u, grown_u, att_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown,
                                                    floor_share, scatter)
