@@ -170,7 +170,7 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
-                          common_uncertainty_nl=_common_px3(bv, ctx) * ctx.nl_per_px3,
+                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * ctx.nl_per_px3,
                           plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                          ctx.tilt_rad) * ctx.nl_per_px3)
 
@@ -241,10 +241,19 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
                           plane_uncertainty_nl=float(hidden_nl))
 
 
+#: The tip plane is the median of the wall annulus's 50 % crossings, at least two columns a side
+#: (`dropvision.nozzle.find_tip`): of at least 4 edges' independent errors the median keeps at most
+#: ``sqrt(pi / 2) / sqrt(4)`` of one edge's.
+TIP_MEDIAN_FACTOR = math.sqrt(math.pi / 2.0) / 2.0
+
+
 def _plane_sigma_px(ctx: FrameContext) -> float:
-    """How well the tip plane is placed (px): as an edge, or to the walls' blur when they are out of focus."""
+    """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
+    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`), or
+    to the walls' blur when they are out of focus."""
     nb = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) else 0.0
-    return float(np.hypot(ctx.edge_position_sigma_px, nb))
+    return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
+                           + nb * nb))
 
 
 def common_edge_sigma_px(ctx: FrameContext) -> float:
@@ -263,14 +272,14 @@ def edge_noise_total_px(ctx: FrameContext) -> float:
     return float(math.hypot(ctx.edge_noise_px, interpolation_error_px(ctx.sigma_px)))
 
 
-def _common_px3(volume: BodyVolume, ctx: FrameContext) -> float:
+def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> float:
     """The edges' common error (px^3): the sequence's measured edge-position error
     (`common_edge_sigma_px`) and the body's own edge definition
     (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
     slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
     definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), getattr(ctx, "noise_t", 0.0))
     edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx), ctx.tilt_rad, definition_px=definition)
-    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad)))
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -278,7 +287,7 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [_common_px3(volume, ctx), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.tilt_rad)]
+    parts = [_common_px3(volume, ctx, closed=not plane), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.tilt_rad)]
     if plane:
         parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3

@@ -302,7 +302,7 @@ def _interpolation_error_px(sigma_px: float) -> float:
     return float(np.sqrt(np.mean(pos * pos)))
 
 
-def tilt_model_uncertainty_px3(volume: BodyVolume, tilt_rad: float) -> float:
+def tilt_model_uncertainty_px3(volume: BodyVolume, tilt_rad: float, closed: bool = True) -> float:
     """Standard uncertainty (px^3) of the slices' ``cos(tilt)`` factor (`slice_areas_px2`).
 
     The factor is exact for a locally cylindrical body.  For a spheroid of semi-axes ``a`` (along
@@ -313,11 +313,15 @@ def tilt_model_uncertainty_px3(volume: BodyVolume, tilt_rad: float) -> float:
     body).  ``b/a`` is the body's own widest chord over its extent along the rows.  A body lies
     between the cylinder (the measured value) and its spheroid (``D`` away): ``D`` itself is
     taken as the standard uncertainty (a spheroid's error is all of it).  0 on an untilted axis.
+    Liquid cut at the tip plane (``closed`` False) goes on into the nozzle: its extent along the rows
+    is not its length, and it is taken as no flatter than a sphere (``b/a`` at most 1).
     """
     if volume.volume_px3 <= 0 or not np.isfinite(tilt_rad) or tilt_rad == 0.0:
         return 0.0
     length = volume.bottom_row - volume.top_row + 1.0
     aspect = volume.max_chord_px / length if np.isfinite(length) and length > 0 else 1.0
+    if not closed:
+        aspect = min(aspect, 1.0)
     c, s = math.cos(tilt_rad), math.sin(tilt_rad)
     return float(volume.volume_px3 * (math.sqrt(c * c + (aspect * s) ** 2) / c - 1.0))
 
