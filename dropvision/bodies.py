@@ -151,8 +151,11 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     -------
     AttachedLiquid
     """
+    # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
+    halo_px = 3.0 * max(ctx.sigma_px if np.isfinite(ctx.sigma_px) else 0.0, 0.5)
     ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
-                    ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1))
+                    ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1),
+                    bright_row_min=int(math.ceil(ctx.tip_roi + halo_px)) if np.isfinite(ctx.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
     if np.isfinite(getattr(ctx, "face_a", float("nan"))):
         found = hanging_columns(roi, ctx, seg, body, gain)
