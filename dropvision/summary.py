@@ -227,7 +227,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
                                                np.nan),
         "detached_volume_uncertainty_nl": np.where(np.isfinite(drop.detached_volume_nl),
                                                    drop.detached_volume_uncertainty_nl, np.nan),
-        "volume_uncertainty_source": [cal.volume_uncertainty_source] * m,
+        "volume_uncertainty_source": [volume_uncertainty_source(cal)] * m,
     })
     frames = frames[sorted(frames.columns, key=_declared_order)]
     check_frames_table(frames, "the frames table built by dropvision.summary.assemble")
@@ -304,6 +304,14 @@ def frame_scatter_nl(delay, volume_nl, use) -> float:
     v = np.asarray(volume_nl, float)[ok][order]
     d2 = v[1:-1] - 0.5 * (v[:-2] + v[2:])
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))
+
+
+def volume_uncertainty_source(cal) -> str:
+    """The largest measured part of the edge-position error a volume carries
+    (`dropvision.bodies.common_edge_sigma_px`): the calibration's terms less its fixed "edge floor",
+    which only the nozzle's diameter uses ("background level" when no other term is known)."""
+    terms = {k: v for k, v in cal.edge_position_terms_px.items() if k != "edge floor"}
+    return max(terms, key=terms.get) if terms else "background level"
 
 
 def frame_scatter_ratio(delay, volume_nl, random_nl, use) -> float:
