@@ -280,12 +280,23 @@ def edge_noise_total_px(ctx: FrameContext) -> float:
     return float(math.hypot(ctx.edge_noise_px, interpolation_error_px(ctx.sigma_px)))
 
 
+def sample_noise_t(ctx: FrameContext) -> float:
+    """Standard deviation of one pixel's transmission as the edges see it: the frame's noise
+    (``ctx.noise_t``), less where the frame is smoothed before its edges are placed (a Gaussian of
+    ``ctx.smooth_px`` divides white noise by ``2 sqrt(pi) smooth_px``)."""
+    noise = float(getattr(ctx, "noise_t", 0.0))
+    smooth = float(getattr(ctx, "smooth_px", 0.0))
+    if np.isfinite(smooth) and smooth > 0:
+        noise /= max(2.0 * math.sqrt(math.pi) * smooth, 1.0)
+    return noise
+
+
 def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> float:
     """The edges' common error (px^3): the sequence's measured edge-position error
     (`common_edge_sigma_px`) and the body's own edge definition
     (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
     slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
-    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), getattr(ctx, "noise_t", 0.0))
+    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), sample_noise_t(ctx))
     edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx), ctx.tilt_rad, definition_px=definition)
     return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)))
 

@@ -233,8 +233,9 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
       deviations by which the 2nd percentile of noise lies below its mean) claims it as well as
       the calibrated interior median (its bright spot left out);
     - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
-      one edge width out) is not the model's 1 where mist, flare, a diffraction halo or
-      JPEG ringing lie over it.
+      one edge width out: the 10th percentile of its samples plus the 1.28 noise standard
+      deviations by which the 10th percentile of noise lies below its mean) is not the model's 1
+      where mist, flare, a diffraction halo or JPEG ringing lie over it.
 
     Real optics justify any edge level between half-way to the calibrated levels and half-way
     between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
@@ -261,7 +262,7 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
     """
     noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
     dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
-    bright = volume.bright_t if np.isfinite(volume.bright_t) else 1.0
+    bright = volume.bright_t + 1.2816 * noise if np.isfinite(volume.bright_t) else 1.0
     slope = volume.slope_t_per_px
     if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
         return 0.0
