@@ -43,8 +43,10 @@ from dropvision.volume import (
     neck_chord_px,
     top_chord_ratio,
     edge_definition_px,
+    interpolation_error_px,
     plane_cut_uncertainty_px3,
     random_volume_uncertainty_px3,
+    tilt_model_uncertainty_px3,
     volume_uncertainty_px3,
 )
 
@@ -123,8 +125,12 @@ def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
     """Standard uncertainty (px^3) of attached liquid next to an out-of-focus nozzle.
 
     The walls' halo reaches ``3 sigma`` below the tip plane: the liquid's edges there are placed
-    only to about half the walls' blur ``sigma`` (independently from frame to frame), over a band
-    as wide as the top chord ``c``: ``pi c (3 sigma) (sigma / 2)``.
+    only to about half the walls' blur ``sigma``, over a band as wide as the top chord ``c``:
+    ``pi c (3 sigma) (sigma / 2)``.  The halo is the static holder's and the liquid there fills the
+    orifice in every frame: the error is the same from frame to frame, like the tip plane's
+    (`measure_attached` counts it with the plane, which a grown volume cancels; on the synthetic
+    out-of-focus holder the grown volume's median |error| / u went from 0.008 to 0.33 with it,
+    every frame still within 2 u).
     """
     if not (np.isfinite(nozzle_blur_px) and nozzle_blur_px > 0):
         return 0.0
@@ -149,8 +155,11 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     -------
     AttachedLiquid
     """
+    # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
+    halo_px = 3.0 * max(ctx.sigma_px if np.isfinite(ctx.sigma_px) else 0.0, 0.5)
     ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
-                    ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1))
+                    ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1),
+                    bright_row_min=int(math.ceil(ctx.tip_roi + halo_px)) if np.isfinite(ctx.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
     if np.isfinite(getattr(ctx, "face_a", float("nan"))):
         found = hanging_columns(roi, ctx, seg, body, gain)
@@ -168,9 +177,10 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
-                          common_uncertainty_nl=_common_px3(bv, ctx) * ctx.nl_per_px3,
-                          plane_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
-                                                                         ctx.tilt_rad) * ctx.nl_per_px3)
+                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * ctx.nl_per_px3,
+                          plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
+                                                                                         ctx.tilt_rad) * ctx.nl_per_px3,
+                                                              near)))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -239,17 +249,56 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
                           plane_uncertainty_nl=float(hidden_nl))
 
 
+#: The tip plane is the median of the wall annulus's 50 % crossings, at least two columns a side
+#: (`dropvision.nozzle.find_tip`): of at least 4 edges' independent errors the median keeps at most
+#: ``sqrt(pi / 2) / sqrt(4)`` of one edge's.
+TIP_MEDIAN_FACTOR = math.sqrt(math.pi / 2.0) / 2.0
+
+
 def _plane_sigma_px(ctx: FrameContext) -> float:
-    """How well the tip plane is placed (px): as an edge, or to the walls' blur when they are out of focus."""
+    """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
+    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`), or
+    to the walls' blur when they are out of focus."""
     nb = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) else 0.0
-    return float(np.hypot(ctx.edge_position_sigma_px, nb))
+    return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
+                           + nb * nb))
 
 
-def _common_px3(volume: BodyVolume, ctx: FrameContext) -> float:
-    """The edges' common error (px^3): the sequence's edge-position error and the body's own edge
-    definition (`dropvision.volume.edge_definition_px`), with the blur correction's model error."""
-    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), getattr(ctx, "noise_t", 0.0))
-    return volume_uncertainty_px3(volume, ctx.edge_position_sigma_px, ctx.tilt_rad, definition_px=definition)
+def common_edge_sigma_px(ctx: FrameContext) -> float:
+    """The sequence's measured edge-position error common to a body (px): the calibration's terms
+    (background level, clipped background) without its fixed sub-pixel floor, which a volume
+    replaces by the measured sub-pixel error of each edge (`edge_noise_total_px`)."""
+    total = float(ctx.edge_position_sigma_px)
+    floor = float(getattr(ctx, "edge_floor_px", 0.0))
+    return math.sqrt(max(total * total - floor * floor, 0.0))
+
+
+def edge_noise_total_px(ctx: FrameContext) -> float:
+    """Independent error of one edge (px): the noise over the edge's slope (``ctx.edge_noise_px``)
+    and the sub-pixel interpolation's error at the calibrated blur
+    (`dropvision.volume.interpolation_error_px`), in quadrature."""
+    return float(math.hypot(ctx.edge_noise_px, interpolation_error_px(ctx.sigma_px)))
+
+
+def sample_noise_t(ctx: FrameContext) -> float:
+    """Standard deviation of one pixel's transmission as the edges see it: the frame's noise
+    (``ctx.noise_t``), less where the frame is smoothed before its edges are placed (a Gaussian of
+    ``ctx.smooth_px`` divides white noise by ``2 sqrt(pi) smooth_px``)."""
+    noise = float(getattr(ctx, "noise_t", 0.0))
+    smooth = float(getattr(ctx, "smooth_px", 0.0))
+    if np.isfinite(smooth) and smooth > 0:
+        noise /= max(2.0 * math.sqrt(math.pi) * smooth, 1.0)
+    return noise
+
+
+def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> float:
+    """The edges' common error (px^3): the sequence's measured edge-position error
+    (`common_edge_sigma_px`) and the body's own edge definition
+    (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
+    slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
+    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), sample_noise_t(ctx))
+    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx), ctx.tilt_rad, definition_px=definition)
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -257,7 +306,7 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [_common_px3(volume, ctx), random_volume_uncertainty_px3(volume, ctx.edge_noise_px, ctx.tilt_rad)]
+    parts = [_common_px3(volume, ctx, closed=not plane), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.tilt_rad)]
     if plane:
         parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
     return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3

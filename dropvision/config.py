@@ -82,7 +82,11 @@ class MeasureConfig:
         a sub-pixel edge-position floor).
     edge_position_floor_px : float
         Systematic uncertainty of one sub-pixel wall edge (px) added in quadrature to the fit
-        scatter (threshold and blur model; synthetic sequences show < 0.05 px).
+        scatter of the nozzle's outer diameter (threshold and blur model; synthetic sequences show
+        < 0.05 px).  Volumes do not use it: their edges' errors are measured terms
+        (`dropvision.bodies.common_edge_sigma_px`, `dropvision.bodies.edge_noise_total_px`, the
+        tip plane's `dropvision.bodies._plane_sigma_px`); at 0.05 px it made the main drop's stated
+        uncertainty 5-20x its true error on synthetic frames.
     min_pinchoff_frames : int
         Fewer measured frames never define a pinch-off.
     max_jetting_velocity_m_s, min_jetting_velocity_m_s : float

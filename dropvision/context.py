@@ -67,6 +67,9 @@ class FrameContext:
     # standard uncertainty of an edge position common to a body (px)
     edge_position_sigma_px: float = 0.05
     edge_noise_px: float = 0.0  # independent noise of one edge (px): noise / edge slope
+    # the fixed sub-pixel floor within edge_position_sigma_px (`MeasureConfig.edge_position_floor_px`):
+    # the nozzle's diameter keeps it; a body's volume uses measured terms instead (`dropvision.bodies`)
+    edge_floor_px: float = 0.0
     nozzle_blur_px: float = 0.0  # the walls' own blur (px) when they are out of focus, else 0
     # Gaussian smoothing of noisy frames before segmentation (px; 0 = none)
     smooth_px: float = 0.0
@@ -134,7 +137,7 @@ class FrameContext:
             sample_rows=sample_rows, sample_cols=sample_cols, min_area_px=config.min_body_area_px,
             gain_tolerance=config.gain_tolerance, saturation_limit=config.saturation_limit,
             mist_blur_factor=config.mist_blur_factor, mist_blur_offset_px=config.mist_blur_offset_px,
-            compact_ratio=config.compact_ratio,
+            compact_ratio=config.compact_ratio, edge_floor_px=config.edge_position_floor_px,
         )
 
     @property

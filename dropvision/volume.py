@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -232,8 +233,9 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
       deviations by which the 2nd percentile of noise lies below its mean) claims it as well as
       the calibrated interior median (its bright spot left out);
     - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
-      one edge width out) is not the model's 1 where mist, flare, a diffraction halo or
-      JPEG ringing lie over it.
+      one edge width out: the 10th percentile of its samples plus the 1.28 noise standard
+      deviations by which the 10th percentile of noise lies below its mean) is not the model's 1
+      where mist, flare, a diffraction halo or JPEG ringing lie over it.
 
     Real optics justify any edge level between half-way to the calibrated levels and half-way
     between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
@@ -260,12 +262,69 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
     """
     noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
     dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
-    bright = volume.bright_t if np.isfinite(volume.bright_t) else 1.0
+    bright = volume.bright_t + 1.2816 * noise if np.isfinite(volume.bright_t) else 1.0
     slope = volume.slope_t_per_px
     if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
         return 0.0
     band_t = abs(0.5 * (bright + dark) - 0.5 * (1.0 + float(liquid_level)))
     return float(band_t / slope / math.sqrt(3.0))
+
+
+def interpolation_error_px(sigma_px: float) -> float:
+    """Standard deviation (px) of a sub-pixel edge placed by linear interpolation between two samples.
+
+    A pixel integrates the light over its square and the optics blur the silhouette by a Gaussian
+    of ``sigma_px``: across an edge, the samples follow that box-and-Gaussian profile, not the
+    straight line `dropvision.edges.crossing_fraction` draws between two of them.  Where the 50 %
+    crossing lands depends on where the edge lies between the pixel centres (its phase): zero at a
+    centre and half-way between (by symmetry), most at a quarter pixel.  Along a curved outline the
+    phase changes from row to row, so the error is independent from edge to edge: this is its RMS
+    over a uniform phase (computed here from the profile; 0 for a sharp edge, whose box-integrated
+    profile is straight; 0.010 px at ``sigma`` 1 px, 0.03 px at 0.5 px).
+    """
+    s = float(sigma_px) if np.isfinite(sigma_px) else 0.0
+    return _interpolation_error_px(round(max(s, 0.0), 2))
+
+
+@lru_cache(maxsize=256)
+def _interpolation_error_px(sigma_px: float) -> float:
+    if sigma_px < 0.02:
+        return 0.0
+    from scipy.special import erf
+
+    phase = (np.arange(64) + 0.5) / 64  # the edge's place past a sample (px)
+    x = np.arange(-12, 13)[None, :] - phase[:, None]
+    sub = (np.arange(16) + 0.5) / 16 - 0.5  # the pixel's square
+    t = 0.5 * (1.0 + erf((x[..., None] + sub) / (math.sqrt(2.0) * sigma_px))).mean(axis=-1)
+    i = np.argmax(t >= 0.5, axis=1)
+    k = np.arange(phase.size)
+    t0, t1 = t[k, i - 1], t[k, i]
+    pos = x[k, i - 1] + (0.5 - t0) / (t1 - t0)
+    return float(np.sqrt(np.mean(pos * pos)))
+
+
+def tilt_model_uncertainty_px3(volume: BodyVolume, tilt_rad: float, closed: bool = True) -> float:
+    """Standard uncertainty (px^3) of the slices' ``cos(tilt)`` factor (`slice_areas_px2`).
+
+    The factor is exact for a locally cylindrical body.  For a spheroid of semi-axes ``a`` (along
+    its axis) and ``b`` (across) whose axis is tilted by ``t`` in the image plane, every
+    horizontal slice is an ellipse whose depth over its chord is ``sqrt(cos^2 t + (b/a)^2 sin^2 t)``,
+    not ``cos t``: the measured volume is too small by ``D = V (sqrt(cos^2 t + (b/a)^2 sin^2 t) /
+    cos t - 1)`` (``1 - cos t`` for a sphere; more for an oblate, oscillating drop; 0 for a long
+    body).  ``b/a`` is the body's own widest chord over its extent along the rows.  A body lies
+    between the cylinder (the measured value) and its spheroid (``D`` away): ``D`` itself is
+    taken as the standard uncertainty (a spheroid's error is all of it).  0 on an untilted axis.
+    Liquid cut at the tip plane (``closed`` False) goes on into the nozzle: its extent along the rows
+    is not its length, and it is taken as no flatter than a sphere (``b/a`` at most 1).
+    """
+    if volume.volume_px3 <= 0 or not np.isfinite(tilt_rad) or tilt_rad == 0.0:
+        return 0.0
+    length = volume.bottom_row - volume.top_row + 1.0
+    aspect = volume.max_chord_px / length if np.isfinite(length) and length > 0 else 1.0
+    if not closed:
+        aspect = min(aspect, 1.0)
+    c, s = math.cos(tilt_rad), math.sin(tilt_rad)
+    return float(volume.volume_px3 * (math.sqrt(c * c + (aspect * s) ** 2) / c - 1.0))
 
 
 def random_volume_uncertainty_px3(volume: BodyVolume, edge_noise_px: float, tilt_rad: float = 0.0) -> float:

@@ -120,8 +120,8 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
     F("grown_volume_uncertainty_nl", "float", "nl", "standard uncertainty of grown_volume_nl"),
     F("drop_volume_uncertainty_nl", "float", "nl", "standard uncertainty of drop_volume_nl"),
     F("detached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of detached_volume_nl"),
-    F("volume_uncertainty_source", "str", "", "what dominates the volume uncertainties: edge floor, background "
-      "level, clipped background, blur correction", nullable=False),
+    F("volume_uncertainty_source", "str", "", "what dominates the edge-position error common to the sequence's "
+      "volumes: background level, clipped background", nullable=False),
 ), "One row per frame, in delay order (repeats kept).")
 
 #: Classes of the bodies table (`dropvision.classify`), in the order the rules are tried.

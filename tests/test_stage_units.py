@@ -22,7 +22,7 @@ from dropvision.bodies import DetachedBody, measure_attached, off_path_reason
 from dropvision.blur import esf_sigma_px
 from dropvision.calibration_pass import attached_half_width_px
 from dropvision.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
-from dropvision.summary import frame_scatter_nl, grown_uncertainty
+from dropvision.summary import frame_scatter_nl, frame_scatter_ratio, grown_uncertainty
 from test_measure_draw import cylinder, render
 
 
@@ -315,6 +315,30 @@ def test_frame_scatter_of_gaussian_noise_and_of_a_smooth_trend():
     use[4] = False
     assert frame_scatter_nl(np.arange(10.0), spoilt, use) == pytest.approx(0.0, abs=1e-12)
     assert frame_scatter_nl(np.arange(4.0), np.array([0.0, 1.0, 0.0, 1.0]), np.ones(4, bool)) == 0.0
+
+
+def test_frame_scatter_ratio_is_the_noise_over_its_model():
+    """Volumes whose random error grows 10x along the sequence (a meniscus, then a large drop): the
+    ratio of their scatter to the modelled random parts is 1 where the model holds and k where the
+    noise is k times the model, whatever each frame's size (an absolute scatter in nl would be the
+    large frames')."""
+    rng = np.random.default_rng(11)
+    delay = np.arange(600.0)
+    model = np.linspace(0.002, 0.02, delay.size)
+    use = np.ones(delay.size, bool)
+    for k in (1.0, 3.0):
+        v = 1.0 + 0.003 * delay + rng.normal(0.0, k * model)
+        assert frame_scatter_ratio(delay, v, model, use) == pytest.approx(k, rel=0.1)
+    # no positive modelled part, or fewer than 5 frames: 0 (nothing to scale)
+    assert frame_scatter_ratio(delay, v, np.zeros(delay.size), use) == 0.0
+    assert frame_scatter_ratio(delay[:4], v[:4], model[:4], use[:4]) == 0.0
+    # grown_uncertainty scales each frame's random part by it (never below the model)
+    d, att = np.array([0.0, 0.0, 10.0]), np.array([1.0, 1.0, 2.0])
+    u, c, p = np.array([0.05, 0.05, 0.06]), np.array([0.03, 0.03, 0.04]), np.array([0.02, 0.02, 0.02])
+    _, _, ua = grown_uncertainty(d, att, u, c, p, np.array([0.0, 0.0, 1.0]), scatter_ratio=2.0)
+    assert ua == pytest.approx(np.sqrt(c**2 + p**2 + 4.0 * (u**2 - c**2 - p**2)))
+    _, _, ua1 = grown_uncertainty(d, att, u, c, p, np.array([0.0, 0.0, 1.0]), scatter_ratio=0.5)
+    assert ua1 == pytest.approx(u)
 
 
 def test_grown_uncertainty_hand_values():
