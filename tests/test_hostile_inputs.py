@@ -314,13 +314,19 @@ def test_png_of_many_empty_chunks_is_refused_quickly(tmp_path, monkeypatch):
 
 # --- 5. truncated multi-page TIFF ---------------------------------------------------------
 
-def _stack(seq, tmp_path, with_frames_list):
+def _stack_file(seq, tmp_path):
+    """The sequence's frames as one multi-page TIFF ``stack/s.tif``: (folder, its doc, delays)."""
     folder = tmp_path / "stack"
     folder.mkdir()
     doc = _doc(seq)
     pages = [cv2.imread(str(seq / e["file"]), cv2.IMREAD_UNCHANGED) for e in doc["frames"]]
     delays = [e["delay_us"] for e in doc["frames"]]
     write_multipage_tiff(folder / "s.tif", pages, delays)
+    return folder, doc, delays
+
+
+def _stack(seq, tmp_path, with_frames_list):
+    folder, doc, delays = _stack_file(seq, tmp_path)
     with tifffile.TiffFile(folder / "s.tif") as tif:
         cut = tif.pages[15].dataoffsets[0] + 100  # inside page 15's data
     data = (folder / "s.tif").read_bytes()
@@ -330,7 +336,7 @@ def _stack(seq, tmp_path, with_frames_list):
     else:
         del doc["frames"]
     _write_doc(folder, doc)
-    return folder, len(pages)
+    return folder, len(delays)
 
 
 def test_truncated_multipage_tiff_listed_pages_skipped_and_reported(seq, tmp_path, capsys):
@@ -458,12 +464,7 @@ def test_fifo_among_frames_is_named_for_what_it_is(seq, tmp_path, capsys):
 
 
 def test_cyclic_tiff_page_chain_is_reported_without_raw_tifffile_lines(seq, tmp_path, capsys):
-    folder = tmp_path / "stack"
-    folder.mkdir()
-    doc = _doc(seq)
-    pages = [cv2.imread(str(seq / e["file"]), cv2.IMREAD_UNCHANGED) for e in doc["frames"]]
-    delays = [e["delay_us"] for e in doc["frames"]]
-    write_multipage_tiff(folder / "s.tif", pages, delays)
+    folder, doc, delays = _stack_file(seq, tmp_path)
     with tifffile.TiffFile(folder / "s.tif") as tif:
         offsets, head = [p.offset for p in tif.pages], tif.tiff
     data = bytearray((folder / "s.tif").read_bytes())
