@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 import dropvision.quality as q
+import dvcore.process as _process
 from dropvision.bodies import (
     DetachedBody,
     body_volume_uncertainty_nl,
@@ -441,7 +442,7 @@ class WorkerProcessStalled(WorkerProcessDied):
 #: uses CPU even on a loaded machine; one blocked on a lock uses none. The environment variable
 #: :data:`STALL_ENV` sets another value.
 STALL_S = 10.0
-STALL_ENV = "DROPVISION_WORKER_STALL_S"  # = dvcore.process.STALL_ENV
+STALL_ENV = _process.STALL_ENV
 
 
 class _Watchdog:
@@ -460,9 +461,7 @@ class _Watchdog:
 
 
 def _stall_s() -> float:
-    from dvcore.process import stall_s
-
-    return stall_s(STALL_S)
+    return _process.stall_s(STALL_S)
 
 
 def _progress_bar(n: int, progress: bool):

@@ -20,6 +20,7 @@ the command line is `dropvision.app.measure_cli`.
 
 from __future__ import annotations
 
+import contextlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -120,17 +121,14 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     inputs = [] if isinstance(seq, ArraySequence) else [seq.meta.path]  # in memory: no folder
     if out_dir is None:
         return _measure(seq, None, inputs, config, progress, logger, csv, overwrite)
-    try:  # before any work: the output may destroy nothing, and no other run writes it
-        check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
-        lock = output_lock(out_dir)
-        lock.__enter__()
-    except BaseException:
-        seq.close()
-        raise
-    try:
+    with contextlib.ExitStack() as held:
+        try:  # before any work: the output may destroy nothing, and no other run writes it
+            check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
+            held.enter_context(output_lock(out_dir))
+        except BaseException:
+            seq.close()
+            raise
         return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite)
-    finally:
-        lock.__exit__(None, None, None)
 
 
 def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,

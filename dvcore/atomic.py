@@ -198,6 +198,25 @@ def check_not_input(out, inputs: Iterable = ()) -> None:
             raise OutputError(f"{out}: the output folder contains the input {inp}; choose a folder outside it")
 
 
+def check_outside_inputs(inputs: Iterable, *outputs) -> None:
+    """Refuse any of ``outputs`` (paths; None: not written) that equals, lies inside or contains
+    one of ``inputs`` (files or folders; links resolved), whatever ``--overwrite`` says: the one
+    check every command runs, before any work, on each output it will write (a model file, a
+    report or dataset folder, a Rerun recording). Writing a model over ``DATASET/summary.parquet``
+    would destroy the data; a file added inside a sequence folder changes its input hash and
+    with it a campaign's resume.
+
+    Raises
+    ------
+    OutputError
+        One line naming the output and the input (:func:`check_not_input`).
+    """
+    inputs = [p for p in inputs if p is not None]
+    for out in outputs:
+        if out is not None:
+            check_not_input(out, inputs)
+
+
 def _read_marker(folder: Path) -> dict | None:
     try:
         doc = loads_strict((folder / MARKER).read_text(encoding="utf-8"))

@@ -58,9 +58,10 @@ from dropvision.sequence import check_overrides, open_sequence
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
-from dvcore.atomic import atomic_dir, claim_dir, output_lock, remove_leftovers, to_json, write_bytes
+from dvcore.atomic import (
+    atomic_dir, check_outside_inputs, claim_dir, output_lock, remove_leftovers, to_json, write_bytes,
+)
 from dvcore.jsonio import load_json_hardened
-from dvcore.outputs import check_outside_inputs
 from dvcore.versions import software_versions
 
 MANIFEST_SCHEMA = schema.MANIFEST.schema

@@ -24,7 +24,7 @@ from dvcore import schema
 from dvcore.errors import UsageError, run_command
 from dvcore.rerun_options import add_rerun_args
 from dvcore.atomic import OutputError, check_output_file
-from dvcore.outputs import check_outside_inputs
+from dvcore.atomic import check_outside_inputs
 
 OUTPUT_UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_volume_nl": "nl",
                 "jetting_velocity_m_s": "m/s"}

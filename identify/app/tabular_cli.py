@@ -59,7 +59,7 @@ def _is_prediction_table(path) -> bool:
 def cmd_fit_table(args) -> int:
     """Fit :class:`identify.tabular.TabularModel` on a table and write the model file."""
     from dvcore.atomic import check_output_file
-    from dvcore.outputs import check_outside_inputs
+    from dvcore.atomic import check_outside_inputs
     from identify.tabular import fit_table, read_table
 
     inputs, outputs = _names(args.inputs, "--inputs"), _names(args.outputs, "--outputs")
@@ -107,7 +107,7 @@ def cmd_fit_table(args) -> int:
 def cmd_predict_table(args) -> int:
     """Predict every row of ``--table`` and write ``--out`` (CSV or Parquet)."""
     from dvcore.atomic import check_output_file, write_bytes
-    from dvcore.outputs import check_outside_inputs
+    from dvcore.atomic import check_outside_inputs
     from identify.tabular import RefitMismatchWarning, TabularModel, read_table
 
     import warnings
