@@ -382,7 +382,8 @@ def _give_warnings(seq, caught) -> None:
         warnings.warn(message, category, stacklevel=3)
 
 
-def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
+def processes_usable(n_frames: int, workers: int, logger=None, *,
+                     min_frames: int = MIN_FRAMES_FOR_PROCESSES) -> bool:
     """Whether `stream_frames` measures in forked processes: on Linux, with at least two workers
     and :data:`MIN_FRAMES_FOR_PROCESSES` frames, no Rerun logger (it lives in this process), only
     from a top-level process (not inside a pool's or a campaign's worker: no nested pools), unless
@@ -394,14 +395,16 @@ def processes_usable(n_frames: int, workers: int, logger=None) -> bool:
     the calibration had used OpenCV's pool). With one thread there is no such lock; the command
     line keeps it so (OpenBLAS on one thread, OpenCV's pool never started: :func:`serial_native_pools`).
     The per-frame work holds the GIL for much of its time, so two threads measure hardly faster
-    than one; two processes nearly twice as fast."""
+    than one; two processes nearly twice as fast. ``min_frames``: another least count, for work
+    whose items cost more than a frame (a shot of `dropvision.shots`: its own decoding and
+    assembly)."""
     import multiprocessing
     import os
     import threading
 
     from dvcore.process import os_thread_count
 
-    return (sys.platform == "linux" and workers >= 2 and n_frames >= MIN_FRAMES_FOR_PROCESSES
+    return (sys.platform == "linux" and workers >= 2 and n_frames >= min_frames
             and logger is None and not os.environ.get(NO_FORK_ENV)
             and multiprocessing.parent_process() is None and threading.active_count() == 1
             and os_thread_count() == 1)

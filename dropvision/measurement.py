@@ -147,13 +147,8 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
             records, cal, sigma, ctx = _measure_frames(seq, config, logger, progress, errors, decoded)
     finally:
         seq.close()
-    frames, summary = assemble(records, cal, sigma, meta, config, errors)
-    summary.update(source_keys(meta))
-    summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
-    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
-    summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
-    summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source
-    result = MeasureResult(frames, summary, bodies)
+    result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
+    frames, summary = result.frames, result.summary
     if logger is not None:
         logger.log_table(frames)
         logger.log_summary(summary)
@@ -168,18 +163,10 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
     sigma, frame context); unreadable frames go to ``errors``."""
     meta = seq.meta
     cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
-    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
-        # the scale would come from walls that are out of focus: a blurred holder's width, not the nozzle's
-        raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
-                            f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
-                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
+    check_scale_in_focus(cal, meta)
     if logger is not None:
         logger.log_calibration(cal, shape=cal.shape)
-    seq_flags = []
-    if np.isfinite(sigma) and sigma > config.max_blur_px:
-        seq_flags.append(q.BLURRED)
-    if 1.0 - cal.liquid_level < config.min_contrast:
-        seq_flags.append(q.LOW_CONTRAST)
+    seq_flags = calibration_flags(cal, sigma, config)
     records: list[FrameRecord] = []
     for rec in stream_frames(seq, range(len(seq)), ctx, max(1, config.workers), logger, progress, decoded):
         if rec.error is not None:
@@ -188,3 +175,36 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
         rec.flags = seq_flags + rec.flags
         records.append(rec)
     return records, cal, sigma, ctx
+
+
+def check_scale_in_focus(cal, meta) -> None:
+    """Refuse a pixel size taken from the nozzle's outer width when the calibration found its walls
+    out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.sequence.SequenceError`."""
+    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
+        raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
+                            f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
+                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
+
+
+def calibration_flags(cal, sigma_px: float, config: MeasureConfig) -> list[str]:
+    """Quality codes every frame of a calibration gets: blurred beyond ``config.max_blur_px``, the
+    liquid's contrast below ``config.min_contrast``."""
+    flags = []
+    if np.isfinite(sigma_px) and sigma_px > config.max_blur_px:
+        flags.append(q.BLURRED)
+    if 1.0 - cal.liquid_level < config.min_contrast:
+        flags.append(q.LOW_CONTRAST)
+    return flags
+
+
+def result_from_records(records: list[FrameRecord], cal, sigma_px: float, ctx, meta, config: MeasureConfig,
+                        errors: list) -> MeasureResult:
+    """The frames table, bodies table and summary of measured records (`dropvision.summary.assemble`,
+    the sources of ``meta``, the blur reference of ``ctx``): what `measure_sequence` returns."""
+    frames, summary = assemble(records, cal, sigma_px, meta, config, errors)
+    summary.update(source_keys(meta))
+    summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
+    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
+    summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
+    summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source
+    return MeasureResult(frames, summary, bodies)

@@ -6,9 +6,11 @@ a folder with no frames list nor frame rate (sequence.json or options), of two o
 images none of which tells a delay, is a folder of shots; several image files are too. Anything else
 is a sequence (`dropvision.measurement.measure_sequence`, unchanged).
 
-`measure_shots` measures each image alone, exactly as a folder holding only that image is measured
-(`dropvision.sequence.open_sequence` with ``only_files``, then `measure_sequence`: its own
-calibration, orientation, single frame), and writes
+`measure_shots` measures the shots of one rig with the calibration they share (`dropvision.shot_rig`:
+background, holder's place and orientation, blur reference, pixel size computed once from up to
+``calibration_frames`` shots; the shots in forked worker processes); a shot that disagrees with it
+(another camera position or light) is measured alone, exactly as a folder holding only that image
+(`dropvision.sequence.open_sequence` with ``only_files``, then `measure_sequence`), with a note. It writes
 
 - ``frames.parquet`` / ``bodies.parquet``: the per-frame tables of every shot (``file`` tells them apart);
 - ``shots.parquet`` (`dvcore.schema.SHOTS`): one row per image, its labels as numbers
@@ -311,8 +313,9 @@ def _extreme(values, fn) -> float | None:
 
 def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                   option_labels: dict | None = None, label_pattern: str | None = None, csv: bool = False,
-                  overwrite: bool = False) -> ShotsResult:
-    """Measure a folder of shots (or image files), each image alone.
+                  overwrite: bool = False, shared_calibration: bool = True,
+                  workers: int | None = None) -> ShotsResult:
+    """Measure a folder of shots (or image files) with the calibration they share.
 
     Parameters
     ----------
@@ -331,6 +334,13 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         Also write frames.csv.
     overwrite : bool
         Write into an existing ``out_dir`` that holds files we did not write.
+    shared_calibration : bool
+        Shots of one rig share one calibration (`dropvision.shot_rig`): a shot that disagrees with
+        it is measured alone, with a note. False: every shot alone, as a folder holding only that
+        image is measured.
+    workers : int, optional
+        Forked processes measuring the shots (``config.workers`` by default; 1: this process);
+        the rows are the same either way.
 
     Returns
     -------
@@ -345,8 +355,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     """
     import pandas as pd
 
-    from dropvision.measurement import measure_sequence
-    from dropvision.sequence import open_sequence
+    from dropvision.shot_rig import measure_each
     from dropvision.summary import check_frames_table
 
     shots = paths if isinstance(paths, ShotInput) else find_shots(paths, overrides=overrides,
@@ -357,14 +366,15 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
     frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
-    for path, name in zip(shots.paths, shots.names):
-        try:
-            seq = open_sequence(path.parent, overrides=overrides, labels=option_labels, only_files=[path.name])
-            res = measure_sequence(seq, None, config)
-        except SequenceError as exc:
-            errors.append({"file": name, "reason": str(exc)})
-            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": str(exc)})
+    outcomes, rig, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
+                                         shared=shared_calibration, workers=workers)
+    for out in outcomes:
+        name = out.name
+        if out.error is not None:
+            errors.append({"file": name, "reason": out.error})
+            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": out.error})
             continue
+        res = out.result
         s = res.summary
         if len(res.frames) != 1:
             reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
@@ -379,7 +389,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
                          **{k: s.get(k) for k in ("orientation", "orientation_source", "pixel_size_source",
                                                   "nozzle_outer_diameter_source", "nozzle_inner_diameter_source",
                                                   "delay_source", "waveform_source", "bit_depth_source")},
-                         "notes": list(s.get("notes") or []) + list(cal.get("notes") or []),
+                         "shared_calibration": out.shared,
+                         "notes": list(s.get("notes") or []) + list(cal.get("notes") or [])
+                         + ([out.note] if out.note else []),
                          "calibration": cal})
         measured.append(name)
     if not measured:
@@ -413,6 +425,8 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         "errors": errors,
         "notes": common,
         "shots": per_shot,
+        "shared_calibration": (rig.to_dict() if rig is not None
+                               else {"reference": None, "calibrated_from": [], "left_out": [], "reason": no_rig}),
         "software": software_versions(),
         "config": asdict(config),
     }

@@ -267,7 +267,12 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
     F("errors", "list", "", "images that could not be measured: file, reason"),
     F("notes", "list", "", "notes common to every shot (the others are in the shots' notes column)"),
     F("shots", "list", "", "per image: file, its labels, then orientation, the *_source keys of a sequence's "
-      "summary.json, notes and calibration, or error (why it could not be measured)"),
+      "summary.json, shared_calibration (true: measured with the calibration the shots share), notes and "
+      "calibration, or error (why it could not be measured)"),
+    F("shared_calibration", "object", "", "the calibration the shots of one rig share (dropvision.shot_rig): "
+      "reference (the shot the others are checked against), calibrated_from (the shots it comes from), left_out "
+      "(calibration shots that disagree: file, reason); reference null and a reason where every shot was "
+      "calibrated alone"),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
 ), "summary.json of a shot folder (`dropvision measure` over images with no delay to tell).")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import platform
 from importlib import metadata
 
@@ -11,6 +12,12 @@ _PACKAGES = ("dropvision", "numpy", "scipy", "pandas", "pyarrow", "opencv-python
 
 def software_versions() -> dict[str, str]:
     """Versions of Python and of the packages a result depends on ("missing" if absent)."""
+    return dict(_versions())
+
+
+@functools.lru_cache(maxsize=1)
+def _versions() -> dict[str, str]:
+    """Read once per process (some 30 ms: a folder of shots writes them once per shot)."""
     out = {"python": platform.python_version()}
     for name in _PACKAGES:
         try:

@@ -1,0 +1,487 @@
+"""Shots of one rig: one calibration for all of them, the shots measured in parallel (issue 30 item 4).
+
+A drop watcher's shots differ by their waveform; what does not change between them -- the background
+(illumination), the holder's place and orientation, the blur reference, the pixel size -- is computed
+once (`calibrate_rig`) and every shot is measured with it (`measure_each`), in forked worker
+processes where `dropvision.frame.processes_usable` allows it (the fork-safety rules of issue 29:
+this process runs one thread when it forks, OpenCV's pool is never started before,
+`dropvision.frame.serial_native_pools`; every wait on a worker is bounded by the watchdog).
+
+Robustness: the calibration shots (up to ``config.calibration_frames``, spread over the folder, the
+first included) are compared with each other by their fingerprint (`fingerprint`: the frame reduced
+to some 512 px, over its bright level): the shift of the static scene (the outlines of the dark
+bodies touching the frame's edge: holder, nozzle) and the change of the background's shape beyond a
+gain (`scene_distance`, `disagreement`). The shot agreeing with most others (the
+medoid) is the reference; the calibration shots that disagree with it are left out, so that one odd
+shot does not spoil the shared calibration. Every shot is checked against the reference before it is
+measured with the shared calibration; one that disagrees (another camera position, another
+illumination, another size) is measured alone, as a folder holding only that image is, with a note.
+Fewer than two calibration shots agreeing: no shared calibration, every shot alone (as before).
+
+What differs from a shot measured alone: the background is estimated from the calibration shots
+together (with three or more, static dust is folded into it), the liquid's level and the blur
+reference are the calibration shots' (the sharpest body of all), the orientation the reference
+shot's; hence volumes within a fraction of their uncertainty of the solo ones (tools/bench_shots.py
+prints the table).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import os
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from dropvision.config import MeasureConfig
+from dropvision.sequence_meta import FrameRef, SequenceError
+
+__all__ = ["Fingerprint", "RigCalibration", "ShotOutcome", "calibrate_rig", "disagreement", "fingerprint",
+           "measure_each"]
+
+#: Longest side (px) of the reduced frame a fingerprint is taken on.
+FINGERPRINT_SIDE_PX = 512
+#: Largest shift (px, full frame) of a shot's scene against the reference's for the shared
+#: calibration to hold for it (the holder's place, the tip plane, the axis move with the camera).
+MAX_SHIFT_PX = 2.0
+#: Largest change of the background's shape beyond a gain (the ratio of the two frames over their
+#: bright pixels, block by block, off its median: `scene_distance`) for the shared calibration to hold.
+MAX_BACKGROUND_CHANGE = 0.05
+#: Fewest shots measured in forked processes (a shot costs a decoding and an assembly, ~50-100 ms
+#: for a 2048 x 1536 JPEG: far more than a fork).
+MIN_SHOTS_FOR_PROCESSES = 4
+
+
+@dataclass(frozen=True)
+class Fingerprint:
+    """A frame reduced to some `FINGERPRINT_SIDE_PX` px (area mean) over its bright level
+    (95th percentile); ``scale`` full-frame px per reduced px, ``shape`` the full frame's."""
+
+    image: np.ndarray
+    scale: float
+    shape: tuple[int, int]
+
+
+def fingerprint(image: np.ndarray) -> Fingerprint:
+    """The `Fingerprint` of a frame (grey levels, any orientation: compare like with like)."""
+    import cv2
+
+    img = np.asarray(image, np.float32)
+    h, w = img.shape[:2]
+    f = max(1, int(math.ceil(max(h, w) / FINGERPRINT_SIDE_PX)))
+    small = cv2.resize(img, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else img
+    level = float(np.percentile(small, 95))
+    return Fingerprint((small / max(level, 1e-6)).astype(np.float32), float(f), (int(h), int(w)))
+
+
+def _static_edges(image: np.ndarray) -> np.ndarray:
+    """Edge strength of a fingerprint along its static scene only: the outlines of the dark bodies
+    (below half the bright level) that touch the frame's edge -- the holder, the nozzle, a vignetted
+    corner -- within `_BAND` px; detached drops, which differ from shot to shot, do not count."""
+    import cv2
+
+    mask = (image < 0.5).astype(np.uint8)
+    _, lab = cv2.connectedComponents(mask, connectivity=8)
+    edge = np.unique(np.concatenate([lab[0], lab[-1], lab[:, 0], lab[:, -1]]))
+    touching = np.isin(lab, edge[edge > 0]).astype(np.uint8)
+    k = np.ones((_BAND, _BAND), np.uint8)
+    band = cv2.dilate(touching, k) - cv2.erode(touching, k)
+    smooth = cv2.GaussianBlur(image, (0, 0), 1.0)
+    grad = cv2.magnitude(cv2.Sobel(smooth, cv2.CV_32F, 1, 0), cv2.Sobel(smooth, cv2.CV_32F, 0, 1))
+    return grad * band
+
+
+#: Width (reduced px) of the band about the static outlines, and the most shift searched (reduced px).
+_BAND, _SEARCH = 9, 16
+#: Blocks across the frame (each way) in which the background's change is judged.
+_BLOCKS = 16
+
+
+def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
+    """(shift of the static scene in full-frame px, change of the background's shape) of ``fp``
+    against ``ref``; (inf, inf) for frames of other sizes.
+
+    The shift: the best match (normalised cross-correlation, to a tenth of a reduced px) of the
+    reference's static outlines (`_static_edges`, less a margin of `_SEARCH` px) in the frame's;
+    the margin where the match is at the edge of the search. The change: the frame over the
+    reference in `_BLOCKS` x `_BLOCKS` blocks (the median over the pixels bright in both, blocks
+    at least half bright), over their median; the largest departure from 1."""
+    import cv2
+
+    if fp.shape != ref.shape or fp.image.shape != ref.image.shape:
+        return math.inf, math.inf
+    m = min(_SEARCH, min(ref.image.shape) // 4)
+    res = cv2.matchTemplate(_static_edges(fp.image), _static_edges(ref.image)[m:-m, m:-m], cv2.TM_CCORR_NORMED)
+    _, _, _, (x, y) = cv2.minMaxLoc(res)
+
+    def sub(c: float, lo: float, hi: float) -> float:
+        d = lo - 2.0 * c + hi
+        return 0.0 if d == 0 else float(np.clip(0.5 * (lo - hi) / d, -0.5, 0.5))
+
+    dx = x - m + (sub(res[y, x], res[y, x - 1], res[y, x + 1]) if 0 < x < res.shape[1] - 1 else 0.0)
+    dy = y - m + (sub(res[y, x], res[y - 1, x], res[y + 1, x]) if 0 < y < res.shape[0] - 1 else 0.0)
+    shift = math.hypot(dx, dy) * fp.scale
+    both = (fp.image > 0.5) & (ref.image > 0.5)
+    h, w = both.shape
+    bh, bw = h // _BLOCKS, w // _BLOCKS
+    if bh < 2 or bw < 2:
+        return float(shift), math.inf
+    ratio = np.where(both, fp.image / np.maximum(ref.image, 1e-6), np.nan)[:bh * _BLOCKS, :bw * _BLOCKS]
+    blocks = ratio.reshape(_BLOCKS, bh, _BLOCKS, bw).transpose(0, 2, 1, 3).reshape(_BLOCKS * _BLOCKS, -1)
+    blocks = blocks[np.isfinite(blocks).sum(axis=1) >= 0.5 * bh * bw]
+    if len(blocks) < 8:
+        return float(shift), math.inf
+    med = np.nanmedian(blocks, axis=1)
+    med = med / float(np.median(med))
+    return float(shift), float(np.max(np.abs(med - 1.0)))
+
+
+def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
+    """Why the shared calibration (of the reference ``ref``) does not hold for a frame, or None.
+
+    Another frame size; its scene shifted by more than `MAX_SHIFT_PX` (the camera or the holder
+    moved); its background's shape changed by more than `MAX_BACKGROUND_CHANGE` beyond a gain
+    (the light moved, or another backlight)."""
+    if fp.shape != ref.shape:
+        return (f"its size {fp.shape[1]}x{fp.shape[0]} differs from the shared calibration's "
+                f"{ref.shape[1]}x{ref.shape[0]}")
+    shift, change = scene_distance(fp, ref)
+    if shift > MAX_SHIFT_PX:
+        return f"its scene is shifted by {shift:.1f} px against the shared calibration's (most {MAX_SHIFT_PX:g} px)"
+    if change > MAX_BACKGROUND_CHANGE:
+        return (f"its background differs by {100 * change:.0f} % from the shared calibration's beyond a gain "
+                f"(most {100 * MAX_BACKGROUND_CHANGE:.0f} %)" if math.isfinite(change) else
+                "too little background in common with the shared calibration's")
+    return None
+
+
+def _agree(fp: Fingerprint, ref: Fingerprint) -> bool:
+    shift, change = scene_distance(fp, ref)
+    return shift <= MAX_SHIFT_PX and change <= MAX_BACKGROUND_CHANGE
+
+
+@dataclass
+class RigCalibration:
+    """The calibration the shots of one rig share (`calibrate_rig`).
+
+    Attributes
+    ----------
+    meta : SequenceMeta
+        The reference shot's metadata (orientation, pixel size, bit depth, sources); a shot's own is
+        this with its file and delay.
+    dtype : numpy dtype
+    cal, sigma_px, ctx
+        As `dropvision.calibration_pass.calibrate_sequence` gives them.
+    flags : list of str
+        Quality codes every shot measured with it gets (`dropvision.measurement.calibration_flags`).
+    reference : Fingerprint
+        The reference shot's (canonical orientation): a shot is checked against it.
+    reference_name : str
+    calibrated_from : list of str
+        The shots the calibration comes from.
+    left_out : dict
+        Calibration shot -> why it was left out (it disagrees with the reference).
+    """
+
+    meta: object
+    dtype: np.dtype
+    cal: object
+    sigma_px: float
+    ctx: object
+    flags: list[str]
+    reference: Fingerprint
+    reference_name: str
+    calibrated_from: list[str]
+    left_out: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        """summary.json's ``shared_calibration``."""
+        return {"reference": self.reference_name, "calibrated_from": list(self.calibrated_from),
+                "left_out": [{"file": k, "reason": v} for k, v in self.left_out.items()]}
+
+
+def _spread(n: int, k: int) -> list[int]:
+    """Up to ``k`` indices spread over ``range(n)``, the first included."""
+    return [int(i) for i in np.unique(np.round(np.linspace(0, n - 1, min(n, max(1, k)))).astype(int))]
+
+
+def _shot_ref(path: Path, name: str, delay_us: float, index: int = 0) -> FrameRef:
+    return FrameRef(index, path.name if index == 0 else str(path), None, float(delay_us), 0, index)
+
+
+def _inside_own_folder(path: Path) -> bool:
+    """The image is no symbolic link resolving outside its folder (such a shot is measured alone:
+    `dropvision.sequence.open_sequence` refuses it and says why)."""
+    try:
+        return os.path.dirname(os.path.realpath(path)) == os.path.realpath(path.parent)
+    except OSError:
+        return False
+
+
+def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
+                  option_labels: dict | None = None) -> tuple[RigCalibration | None, str | None]:
+    """The calibration the shots share, from up to ``config.calibration_frames`` of them.
+
+    Parameters
+    ----------
+    shots : dropvision.shots.ShotInput
+    config : MeasureConfig
+    overrides, option_labels : dict, optional
+        As for `dropvision.sequence.open_sequence` (they apply to every shot).
+
+    Returns
+    -------
+    (RigCalibration or None, reason)
+        None and why when no shared calibration holds (fewer than two calibration shots agree,
+        the reference cannot be opened or calibrated): every shot is then measured alone.
+    """
+    from dropvision.calibration_pass import calibrate_sequence
+    from dropvision.measurement import calibration_flags, check_scale_in_focus
+    from dropvision.orientation import to_canonical
+    from dropvision.sequence import ArraySequence, Sequence, open_sequence
+
+    n = len(shots.paths)
+    if n < 2:
+        return None, "a single shot"
+    picks = [i for i in _spread(n, config.calibration_frames) if _inside_own_folder(shots.paths[i])]
+    stored: dict[int, np.ndarray] = {}
+    first_meta = None
+    for i in picks:  # decoded as stored (no warnings here: each shot gives its own when measured)
+        path = shots.paths[i]
+        try:
+            if first_meta is None:
+                first_meta = open_sequence(path.parent, overrides=overrides, labels=option_labels,
+                                           only_files=[path.name]).meta
+            probe = Sequence(dataclasses.replace(first_meta, path=path.parent, orientation="down",
+                                                 frames=(_shot_ref(path, shots.names[i], 0.0),)), np.uint8)
+            stored[i] = probe._decode(probe.meta.frames[0], warn=False)
+        except Exception:  # noqa: BLE001 - an unreadable calibration shot is left out (measured alone, it says why)
+            continue
+    if len(stored) < 2:
+        return None, "fewer than two calibration shots could be read"
+    prints = {i: fingerprint(img) for i, img in stored.items()}
+    keys = list(prints)
+    agree = {i: {j for j in keys if j == i or _agree(prints[j], prints[i])} for i in keys}
+    reference = max(keys, key=lambda i: (len(agree[i]), -keys.index(i)))  # the first of the most agreeing
+    members = sorted(agree[reference])
+    if len(members) < 2:
+        return None, f"no two of the {len(keys)} calibration shots agree (camera position or light differ)"
+    left_out = {shots.names[i]: disagreement(prints[i], prints[reference]) or "disagrees" for i in keys
+                if i not in agree[reference]}
+    first = members[0]
+    try:
+        meta = open_sequence(shots.paths[first].parent, overrides=overrides, labels=option_labels,
+                             only_files=[shots.paths[first].name]).meta
+        images = [to_canonical(stored[i], meta.orientation) for i in members]
+        if any(img.shape != meta.shape or img.dtype != images[0].dtype for img in images):
+            return None, "the calibration shots differ in size or pixel type"
+        delay = float((overrides or {}).get("delay_us") or 0.0)
+        # the calibration shots as a sequence in memory (distinct delays: each is a calibration frame)
+        frames = tuple(FrameRef(k, str(shots.paths[i]), None, float(k), 0, k) for k, i in enumerate(members))
+        pseudo = ArraySequence(dataclasses.replace(meta, frames=frames), images)
+        cal, sigma, ctx = calibrate_sequence(pseudo, config)
+        cal.rest_meniscus_delay_us = delay if math.isfinite(cal.rest_meniscus_delay_us) else cal.rest_meniscus_delay_us
+        check_scale_in_focus(cal, meta)
+    except (SequenceError, ValueError) as exc:
+        return None, f"the shared calibration failed ({exc})"
+    names = [shots.names[i] for i in members]
+    cal.notes.append(f"calibration shared by the shots of one rig: from {len(members)} shot(s) ("
+                     + ", ".join(names[:3]) + (", ..." if len(names) > 3 else "") + ")")
+    rig = RigCalibration(meta=meta, dtype=images[0].dtype, cal=cal, sigma_px=float(sigma), ctx=ctx,
+                         flags=calibration_flags(cal, sigma, config),
+                         reference=fingerprint(to_canonical(stored[reference], meta.orientation)),
+                         reference_name=shots.names[reference], calibrated_from=names, left_out=left_out)
+    return rig, None
+
+
+@dataclass
+class ShotOutcome:
+    """One shot measured (`measure_each`): its result or why not, and how it was calibrated.
+
+    ``result`` a `dropvision.measurement.MeasureResult` (None with ``error``); ``shared`` whether the
+    shared calibration measured it; ``note`` why it was measured alone (None: shared, or no shared
+    calibration at all); ``warnings`` (category, message) raised while measuring it."""
+
+    name: str
+    result: object = None
+    error: str | None = None
+    shared: bool = False
+    note: str | None = None
+    warnings: list = field(default_factory=list)
+
+
+def _alone(path: Path, config: MeasureConfig, overrides, option_labels):
+    from dropvision.measurement import measure_sequence
+    from dropvision.sequence import open_sequence
+
+    seq = open_sequence(path.parent, overrides=overrides, labels=option_labels, only_files=[path.name])
+    return measure_sequence(seq, None, config)
+
+
+def _with_rig(path: Path, name: str, rig: RigCalibration, config: MeasureConfig, delay_us: float):
+    """(result, None) measured with the shared calibration, or (None, why it does not hold)."""
+    from dropvision.frame import measure_frame
+    from dropvision.measurement import result_from_records
+    from dropvision.sequence import Sequence
+
+    if not _inside_own_folder(path):
+        return None, "a link outside its folder"
+    meta = dataclasses.replace(rig.meta, path=path.parent, frames=(_shot_ref(path, name, delay_us),),
+                               reordered=False)
+    seq = Sequence(meta, rig.dtype)
+    try:
+        fr = seq.read(0)
+    except SequenceError as exc:  # another size or pixel type: its own calibration says what it is
+        return None, str(exc).split(": ", 1)[-1]
+    finally:
+        seq.close()
+    if fr.image is None:
+        return None, fr.error
+    why = disagreement(fingerprint(fr.image), rig.reference)
+    if why is not None:
+        return None, why
+    rec = measure_frame(fr.image, rig.ctx, fr.ref)
+    rec.flags = list(rig.flags) + rec.flags
+    cal = copy.copy(rig.cal)
+    cal.notes = list(rig.cal.notes)
+    return result_from_records([rec], cal, rig.sigma_px, rig.ctx, meta, config, []), None
+
+
+def _measure_one(i: int, state) -> ShotOutcome:
+    """Shot ``i``: with the shared calibration where it holds, else alone (its own calibration);
+    its warnings recorded (given in the calling process, in order)."""
+    shots, rig, config, overrides, option_labels = state
+    path, name = shots.paths[i], shots.names[i]
+    out = ShotOutcome(name)
+    delay = float((overrides or {}).get("delay_us") or 0.0)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            why = None
+            if rig is not None:
+                out.result, why = _with_rig(path, name, rig, config, delay)
+                out.shared = out.result is not None
+            if out.result is None:
+                out.result = _alone(path, config, overrides, option_labels)
+                if why is not None:
+                    out.note = f"calibrated alone: {why}"
+        except SequenceError as exc:
+            out.result, out.error = None, str(exc)
+    out.warnings = [(w.category, str(w.message)) for w in caught]
+    return out
+
+
+# what a forked worker measures: (shots, rig, config, overrides, option_labels), set just before the pool
+# forks its processes (inherited: nothing is pickled on the way in)
+_FORK_STATE: tuple | None = None
+
+
+def _forked_init(parent_pid: int) -> None:
+    """In a forked worker: die with the parent, leave Ctrl-C to it (`dropvision.frame._forked_worker_init`)."""
+    import signal
+
+    from dvcore.process import die_with_parent
+
+    die_with_parent(parent_pid)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _measure_chunk(indices) -> list[ShotOutcome]:
+    return [_measure_one(i, _FORK_STATE) for i in indices]
+
+
+def _each_forked(state, indices: list[int], workers: int):
+    """`measure_each` in ``workers`` forked processes (the machinery of `dropvision.frame._stream_forked`:
+    chunks in order, at most ``2 * workers`` in flight, the watchdog bounding every wait; a dead or
+    stalled worker: the shots not yet returned are measured here, a `dropvision.frame.WorkerProcessDied`
+    or ``WorkerProcessStalled`` warning says so)."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    from dropvision.frame import WorkerProcessDied, WorkerProcessStalled, _in_order, _stall_s, _Watchdog
+    from dvcore.process import WorkersStalled, close_pool, end_pool, pool_pids
+
+    global _FORK_STATE
+    size = max(1, min(8, len(indices) // (4 * workers)))
+    chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
+    done, finished = 0, False
+    _FORK_STATE = state
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_init,
+                               initargs=(os.getpid(),), mp_context=multiprocessing.get_context("fork"))
+    try:
+        with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
+            warnings.simplefilter("ignore", DeprecationWarning)
+            first = pool.submit(int)  # forks every worker now
+        watchdog = _Watchdog(pool_pids(pool), _stall_s())
+        watchdog.result(first)
+        for outcomes in _in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
+            for out in outcomes:
+                yield out
+                done += 1
+        finished = True
+    except (BrokenProcessPool, WorkersStalled) as exc:
+        stalled = isinstance(exc, WorkersStalled)
+        end_pool(pool, kill=True)
+        rest = indices[done:]
+        what = "the worker processes stalled" if stalled else "a worker process died"
+        warnings.warn(f"{state[0].inputs[0]}: {what} ({exc}); measuring the remaining {len(rest)} shot(s) here",
+                      WorkerProcessStalled if stalled else WorkerProcessDied, stacklevel=3)
+        for i in rest:
+            yield _measure_one(i, state)
+    finally:
+        if finished:
+            close_pool(pool)
+        else:
+            end_pool(pool)
+        _FORK_STATE = None
+
+
+def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
+                 option_labels: dict | None = None, shared: bool = True, workers: int | None = None
+                 ) -> tuple[list[ShotOutcome], RigCalibration | None, str | None]:
+    """Measure every shot: with one shared calibration (`calibrate_rig`) where it holds, else alone.
+
+    Parameters
+    ----------
+    shots : dropvision.shots.ShotInput
+    config : MeasureConfig
+    overrides, option_labels : dict, optional
+        As for `dropvision.sequence.open_sequence`.
+    shared : bool
+        False: every shot alone, as a folder holding only that image (no shared calibration).
+    workers : int, optional
+        Forked processes (``config.workers`` by default; 1: in this process). The outcomes are the
+        same either way.
+
+    Returns
+    -------
+    (outcomes in the shots' order, the shared calibration or None, why there is none or None)
+    """
+    from dropvision.frame import processes_usable, serial_native_pools
+
+    workers = max(1, config.workers if workers is None else workers)
+    n = len(shots.paths)
+    forked = processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES)
+    rig, why = None, "not asked for" if not shared else None
+    with serial_native_pools(forked):  # this process still runs one thread when it forks (issue 29)
+        if shared:
+            rig, why = calibrate_rig(shots, config, overrides=overrides, option_labels=option_labels)
+        state = (shots, rig, config, overrides, option_labels)
+        indices = list(range(n))
+        if forked and processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES):
+            outcomes = list(_each_forked(state, indices, workers))
+        else:
+            outcomes = [_measure_one(i, state) for i in indices]
+    from dropvision.frame import _give_warnings
+
+    class _Names:  # the colour note of every shot is its own (each shot is a sequence of one frame)
+        first_colour_note = None
+
+    for out in outcomes:
+        _give_warnings(_Names, out.warnings)
+    return outcomes, rig, why
