@@ -88,8 +88,9 @@ def test_a_folder_of_shots_measures_one_row_per_image(synthetic_shots, tmp_path,
 
 
 def test_each_row_is_what_the_image_gives_alone(synthetic_shots, tmp_path):
+    """Without the shared calibration (tests/test_shots_shared.py: within half their uncertainty with it)."""
     folder, _ = synthetic_shots
-    res = measure_shots(folder, overrides={"pixel_size_um": 4.73})
+    res = measure_shots(folder, overrides={"pixel_size_um": 4.73}, shared_calibration=False)
     for image in sorted(folder.glob("*.png"))[::3]:
         one = measure_sequence(_alone(image, tmp_path / image.stem), overrides={"pixel_size_um": 4.73}).frames
         row = res.frames.set_index("file").loc[image.name]
@@ -180,11 +181,16 @@ def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
         for token in frame.parent.name.split("_"):
             key, value = token.split("-", 1)
             assert row[key] == float(value), (frame.parent.name, key)
-    # every row is what the frame gives alone (the frames that measure)
+    # the rows measured alone (these frames are of several camera positions: each that shares no other's
+    # calibration, dropvision.shot_rig) are what the frame gives alone
     measured = table[table["quality"] != schema.Quality.NOT_MEASURED]
     frames = pd.read_parquet(out / "frames.parquet").set_index("file")
     assert len(measured) >= 7
-    name = measured["file"].iloc[0]
+    alone = [e["file"] for e in json.loads((out / "summary.json").read_text())["shots"]
+             if e.get("shared_calibration") is False]
+    assert alone and set(alone) <= set(measured["file"])
+    assert "calibrated alone: " in table.set_index("file").loc[alone[0], "notes"]
+    name = alone[0]
     with pytest.warns(RGBConvertedWarning):
         one = measure_sequence(_alone(folder / name, tmp_path / "alone"), overrides={"pixel_size_um": 3.0}).frames
     pd.testing.assert_series_equal(one.iloc[0].drop("file"), frames.loc[name], check_names=False)

@@ -1,0 +1,145 @@
+"""Shots of one rig share one calibration and are measured in parallel (issue 30 item 4,
+`dropvision.shot_rig`).
+
+Synthetic shots: frames of two synthetic waveforms of one rig (same holder, background and noise model;
+truth per frame in truth_frames.csv), renamed as a drop watcher names its exports. The shared answers
+are pinned to the solo ones (each image measured alone) and to the synthetic truth.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+import dropvision.frame as frame
+import dropvision.shot_rig as shot_rig
+from dropvision.shot_rig import disagreement, fingerprint
+from dropvision.shots import measure_shots
+from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+SMALL = dict(width_px=128, height_px=448, tip_row=30.3, axis_col=63.6, delays_us=(1250.0, 1400.0), noise=0.3)
+WAVES = ((7, 70.0, 30.0), (8, 80.0, -20.0))
+PIXEL = {"pixel_size_um": 4.73}
+#: Shared against solo: the volumes agree within this fraction of their stated uncertainty (the
+#: background of several shots and the sharpest body of all of them as the blur reference, against
+#: one shot's own).
+TOLERANCE_U = 0.5
+
+
+@pytest.fixture(scope="module")
+def rig_shots(tmp_path_factory):
+    """Four synthetic shots of one rig, ``images_V-<u1>_w--<k>.png``, and their truth rows."""
+    root = tmp_path_factory.mktemp("rig")
+    folder = root / "shots"
+    folder.mkdir()
+    truth = {}
+    for label, u1, drift in WAVES:
+        seq = write_synthetic_sequence(SynthConfig(**SMALL, u1_um_per_ms=u1, drift_mrad=drift), root / f"seq{label}",
+                                       progress=False)
+        rows = pd.read_csv(seq / "truth_frames.csv")
+        for k, row in rows.iterrows():
+            name = f"images_V-{label}_w--{k + 1}.png"
+            shutil.copy(seq / row["file"], folder / name)
+            truth[name] = row
+    return folder, truth
+
+
+def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
+    folder, truth = rig_shots
+    shared = measure_shots(folder, overrides=PIXEL, workers=1)
+    alone = measure_shots(folder, overrides=PIXEL, workers=1, shared_calibration=False)
+    rig = shared.summary["shared_calibration"]
+    assert rig["reference"] == sorted(truth)[0] and rig["left_out"] == []
+    assert sorted(rig["calibrated_from"]) == sorted(truth)  # every shot is a calibration shot here
+    assert all(s["shared_calibration"] for s in shared.summary["shots"])
+    assert not any(s["shared_calibration"] for s in alone.summary["shots"])
+    assert alone.summary["shared_calibration"]["reference"] is None
+    a, s = alone.shots.set_index("file"), shared.shots.set_index("file")
+    assert list(a.index) == list(s.index) == sorted(truth)
+    for name, t in truth.items():
+        u = s.loc[name, "drop_volume_uncertainty_nl"]
+        assert u > 0
+        assert abs(s.loc[name, "drop_volume_nl"] - a.loc[name, "drop_volume_nl"]) <= TOLERANCE_U * u, name
+        assert s.loc[name, "drop_volume_nl"] == pytest.approx(t["drop_volume_nl"], rel=0.02)
+        assert s.loc[name, "n_satellites"] == a.loc[name, "n_satellites"] == t["n_satellites"]
+        assert s.loc[name, "drop_z_um"] == pytest.approx(a.loc[name, "drop_z_um"], abs=1.0)
+        assert s.loc[name, "quality"] == a.loc[name, "quality"] == "ok"
+    # the shared calibration is stated once, for the folder
+    assert any(n.startswith("calibration shared by the shots of one rig: from 4 shot(s)")
+               for n in shared.summary["notes"])
+
+
+def _shifted(src, dst, dx: float, dy: float) -> None:
+    img = cv2.imread(str(src), cv2.IMREAD_UNCHANGED)
+    m = np.float32([[1, 0, dx], [0, 1, dy]])
+    cv2.imwrite(str(dst), cv2.warpAffine(img, m, img.shape[1::-1], borderMode=cv2.BORDER_REPLICATE))
+
+
+def test_an_odd_shot_is_measured_alone_with_a_note(rig_shots, tmp_path):
+    folder, truth = rig_shots
+    odd = tmp_path / "odd"
+    shutil.copytree(folder, odd)
+    names = sorted(truth)
+    # the first shot of the folder taken with the camera 6 px aside: it must not spoil the calibration
+    moved = "images_A-moved.png"
+    _shifted(folder / names[0], odd / moved, 6.0, 0.0)
+    # another under another light (a tilted backlight: the background's shape changes by +-15 %)
+    img = cv2.imread(str(folder / names[1]), cv2.IMREAD_UNCHANGED).astype(np.float64)
+    ramp = np.linspace(0.85, 1.15, img.shape[0])[:, None]
+    lit = "images_Z-lit.png"
+    cv2.imwrite(str(odd / lit), np.clip(img * ramp, 0, np.iinfo(np.uint16).max if img.max() > 255 else 255)
+                .astype(cv2.imread(str(folder / names[1]), cv2.IMREAD_UNCHANGED).dtype))
+    res = measure_shots(odd, overrides=PIXEL, workers=1)
+    rig = res.summary["shared_calibration"]
+    assert rig["reference"] in names and moved not in rig["calibrated_from"]
+    assert {d["file"] for d in rig["left_out"]} <= {moved, lit} and moved in {d["file"] for d in rig["left_out"]}
+    by_file = {s["file"]: s for s in res.summary["shots"]}
+    table = res.shots.set_index("file")
+    assert not by_file[moved]["shared_calibration"] and not by_file[lit]["shared_calibration"]
+    assert "calibrated alone: its scene is shifted by" in table.loc[moved, "notes"]
+    assert "calibrated alone: its background differs by" in table.loc[lit, "notes"]
+    for name in names:  # the others share it, and their answers are the folder's without the odd shots
+        assert by_file[name]["shared_calibration"] and "calibrated alone" not in table.loc[name, "notes"]
+        assert table.loc[name, "drop_volume_nl"] == pytest.approx(truth[name]["drop_volume_nl"], rel=0.02)
+    # measured alone, the odd shots are what their images give alone (their own calibration)
+    alone = measure_shots(odd, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
+    for name in (moved, lit):
+        assert table.loc[name, "drop_volume_nl"] == alone.loc[name, "drop_volume_nl"]
+
+def test_fingerprints_tell_a_moved_camera_and_another_light(rig_shots):
+    folder, truth = rig_shots
+    a, b = (cv2.imread(str(folder / n), cv2.IMREAD_UNCHANGED) for n in sorted(truth)[:2])
+    assert disagreement(fingerprint(b), fingerprint(a)) is None  # another drop, the same rig
+    m = np.float32([[1, 0, 0], [0, 1, 3]])
+    moved = cv2.warpAffine(b, m, b.shape[1::-1], borderMode=cv2.BORDER_REPLICATE)
+    assert disagreement(fingerprint(moved), fingerprint(a)).startswith("its scene is shifted by")
+    assert disagreement(fingerprint(b[:-2]), fingerprint(a)).startswith("its size 128x446 differs")
+
+
+def test_parallel_and_serial_give_identical_rows(rig_shots, tmp_path, monkeypatch):
+    folder, _ = rig_shots
+    forked = []
+    each_forked = shot_rig._each_forked
+
+    def spy(*args, **kwargs):
+        forked.append(True)
+        yield from each_forked(*args, **kwargs)
+
+    monkeypatch.setattr(shot_rig, "_each_forked", spy)
+    serial = measure_shots(folder, overrides=PIXEL, workers=1)
+    assert not forked
+    # the pytest process runs other threads (processes_usable says no): forked here as the tests of
+    # the frame workers do (conftest: OpenBLAS on one thread, OpenCV's pool never started)
+    monkeypatch.setattr(frame, "processes_usable", lambda *args, **kwargs: True)
+    parallel = measure_shots(folder, overrides=PIXEL, workers=2)
+    assert forked  # the shots were measured in forked worker processes
+    pd.testing.assert_frame_equal(parallel.shots, serial.shots)
+    pd.testing.assert_frame_equal(parallel.frames, serial.frames)
+    pd.testing.assert_frame_equal(parallel.bodies, serial.bodies)
+    # NaN != NaN: compared as JSON text
+    assert json.dumps(parallel.summary["shots"], default=str) == json.dumps(serial.summary["shots"], default=str)

@@ -1,0 +1,148 @@
+"""Benchmark of a folder of shots (issue 30 item 4): one `dropvision measure` of 20 shots against 20
+one-image runs, end to end (the command line, each one-image run on its own folder).
+
+The 20 shots: the 8 real ../shared/realdata/watcher-dod frames as published (``images_<folder>.jpg``)
+and 12 synthetic drop-watcher shots of one rig (`dropvision synth --rig watcher-blurred-holder`, 2048 x
+1536 colour JPEG, u1 = 60, 70, 80 um/ms at 4 delays each, seed 1, renamed ``images_U-<u1>_k-<k>.jpg``).
+All measured at --pixel-size-um 3 (the real frames' assumption; the synthetic ones' volumes are then
+relative, as for any comparison alone against in the folder).
+
+Prints: the wall times and the speed-up; the per-shot cost of a 2048 x 1536 JPEG of one rig (the
+marginal cost: a folder of the 12 synthetic shots against one of 4, over the 8 more); per shot, the
+main drop's volume alone and in the folder and their difference in units of its uncertainty; and
+whether the 8 real rows of the folder of 8 meet the rules of ../shared/realdata/README.md (score.py's).
+
+    PYTHONPATH=$PWD .venv/bin/python tools/bench_shots.py [--keep DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+REALDATA = ROOT.parent / "shared" / "realdata"
+if not REALDATA.is_dir():
+    REALDATA = Path("/work/shared/realdata")
+EXE = [sys.executable, "-m", "dropvision.app.cli"]
+PIXEL = ["--pixel-size-um", "3"]
+
+
+def run(args: list[str]) -> float:
+    t = time.perf_counter()
+    subprocess.run(EXE + args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    return time.perf_counter() - t
+
+
+def make_shots(root: Path) -> tuple[Path, Path, list[str]]:
+    """(folder of the 20 shots, folder of the 8 real ones, the real names)."""
+    real = root / "real8"
+    both = root / "shots20"
+    real.mkdir()
+    both.mkdir()
+    names = []
+    for frame in sorted((REALDATA / "watcher-dod").glob("V*/frame.jpg")):
+        name = f"images_{frame.parent.name}.jpg"
+        shutil.copy(frame, real / name)
+        shutil.copy(frame, both / name)
+        names.append(name)
+    for u1 in (60, 70, 80):
+        syn = root / f"syn{u1}"
+        subprocess.run(EXE + ["synth", str(syn), "--rig", "watcher-blurred-holder", "--u1", str(u1), "--delays",
+                              "1200,1300,1400,1500", "--seed", "1", "--no-progress"], check=True,
+                       stdout=subprocess.DEVNULL)
+        for k, f in enumerate(sorted(syn.glob("f_*.jpg")), 1):
+            shutil.copy(f, both / f"images_U-{u1}_k-{k}.jpg")
+    return both, real, names
+
+
+def rules(row, truth: dict) -> bool:
+    """score.py's rules of a drop-watcher frame on a shots.parquet row."""
+    ns = row["n_satellites"]
+    sat_ok = ns is not None and not (isinstance(ns, float) and math.isnan(ns)) and int(ns) in truth["satellites_accepted"]
+    v, ref = float(row["drop_volume_nl"]), truth["main_drop_volume_nl"]
+    vol_ok = abs(v - ref) <= 0.03 * ref or not truth.get("main_drop_compact", True)
+    att_ok = not (float(row["attached_volume_nl"]) > truth.get("attached_volume_nl_max", math.inf))
+    dx = float(row["drop_x_um"])
+    axis_ok = math.isfinite(dx) and abs(dx) <= truth.get("drop_axis_offset_um_max", math.inf)
+    return sat_ok and vol_ok and att_ok and axis_ok
+
+
+def main() -> int:
+    import pandas as pd
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--keep", type=Path, help="work in this (new) folder and keep it")
+    args = ap.parse_args()
+    os.environ.setdefault("PYTHONPATH", str(ROOT))
+    root = args.keep or Path(tempfile.mkdtemp(prefix="bench_shots_"))
+    root.mkdir(parents=True, exist_ok=True)
+    try:
+        both, real, real_names = make_shots(root)
+        images = sorted(both.glob("*.jpg"))
+        t_folder = run(["measure", str(both), "--out", str(root / "out20")] + PIXEL)
+        t_alone = 0.0
+        alone = {}
+        for i, image in enumerate(images):
+            one = root / f"alone{i:02d}"
+            one.mkdir()
+            shutil.copy(image, one / image.name)
+            t_alone += run(["measure", str(one), "--out", str(root / f"out{i:02d}")] + PIXEL)
+            alone[image.name] = pd.read_parquet(root / f"out{i:02d}" / "frames.parquet").iloc[0]
+        # the marginal cost of a shot of one rig: 12 synthetic shots against 4
+        syn12, syn4 = root / "syn12", root / "syn4"
+        syn12.mkdir()
+        syn4.mkdir()
+        synthetic = [p for p in images if p.name.startswith("images_U-")]
+        for k, p in enumerate(synthetic):
+            shutil.copy(p, syn12 / p.name)
+            if k % 3 == 0:
+                shutil.copy(p, syn4 / p.name)
+        t12 = run(["measure", str(syn12), "--out", str(root / "o12")] + PIXEL)
+        t4 = run(["measure", str(syn4), "--out", str(root / "o4")] + PIXEL)
+        run(["measure", str(real), "--out", str(root / "out8")] + PIXEL)
+        print(f"20 shots (8 real watcher-dod + 12 synthetic watcher-blurred-holder, 2048x1536 JPEG), "
+              f"{os.cpu_count()} CPUs, workers 2:")
+        print(f"  20 one-image runs {t_alone:.1f} s; one folder run {t_folder:.1f} s: {t_alone / t_folder:.1f}x faster")
+        print(f"  per shot of one rig (2048x1536 JPEG): {1000 * (t12 - t4) / 8:.0f} ms "
+              f"(folder of 12 {t12:.2f} s - folder of 4 {t4:.2f} s, over 8 shots); one-image run "
+              f"{1000 * t_alone / len(images):.0f} ms per image")
+        table = pd.read_parquet(root / "out20" / "shots.parquet").set_index("file")
+        summary = json.loads((root / "out20" / "summary.json").read_text())
+        shared = {s["file"]: s.get("shared_calibration") for s in summary["shots"]}
+        print(f"  shared calibration from {len(summary['shared_calibration']['calibrated_from'])} shot(s), "
+              f"reference {summary['shared_calibration']['reference']}; "
+              f"{sum(bool(v) for v in shared.values())} of {len(shared)} shots measured with it")
+        print(f"  {'shot':<62} {'shared':>6} {'alone nl':>10} {'folder nl':>10} {'u nl':>7} {'diff/u':>7}")
+        for name in table.index:
+            a = alone[name]
+            row = table.loc[name]
+            u = float(row["drop_volume_uncertainty_nl"])
+            diff = (float(row["drop_volume_nl"]) - float(a["drop_volume_nl"])) / u if u > 0 else math.nan
+            print(f"  {name:<62} {str(shared.get(name)):>6} {float(a['drop_volume_nl']):>10.4f} "
+                  f"{float(row['drop_volume_nl']):>10.4f} {u:>7.4f} {diff:>+7.2f}")
+        t8 = pd.read_parquet(root / "out8" / "shots.parquet").set_index("file")
+        met = 0
+        for name in real_names:
+            truth = json.loads((REALDATA / "watcher-dod" / name[len("images_"):-len(".jpg")] / "truth.json").read_text())
+            ok = rules(t8.loc[name], truth)
+            met += ok
+            if not ok:
+                print(f"  FAIL {name}: {t8.loc[name, ['drop_volume_nl', 'n_satellites', 'drop_x_um']].to_dict()}")
+        print(f"  the 8 real shots as one folder: {met} of 8 meet score.py's rules")
+        return 0 if met == len(real_names) else 1
+    finally:
+        if args.keep is None:
+            shutil.rmtree(root, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
