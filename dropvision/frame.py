@@ -609,3 +609,14 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
     finally:
         if bar is not None:
             bar.close()
+
+
+#: The forked-worker machinery under public names, for other work measured alike
+#: (`dropvision.shot_rig`: the shots of a folder).
+in_order, Watchdog, give_warnings = _in_order, _Watchdog, _give_warnings
+
+
+def stall_seconds() -> float:
+    """Seconds without CPU progress after which forked workers are taken for stalled (:data:`STALL_S`,
+    or the environment variable :data:`STALL_ENV`)."""
+    return _stall_s()

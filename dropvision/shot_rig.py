@@ -383,7 +383,7 @@ _FORK_STATE: tuple | None = None
 
 
 def _forked_init(parent_pid: int) -> None:
-    """In a forked worker: die with the parent, leave Ctrl-C to it (`dropvision.frame._forked_worker_init`)."""
+    """In a forked worker: die with the parent, leave Ctrl-C to it (as the frame workers do)."""
     import signal
 
     from dvcore.process import die_with_parent
@@ -397,7 +397,7 @@ def _measure_chunk(indices) -> list[ShotOutcome]:
 
 
 def _each_forked(state, indices: list[int], workers: int):
-    """`measure_each` in ``workers`` forked processes (the machinery of `dropvision.frame._stream_forked`:
+    """`measure_each` in ``workers`` forked processes (the machinery of `dropvision.frame.stream_frames`:
     chunks in order, at most ``2 * workers`` in flight, the watchdog bounding every wait; a dead or
     stalled worker: the shots not yet returned are measured here, a `dropvision.frame.WorkerProcessDied`
     or ``WorkerProcessStalled`` warning says so)."""
@@ -405,7 +405,7 @@ def _each_forked(state, indices: list[int], workers: int):
     from concurrent.futures import ProcessPoolExecutor
     from concurrent.futures.process import BrokenProcessPool
 
-    from dropvision.frame import WorkerProcessDied, WorkerProcessStalled, _in_order, _stall_s, _Watchdog
+    from dropvision.frame import WorkerProcessDied, WorkerProcessStalled, Watchdog, in_order, stall_seconds
     from dvcore.process import WorkersStalled, close_pool, end_pool, pool_pids
 
     global _FORK_STATE
@@ -419,9 +419,9 @@ def _each_forked(state, indices: list[int], workers: int):
         with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
             warnings.simplefilter("ignore", DeprecationWarning)
             first = pool.submit(int)  # forks every worker now
-        watchdog = _Watchdog(pool_pids(pool), _stall_s())
+        watchdog = Watchdog(pool_pids(pool), stall_seconds())
         watchdog.result(first)
-        for outcomes in _in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
+        for outcomes in in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
             for out in outcomes:
                 yield out
                 done += 1
@@ -479,11 +479,11 @@ def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: d
             outcomes = list(_each_forked(state, indices, workers))
         else:
             outcomes = [_measure_one(i, state) for i in indices]
-    from dropvision.frame import _give_warnings
+    from dropvision.frame import give_warnings
 
     class _Names:  # the colour note of every shot is its own (each shot is a sequence of one frame)
         first_colour_note = None
 
     for out in outcomes:
-        _give_warnings(_Names, out.warnings)
+        give_warnings(_Names, out.warnings)
     return outcomes, rig, why
