@@ -64,6 +64,8 @@ class Fingerprint:
     image: np.ndarray
     scale: float
     shape: tuple[int, int]
+    #: `_static_edges` of ``image`` (computed once)
+    edges: np.ndarray | None = None
 
 
 def fingerprint(image: np.ndarray) -> Fingerprint:
@@ -75,7 +77,8 @@ def fingerprint(image: np.ndarray) -> Fingerprint:
     f = max(1, int(math.ceil(max(h, w) / FINGERPRINT_SIDE_PX)))
     small = cv2.resize(img, (max(1, w // f), max(1, h // f)), interpolation=cv2.INTER_AREA) if f > 1 else img
     level = float(np.percentile(small, 95))
-    return Fingerprint((small / max(level, 1e-6)).astype(np.float32), float(f), (int(h), int(w)))
+    norm = (small / max(level, 1e-6)).astype(np.float32)
+    return Fingerprint(norm, float(f), (int(h), int(w)), _static_edges(norm))
 
 
 def _static_edges(image: np.ndarray) -> np.ndarray:
@@ -116,7 +119,7 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
     if fp.shape != ref.shape or fp.image.shape != ref.image.shape:
         return math.inf, math.inf
     m = min(_SEARCH, min(ref.image.shape) // 4)
-    res = cv2.matchTemplate(_static_edges(fp.image), _static_edges(ref.image)[m:-m, m:-m], cv2.TM_CCORR_NORMED)
+    res = cv2.matchTemplate(fp.edges, ref.edges[m:-m, m:-m], cv2.TM_CCORR_NORMED)
     _, _, _, (x, y) = cv2.minMaxLoc(res)
 
     def sub(c: float, lo: float, hi: float) -> float:
@@ -134,10 +137,13 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
         return float(shift), math.inf
     ratio = np.where(both, fp.image / np.maximum(ref.image, 1e-6), np.nan)[:bh * _BLOCKS, :bw * _BLOCKS]
     blocks = ratio.reshape(_BLOCKS, bh, _BLOCKS, bw).transpose(0, 2, 1, 3).reshape(_BLOCKS * _BLOCKS, -1)
-    blocks = blocks[np.isfinite(blocks).sum(axis=1) >= 0.5 * bh * bw]
+    count = np.isfinite(blocks).sum(axis=1)
+    keep = count >= 0.5 * bh * bw
+    blocks, count = np.sort(blocks[keep], axis=1), count[keep]  # NaN sorts last
     if len(blocks) < 8:
         return float(shift), math.inf
-    med = np.nanmedian(blocks, axis=1)
+    rows = np.arange(len(blocks))
+    med = 0.5 * (blocks[rows, (count - 1) // 2] + blocks[rows, count // 2])  # the median of each block's values
     med = med / float(np.median(med))
     return float(shift), float(np.percentile(np.abs(med - 1.0), 90))
 
@@ -267,7 +273,12 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
         return None, "fewer than two calibration shots could be read"
     prints = {i: fingerprint(img) for i, img in stored.items()}
     keys = list(prints)
-    agree = {i: {j for j in keys if j == i or _agree(prints[j], prints[i])} for i in keys}
+    agree: dict[int, set[int]] = {i: {i} for i in keys}
+    for a, i in enumerate(keys):  # the distance is near symmetric: each pair judged once
+        for j in keys[a + 1:]:
+            if _agree(prints[j], prints[i]):
+                agree[i].add(j)
+                agree[j].add(i)
     reference = max(keys, key=lambda i: (len(agree[i]), -keys.index(i)))  # the first of the most agreeing
     members = sorted(agree[reference])
     if len(members) < 2:
