@@ -287,8 +287,9 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
                 if i not in agree[reference]}
     first = members[0]
     try:
-        meta = open_sequence(shots.paths[first].parent, overrides=overrides, labels=option_labels,
-                             only_files=[shots.paths[first].name]).meta
+        meta = first_meta if first == picks[0] else open_sequence(
+            shots.paths[first].parent, overrides=overrides, labels=option_labels,
+            only_files=[shots.paths[first].name]).meta
         images = [to_canonical(stored[i], meta.orientation) for i in members]
         if any(img.shape != meta.shape or img.dtype != images[0].dtype for img in images):
             return None, "the calibration shots differ in size or pixel type"

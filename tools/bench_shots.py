@@ -147,6 +147,16 @@ def main() -> int:
             print(f"  {name:<62} {str(shared.get(name)):>6} {float(a['drop_volume_nl']):>10.4f} "
                   f"{float(row['drop_volume_nl']):>10.4f} {u:>7.4f} {diff:>+7.2f}")
         t8 = pd.read_parquet(root / "out8" / "shots.parquet").set_index("file")
+        s8 = json.loads((root / "out8" / "summary.json").read_text())
+        shared8 = {s["file"]: s.get("shared_calibration") for s in s8["shots"]}
+        print(f"  the 8 real shots as one folder (shared calibration from "
+              f"{s8['shared_calibration']['calibrated_from']}):")
+        for name in real_names:
+            a, row = alone[name], t8.loc[name]
+            u = float(row["drop_volume_uncertainty_nl"])
+            diff = (float(row["drop_volume_nl"]) - float(a["drop_volume_nl"])) / u if u > 0 else math.nan
+            print(f"  {name:<62} {str(shared8.get(name)):>6} {float(a['drop_volume_nl']):>10.4f} "
+                  f"{float(row['drop_volume_nl']):>10.4f} {u:>7.4f} {diff:>+7.2f}")
         met = 0
         for name in real_names:
             truth = json.loads((REALDATA / "watcher-dod" / name[len("images_"):-len(".jpg")] / "truth.json").read_text())
