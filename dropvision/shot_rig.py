@@ -212,6 +212,10 @@ class RigCalibration:
                 "left_out": [{"file": k, "reason": v} for k, v in self.left_out.items()]}
 
 
+#: Pixel-size sources that are a file's own metadata (`dropvision.readers`): not shared between shots.
+_FILE_PIXEL_SIZE = ("ome", "imagej", "tiff-description")
+
+
 def _spread(n: int, k: int) -> list[int]:
     """Up to ``k`` indices spread over ``range(n)``, the first included."""
     return [int(i) for i in np.unique(np.round(np.linspace(0, n - 1, min(n, max(1, k)))).astype(int))]
@@ -271,6 +275,8 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
             continue
     if len(stored) < 2:
         return None, "fewer than two calibration shots could be read"
+    if first_meta.pixel_size_source in _FILE_PIXEL_SIZE:
+        return None, f"the pixel size is each image's own (its {first_meta.pixel_size_source} metadata)"
     prints = {i: fingerprint(img) for i, img in stored.items()}
     keys = list(prints)
     agree: dict[int, set[int]] = {i: {i} for i in keys}

@@ -353,8 +353,6 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     dvcore.atomic.OutputError
         ``out_dir`` overlaps an input or holds files we did not write.
     """
-    import pandas as pd
-
     from dropvision.shot_rig import measure_each
     from dropvision.summary import check_frames_table
 
@@ -366,8 +364,10 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
     frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
+    # pandas (with pyarrow's allocator thread) only after the worker processes are forked
     outcomes, rig, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
                                          shared=shared_calibration, workers=workers)
+    import pandas as pd
     for out in outcomes:
         name = out.name
         if out.error is not None:

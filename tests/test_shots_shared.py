@@ -143,3 +143,28 @@ def test_parallel_and_serial_give_identical_rows(rig_shots, tmp_path, monkeypatc
     pd.testing.assert_frame_equal(parallel.bodies, serial.bodies)
     # NaN != NaN: compared as JSON text
     assert json.dumps(parallel.summary["shots"], default=str) == json.dumps(serial.summary["shots"], default=str)
+
+
+def test_the_command_line_forks_the_shot_workers(rig_shots, tmp_path):
+    """`dropvision measure` over a shot folder measures in forked workers: nothing it runs before the fork
+    starts a native thread (pandas loads pyarrow, whose allocator starts one: after the fork)."""
+    import subprocess
+    import sys
+
+    folder, _ = rig_shots
+    code = (
+        "import os, sys\n"
+        "from dropvision.app.cli import main\n"
+        "import dropvision.shot_rig as rig\n"
+        "each = rig._each_forked\n"
+        "def spy(*a, **k):\n"
+        "    print('forked from', len(os.listdir('/proc/self/task')), 'thread(s)')\n"
+        "    yield from each(*a, **k)\n"
+        "rig._each_forked = spy\n"
+        f"sys.exit(main(['measure', {str(folder)!r}, '--out', {str(tmp_path / 'out')!r}, '--pixel-size-um', '4.73']))\n"
+    )
+    env = {k: v for k, v in __import__("os").environ.items() if k != "OPENBLAS_NUM_THREADS"}
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert done.returncode == 0, done.stderr
+    assert "forked from 1 thread(s)" in done.stdout
+    assert "measured 4 shots" in done.stdout
