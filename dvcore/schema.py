@@ -192,7 +192,7 @@ SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
     F("quality", "str", "", "'ok' or the quality codes joined by '; ' (table below)", nullable=False),
     F("notes", "str", "", "what is particular to this shot, sentences joined by '; ' (notes common to every shot are "
       "in summary.json)", nullable=False),
-), "One row per image of a shot folder (images with no delay to tell, each measured alone as a single frame), in "
+), "One row per image of a shot folder (images with no delay to tell, each measured as a single frame), in "
    "file order. The labels follow the declared columns: one float column per label, named by the label as "
    "written in the file name (`V1--86` gives a column `V1` = -86), the `shots.csv` header, the key of "
    "sequence.json's `shots` list or the group of --label-pattern; a label named like a declared column is named `label_<name>`; NaN where a file lacks it.")
