@@ -268,7 +268,7 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
             if first_meta is None:
                 first_meta = open_sequence(path.parent, overrides=overrides, labels=option_labels,
                                            only_files=[path.name]).meta
-            probe = Sequence(dataclasses.replace(first_meta, path=path.parent, orientation="down",
+            probe = Sequence(dataclasses.replace(first_meta, path=path.parent, orientation="down", shape=(0, 0),
                                                  frames=(_shot_ref(path, shots.names[i], 0.0),)), np.uint8)
             stored[i] = probe._decode(probe.meta.frames[0], warn=False)
         except Exception:  # noqa: BLE001 - an unreadable calibration shot is left out (measured alone, it says why)

@@ -168,3 +168,20 @@ def test_the_command_line_forks_the_shot_workers(rig_shots, tmp_path):
     assert done.returncode == 0, done.stderr
     assert "forked from 1 thread(s)" in done.stdout
     assert "measured 4 shots" in done.stdout
+
+
+def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
+    """Shots stored with the drops flying right (PNG: its header tells the size): the calibration
+    shots are read as stored, compared, then turned as the reference shot's orientation says."""
+    folder, truth = rig_shots
+    turned = tmp_path / "turned"
+    turned.mkdir()
+    for name in truth:
+        cv2.imwrite(str(turned / name), np.ascontiguousarray(np.rot90(cv2.imread(str(folder / name),
+                                                                                 cv2.IMREAD_UNCHANGED))))
+    res = measure_shots(turned, overrides=PIXEL, workers=1)
+    assert sorted(res.summary["shared_calibration"]["calibrated_from"]) == sorted(truth)
+    assert all(s["shared_calibration"] and s["orientation"] == "right" for s in res.summary["shots"])
+    table = res.shots.set_index("file")
+    for name, t in truth.items():
+        assert table.loc[name, "drop_volume_nl"] == pytest.approx(t["drop_volume_nl"], rel=0.02)
