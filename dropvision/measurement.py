@@ -21,6 +21,7 @@ the command line is `dropvision.app.measure_cli`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -31,7 +32,7 @@ from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
-from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
+from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
 from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
 from dvcore.atomic import atomic_dir, check_output_dir, output_lock
@@ -147,6 +148,9 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
             records, cal, sigma, ctx = _measure_frames(seq, config, logger, progress, errors, decoded)
     finally:
         seq.close()
+    if cal.pixel_size_from_nozzle:  # the calibration's width is the pixel size (the opening's was provisional)
+        meta = dataclasses.replace(meta, pixel_size_um=cal.pixel_size_um, pixel_size_source=cal.pixel_size_source,
+                                   sources={**(meta.sources or {}), "pixel_size": cal.pixel_size_source})
     frames, summary = assemble(records, cal, sigma, meta, config, errors)
     summary.update(source_keys(meta))
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
@@ -168,7 +172,7 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
     sigma, frame context); unreadable frames go to ``errors``."""
     meta = seq.meta
     cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
-    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
+    if cal.nozzle_out_of_focus and pixel_size_from_nozzle(meta):
         # the scale would come from walls that are out of focus: a blurred holder's width, not the nozzle's
         raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
                             f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
