@@ -243,7 +243,7 @@ STROBE_INTERVAL_LABEL = "strobe_interval_us"
 
 def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volume_uncertainty_nl: float,
                              bodies: pd.DataFrame | None, interval_us: float, pixel_size_um: float,
-                             pixel_size_relative_uncertainty: float = 0.0) -> tuple[float, float, str]:
+                             pixel_size_relative_uncertainty: float = 0.0) -> tuple[float, float, str, float]:
     """The main drop's velocity from a double exposure: its two images ``interval_us`` apart.
 
     The other image is the detached body (``bodies``: one shot's rows of bodies.parquet, main drop
@@ -254,17 +254,17 @@ def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volum
 
     Returns
     -------
-    (velocity_m_s, uncertainty_m_s, note)
+    (velocity_m_s, uncertainty_m_s, note, second_image_volume_nl)
         NaN and the reason as the note when there is no second image.
     """
     nan = float("nan")
     if not (np.isfinite(interval_us) and interval_us > 0):
-        return nan, nan, f"{STROBE_INTERVAL_LABEL} {interval_us:g} is not a positive number: no velocity"
+        return nan, nan, f"{STROBE_INTERVAL_LABEL} {interval_us:g} is not a positive number: no velocity", nan
     if not (np.isfinite(drop_z_um) and np.isfinite(drop_volume_nl)):
-        return nan, nan, "double exposure: no main drop, no velocity"
+        return nan, nan, "double exposure: no main drop, no velocity", nan
     b = bodies if bodies is not None else None
     if b is None or not len(b):
-        return nan, nan, "double exposure: the main drop's second image is not found (no other detached body)"
+        return nan, nan, "double exposure: the main drop's second image is not found (no other detached body)", nan
     b = b[b["body_class"].isin(("main_drop", "satellite")) & np.isfinite(b["z_um"].to_numpy(float))
           & np.isfinite(b["volume_nl"].to_numpy(float))]
     b = b[np.abs(b["z_um"].to_numpy(float) - drop_z_um) > 0.5 * pixel_size_um]  # not the main drop itself
@@ -272,12 +272,12 @@ def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volum
     dv = np.abs(b["volume_nl"].to_numpy(float) - drop_volume_nl)
     if not dv.size or dv.min() > 3.0 * u:
         return nan, nan, ("double exposure: no detached body of the main drop's volume (within 3 uncertainties) "
-                          "is its second image: no velocity")
+                          "is its second image: no velocity"), nan
     other = b.iloc[int(np.argmin(dv))]
     dz = abs(float(other["z_um"]) - drop_z_um)
     v = dz / interval_us  # um/us = m/s
     u_v = v * math.hypot(pixel_size_relative_uncertainty, math.sqrt(2.0) * 0.5 * pixel_size_um / dz)
-    return v, u_v, ""
+    return v, u_v, "", float(other["volume_nl"])
 
 
 def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[str]],
@@ -341,6 +341,8 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
                         for n in names])
     u_pixel[~np.isfinite(pixel)] = np.nan
     velocity = np.full(len(names), np.nan)
+    n_sat = f["n_satellites"].astype("Int64").to_numpy().copy()
+    sat_volume = (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float).copy()
     u_velocity = np.full(len(names), np.nan)
     row_notes = []
     for i, name in enumerate(names):
@@ -355,11 +357,15 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         if interval is not None:
             rel = u_pixel[i] / pixel[i] if np.isfinite(pixel[i]) and pixel[i] > 0 else 0.0
             shot_bodies = None if bodies is None else bodies[bodies["file"] == name]
-            velocity[i], u_velocity[i], why = double_exposure_velocity(
+            velocity[i], u_velocity[i], why, second_nl = double_exposure_velocity(
                 z[i], volume[i], u_volume[i], shot_bodies, float(interval),
                 pixel[i] if np.isfinite(pixel[i]) else 1.0, rel)
+            if np.isfinite(second_nl):  # the main drop's second image is no satellite
+                n_sat[i] -= 1
+                sat_volume[i] -= second_nl
             own.append(why or (f"double exposure {float(interval):g} us apart: velocity from the main drop's two "
-                               "images (satellite count and volume hold both images)"))
+                               "images (its second image is not counted as a satellite; other satellites are seen "
+                               "twice and counted twice)"))
         codes = str(f["quality"].iloc[i]).split("; ")
         if schema.Quality.NO_NOZZLE in codes:
             angle[i] = np.nan
@@ -380,8 +386,8 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         "tail_length_um": tail,
         "drop_velocity_m_s": velocity,
         "drop_velocity_uncertainty_m_s": u_velocity,
-        "n_satellites": f["n_satellites"].astype("Int64").to_numpy(),
-        "satellites_volume_nl": (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float),
+        "n_satellites": n_sat,
+        "satellites_volume_nl": sat_volume,
         "drop_z_um": z,
         "drop_x_um": x,
         "trajectory_angle_mrad": angle,

@@ -9,7 +9,10 @@ import shutil
 
 import cv2
 import numpy as np
+import pandas as pd
 import pytest
+
+from dropvision.app.cli import main
 
 from dropvision.shots import measure_shots
 from dropvision.synth import SynthConfig, synthesize
@@ -136,6 +139,21 @@ def test_velocity_from_a_double_exposure(tmp_path):
     assert 0 < u < 0.05 * truth
     assert abs(v - truth) <= 2 * u + 0.01 * truth
     assert np.isnan(t.loc["single_2.png", "drop_velocity_m_s"])
+    # the second image is the main drop's, not a satellite (no satellites rendered)
+    assert t.loc["double_1.png", "n_satellites"] == t.loc["single_2.png", "n_satellites"] == 0
+    assert abs(t.loc["double_1.png", "satellites_volume_nl"]) < 0.01 * t.loc["double_1.png", "drop_volume_nl"]
+    assert t.loc["double_1.png", "drop_volume_nl"] == pytest.approx(ta.drop_volume_nl, rel=0.01)
+    # the command line's option gives every image the interval (the label, per image, wins)
+    (folder / "shots.csv").unlink()
+    assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--pixel-size-um", str(cfg.pixel_size_um),
+                 "--strobe-interval-us", str(dt), "-q"]) == 0
+    t = pd.read_parquet(tmp_path / "out" / "shots.parquet").set_index("file")
+    assert t.loc["double_1.png", "drop_velocity_m_s"] == pytest.approx(v, rel=1e-9)
+    with pytest.raises(SystemExit) as exc:  # argparse: one line naming the option, exit 2
+        main(["measure", str(folder), "--out", str(tmp_path / "bad"), "--pixel-size-um", "4.73",
+              "--strobe-interval-us", "-40", "-q"])
+    assert exc.value.code == 2
+    assert not (tmp_path / "bad").exists()
 
 
 def test_pendant_drops_of_realdata_in_one_folder_with_only_the_needle_diameter(realdata_dir, tmp_path):
