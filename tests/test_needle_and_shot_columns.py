@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import warnings
 
 import cv2
 import numpy as np
@@ -14,6 +15,8 @@ import pytest
 
 from dropvision.app.cli import main
 
+from dropvision.calibration import CalibrationWarning, calibrate_frames
+from dropvision.inspection import nozzle_outer_width_px
 from dropvision.shots import measure_shots
 from dropvision.synth import SynthConfig, synthesize
 from dropvision.synth.planning import plan
@@ -186,3 +189,24 @@ def test_pendant_drops_of_realdata_in_one_folder_with_only_the_needle_diameter(r
     # the four drops of one rig: one needle, one camera: their pixel sizes agree within their uncertainties
     dpt = t.loc[[n for n in refs if n.startswith("water")]]
     assert np.ptp(dpt["pixel_size_um"]) <= 2 * dpt["pixel_size_uncertainty_um"].max()
+
+
+
+@pytest.mark.parametrize("blur_px", [1.0, 3.0])
+def test_one_needle_width_robust_to_blur(blur_px):
+    """The needle's width by the one rule (its straight outer walls, the meniscus below them), the opening's
+    provisional width and the calibration's the same number, whatever the blur: within 0.1 px of the truth."""
+    px = 6.9
+    cfg = SynthConfig.for_rig("pendant-saturated", pixel_size_um=px, blur_px=blur_px, seed=1, width_px=480,
+                              height_px=480, tip_row=60.4, axis_col=239.6, format="png", colour=False,
+                              needle_diameter_um=717.6, pendant_apex_radius_um=1000.0)
+    (img, _t), = synthesize(cfg, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CalibrationWarning)  # the clipped backlight's note
+        provisional, _ = nozzle_outer_width_px([img], max_value=255)
+        cal = calibrate_frames(img, [img], 1.0, max_value=255, nozzle_outer_diameter_um=717.6,
+                               pixel_size_from_nozzle=True)
+    assert abs(cal.nozzle_outer_diameter_px - 717.6 / px) < 0.1
+    assert provisional == pytest.approx(cal.nozzle_outer_diameter_px, abs=1e-9)  # one rule, one width
+    assert cal.pixel_size_um == pytest.approx(717.6 / cal.nozzle_outer_diameter_px)
+    assert np.isnan(cal.pixel_size_ratio) and "disagrees" not in " ".join(cal.notes)
