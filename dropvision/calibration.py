@@ -73,7 +73,8 @@ class Calibration:
     pixel_size_disagreement_percent: float
     background: BackgroundModel
     notes: list[str] = field(default_factory=list)
-    #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it).
+    #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it; 1 when the pixel
+    #: size is the nozzle's own, ``pixel_size_from_nozzle``).
     pixel_size_ratio: float = float("nan")
     #: Standard uncertainty of that ratio from the measured outer diameter (see `outer_diameter_uncertainty_px`).
     pixel_size_ratio_uncertainty: float = float("nan")

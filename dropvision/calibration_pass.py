@@ -168,6 +168,9 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
         cal.nozzle_width_terms_px = needle_width_terms_px(nozzle, cal.edge_position_uncertainty_px, sigma)
         u_width = math.sqrt(sum(v * v for v in cal.nozzle_width_terms_px.values()))
         cal.pixel_size_uncertainty_um = float(cal.pixel_size_um * u_width / cal.nozzle_outer_diameter_px)
+        # the pixel size is the nozzle's by construction: ratio 1 with the width's uncertainty (what a campaign's
+        # intervals take as the pixel size's part, identify.measurement_uncertainty)
+        cal.pixel_size_ratio, cal.pixel_size_ratio_uncertainty = 1.0, cal.pixel_size_relative_uncertainty
         cal.pixel_size_source += (f" = {cal.pixel_size_um:.5g} +- {cal.pixel_size_uncertainty_um:.2g} um (width "
                                   f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
                                                                      cal.nozzle_width_terms_px.items()) + ")")

@@ -63,7 +63,10 @@ def test_pendant_drops_in_one_folder_each_with_its_own_pixel_size(pendant_folder
     for name in truth:
         cal = shots[name]["calibration"]
         assert cal["pixel_size_from_nozzle"] is True
-        assert not np.isfinite(cal["pixel_size_ratio"])  # nothing to check a pixel size against that nobody gave
+        # nothing to check a pixel size against that nobody gave: the ratio is 1, its uncertainty the width's
+        assert cal["pixel_size_ratio"] == 1.0
+        assert cal["pixel_size_ratio_uncertainty"] == pytest.approx(cal["pixel_size_uncertainty_um"]
+                                                                    / cal["pixel_size_um"])
         assert set(cal["nozzle_outer_diameter_terms_px"]) == {"rows", "taper", "edges"}
         assert shots[name]["pixel_size_source"].startswith("nozzle outer diameter 720 um / ")
         assert f"{cal['nozzle_outer_diameter_px']:.2f} px" in shots[name]["pixel_size_source"]
