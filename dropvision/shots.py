@@ -262,7 +262,7 @@ def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volum
         return nan, nan, f"{STROBE_INTERVAL_LABEL} {interval_us:g} is not a positive number: no velocity", nan
     if not (np.isfinite(drop_z_um) and np.isfinite(drop_volume_nl)):
         return nan, nan, "double exposure: no main drop, no velocity", nan
-    b = bodies if bodies is not None else None
+    b = bodies
     if b is None or not len(b):
         return nan, nan, "double exposure: the main drop's second image is not found (no other detached body)", nan
     b = b[b["body_class"].isin(("main_drop", "satellite")) & np.isfinite(b["z_um"].to_numpy(float))
