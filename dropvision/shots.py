@@ -283,7 +283,7 @@ def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volum
 def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[str]],
                 unmeasured: dict[str, str] | None = None, delay_us: float = 0.0, *,
                 bodies: pd.DataFrame | None = None, calibrations: dict[str, dict] | None = None,
-                strobe_interval_us: float | None = None, compact_ratio: float = 2.0) -> pd.DataFrame:
+                strobe_interval_us: float | None = None) -> pd.DataFrame:
     """shots.parquet from the frames table of the measured shots.
 
     Parameters
@@ -307,9 +307,6 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
     strobe_interval_us : float, optional
         Every shot is a double exposure this many µs apart (a shot's `STROBE_INTERVAL_LABEL` label
         wins): ``drop_velocity_m_s`` (`double_exposure_velocity`).
-    compact_ratio : float
-        A main drop longer than this many times its width has a tail: a note says so
-        (`dropvision.config.MeasureConfig.compact_ratio`, the in-flight rule's).
 
     Returns
     -------
@@ -344,15 +341,18 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
     n_sat = f["n_satellites"].astype("Int64").to_numpy().copy()
     sat_volume = (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float).copy()
     u_velocity = np.full(len(names), np.nan)
+    inflight = f["inflight"].astype(bool).to_numpy()
+    quality = f["quality"].astype(str).to_numpy().copy()
     row_notes = []
     for i, name in enumerate(names):
         own = list(notes.get(name, []))
         if missing[i]:
             row_notes.append(unmeasured.get(name, "not measured"))
             continue
-        if np.isfinite(tail[i]) and width[i] > 0 and length[i] > compact_ratio * width[i]:
-            own.append(f"the main drop has a tail: {tail[i]:.0f} um beyond its head ({length[i]:.0f} um long, "
-                       f"{width[i]:.0f} um wide, over {compact_ratio:g} x): its volume holds the tail")
+        if np.isfinite(volume[i]) and not inflight[i]:  # measured, but not compact: its tail is joined
+            quality[i] = schema.Quality.TAIL if quality[i] == schema.Quality.OK else f"{quality[i]}; {schema.Quality.TAIL}"
+            own.append(f"the main drop's tail is joined to it: {tail[i]:.0f} um beyond its head ({length[i]:.0f} um "
+                       f"long, {width[i]:.0f} um wide): not in flight; its volume holds the tail")
         interval = shots.labels.get(name, {}).get(STROBE_INTERVAL_LABEL, strobe_interval_us)
         if interval is not None:
             rel = u_pixel[i] / pixel[i] if np.isfinite(pixel[i]) and pixel[i] > 0 else 0.0
@@ -395,8 +395,8 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         "attached_volume_uncertainty_nl": f["attached_volume_uncertainty_nl"].to_numpy(dtype=float),
         "pixel_size_um": pixel,
         "pixel_size_uncertainty_um": u_pixel,
-        "inflight": f["inflight"].astype(bool).to_numpy(),
-        "quality": f["quality"].astype(str).to_numpy(),
+        "inflight": inflight,
+        "quality": quality,
         "notes": row_notes,
     })
     out["n_satellites"] = out["n_satellites"].astype("Int64")
@@ -506,7 +506,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in errors},
                         delay_us=float((overrides or {}).get("delay_us") or 0.0), bodies=bodies,
                         calibrations={e["file"]: e["calibration"] for e in per_shot if "calibration" in e},
-                        strobe_interval_us=strobe_interval_us, compact_ratio=config.compact_ratio)
+                        strobe_interval_us=strobe_interval_us)
     summary = {
         "schema_version": schema.SHOTS_SUMMARY.schema,
         "kind": "shots",

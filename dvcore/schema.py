@@ -179,8 +179,8 @@ SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
     F("drop_length_um", "float", "um", "extent of the main drop along the jetting axis"),
     F("drop_diameter_um", "float", "um", "extent of the main drop across the jetting axis"),
     F("tail_length_um", "float", "um", "the main drop's tail (ligament): its length beyond a round head as wide as "
-      "it, drop_length_um - drop_diameter_um, 0 for a drop no longer than wide; a note where the drop is longer "
-      "than MeasureConfig.compact_ratio widths"),
+      "it, drop_length_um - drop_diameter_um, 0 for a drop no longer than wide; where the drop is not compact (not "
+      "in flight) the quality holds tail_joined and a note gives the tail"),
     F("drop_velocity_m_s", "float", "m/s", "main-drop velocity along the jetting axis from a double exposure: the "
       "distance between its two images over the strobe interval (the shot's strobe_interval_us label, else "
       "measure_shots strobe_interval_us); NaN with a note where none is given or the second image is not found"),

@@ -106,8 +106,10 @@ def _tail_truth(cfg: SynthConfig, delay_us: float) -> float:
 
 
 def test_tail_length_of_a_drop_with_a_long_tail_and_a_bulb(tmp_path):
-    cfg = SynthConfig(width_px=256, height_px=900, delays_us=(1080.0, 1500.0), seed=3, satellites=0,
-                      shape=ShapeParams(tail_bulb=True, tail_merge_us=400.0))
+    """A drop with a long tail and a bulb (its tail stretching until it breaks into a satellite): its volume,
+    its tail's length against the synthetic shape's, ``tail_joined`` and a note; the compact drop later none."""
+    cfg = SynthConfig(width_px=256, height_px=900, delays_us=(1150.0, 1500.0), seed=3, satellites=1,
+                      shape=ShapeParams(tail_bulb=True, tail_break_us=300.0))
     frames = list(synthesize(cfg, progress=False))
     folder = tmp_path / "shots"
     folder.mkdir()
@@ -116,13 +118,14 @@ def test_tail_length_of_a_drop_with_a_long_tail_and_a_bulb(tmp_path):
     r = measure_shots(folder, None, overrides={"pixel_size_um": cfg.pixel_size_um})
     t = r.shots.set_index("file")
     tailed, compact = t.loc["shot_0.png"], t.loc["shot_1.png"]
-    truth = _tail_truth(cfg, 1080.0)
-    assert truth > 100  # a long tail in the truth
+    truth = _tail_truth(cfg, 1150.0)
+    assert truth > 150  # a long tail in the truth
     assert abs(tailed["tail_length_um"] - truth) <= 2 * cfg.pixel_size_um + 0.03 * truth
-    assert np.isfinite(tailed["drop_volume_nl"])
+    assert tailed["drop_volume_nl"] == pytest.approx(frames[0][1].drop_volume_nl, rel=0.01)
+    assert not tailed["inflight"] and "tail_joined" in tailed["quality"].split("; ")
+    assert "tail is joined" in tailed["notes"] and f"{tailed['tail_length_um']:.0f} um" in tailed["notes"]
     assert abs(compact["tail_length_um"] - _tail_truth(cfg, 1500.0)) <= 2 * cfg.pixel_size_um
-    for row in (tailed, compact):  # the note where the drop is longer than compact_ratio (2) widths, only there
-        assert ("has a tail" in row["notes"]) == (row["drop_length_um"] > 2.0 * row["drop_diameter_um"])
+    assert compact["inflight"] and compact["quality"] == "ok" and "tail" not in compact["notes"]
 
 
 def test_velocity_from_a_double_exposure(tmp_path):
