@@ -73,7 +73,8 @@ class Calibration:
     pixel_size_disagreement_percent: float
     background: BackgroundModel
     notes: list[str] = field(default_factory=list)
-    #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it).
+    #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it; 1 when the pixel
+    #: size is the nozzle's own, ``pixel_size_from_nozzle``).
     pixel_size_ratio: float = float("nan")
     #: Standard uncertainty of that ratio from the measured outer diameter (see `outer_diameter_uncertainty_px`).
     pixel_size_ratio_uncertainty: float = float("nan")
@@ -90,6 +91,20 @@ class Calibration:
     #: rest_meniscus_width_px`; NaN: not measured).
     rest_meniscus_width_px: float = float("nan")
     rest_meniscus_delay_us: float = float("nan")
+    #: The pixel size is the needle's (nozzle's) outer diameter over its outer width measured here
+    #: (no pixel size given): nothing to check it against, and its uncertainty is stated.
+    pixel_size_from_nozzle: bool = False
+    #: Standard uncertainty of ``pixel_size_um`` (µm): 0 when given (taken as exact), else from the
+    #: width's uncertainty (`dropvision.nozzle.needle_width_terms_px`, ``nozzle_width_terms_px``).
+    pixel_size_uncertainty_um: float = 0.0
+    #: Parts (px, standard uncertainties) of the needle's outer width when the pixel size comes from it.
+    nozzle_width_terms_px: dict = field(default_factory=dict)
+
+    @property
+    def pixel_size_relative_uncertainty(self) -> float:
+        """``pixel_size_uncertainty_um / pixel_size_um`` (0 for a given pixel size)."""
+        u = float(self.pixel_size_uncertainty_um)
+        return u / float(self.pixel_size_um) if u > 0 and self.pixel_size_um > 0 else 0.0
 
     @property
     def edge_position_uncertainty_px(self) -> float:
@@ -132,6 +147,12 @@ class Calibration:
             "pixel_size_disagreement_percent": self.pixel_size_disagreement_percent,
             "pixel_size_ratio": self.pixel_size_ratio,
             "pixel_size_ratio_uncertainty": self.pixel_size_ratio_uncertainty,
+            "pixel_size_from_nozzle": self.pixel_size_from_nozzle,
+            "pixel_size_uncertainty_um": self.pixel_size_uncertainty_um,
+            "nozzle_outer_diameter_uncertainty_px": (
+                float(np.sqrt(sum(v * v for v in self.nozzle_width_terms_px.values())))
+                if self.nozzle_width_terms_px else float("nan")),
+            "nozzle_outer_diameter_terms_px": dict(self.nozzle_width_terms_px),
             "rest_meniscus_width_px": self.rest_meniscus_width_px,
             "background": {
                 "method": "robust degree-4 polynomial fit to pixels away from dark bodies"
@@ -164,6 +185,7 @@ def calibrate_frames(
     max_value: int | None = None,
     clipped_limit: float = 0.01,
     allow_no_nozzle: bool = False,
+    pixel_size_from_nozzle: bool = False,
 ) -> Calibration:
     """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
 
@@ -192,11 +214,20 @@ def calibrate_frames(
     allow_no_nozzle : bool
         Where no nozzle is found but the first frame holds detached dark bodies, calibrate
         without it (`_without_nozzle`) instead of raising.
+    pixel_size_from_nozzle : bool
+        No pixel size was given: ``pixel_size_um`` is provisional and the pixel size is
+        ``nozzle_outer_diameter_um`` over the outer width measured here, by the one rule of the
+        needle's width (the narrowest straight walls of the top body, `dropvision.nozzle.find_nozzle`
+        without an expected width: the rule `dropvision.inspection.nozzle_outer_width_px` applies);
+        nothing is cross-checked against it.  Its uncertainty is set by
+        `dropvision.calibration_pass.calibrate_sequence` once the edge terms are known.
     """
     bg = estimate_background(spread)
     notes: list[str] = []
     clipped = None
-    expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um else None
+    from_nozzle = bool(pixel_size_from_nozzle and nozzle_outer_diameter_um)
+    # the width is the pixel size's source: no expected width steers the walls' choice (one rule)
+    expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um and not from_nozzle else None
     frac = clipped_fraction(bg.background, max_value)
     if frac > clipped_limit:
         level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background,
@@ -239,6 +270,11 @@ def calibrate_frames(
         return _without_nozzle(exc, t_first, spread, bg, pixel_size_um, first_pass_threshold(darkest), notes, clipped)
     thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n, expected)
+    source = "sequence.json pixel_size_um"
+    if from_nozzle:
+        pixel_size_um = float(nozzle_outer_diameter_um) / nozzle.outer_diameter_px
+        source = (f"nozzle outer diameter {nozzle_outer_diameter_um:g} um / {nozzle.outer_diameter_px:.2f} px "
+                  f"(its straight outer walls, rows {int(nozzle.rows[0])}-{int(nozzle.rows[-1])} of the first frame)")
     r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
     tip, tip_src = find_tip(t_first, nozzle, thr_n, r_in)
     tilt = nozzle.tilt_rad
@@ -253,7 +289,7 @@ def calibrate_frames(
     d_px = nozzle.outer_diameter_px
     d_um = d_px * pixel_size_um
     disagree = ratio = ratio_u = float("nan")
-    if nozzle_outer_diameter_um:
+    if nozzle_outer_diameter_um and not from_nozzle:  # a given pixel size: checked against the diameter
         disagree = 100.0 * (d_um / nozzle_outer_diameter_um - 1.0)
         # implied pixel size (outer diameter / measured px) over the given one
         ratio = float(nozzle_outer_diameter_um / d_um)
@@ -284,7 +320,7 @@ def calibrate_frames(
     return Calibration(
         shape=(h, w),
         pixel_size_um=float(pixel_size_um),
-        pixel_size_source="sequence.json pixel_size_um",
+        pixel_size_source=source,
         tip_row=float(tip),
         tip_source=tip_src,
         axis_col=float(axis),
@@ -302,6 +338,7 @@ def calibrate_frames(
         pixel_size_ratio=ratio,
         pixel_size_ratio_uncertainty=ratio_u,
         clipped=clipped,
+        pixel_size_from_nozzle=from_nozzle,
     )
 
 

@@ -29,9 +29,9 @@ from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_
 from dropvision.config import MeasureConfig
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
-from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line
+from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line, needle_width_terms_px
 from dropvision.segmentation import dark_mask, fill_holes, find_nozzle_body, segment
-from dropvision.sequence import SequenceError
+from dropvision.sequence import SequenceError, pixel_size_from_nozzle
 from dropvision.volume import outline
 
 
@@ -116,6 +116,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             # or detected): an undetected one is refused, naming what each edge shows
             allow_no_nozzle=(meta.nozzle_tip_row is None
                              and not str((meta.sources or {}).get("orientation", "")).startswith("default")),
+            pixel_size_from_nozzle=pixel_size_from_nozzle(meta),
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
@@ -123,7 +124,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
                 if how and str(exc).startswith("no nozzle") else "")
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
-    expected = meta.nozzle_outer_diameter_um / cal.pixel_size_um if meta.nozzle_outer_diameter_um else None
+    expected = (meta.nozzle_outer_diameter_um / cal.pixel_size_um
+                if meta.nozzle_outer_diameter_um and not cal.pixel_size_from_nozzle else None)
     max_value = 2 ** int(meta.bit_depth) - 1
     nozzle, sigma, reach = None, float("nan"), 0.0
     if cal.nozzle_found:
@@ -162,6 +164,16 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
         ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
+    if cal.pixel_size_from_nozzle and nozzle is not None:
+        cal.nozzle_width_terms_px = needle_width_terms_px(nozzle, cal.edge_position_uncertainty_px, sigma)
+        u_width = math.sqrt(sum(v * v for v in cal.nozzle_width_terms_px.values()))
+        cal.pixel_size_uncertainty_um = float(cal.pixel_size_um * u_width / cal.nozzle_outer_diameter_px)
+        # the pixel size is the nozzle's by construction: ratio 1 with the width's uncertainty (what a campaign's
+        # intervals take as the pixel size's part, identify.measurement_uncertainty)
+        cal.pixel_size_ratio, cal.pixel_size_ratio_uncertainty = 1.0, cal.pixel_size_relative_uncertainty
+        cal.pixel_size_source += (f" = {cal.pixel_size_um:.5g} +- {cal.pixel_size_uncertainty_um:.2g} um (width "
+                                  f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
+                                                                     cal.nozzle_width_terms_px.items()) + ")")
     if nozzle is not None and not focus.nozzle_out_of_focus:
         cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
         cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])

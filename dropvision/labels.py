@@ -36,6 +36,8 @@ _NUMBER = r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?"
 #: ``name-value`` (or ``name=value``): V1-12, V1--86 (value -86), w1-2.5, gain=3
 _PAIR = re.compile(rf"^({_NAME})[-=]({_NUMBER})$")
 _BARE_NAME = re.compile(rf"^{_NAME}$")
+#: a label name in a table or document (no file-name tokens to split): underscores too (``nozzle_outer_diameter_um``)
+_TABLE_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")
 _BARE_NUMBER = re.compile(rf"^{_NUMBER}$")
 #: a delay token (``1150us``, ``t-12.5us``): the delay's, never a label
 _DELAY_TOKEN = re.compile(r"(?:^|[-=])\d+(?:\.\d+)?(?:us|µs|μs)$", re.IGNORECASE)
@@ -194,8 +196,8 @@ def read_label_table(path) -> dict[str, dict[str, float]]:
         raise LabelError(f"{path}: no 'file' column (the table's first row names the columns: file, then the labels)")
     header = [h.strip() for h in rows[0]]
     for h in header:
-        if h != "file" and not _BARE_NAME.match(h):
-            raise LabelError(f"{path}: column {h!r} is not a label name (a letter, then letters or digits)")
+        if h != "file" and not _TABLE_NAME.match(h):
+            raise LabelError(f"{path}: column {h!r} is not a label name (a letter, then letters, digits or _)")
     if len(set(header)) != len(header):
         raise LabelError(f"{path}: a column is named twice")
     out: dict[str, dict[str, float]] = {}
@@ -256,8 +258,8 @@ def labels_from_document(entries, where) -> dict[str, dict[str, float]]:
         for key, value in entry.items():
             if key == "file" or value is None:
                 continue
-            if not isinstance(key, str) or not _BARE_NAME.match(key):
-                raise LabelError(f"{at}: {key!r} is not a label name (a letter, then letters or digits)")
+            if not isinstance(key, str) or not _TABLE_NAME.match(key):
+                raise LabelError(f"{at}: {key!r} is not a label name (a letter, then letters, digits or _)")
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise LabelError(f"{at}: {key} is {value!r}, not a finite number")
             labels[key] = float(value)

@@ -21,6 +21,7 @@ the command line is `dropvision.app.measure_cli`.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -31,7 +32,7 @@ from dropvision.config import MeasureConfig
 from dropvision.classify import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
-from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence
+from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
 from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
 from dvcore.atomic import atomic_dir, check_output_dir, output_lock
@@ -147,6 +148,9 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
             records, cal, sigma, ctx = _measure_frames(seq, config, logger, progress, errors, decoded)
     finally:
         seq.close()
+    if cal.pixel_size_from_nozzle:  # the calibration's width is the pixel size (the opening's was provisional)
+        meta = dataclasses.replace(meta, pixel_size_um=cal.pixel_size_um, pixel_size_source=cal.pixel_size_source,
+                                   sources={**(meta.sources or {}), "pixel_size": cal.pixel_size_source})
     result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
     frames, summary = result.frames, result.summary
     if logger is not None:
@@ -180,7 +184,7 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
 def check_scale_in_focus(cal, meta) -> None:
     """Refuse a pixel size taken from the nozzle's outer width when the calibration found its walls
     out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.sequence.SequenceError`."""
-    if cal.nozzle_out_of_focus and meta.pixel_size_source.startswith("nozzle outer diameter"):
+    if cal.nozzle_out_of_focus and pixel_size_from_nozzle(meta):
         raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
                             f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
                             "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")

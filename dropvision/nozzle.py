@@ -385,6 +385,50 @@ def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float)
     return float(np.hypot(stat, np.sqrt(2.0) * edge_position_floor_px) * np.cos(nozzle.tilt_rad))
 
 
+def needle_width_terms_px(nozzle: Nozzle, edge_position_px: float, sigma_px: float) -> dict[str, float]:
+    """The parts (px, standard uncertainties) of the needle's outer width when the pixel size comes from it.
+
+    The width is the mean distance between the straight outer walls' 50 % edges (`find_nozzle`); a
+    symmetric blur moves both edges by nothing, a meniscus is below the rows used.  What is left:
+
+    - ``rows``: the per-row widths' scatter over the square root of the independent rows they hold
+      (neighbouring rows share the blur: one independent row per ``max(1, 2 sigma)`` rows);
+    - ``taper``: the walls' width changes along the rows used (a tapered needle, perspective): the
+      width's trend over them, taken as uniform over its span (over sqrt(12));
+    - ``edges``: an edge-position error common to the frame (``edge_position_px``: threshold, background
+      level, a clipped background) moves both walls outward or inward together: twice it.
+
+    Parameters
+    ----------
+    nozzle : Nozzle
+        Fitted outer walls.
+    edge_position_px : float
+        Standard uncertainty of an edge position common to the frame (px).
+    sigma_px : float
+        Edge blur (Gaussian sigma, px; NaN: 1 px).
+
+    Returns
+    -------
+    dict
+        ``rows``, ``taper``, ``edges`` (px, of the diameter: the tilt's cosine applied).
+    """
+    w = np.asarray(nozzle.right_px, float) - np.asarray(nozzle.left_px, float)
+    rows = np.asarray(nozzle.rows, float)
+    ok = np.isfinite(w)
+    w, rows = w[ok], rows[ok]
+    sig = float(sigma_px) if np.isfinite(sigma_px) else 1.0
+    cos = float(np.cos(nozzle.tilt_rad))
+    if w.size >= 3:
+        slope, icpt = np.polyfit(rows, w, 1)
+        resid = w - (icpt + slope * rows)
+        n_eff = max(1.0, w.size / max(1.0, 2.0 * sig))
+        stat = float(np.std(resid, ddof=2) / np.sqrt(n_eff))
+        taper = float(abs(slope) * (rows.max() - rows.min()) / np.sqrt(12.0))
+    else:
+        stat, taper = float(np.std(w)) if w.size else float("nan"), 0.0
+    return {"rows": stat * cos, "taper": taper * cos, "edges": 2.0 * float(edge_position_px) * cos}
+
+
 # ----------------------------------------------------------------------------- an out-of-focus holder's face
 #: A column of the top body reaching this far (px) below the face line protrudes from it (the same
 #: margin as `_face_nozzle`'s: a 50 % line of a straight face scatters by less).

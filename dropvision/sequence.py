@@ -558,6 +558,15 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
 
 #: Frames spread over a sequence in which the nozzle's outer width is measured.
 _NOZZLE_FRAMES = 7
+#: How ``SequenceMeta.pixel_size_source`` begins when the pixel size is the nozzle's outer diameter over its width.
+NOZZLE_PIXEL_SIZE_SOURCE = "nozzle outer diameter"
+
+
+def pixel_size_from_nozzle(meta) -> bool:
+    """Whether the pixel size was not given and comes from the nozzle's (needle's) outer diameter:
+    the calibration measures the width again by the same rule in its first frame and that value is
+    the pixel size (`dropvision.calibration.calibrate_frames` ``pixel_size_from_nozzle``)."""
+    return str(getattr(meta, "pixel_size_source", "") or "").startswith(NOZZLE_PIXEL_SIZE_SOURCE)
 
 
 def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef, where: str
@@ -584,7 +593,7 @@ def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: Fra
                             f"cannot be measured to take it from nozzle_outer_diameter_um ({exc})") from None
     pixel_size_um = ranged_value(d_out / width_px, "pixel_size_um",
                             f"pixel size from nozzle_outer_diameter_um {d_out:g} µm over {width_px:.2f} px", where)
-    source = (f"nozzle outer diameter {d_out:g} um / {width_px:.2f} px (median over {used} frame"
+    source = (f"{NOZZLE_PIXEL_SIZE_SOURCE} {d_out:g} um / {width_px:.2f} px (median over {used} frame"
               f"{'s' if used != 1 else ''} from {first_ref.file}; diameter from "
               f"{meta.sources.get('nozzle_outer_diameter')})")
     return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,

@@ -254,12 +254,13 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
     from dropvision.calibration_pass import calibrate_sequence
     from dropvision.measurement import calibration_flags, check_scale_in_focus
     from dropvision.orientation import to_canonical
-    from dropvision.sequence import ArraySequence, Sequence, open_sequence
+    from dropvision.sequence import ArraySequence, Sequence, open_sequence, pixel_size_from_nozzle
 
     n = len(shots.paths)
     if n < 2:
         return None, "a single shot"
-    picks = [i for i in _spread(n, config.calibration_frames) if _inside_own_folder(shots.paths[i])]
+    picks = [i for i in _spread(n, config.calibration_frames) if _inside_own_folder(shots.paths[i])
+             and not _own_metadata(shots, i)]
     stored: dict[int, np.ndarray] = {}
     first_meta = None
     for i in picks:  # decoded as stored (no warnings here: each shot gives its own when measured)
@@ -277,6 +278,8 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
         return None, "fewer than two calibration shots could be read"
     if first_meta.pixel_size_source in _FILE_PIXEL_SIZE:
         return None, f"the pixel size is each image's own (its {first_meta.pixel_size_source} metadata)"
+    if pixel_size_from_nozzle(first_meta):
+        return None, "the pixel size is each shot's own needle width (no pixel size given)"
     prints = {i: fingerprint(img) for i, img in stored.items()}
     keys = list(prints)
     agree: dict[int, set[int]] = {i: {i} for i in keys}
@@ -334,11 +337,36 @@ class ShotOutcome:
     warnings: list = field(default_factory=list)
 
 
-def _alone(path: Path, config: MeasureConfig, overrides, option_labels):
+#: Labels that are a shot's own metadata (a shots.csv column, sequence.json ``shots`` key): a folder of pendant
+#: drops hanging from needles of several sizes, each shot with its needle's diameter.
+SHOT_METADATA_LABELS = ("pixel_size_um", "nozzle_outer_diameter_um", "nozzle_inner_diameter_um")
+
+
+def shot_metadata(shots, name: str, overrides: dict | None, option_labels: dict | None
+                  ) -> tuple[dict | None, dict | None]:
+    """The sequence.json values of one shot: the options', and its own labels named like
+    `SHOT_METADATA_LABELS` (they win: they are the shot's own), and how each was given."""
+    own = {k: v for k, v in shots.labels.get(name, {}).items() if k in SHOT_METADATA_LABELS}
+    if not own:
+        return overrides, option_labels
+    how = dict(option_labels or {})
+    for key in own:
+        how[key] = f"{shots.label_sources.get(key, 'labels')} ({name})"
+    return {**(overrides or {}), **own}, how
+
+
+def _own_metadata(shots, i: int) -> bool:
+    """Whether shot ``i`` has sequence.json values of its own (its pixel size or nozzle diameters
+    as labels, `dropvision.shots.shot_metadata`): it is calibrated alone."""
+    return any(k in SHOT_METADATA_LABELS for k in shots.labels.get(shots.names[i], {}))
+
+
+def _alone(shots, i: int, config: MeasureConfig, overrides, option_labels):
     from dropvision.measurement import measure_sequence
     from dropvision.sequence import open_sequence
-
-    seq = open_sequence(path.parent, overrides=overrides, labels=option_labels, only_files=[path.name])
+    path = shots.paths[i]
+    over, how = shot_metadata(shots, shots.names[i], overrides, option_labels)
+    seq = open_sequence(path.parent, overrides=over, labels=how, only_files=[path.name])
     return measure_sequence(seq, None, config)
 
 
@@ -382,11 +410,13 @@ def _measure_one(i: int, state) -> ShotOutcome:
         warnings.simplefilter("always")
         try:
             why = None
-            if rig is not None:
+            if rig is not None and _own_metadata(shots, i):
+                why = "its own pixel size or nozzle diameter labels"
+            elif rig is not None:
                 out.result, why = _with_rig(path, name, rig, config, delay)
                 out.shared = out.result is not None
             if out.result is None:
-                out.result = _alone(path, config, overrides, option_labels)
+                out.result = _alone(shots, i, config, overrides, option_labels)
                 if why is not None:
                     out.note = f"calibrated alone: {why}"
         except SequenceError as exc:

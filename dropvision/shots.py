@@ -35,6 +35,7 @@ from dropvision.labels import (
     read_label_table,
 )
 from dropvision.readers import IMAGE_SUFFIXES
+from dropvision.shot_rig import SHOT_METADATA_LABELS, shot_metadata
 from dropvision.sequence import SEQUENCE_JSON
 from dropvision.sequence_meta import SequenceError
 from dvcore import schema
@@ -45,7 +46,8 @@ from dvcore.versions import software_versions
 if TYPE_CHECKING:  # pandas loads where a table is made
     import pandas as pd
 
-__all__ = ["ShotInput", "ShotsResult", "find_shots", "measure_shots", "shots_table", "one_line"]
+__all__ = ["ShotInput", "ShotsResult", "find_shots", "measure_shots", "shots_table", "one_line",
+           "double_exposure_velocity", "shot_metadata", "STROBE_INTERVAL_LABEL", "SHOT_METADATA_LABELS"]
 
 #: sequence.json keys (and options) that make a folder a sequence, not shots
 _SEQUENCE_KEYS = ("frames", "frame_rate_hz", "video")
@@ -219,8 +221,54 @@ def label_columns(names: list[str]) -> dict[str, str]:
     return {n: (f"label_{n}" if n in declared else n) for n in names}
 
 
+#: A label (shots.csv column, sequence.json ``shots`` key, --label-pattern group) giving a double exposure's
+#: strobe interval: each drop is seen twice, that many µs apart (`double_exposure_velocity`).
+STROBE_INTERVAL_LABEL = "strobe_interval_us"
+
+
+def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volume_uncertainty_nl: float,
+                             bodies: pd.DataFrame | None, interval_us: float, pixel_size_um: float,
+                             pixel_size_relative_uncertainty: float = 0.0) -> tuple[float, float, str, float]:
+    """The main drop's velocity from a double exposure: its two images ``interval_us`` apart.
+
+    The other image is the detached body (``bodies``: one shot's rows of bodies.parquet, main drop
+    and satellites) whose volume is the main drop's within three standard uncertainties of their
+    difference (``sqrt(2)`` times the drop's: the same drop measured twice), the nearest in volume.
+    The velocity is their distance along the jetting axis over the interval (m/s, positive away from
+    the nozzle); its uncertainty: half a pixel on each centroid and the pixel size's.
+
+    Returns
+    -------
+    (velocity_m_s, uncertainty_m_s, note, second_image_volume_nl)
+        NaN and the reason as the note when there is no second image.
+    """
+    nan = float("nan")
+    if not (np.isfinite(interval_us) and interval_us > 0):
+        return nan, nan, f"{STROBE_INTERVAL_LABEL} {interval_us:g} is not a positive number: no velocity", nan
+    if not (np.isfinite(drop_z_um) and np.isfinite(drop_volume_nl)):
+        return nan, nan, "double exposure: no main drop, no velocity", nan
+    b = bodies
+    if b is None or not len(b):
+        return nan, nan, "double exposure: the main drop's second image is not found (no other detached body)", nan
+    b = b[b["body_class"].isin(("main_drop", "satellite")) & np.isfinite(b["z_um"].to_numpy(float))
+          & np.isfinite(b["volume_nl"].to_numpy(float))]
+    b = b[np.abs(b["z_um"].to_numpy(float) - drop_z_um) > 0.5 * pixel_size_um]  # not the main drop itself
+    u = math.sqrt(2.0) * drop_volume_uncertainty_nl if np.isfinite(drop_volume_uncertainty_nl) else 0.0
+    dv = np.abs(b["volume_nl"].to_numpy(float) - drop_volume_nl)
+    if not dv.size or dv.min() > 3.0 * u:
+        return nan, nan, ("double exposure: no detached body of the main drop's volume (within 3 uncertainties) "
+                          "is its second image: no velocity"), nan
+    other = b.iloc[int(np.argmin(dv))]
+    dz = abs(float(other["z_um"]) - drop_z_um)
+    v = dz / interval_us  # um/us = m/s
+    u_v = v * math.hypot(pixel_size_relative_uncertainty, math.sqrt(2.0) * 0.5 * pixel_size_um / dz)
+    return v, u_v, "", float(other["volume_nl"])
+
+
 def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[str]],
-                unmeasured: dict[str, str] | None = None, delay_us: float = 0.0) -> pd.DataFrame:
+                unmeasured: dict[str, str] | None = None, delay_us: float = 0.0, *,
+                bodies: pd.DataFrame | None = None, calibrations: dict[str, dict] | None = None,
+                strobe_interval_us: float | None = None) -> pd.DataFrame:
     """shots.parquet from the frames table of the measured shots.
 
     Parameters
@@ -237,6 +285,13 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         and the reason as its note.
     delay_us : float
         The delay of an unmeasured shot's row (the measured ones have theirs).
+    bodies : DataFrame, optional
+        bodies.parquet of the shots (``file`` the shot's name): a double exposure's second image.
+    calibrations : dict, optional
+        Shot name -> its summary.json ``calibration`` (its pixel size and that size's uncertainty).
+    strobe_interval_us : float, optional
+        Every shot is a double exposure this many µs apart (a shot's `STROBE_INTERVAL_LABEL` label
+        wins): ``drop_velocity_m_s`` (`double_exposure_velocity`).
 
     Returns
     -------
@@ -259,12 +314,43 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         u_sphere = sphere * u_volume / (3.0 * volume)
         x, z = f["drop_x_um"].to_numpy(dtype=float), f["drop_z_um"].to_numpy(dtype=float)
         angle = 1000.0 * np.arctan2(x, z)
+    length, width = f["drop_length_um"].to_numpy(dtype=float), f["drop_diameter_um"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        tail = np.maximum(length - width, 0.0)  # the main body's length beyond a round head as wide as it
+    calibrations = calibrations or {}
+    pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_um", np.nan) or np.nan) for n in names])
+    u_pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_uncertainty_um", 0.0) or 0.0)
+                        for n in names])
+    u_pixel[~np.isfinite(pixel)] = np.nan
+    velocity = np.full(len(names), np.nan)
+    n_sat = f["n_satellites"].astype("Int64").to_numpy().copy()
+    sat_volume = (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float).copy()
+    u_velocity = np.full(len(names), np.nan)
+    inflight = f["inflight"].astype(bool).to_numpy()
+    quality = f["quality"].astype(str).to_numpy().copy()
     row_notes = []
     for i, name in enumerate(names):
         own = list(notes.get(name, []))
         if missing[i]:
             row_notes.append(unmeasured.get(name, "not measured"))
             continue
+        if np.isfinite(volume[i]) and not inflight[i]:  # measured, but not compact: its tail is joined
+            quality[i] = schema.Quality.TAIL if quality[i] == schema.Quality.OK else f"{quality[i]}; {schema.Quality.TAIL}"
+            own.append(f"the main drop's tail is joined to it: {tail[i]:.0f} um beyond its head ({length[i]:.0f} um "
+                       f"long, {width[i]:.0f} um wide): not in flight; its volume holds the tail")
+        interval = shots.labels.get(name, {}).get(STROBE_INTERVAL_LABEL, strobe_interval_us)
+        if interval is not None:
+            rel = u_pixel[i] / pixel[i] if np.isfinite(pixel[i]) and pixel[i] > 0 else 0.0
+            shot_bodies = None if bodies is None else bodies[bodies["file"] == name]
+            velocity[i], u_velocity[i], why, second_nl = double_exposure_velocity(
+                z[i], volume[i], u_volume[i], shot_bodies, float(interval),
+                pixel[i] if np.isfinite(pixel[i]) else 1.0, rel)
+            if np.isfinite(second_nl):  # the main drop's second image is no satellite
+                n_sat[i] -= 1
+                sat_volume[i] -= second_nl
+            own.append(why or (f"double exposure {float(interval):g} us apart: velocity from the main drop's two "
+                               "images (its second image is not counted as a satellite; other satellites are seen "
+                               "twice and counted twice)"))
         codes = str(f["quality"].iloc[i]).split("; ")
         if schema.Quality.NO_NOZZLE in codes:
             angle[i] = np.nan
@@ -280,17 +366,22 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
         "drop_volume_uncertainty_nl": u_volume,
         "drop_sphere_diameter_um": sphere,
         "drop_sphere_diameter_uncertainty_um": u_sphere,
-        "drop_length_um": f["drop_length_um"].to_numpy(dtype=float),
-        "drop_diameter_um": f["drop_diameter_um"].to_numpy(dtype=float),
-        "n_satellites": f["n_satellites"].astype("Int64").to_numpy(),
-        "satellites_volume_nl": (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float),
+        "drop_length_um": length,
+        "drop_diameter_um": width,
+        "tail_length_um": tail,
+        "drop_velocity_m_s": velocity,
+        "drop_velocity_uncertainty_m_s": u_velocity,
+        "n_satellites": n_sat,
+        "satellites_volume_nl": sat_volume,
         "drop_z_um": z,
         "drop_x_um": x,
         "trajectory_angle_mrad": angle,
         "attached_volume_nl": f["attached_volume_nl"].to_numpy(dtype=float),
         "attached_volume_uncertainty_nl": f["attached_volume_uncertainty_nl"].to_numpy(dtype=float),
-        "inflight": f["inflight"].astype(bool).to_numpy(),
-        "quality": f["quality"].astype(str).to_numpy(),
+        "pixel_size_um": pixel,
+        "pixel_size_uncertainty_um": u_pixel,
+        "inflight": inflight,
+        "quality": quality,
         "notes": row_notes,
     })
     out["n_satellites"] = out["n_satellites"].astype("Int64")
@@ -314,7 +405,7 @@ def _extreme(values, fn) -> float | None:
 def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                   option_labels: dict | None = None, label_pattern: str | None = None, csv: bool = False,
                   overwrite: bool = False, shared_calibration: bool = True,
-                  workers: int | None = None) -> ShotsResult:
+                  workers: int | None = None, strobe_interval_us: float | None = None) -> ShotsResult:
     """Measure a folder of shots (or image files) with the calibration they share.
 
     Parameters
@@ -341,6 +432,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     workers : int, optional
         Forked processes measuring the shots (``config.workers`` by default; 1: this process);
         the rows are the same either way.
+    strobe_interval_us : float, optional
+        Every image is a double exposure this many µs apart (a shot's ``strobe_interval_us`` label
+        wins): the main drop's velocity from its two images (`shots_table`).
 
     Returns
     -------
@@ -404,7 +498,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
     own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
     table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in errors},
-                        delay_us=float((overrides or {}).get("delay_us") or 0.0))
+                        delay_us=float((overrides or {}).get("delay_us") or 0.0), bodies=bodies,
+                        calibrations={e["file"]: e["calibration"] for e in per_shot if "calibration" in e},
+                        strobe_interval_us=strobe_interval_us)
     summary = {
         "schema_version": schema.SHOTS_SUMMARY.schema,
         "kind": "shots",

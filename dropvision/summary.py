@@ -192,6 +192,8 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
         velocity = velocity_se = float("nan")
     if delay_lie:
         velocity = velocity_se = float("nan")
+    # a pixel size measured off the needle: lengths and velocities scale with it
+    velocity_se = float(np.hypot(velocity_se, float(getattr(cal, "pixel_size_relative_uncertainty", 0.0)) * velocity))
     floor_share = 0.0  # volumes carry no fixed floor: their sub-pixel error is in each frame's random part
     # the frames' own scatter, relative to their modelled random part (a scatter in nl read off the
     # large volumes would swamp the small meniscus's)
@@ -199,6 +201,14 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     ratio = frame_scatter_ratio(delay, vol_used, model_rand, attached)
     meniscus_u, grown_u, att_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown,
                                                    floor_share, scatter_ratio=ratio)
+    # a pixel size measured off the needle (none given): its uncertainty scales every volume by its cube
+    rel3 = 3.0 * float(getattr(cal, "pixel_size_relative_uncertainty", 0.0))
+    if rel3 > 0:
+        att_u, grown_u = np.hypot(att_u, rel3 * np.abs(att_vol)), np.hypot(grown_u, rel3 * np.abs(grown))
+        meniscus_u = float(np.hypot(meniscus_u, rel3 * abs(meniscus)))
+        drop.drop_volume_uncertainty_nl = np.hypot(drop.drop_volume_uncertainty_nl, rel3 * np.abs(drop.drop_volume_nl))
+        drop.detached_volume_uncertainty_nl = np.hypot(drop.detached_volume_uncertainty_nl,
+                                                       rel3 * np.abs(drop.detached_volume_nl))
     frames = pd.DataFrame({
         "file": [r.file for r in records],
         "page": pd.array([r.page for r in records], dtype="Int64"),

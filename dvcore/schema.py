@@ -178,6 +178,14 @@ SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
       "relative uncertainty)"),
     F("drop_length_um", "float", "um", "extent of the main drop along the jetting axis"),
     F("drop_diameter_um", "float", "um", "extent of the main drop across the jetting axis"),
+    F("tail_length_um", "float", "um", "the main drop's tail (ligament): its length beyond a round head as wide as "
+      "it, drop_length_um - drop_diameter_um, 0 for a drop no longer than wide; where the drop is not compact (not "
+      "in flight) the quality holds tail_joined and a note gives the tail"),
+    F("drop_velocity_m_s", "float", "m/s", "main-drop velocity along the jetting axis from a double exposure: the "
+      "distance between its two images over the strobe interval (the shot's strobe_interval_us label, else "
+      "measure_shots strobe_interval_us); NaN with a note where none is given or the second image is not found"),
+    F("drop_velocity_uncertainty_m_s", "float", "m/s", "its standard uncertainty (half a pixel on each centroid, "
+      "the pixel size's)"),
     F("n_satellites", "int", "", "satellite drops (one touching the main drop included)"),
     F("satellites_volume_nl", "float", "nl", "volume of the detached bodies other than the main drop's silhouette "
       "(detached_volume_nl - drop_volume_nl of frames.parquet; a satellite touching the main drop is in the drop's)"),
@@ -188,6 +196,10 @@ SHOTS = Table("shots", "shots.parquet", "dropvision.shots/1", (
       "main-drop centroid, atan(drop_x_um / drop_z_um); NaN with a note where the nozzle or the drop is not found"),
     F("attached_volume_nl", "float", "nl", "liquid joined to the nozzle below the tip plane (pendant drop)"),
     F("attached_volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
+    F("pixel_size_um", "float", "um", "the shot's pixel size (given, or its needle's outer diameter over the "
+      "needle's width measured in this image: summary.json shots[].pixel_size_source)"),
+    F("pixel_size_uncertainty_um", "float", "um", "its standard uncertainty (0 for a given pixel size; from the "
+      "needle's width otherwise, in the volumes' uncertainties)"),
     F("inflight", "bool", "", "the main drop is compact and in flight", nullable=False),
     F("quality", "str", "", "'ok' or the quality codes joined by '; ' (table below)", nullable=False),
     F("notes", "str", "", "what is particular to this shot, sentences joined by '; ' (notes common to every shot are "

@@ -86,7 +86,12 @@ def test_pixel_size_from_the_nozzle_outer_diameter(synthetic, tmp_path):
     s = res.summary
     assert s["calibration"]["pixel_size_um"] == pytest.approx(4.73, rel=0.01)
     assert s["pixel_size_source"].startswith("nozzle outer diameter 360 um / ")
-    assert "median over 7 frames" in s["pixel_size_source"]  # a neck in one frame is narrower than the walls
+    # one width from one rule: the calibration's straight outer walls in its first frame (the meniscus at rest),
+    # with its uncertainty; nothing checked against a pixel size nobody gave
+    assert "straight outer walls" in s["pixel_size_source"] and " +- " in s["pixel_size_source"]
+    u = s["calibration"]["pixel_size_uncertainty_um"]
+    assert 0 < u < 0.01 * 4.73 and abs(s["calibration"]["pixel_size_um"] - 4.73) <= 2 * u + 0.002 * 4.73
+    assert "pixel_size_mismatch" not in set("; ".join(res.frames["quality"]).split("; "))
     assert s["nozzle_outer_diameter_source"] == "argument nozzle_outer_diameter_um"
     assert s["waveform_source"] == "argument waveform"  # a partial waveform replaces the file's u1 only
 

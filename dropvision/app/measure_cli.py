@@ -8,6 +8,7 @@ each (``dropvision measure: warning: ...``).
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -41,6 +42,9 @@ def _run(args: argparse.Namespace) -> int:
     shots = find_shots(paths, overrides=overrides, label_pattern=args.label_pattern)
     if shots is not None:
         return _run_shots(args, shots, config, overrides, labels)
+    if getattr(args, "strobe_interval_us", None) is not None:
+        raise UsageError(f"--strobe-interval-us: {paths[0]} is a sequence (its frames tell their delays), not a "
+                         "folder of shots; a double exposure's interval is read for shots only")
     if args.label_pattern is not None:
         raise UsageError(f"--label-pattern: {paths[0]} is a sequence (its frames tell their delays), not a folder "
                          "of shots; labels are read for shots only")
@@ -93,7 +97,7 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
     with captured_warnings() as caught:
         try:
             res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
-                                overwrite=args.overwrite)
+                                overwrite=args.overwrite, strobe_interval_us=args.strobe_interval_us)
         finally:
             print_warnings("dropvision measure", _grouped(warning_lines(caught), {p.name for p in shots.paths}), args)
     s = res.summary
@@ -121,6 +125,17 @@ def _grouped(lines: list[str], names: set[str]) -> list[str]:
             + ": " + message for message, heads in files.items()]
 
 
+def _positive_us(text: str) -> float:
+    """A strobe interval: a finite number of µs > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of µs") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: the interval must be a finite number of µs > 0")
+    return value
+
+
 def register(subparsers) -> None:
     """Add the ``measure`` sub-command."""
     p = subparsers.add_parser("measure", help="measure drop volumes, pinch-off and velocities of a strobe sequence")
@@ -131,6 +146,10 @@ def register(subparsers) -> None:
     p.add_argument("--label-pattern", metavar="REGEX", default=None,
                    help="shots: read the labels from the file names with this regular expression of named groups, "
                    "e.g. 'run(?P<run>\\d+)_(?P<V>[-\\d.]+)V' (default: the name-value tokens, V1--86 is V1 = -86)")
+    p.add_argument("--strobe-interval-us", metavar="US", type=_positive_us, default=None,
+                   help="shots: every image is a double exposure, each drop seen twice this many µs apart: the main "
+                   "drop's velocity (shots.parquet drop_velocity_m_s; a strobe_interval_us column of shots.csv "
+                   "gives it per image)")
     p.add_argument("--out", required=True, help="output folder (written atomically; never the sequence folder, "
                    "inside it or around it; an existing folder only if it holds an earlier result of ours)")
     p.add_argument("--overwrite", action="store_true",
