@@ -150,7 +150,8 @@ def dark_bodies_mask(image: np.ndarray, margin_px: int) -> np.ndarray:
 
 
 def estimate_background(
-    images: list[np.ndarray], degree: int = 4, margin_px: int = 6, dust_min_attenuation: float = 0.03
+    images: list[np.ndarray], degree: int = 4, margin_px: int = 6, dust_min_attenuation: float = 0.03,
+    static_dust: bool = True,
 ) -> BackgroundModel:
     """Estimate the illumination from the frames themselves (see module docstring).
 
@@ -164,6 +165,10 @@ def estimate_background(
         Pixels around dark bodies not used as background samples.
     dust_min_attenuation : float
         A static attenuation larger than this is folded into the background.
+    static_dust : bool
+        Look for static dust (three or more frames). False where what stays in one place in every
+        frame may be the liquid itself: shots of one rig at one strobe delay, whose drops sit at
+        nearly one place (`dropvision.shot_rig`); the polynomial alone, as for one frame.
     """
     if not images:
         raise CalibrationError("no readable frame to estimate the background from")
@@ -182,7 +187,7 @@ def estimate_background(
     background = smooth.copy()
     opaque = None
     dust_pixels = 0
-    if len(images) >= 3:
+    if static_dust and len(images) >= 3:
         ratio = np.where(valid, mean / smooth, 1.0).astype(np.float32)
         ratio = cv2.GaussianBlur(ratio, (0, 0), 0.7)
         dust = valid & (ratio < 1.0 - dust_min_attenuation)

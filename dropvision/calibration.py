@@ -180,6 +180,7 @@ def calibrate_frames(
     nozzle_inner_diameter_um: float | None = None,
     tip_row: float | None = None,
     axis_col: float | None = None,
+    static_dust: bool = True,
     pixel_size_tolerance: float = 0.02,
     edge_position_floor_px: float = 0.05,
     max_value: int | None = None,
@@ -214,6 +215,9 @@ def calibrate_frames(
     allow_no_nozzle : bool
         Where no nozzle is found but the first frame holds detached dark bodies, calibrate
         without it (`_without_nozzle`) instead of raising.
+    static_dust : bool
+        Fold static dust seen in three or more of ``spread`` into the background
+        (`dropvision.background.estimate_background`).
     pixel_size_from_nozzle : bool
         No pixel size was given: ``pixel_size_um`` is provisional and the pixel size is
         ``nozzle_outer_diameter_um`` over the outer width measured here, by the one rule of the
@@ -222,7 +226,7 @@ def calibrate_frames(
         nothing is cross-checked against it.  Its uncertainty is set by
         `dropvision.calibration_pass.calibrate_sequence` once the edge terms are known.
     """
-    bg = estimate_background(spread)
+    bg = estimate_background(spread, static_dust=static_dust)
     notes: list[str] = []
     clipped = None
     from_nozzle = bool(pixel_size_from_nozzle and nozzle_outer_diameter_um)

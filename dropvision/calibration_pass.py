@@ -57,8 +57,8 @@ def calibration_indices(delays_us: np.ndarray, n: int) -> list[int]:
     return [int(first_of[i]) for i in pick]
 
 
-def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
-                       decoded: dict | None = None) -> tuple[Calibration, float, FrameContext]:
+def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded: dict | None = None,
+                       static_dust: bool = True) -> tuple[Calibration, float, FrameContext]:
     """Calibration pass over a few frames spread over an open sequence.
 
     Parameters
@@ -69,6 +69,9 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
     decoded : dict, optional
         Receives the decoded calibration frames (index -> image) so that the measurement pass
         does not decode them again.
+    static_dust : bool
+        Look for static dust in the calibration frames (`dropvision.background.estimate_background`);
+        False for the frames of several shots, whose drops may sit at one place in all of them.
 
     Returns
     -------
@@ -108,7 +111,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *,
             first, images, meta.pixel_size_um,
             nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
             nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
-            tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col,
+            tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col, static_dust=static_dust,
             pixel_size_tolerance=config.pixel_size_tolerance_fraction,
             edge_position_floor_px=config.edge_position_floor_px,
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,

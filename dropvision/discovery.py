@@ -48,6 +48,10 @@ def _natural_key(name: str):
             for t in re.split(r"(\d+)", name) if t]
 
 
+#: The natural name order of the frames of a folder (``f_2`` before ``f_10``).
+natural_key = _natural_key
+
+
 def safe_relpath(file, where: str) -> str:
     """Normalise a frames ``file`` entry; reject absolute paths and escapes from the folder."""
     if not isinstance(file, str) or not file.strip():

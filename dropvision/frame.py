@@ -226,7 +226,9 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext) -> Photometry:
 
     Flags: illumination unknown or off by more than 10 ``ctx.gain_tolerance``, more than
     ``ctx.saturation_limit`` of the background samples saturated, blur or contrast off the
-    calibration frame's (an unmeasurable blur, walls without any edge, is NaN and flagged blurred).
+    calibration frame's (an unmeasurable blur, walls without any edge, is NaN and flagged blurred),
+    less than half of the frame bright background (`dropvision.quality.background_fraction`: no
+    backlit drop image at all).
 
     Parameters
     ----------
@@ -265,6 +267,8 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext) -> Photometry:
             flags.append(q.LOW_CONTRAST)
     if abs(gain - 1.0) > 10 * ctx.gain_tolerance:
         flags.append(q.ILLUMINATION)
+    if q.background_fraction(image) < q.MIN_BACKGROUND_FRACTION:  # a photograph, a texture: no drop image
+        flags.append(q.NOT_DROP_IMAGE)
     return Photometry(gain=gain, blur_px=blur_px, wall_contrast=wall_contrast, flags=tuple(flags))
 
 

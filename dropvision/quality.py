@@ -34,6 +34,14 @@ NEIGHBOURS = Quality.NEIGHBOURS
 IMPLAUSIBLE = Quality.IMPLAUSIBLE
 NOZZLE_OUT_OF_FOCUS = Quality.NOZZLE_OUT_OF_FOCUS
 UNREADABLE = Quality.UNREADABLE
+NOT_DROP_IMAGE = Quality.NOT_DROP_IMAGE
+
+#: A backlit drop image is mostly lit background: at least this fraction of it (`background_fraction`), else
+#: it is flagged `NOT_DROP_IMAGE`. The nozzle, the holder and the liquid are small dark silhouettes on the
+#: light; even a large pendant drop leaves most of its frame lit (a person's first look at an image).
+MIN_BACKGROUND_FRACTION = 0.5
+#: A pixel is background within this fraction of the local background level.
+BACKGROUND_TOLERANCE = 0.15
 
 
 def join(flags) -> str:
@@ -102,3 +110,31 @@ def wall_contrast(profiles: np.ndarray) -> float:
     if profiles.size == 0:
         return float("nan")
     return float(1.0 - np.median(profiles.min(axis=1)))
+
+
+def background_fraction(image: np.ndarray) -> float:
+    """Fraction of a frame that is bright background: within `BACKGROUND_TOLERANCE` of the local
+    background level, the brightest level within a quarter of the frame (smoothed, so that a vignetted
+    or unevenly lit background counts whole), judged on the frame reduced to 128 px on its long side.
+
+    A drop image (backlit shadowgraph) is mostly such background; a photograph, a texture or a gradient
+    is not (`MIN_BACKGROUND_FRACTION`). A black frame (no light at all) is 0; a uniform one 1.
+    """
+    import cv2
+
+    img = np.asarray(image)
+    if img.ndim != 2 or img.size == 0:
+        return float("nan")
+    if img.dtype not in (np.uint8, np.uint16, np.float32):
+        img = img.astype(np.float32)
+    h, w = img.shape
+    scale = min(1.0, 128.0 / max(h, w))
+    small = cv2.resize(np.ascontiguousarray(img), (max(1, round(w * scale)), max(1, round(h * scale))),
+                       interpolation=cv2.INTER_AREA).astype(np.float32)
+    k = max(3, (max(small.shape) // 4) | 1)  # a quarter of the frame, odd
+    level = cv2.dilate(small, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    level = cv2.GaussianBlur(level, (0, 0), k / 4)
+    lit = level > 0
+    if not lit.any():
+        return 0.0
+    return float(np.mean(lit & (small >= (1.0 - BACKGROUND_TOLERANCE) * level)))

@@ -306,7 +306,8 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
         # the calibration shots as a sequence in memory (distinct delays: each is a calibration frame)
         frames = tuple(FrameRef(k, str(shots.paths[i]), None, float(k), 0, k) for k, i in enumerate(members))
         pseudo = ArraySequence(dataclasses.replace(meta, frames=frames), images)
-        cal, sigma, ctx = calibrate_sequence(pseudo, config)
+        # the drops of shots at one strobe delay sit at nearly one place: not dust (as for a shot alone)
+        cal, sigma, ctx = calibrate_sequence(pseudo, config, static_dust=False)
         cal.rest_meniscus_delay_us = delay if math.isfinite(cal.rest_meniscus_delay_us) else cal.rest_meniscus_delay_us
         check_scale_in_focus(cal, meta)
     except (SequenceError, ValueError) as exc:

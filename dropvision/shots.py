@@ -46,8 +46,9 @@ from dvcore.versions import software_versions
 if TYPE_CHECKING:  # pandas loads where a table is made
     import pandas as pd
 
-__all__ = ["ShotInput", "ShotsResult", "find_shots", "measure_shots", "shots_table", "one_line",
-           "double_exposure_velocity", "shot_metadata", "STROBE_INTERVAL_LABEL", "SHOT_METADATA_LABELS"]
+__all__ = ["ShotInput", "ShotsResult", "find_shots", "is_shot_folder", "sequence_settings_given", "shots_of",
+           "measure_shots", "shots_table", "one_line", "double_exposure_velocity", "shot_metadata",
+           "STROBE_INTERVAL_LABEL", "SHOT_METADATA_LABELS"]
 
 #: sequence.json keys (and options) that make a folder a sequence, not shots
 _SEQUENCE_KEYS = ("frames", "frame_rate_hz", "video")
@@ -178,6 +179,34 @@ def find_shots(paths, *, overrides: dict | None = None, label_pattern: str | Non
         names = [p.name for p in absolute] if len(parents) == 1 else [str(p) for p in paths]
         shots = ShotInput(absolute, names, parents, from_folder=False)
     _read_labels(shots, label_pattern)
+    return shots
+
+
+def is_shot_folder(folder, *, overrides: dict | None = None) -> bool:
+    """Whether `find_shots` takes ``folder`` for a folder of shots (its rule, without reading the labels):
+    no frames list nor frame rate (sequence.json or ``overrides``), two or more single-frame images none
+    of which tells a delay. `dropvision campaign` finds shot folders with it."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return False
+    folder = folder.absolute()
+    return not _is_sequence_folder(folder, overrides) and images_without_delay(folder) is not None
+
+
+def sequence_settings_given(folder, *, overrides: dict | None = None) -> bool:
+    """Whether a frames list or a frame rate (sequence.json, ``overrides``) makes ``folder`` a sequence
+    whatever its images are (an unreadable sequence.json counts: `open_sequence` reports it)."""
+    return _is_sequence_folder(Path(folder).absolute(), overrides)
+
+
+def shots_of(folder, names, *, label_pattern: str | None = None) -> ShotInput:
+    """The images ``names`` of ``folder`` (in that order) as shots, their labels read as `find_shots` reads
+    them (the names or the pattern, shots.csv and sequence.json's shots list); a table may list images not
+    among them (not arrived yet: `dropvision watch`)."""
+    folder = Path(folder).absolute()
+    shots = ShotInput([folder / n for n in names], list(names), [folder], from_folder=False)
+    _read_labels(shots, label_pattern)
+    shots.from_folder = True  # one folder: its summary names the folder
     return shots
 
 

@@ -44,7 +44,7 @@ SCHEMA_VERSION = schema.SUMMARY.schema
 FRAME_COLUMNS = schema.FRAMES.column_names
 PER_DELAY_COLUMNS = [name for name, _ in schema.PER_DELAY_SOURCES]
 #: Flags of a frame whose intensities are not trusted: no number from it.
-UNTRUSTED_INTENSITY_FLAGS = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION)
+UNTRUSTED_INTENSITY_FLAGS = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION, q.NOT_DROP_IMAGE)
 #: Flags that only keep a frame out of the in-flight set (not shown in ``quality``).
 INFLIGHT_ONLY_FLAGS = frozenset({q.TAIL})
 
@@ -94,6 +94,11 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     delay = np.array([r.delay_us for r in records], float)
     flags = [list(r.flags) for r in records]
     notes: list[str] = []
+    not_drop = [r.file for r in records if q.NOT_DROP_IMAGE in r.flags]
+    if not_drop:
+        notes.append(f"{len(not_drop)} frame(s) look like no backlit drop image ({', '.join(not_drop[:3])}"
+                     f"{', ...' if len(not_drop) > 3 else ''}): less than half of each is bright background "
+                     f"(within {q.BACKGROUND_TOLERANCE:.0%} of the local background level); nothing measured in them")
     att_vol = np.array([r.attached_volume_nl for r in records], float)
     att_u = np.array([r.attached_volume_uncertainty_nl for r in records], float)
     att_common = np.array([r.attached_common_uncertainty_nl for r in records], float)

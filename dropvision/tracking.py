@@ -171,7 +171,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     # a tail merges once: a compact-looking drop before a later delay whose tail is still joined
     # (a bulb on the tail can pass for a round top) is not yet in flight
     delays = np.array([r.delay_us for r in records], float)
-    untrusted = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION, q.NEIGHBOURS)
+    untrusted = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION, q.NEIGHBOURS, q.NOT_DROP_IMAGE)
     tail = np.array([q.TAIL in fl and not any(f in fl for f in untrusted) for fl in flags], bool)
     if tail.any():
         early = inflight & (delays < delays[tail].max())

@@ -321,6 +321,14 @@ DATASET_SUMMARY = Table("dataset_summary", "summary.parquet", "dropvision.datase
       "inflight_volume_std_nl / sqrt(inflight_frames))", required=False),
 ), "Training summary: one row per sequence.")
 
+DATASET_SHOTS = Table("dataset_shots", "shots.parquet", "dropvision.dataset-shots/1", (
+    F("shot_folder", "str", "", "the shot folder (its path relative to the campaign root)", nullable=False),
+    *SHOTS.columns,
+), "`dropvision campaign`: the rows of every shot folder below the campaign root (a folder of images with no "
+   "delay to tell, measured as `dropvision measure` measures it: its shots.parquet), one row per image, the "
+   "folders in id order; then the label columns of all folders (NaN where a folder lacks the label; a label "
+   "named `shot_folder` is named `label_shot_folder`). Written where the campaign holds shot folders.")
+
 DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
     F("schema", "str", "", "document id"),
     F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter", nullable=False),
@@ -342,6 +350,10 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
       "defaults (identify.measurement_uncertainty.measurement_uncertainty)", required=False),
     F("sequences", "list", "", "sequence ids measured", required=False),
     F("failed", "object", "", "sequence id -> why it failed", required=False),
+    F("shot_folders", "list", "", "shot folders measured into shots.parquet (ids relative to the campaign root; "
+      "absent where the campaign holds none)", required=False),
+    F("n_shots", "int", "", "rows of shots.parquet (absent where the campaign holds no shot folder)",
+      required=False),
     F("versions", "object", "", "software versions", required=False),
 ), "Campaign dataset metadata (also written by identify's Dataset.save).", aliases=("identify.dataset/1",))
 
@@ -349,7 +361,8 @@ MANIFEST = Document("manifest", "manifest.json", "dropvision.manifest/1", (
     F("schema", "str", "", "document id"),
     F("root", "str", "", "campaign root folder"),
     F("versions", "object", "", "software versions"),
-    F("sequences", "object", "", "sequence id -> path, input_hash, shard, status, error, meta"),
+    F("sequences", "object", "", "sequence (or shot folder) id -> path, input_hash, shard, status, error, meta; "
+      "kind \"shots\" for a shot folder (its shard holds shots.parquet)"),
 ), "Campaign progress: what was measured from which inputs (resumable).")
 
 MODEL = Document("model", "model.json", "identify.hybrid-model/1", (
@@ -408,13 +421,16 @@ LIVE_FRAMES = Table("live_frames", "live/frames.jsonl", "dropvision.live-frames/
     F("mtime_ns", "int", "ns", "file modification time when it was measured (Unix epoch)", nullable=False),
     F("row_unix_s", "float", "s", "when the row was written (Unix epoch)", nullable=False),
     F("latency_ms", "float", "ms", "from the file's last modification to its row", nullable=False),
-), "`dropvision watch`: one JSON line per frame as it is measured, before the sequence-level analysis "
+), "`dropvision watch`: one JSON line per frame as it is measured, before the sequence-level analysis (a shot: "
+   "its row as the image alone gives it, calibration_frames 1; its shots.parquet row is written first) "
    "(provisional: pinch-off, grown volume, tracking and the final quality codes are in frames.parquet at the "
    "end). Appended one whole line at a time; read with `dropvision.app.live_journal.read_journal`.")
 
 WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
     F("schema", "str", "", "document id"),
     F("sequence", "str", "", "the watched sequence folder"),
+    F("kind", "str", "", "shots: the folder received one image per shot (shots.parquet grows as they are measured); "
+      "absent: a sequence", required=False),
     F("state", "str", "", "watching (a restart on the same output resumes) or finished"),
     F("ended_by", "str", "", "frames (the expected count), idle (--idle-s), interrupt (Ctrl-C, SIGTERM) or next "
       "sequence (--sequences: the next sub-folder appeared)",
@@ -426,7 +442,7 @@ WATCH = Document("watch", "live/watch.json", "dropvision.watch/1", (
     F("latency_ms_max", "float", "ms", "the longest of those times", required=False),
     F("left_out", "list", "", "files still being written when the watch ended (not in the tables)",
       required=False),
-), "`dropvision watch`: what the watch of a sequence folder did.")
+), "`dropvision watch`: what the watch of a sequence folder (or of a folder of shots) did.")
 
 # ----------------------------------------------------------------------------- closed-loop tuning
 TUNING_COLUMNS_PER_OUTPUT = (("volume", "nl", "in-flight volume"), ("velocity", "m_s", "jetting velocity"))
@@ -558,8 +574,8 @@ TABULAR_PREDICTION = Table("tabular_prediction", "predictions.csv", "identify.ta
 ), "`identify predict model.json --table ROWS --out FILE` with a table model: one row per row of ROWS (CSV, "
    "or Parquet by the suffix).")
 
-TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, LIVE_FRAMES, TUNING,
-                               TABULAR_PREDICTION)}
+TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, DATASET_SHOTS,
+                               LIVE_FRAMES, TUNING, TABULAR_PREDICTION)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
                                  PREDICTION, TABULAR_MODEL)}
 
@@ -592,6 +608,7 @@ class Quality:
     NOZZLE_OUT_OF_FOCUS = "nozzle_out_of_focus"
     UNREADABLE = "unreadable"
     NOT_MEASURED = "not_measured"
+    NOT_DROP_IMAGE = "not_a_drop_image"
 
 
 #: Quality code -> explanation (docs/FORMAT.md lists them).
@@ -638,6 +655,12 @@ QUALITY_CODES: dict[str, str] = {
                         "frame is listed in summary.json errors, and only the live journal has a row of it",
     Quality.NOT_MEASURED: "shots.parquet: the image could not be measured at all (the reason in its notes and in "
                           "summary.json errors); its values are empty",
+    Quality.NOT_DROP_IMAGE: "the image is no backlit drop image (a photograph, a texture, a gradient, a frame shot "
+                            "without the backlight): less than half of it is bright background, within 15 % of the "
+                            "local background level (the brightest level within a quarter of the frame); a drop "
+                            "image is mostly lit background with the nozzle and the liquid dark on it. No number from "
+                            "it (its values are NaN, as for untrusted intensities); the summary's notes name the "
+                            "frames",
 }
 
 

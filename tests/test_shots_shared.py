@@ -185,3 +185,22 @@ def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
     table = res.shots.set_index("file")
     for name, t in truth.items():
         assert table.loc[name, "drop_volume_nl"] == pytest.approx(t["drop_volume_nl"], rel=0.02)
+
+
+def test_drops_at_one_place_in_every_shot_are_not_dust(tmp_path):
+    """Shots of several waveforms at one strobe delay put their drops at nearly one place: dark in
+    every calibration shot, they are the liquid, not static dust (the shared calibration looks for no
+    dust, as one shot alone does not). Three delays 100-150 us apart: the 70 px drops overlap."""
+    src = write_synthetic_sequence(SynthConfig(**{**SMALL, "delays_us": (1150.0, 1250.0, 1400.0)}, u1_um_per_ms=75.0),
+                                   tmp_path / "seq", progress=False)
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    rows = pd.read_csv(src / "truth_frames.csv")
+    for k, row in rows.iterrows():
+        shutil.copy(src / row["file"], folder / f"images_V1-{80 + 5 * k}_w1-8.png")
+    shared = measure_shots(folder, overrides=PIXEL, workers=1)
+    alone = measure_shots(folder, overrides=PIXEL, workers=1, shared_calibration=False)
+    assert all(s["shared_calibration"] for s in shared.summary["shots"])
+    assert list(shared.shots["quality"]) == list(alone.shots["quality"]) == ["ok"] * 3
+    diff = np.abs(shared.shots["drop_volume_nl"] - alone.shots["drop_volume_nl"])
+    assert np.isfinite(diff).all() and (diff <= TOLERANCE_U * alone.shots["drop_volume_uncertainty_nl"]).all()

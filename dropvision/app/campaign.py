@@ -1,7 +1,7 @@
 """Campaigns: many strobe sequences -> the training dataset that `identify` reads.
 
 `dropvision campaign ROOT --out DATASET` finds every sequence (a folder holding a
-``sequence.json``) below ROOT, measures each one in a worker (one task per sequence; the
+``sequence.json``) and every shot folder below ROOT, measures each one in a worker (one task per sequence; the
 worker receives paths, writes the sequence's shard and returns only a small summary) and
 writes the dataset:
 
@@ -17,8 +17,14 @@ writes the dataset:
   reservoir_channel_radius_um, reservoir_channel_length_mm, from sequence.json's optional
   ``nozzle`` block), sample_interval_us, dead_time_us,
   u3_um_per_ms, hold_us, pixel_size_um, the sequences, software versions;
-- ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash);
-- ``manifest.json``: each sequence's path, input hash, status and error.
+- ``shots.parquet`` (where ROOT holds shot folders): every row of every shot folder, a folder
+  of images with no delay to tell (`dropvision.shots`: one image per shot, as a drop watcher
+  exports them), each folder measured as ``dropvision measure`` measures it
+  (`dropvision.shots.measure_shots`), its id in ``shot_folder``, then its labels as numbers;
+- ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash); a
+  shot folder's shots.parquet, frames.parquet, bodies.parquet and summary.json;
+- ``manifest.json``: each sequence's (and shot folder's, ``kind`` "shots") path, input hash,
+  status and error.
 
 The dataset files are built from the shards by `dropvision.app.campaign_dataset`.
 
@@ -49,17 +55,20 @@ from tqdm import tqdm
 from dvcore import __version__
 from dropvision.app.campaign_dataset import ShardPart, assemble_dataset, shard_part
 from dropvision.app.executors import SerialExecutor, check_executor_args, make_executor
-from dropvision.app.options import warning_lines
+from dropvision.app.options import grouped_warnings, warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
+from dropvision.readers import IMAGE_SUFFIXES
 from dropvision.result_writer import write_result
 from dropvision.sequence import check_overrides, open_sequence
+from dropvision.sequence_meta import SequenceError
+from dropvision.shots import find_shots, is_shot_folder, measure_shots
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
 from dvcore.atomic import (
-    atomic_dir, check_outside_inputs, claim_dir, output_lock, remove_leftovers, to_json, write_bytes,
+    atomic_dir, check_outside_inputs, claim_dir, output_lock, remove_leftovers, to_json, write_bytes, write_json,
 )
 from dvcore.jsonio import load_json_hardened
 from dvcore.versions import software_versions
@@ -161,6 +170,31 @@ def find_sequences(root) -> list[Path]:
     The paths returned are below ``root`` as written (the links are not resolved), so sequence
     ids name the campaign's own layout.
     """
+    return sorted(Path(dirpath) for dirpath, filenames in _walk(root) if "sequence.json" in filenames)
+
+
+def find_inputs(root, overrides: dict | None = None) -> list[tuple[Path, str]]:
+    """Every sequence and every shot folder below ``root`` (including itself), sorted:
+    (folder, ``"sequence"`` or ``"shots"``).
+
+    A shot folder is a folder that `dropvision measure` measures as shots
+    (`dropvision.shots.is_shot_folder`: two or more images with no delay to tell, no frames list
+    nor frame rate, ``overrides`` included); every other folder holding a sequence.json is a
+    sequence. Folders are walked as `find_sequences` walks them.
+    """
+    found = []
+    for dirpath, filenames in _walk(root):
+        folder = Path(dirpath)
+        n_images = sum(1 for f in filenames if Path(f).suffix.lower() in IMAGE_SUFFIXES and not f.startswith("."))
+        if n_images >= 2 and is_shot_folder(folder, overrides=overrides):
+            found.append((folder, "shots"))
+        elif "sequence.json" in filenames:
+            found.append((folder, "sequence"))
+    return sorted(found)
+
+
+def _walk(root):
+    """(folder, its file names) of every folder below ``root`` that `find_sequences` visits."""
     root = Path(root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: campaign root is not a folder")
@@ -168,7 +202,7 @@ def find_sequences(root) -> list[Path]:
     special = [t for t in SPECIAL_TREES if _within(real_root, t)]
     if special:
         raise FileNotFoundError(f"{root}: lies in the system folder {special[0]}, not a campaign root")
-    found, seen = [], set()
+    seen = set()
     for dirpath, dirnames, filenames in os.walk(root, followlinks=True):
         real = os.path.realpath(dirpath)
         if real in seen:  # two links to one folder
@@ -188,9 +222,7 @@ def find_sequences(root) -> list[Path]:
                     continue
             keep.append(d)
         dirnames[:] = keep
-        if "sequence.json" in filenames:
-            found.append(Path(dirpath))
-    return sorted(found)
+        yield dirpath, filenames
 
 
 def sequence_id(root, folder) -> str:
@@ -205,9 +237,10 @@ def shard_name(seq_id: str) -> str:
     return f"{safe}-{hashlib.sha256(seq_id.encode()).hexdigest()[:8]}"
 
 
-def input_hash(folder, config_repr: str = "") -> str:
+def input_hash(folder, config_repr: str = "", recursive: bool = True) -> str:
     """SHA-256 over the sequence's files (sequence.json and images, not truth files), the
-    measurement configuration and the dropvision version.
+    measurement configuration and the dropvision version. ``recursive=False`` (a shot folder):
+    the files of the folder itself, not those of its sub-folders (other inputs of the campaign).
 
     Only what the measurement may read is read: a link resolving outside the sequence folder
     counts by its name and target, never by the content it points at.
@@ -216,7 +249,7 @@ def input_hash(folder, config_repr: str = "") -> str:
     h.update(f"dropvision {__version__}\n{config_repr}\n".encode())
     folder = Path(folder)
     real_folder = folder.resolve()
-    for path in sorted(p for p in folder.rglob("*") if p.is_file()):
+    for path in sorted(p for p in (folder.rglob("*") if recursive else folder.glob("*")) if p.is_file()):
         rel = path.relative_to(folder)
         if any(part.startswith(_IGNORED_PREFIXES) for part in rel.parts):
             continue
@@ -294,6 +327,51 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
 
 
 
+def measure_shots_to_shard(folder: str, shard_dir: str, digest: str | None, config=None, rerun_options=None,
+                           overrides: dict | None = None, labels: dict | None = None,
+                           config_repr: str = "", seq_id: str | None = None) -> dict:
+    """Measure one shot folder (`dropvision.shots.measure_shots`, as `dropvision measure` measures
+    it) and write its shard atomically: shots.parquet, frames.parquet, bodies.parquet and
+    summary.json (the shot folder's, with its input hash). Runs in a worker process; the same
+    arguments and the same small summary as `measure_to_shard` (``meta``: kind, images, measured).
+    ``rerun_options`` is not used: shots are not logged to Rerun. ``digest`` None: computed here
+    (``input_hash(folder, config_repr, recursive=False)``)."""
+    caught: list = []
+    try:
+        if digest is None:
+            digest = input_hash(folder, config_repr, recursive=False)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            shots = find_shots(folder, overrides=overrides)
+            if shots is None:
+                raise SequenceError(f"{folder}: no longer a folder of shots (images with no delay to tell)")
+            result = measure_shots(shots, None, config or MeasureConfig(), overrides=overrides, option_labels=labels)
+        summary = {**result.summary, "input_hash": digest}
+        shard = Path(shard_dir)
+        schema.check_table(result.shots, schema.SHOTS, shard / "shots.parquet")
+        schema.check_document(summary, schema.SHOTS_SUMMARY, shard / "summary.json")
+        # shards/ is ours as a whole: an older shard of the same folder is merged over
+        with atomic_dir(shard, inputs=[folder], overwrite=True, kind="campaign-shard") as tmp:
+            result.shots.to_parquet(tmp / "shots.parquet", index=False)
+            result.frames.to_parquet(tmp / "frames.parquet", index=False)
+            if result.bodies is not None:
+                result.bodies.to_parquet(tmp / "bodies.parquet", index=False)
+            write_json(tmp / "summary.json", summary)
+        info = {"kind": "shots", "n_shots": summary["n_shots"], "n_measured": summary["n_measured"]}
+        part = None
+        if seq_id is not None:
+            try:  # the same reading as the client's, of the files just written
+                part = shard_part(shard.parent.parent, seq_id, {"kind": "shots", "meta": info, "shard": shard.name,
+                                                                "input_hash": digest})
+            except Exception:  # noqa: BLE001 - left to the client's final assembly, which reports it
+                part = None
+        return {"status": "ok", "error": None, "input_hash": digest, "meta": info,
+                "warnings": grouped_warnings(warning_lines(caught), {p.name for p in shots.paths}), "part": part}
+    except Exception as exc:  # noqa: BLE001 - a failed shot folder must not stop the others
+        return {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "input_hash": digest, "meta": None,
+                "warnings": warning_lines(caught)}
+
+
 # ----------------------------------------------------------------------------- dataset
 def _load_manifest(path: Path) -> dict:
     if not path.exists():
@@ -350,12 +428,13 @@ def _write_manifest(writer: ManifestWriter, manifest: dict) -> None:
     writer.write(manifest)
 
 
-def _shard_is_current(shard: Path, digest: str) -> bool:
+def _shard_is_current(shard: Path, digest: str, kind: str = "sequence") -> bool:
     try:
         summary = load_json_hardened(shard / "summary.json")
     except ValueError:
         return False
-    return summary.get("input_hash") == digest and (shard / "frames.parquet").exists()
+    return summary.get("input_hash") == digest and (shard / "frames.parquet").exists() and (
+        kind != "shots" or (shard / "shots.parquet").exists())
 
 
 # ----------------------------------------------------------------------------- driver
@@ -424,11 +503,18 @@ def run_campaign(
         # one process per core already: no threads inside a worker (no oversubscription)
         config = dataclasses.replace(config, workers=1)
     root, dataset_dir = Path(root), Path(dataset_dir)
-    folders = find_sequences(root)
+    found = find_inputs(root, overrides)
+    folders = [f for f, _ in found]
+    kinds = dict(found)
     if not folders:
-        raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) found")
+        raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) nor shot folder (images with no "
+                                "delay to tell) found")
     # a recording inside a sequence folder would change its input hash (and the campaign's resume)
     check_outside_inputs(folders, None if rerun_options is None else rerun_options.path)
+    n_shot_folders = sum(1 for k in kinds.values() if k == "shots")
+    if rerun_options is not None and n_shot_folders:
+        warnings.warn(f"--rerun: the {n_shot_folders} shot folder(s) are not logged to Rerun (sequences only)",
+                      stacklevel=2)
     claim_dir(dataset_dir, inputs=folders, overwrite=overwrite, kind="campaign-dataset",
               is_ours=_is_campaign_dataset)
     with output_lock(dataset_dir):  # no other run writes it (nor cleans up its temporaries)
@@ -506,11 +592,14 @@ def run_campaign(
             for sid, folder in zip(current, folders):
                 shard = shard_name(sid)
                 prev = old.get(sid, {})
+                shots = kinds[folder] == "shots"
+                # a shot folder: its own files (not its sub-folders'), its kind part of the hash
+                repr_ = config_repr + " shots" if shots else config_repr
                 digest = None
-                if prev.get("status") == "ok":
-                    digest = input_hash(folder, config_repr)
+                if prev.get("status") == "ok" and prev.get("kind", "sequence") == kinds[folder]:
+                    digest = input_hash(folder, repr_, recursive=False) if shots else input_hash(folder, repr_)
                 if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
-                    dataset_dir / "shards" / shard, digest
+                    dataset_dir / "shards" / shard, digest, kinds[folder]
                 ):
                     entries[sid] = prev
                     result.skipped.append(sid)
@@ -519,21 +608,23 @@ def run_campaign(
                     continue
                 entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
                                 "error": None}
+                if shots:
+                    entries[sid]["kind"] = "shots"
                 if executor is None:
                     executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
                     stack.callback(drain)  # on an error below too, before the executor closes
                 if isinstance(executor, SerialExecutor):
                     _write_manifest(manifest_writer, manifest)  # the sequence being measured, as pending
                 future = executor.submit(
-                    measure_to_shard,
+                    measure_shots_to_shard if shots else measure_to_shard,
                     str(folder),
                     str(dataset_dir / "shards" / shard),
                     digest,
                     config,
-                    None if rerun_options is None else rerun_options.for_sequence(sid),
+                    None if rerun_options is None or shots else rerun_options.for_sequence(sid),
                     given or None,
                     labels,
-                    config_repr,
+                    repr_,
                     sid,
                 )
                 if future.done():  # the serial executor finishes inside submit

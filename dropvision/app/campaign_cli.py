@@ -46,7 +46,7 @@ def _run_campaign_cmd(args) -> int:
         return 0
     print(
         f"campaign: {len(res.measured)} measured, {len(res.skipped)} unchanged (skipped), "
-        f"{len(res.failed)} failed -> {res.dataset_dir}"
+        f"{len(res.failed)} failed -> {res.dataset_dir}" + _shots_text(res.dataset_dir)
     )
     for sid, err in sorted(res.failed.items()):
         print(f"  failed {sid}: {err}")
@@ -56,6 +56,20 @@ def _run_campaign_cmd(args) -> int:
         for sid in sorted(res.skipped):
             print(f"  unchanged {sid}")
     return 0
+
+
+def _shots_text(dataset_dir) -> str:
+    """``; shots.parquet: N rows from M shot folders`` where the campaign held shot folders."""
+    import json
+    from pathlib import Path
+
+    try:
+        doc = json.loads((Path(dataset_dir) / "dataset.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return ""
+    if not isinstance(doc, dict) or doc.get("n_shots") is None:
+        return ""
+    return f"; shots.parquet: {doc['n_shots']} rows from {len(doc.get('shot_folders') or [])} shot folder(s)"
 
 
 def _run_synth_campaign_cmd(args) -> int:
@@ -74,8 +88,9 @@ def _run_synth_campaign_cmd(args) -> int:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("campaign", help="measure every sequence below ROOT into a training dataset")
-    p.add_argument("root", help="campaign root folder (every folder with a sequence.json is a sequence)")
+    p = subparsers.add_parser("campaign", help="measure every sequence (and shot folder) below ROOT into a dataset")
+    p.add_argument("root", help="campaign root folder (every folder with a sequence.json is a sequence; every "
+                   "folder of images with no delay to tell is a shot folder, its rows in OUT/shots.parquet)")
     p.add_argument("--out", required=True, help="dataset folder to write (re-running resumes); never a sequence "
                    "folder, inside one or around one")
     p.add_argument("--overwrite", action="store_true",

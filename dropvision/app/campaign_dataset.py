@@ -4,7 +4,8 @@
 checked against their schema) into its :class:`ShardPart`: its ``timeseries.parquet`` rows
 (per strobe delay, averaged over the attached frames) and its ``summary.parquet`` row;
 `assemble_dataset` writes ``timeseries.parquet``, ``summary.parquet`` and ``dataset.json`` from
-the parts, refusing sequences that disagree on the nozzle, the ink or the printhead drive.
+the parts, refusing sequences that disagree on the nozzle, the ink or the printhead drive; the
+shot folders' rows (:class:`ShotsPart`, their shard's shots.parquet) go into ``shots.parquet``.
 The campaign driver is `dropvision.app.campaign.run_campaign`.
 """
 
@@ -24,7 +25,8 @@ from dvcore.jsonio import load_json_hardened
 from dvcore.versions import software_versions
 from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS
 
-__all__ = ["DATASET_SCHEMA", "TIMESERIES_COLUMNS", "SUMMARY_COLUMNS", "ShardPart", "shard_part", "assemble_dataset"]
+__all__ = ["DATASET_SCHEMA", "TIMESERIES_COLUMNS", "SUMMARY_COLUMNS", "ShardPart", "ShotsPart", "shard_part",
+           "assemble_dataset"]
 
 DATASET_SCHEMA = schema.DATASET.schema
 TIMESERIES_COLUMNS = schema.TIMESERIES.column_names
@@ -94,13 +96,34 @@ class ShardPart:
     meta: tuple
 
 
-def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
-    """Read one ok shard into its :class:`ShardPart`; None (and ``entry`` marked failed) when
-    its sequence.json has no waveform u1/u2. Raises when the shard's files are unreadable or
-    break the schema.
+@dataclass(frozen=True)
+class ShotsPart:
+    """One ok shot folder's share of the dataset: its shots.parquet rows, the ``shot_folder``
+    column first (`dvcore.schema.DATASET_SHOTS`). ``input_hash`` ties it to its shard."""
+
+    input_hash: str | None
+    table: pd.DataFrame
+
+
+def _shots_part(dataset_dir, seq_id: str, entry: dict) -> ShotsPart:
+    path = Path(dataset_dir) / "shards" / entry["shard"] / "shots.parquet"
+    table = pd.read_parquet(path)
+    schema.check_table(table, schema.SHOTS, path)
+    if "shot_folder" in table.columns:  # a label of that name
+        table = table.rename(columns={"shot_folder": "label_shot_folder"})
+    table.insert(0, "shot_folder", seq_id)
+    return ShotsPart(entry.get("input_hash"), table)
+
+
+def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | ShotsPart | None:
+    """Read one ok shard into its :class:`ShardPart` (a shot folder, ``entry["kind"]`` "shots": its
+    :class:`ShotsPart`); None (and ``entry`` marked failed) when its sequence.json has no waveform
+    u1/u2. Raises when the shard's files are unreadable or break the schema.
 
     The campaign driver calls it as each sequence finishes, while the workers measure the
     others, so that the dataset's final assembly only concatenates (see `run_campaign`)."""
+    if entry.get("kind") == "shots":
+        return _shots_part(dataset_dir, seq_id, entry)
     meta = entry.get("meta") or {}
     wf = meta.get("waveform") or {}
     if "u1_um_per_ms" not in wf or "u2_um" not in wf:
@@ -139,14 +162,16 @@ def shard_part(dataset_dir, seq_id: str, entry: dict) -> ShardPart | None:
 
 
 def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, ShardPart] | None = None) -> None:
-    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards.
+    """Write timeseries.parquet, summary.parquet and dataset.json from the ok shards, and
+    shots.parquet from the ok shot folders (where the campaign holds any, or an earlier run wrote
+    one: then rewritten, empty when none is left).
 
-    ``parts``: sequence id -> its :class:`ShardPart` read earlier (as the sequence finished);
-    a part is used only while it matches the entry's input hash, any other ok shard is read
-    here. The dataset is the same either way (rows in sequence-id order)."""
+    ``parts``: sequence id -> its :class:`ShardPart` (:class:`ShotsPart`) read earlier (as the
+    sequence finished); a part is used only while it matches the entry's input hash, any other
+    ok shard is read here. The dataset is the same either way (rows in sequence-id order)."""
     dataset_dir = Path(dataset_dir)
     parts = parts or {}
-    ts_parts, rows, metas = [], [], []
+    ts_parts, rows, metas, shot_tables = [], [], [], {}
     for seq_id, entry in sorted(entries.items()):
         if entry.get("status") != "ok":
             continue
@@ -155,6 +180,9 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, Sha
             part = shard_part(dataset_dir, seq_id, entry)
             if part is None:
                 continue
+        if isinstance(part, ShotsPart):
+            shot_tables[seq_id] = part.table
+            continue
         ts_parts.append(part.timeseries)
         rows.append(part.row)
         metas.append(part.meta)
@@ -193,9 +221,37 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, Sha
         "created_by": "dropvision campaign",
         "versions": software_versions(),
     }
+    has_shots = any(e.get("kind") == "shots" for e in entries.values())
+    if has_shots or (dataset_dir / schema.DATASET_SHOTS.file).is_file():
+        shots = _shots_table(list(shot_tables.values()))
+        if has_shots:
+            dataset["shot_folders"] = list(shot_tables)
+            dataset["n_shots"] = len(shots)
+        schema.check_table(shots, schema.DATASET_SHOTS, dataset_dir / schema.DATASET_SHOTS.file)
+        write_bytes(dataset_dir / schema.DATASET_SHOTS.file, _parquet_bytes(shots))
     write_bytes(dataset_dir / "timeseries.parquet", _parquet_bytes(timeseries))
     write_bytes(dataset_dir / "summary.parquet", _parquet_bytes(summary_df))
     write_json(dataset_dir / "dataset.json", dataset)
+
+
+def _shots_table(tables: list[pd.DataFrame]) -> pd.DataFrame:
+    """The shot folders' rows in one table: the declared columns, then every label column (in the
+    order first met), NaN where a folder lacks it."""
+    declared = schema.DATASET_SHOTS.column_names
+    if not tables:
+        dtypes = {"float": float, "bool": bool, "int": "Int64"}
+        empty = pd.DataFrame({c.name: pd.Series(dtype=dtypes.get(c.dtype, object))
+                              for c in schema.DATASET_SHOTS.columns})
+        return empty[declared]
+    labels: list[str] = []
+    for t in tables:
+        labels += [c for c in t.columns if c not in declared and c not in labels]
+    out = pd.concat([t.reindex(columns=declared + labels) for t in tables], ignore_index=True)
+    for c in labels:
+        out[c] = pd.to_numeric(out[c], errors="coerce").astype(float)
+    out["n_satellites"] = out["n_satellites"].astype("Int64")
+    out["inflight"] = out["inflight"].astype(bool)
+    return out
 
 
 def _parquet_bytes(df: pd.DataFrame) -> bytes:

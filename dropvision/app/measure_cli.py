@@ -13,8 +13,8 @@ import sys
 from pathlib import Path
 
 from dropvision.app.options import (
-    add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
-    warning_lines,
+    add_metadata_args, add_output_args, captured_warnings, grouped_warnings, overrides_from_args, print_warnings,
+    progress_wanted, warning_lines,
 )
 from dvcore.atomic import check_side_file
 from dvcore.errors import UsageError
@@ -99,7 +99,8 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
             res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
                                 overwrite=args.overwrite, strobe_interval_us=args.strobe_interval_us)
         finally:
-            print_warnings("dropvision measure", _grouped(warning_lines(caught), {p.name for p in shots.paths}), args)
+            print_warnings("dropvision measure", grouped_warnings(warning_lines(caught), {p.name for p in shots.paths}),
+                           args)
     s = res.summary
     if args.quiet:
         return 0
@@ -113,16 +114,6 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
     print(one_line(s, args.out))
     sys.stdout.flush()
     return 0
-
-
-def _grouped(lines: list[str], names: set[str]) -> list[str]:
-    """Warnings that differ only by the image they name (``<file>: <message>``) once, with the count."""
-    files: dict[str, list[str]] = {}
-    for text in lines:
-        head, sep, rest = text.partition(": ")
-        files.setdefault(rest if sep and head in names else text, []).append(head if sep and head in names else "")
-    return [message if not heads[0] else heads[0] + (f" and {len(heads) - 1} other image(s)" if len(heads) > 1 else "")
-            + ": " + message for message, heads in files.items()]
 
 
 def _positive_us(text: str) -> float:

@@ -115,6 +115,16 @@ def warning_lines(caught) -> list[str]:
     return out
 
 
+def grouped_warnings(lines: list[str], names: set[str]) -> list[str]:
+    """Warnings that differ only by the image they name (``<file>: <message>``) once, with the count."""
+    files: dict[str, list[str]] = {}
+    for text in lines:
+        head, sep, rest = text.partition(": ")
+        files.setdefault(rest if sep and head in names else text, []).append(head if sep and head in names else "")
+    return [message if not heads[0] else heads[0] + (f" and {len(heads) - 1} other image(s)" if len(heads) > 1 else "")
+            + ": " + message for message, heads in files.items()]
+
+
 def print_warnings(prog: str, lines, args: argparse.Namespace | None = None) -> None:
     """``<prog>: warning: <message>`` on stderr, one line each (nothing with ``--quiet``)."""
     if args is not None and getattr(args, "quiet", False):

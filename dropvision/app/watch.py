@@ -18,6 +18,13 @@
    complete frames and written by `dropvision.result_writer.write_result`: with every frame complete
    they equal ``dropvision measure FOLDER`` exactly. The journal is kept in the result.
 
+A folder into which a drop watcher exports one image per shot (`dropvision.shots`: no delay in
+the names, no frames list nor frame rate; ``WatchOptions.shots``, else decided by its first image,
+`_watch_kind`) is watched the same way, each image measured alone once complete
+(`dropvision.shots.measure_shots` of that image), its row appended to ``OUT/shots.parquet``
+(rewritten atomically, the columns of ``dropvision measure``) and then to the journal; at the end
+`_finish_shots` writes the tables of ``dropvision measure FOLDER`` over the complete images.
+
 Nothing is ever written into FOLDER. OUT follows `dvcore.atomic`: refused when it holds files
 we did not write (without ``overwrite``); a restart on the same OUT resumes from its journal
 (frames already there and unchanged are not measured again).
@@ -33,6 +40,7 @@ import shutil
 import stat
 import statistics
 import time
+import warnings
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -81,6 +89,11 @@ class WatchOptions:
         Write into an OUT that holds files we did not write (they are kept).
     overrides, labels : dict, optional
         sequence.json keys given as options (`dropvision.sequence.open_sequence`).
+    shots : bool or None
+        True: the folder receives shots (one image per shot, `dropvision.shots`); False: a
+        sequence; None: decided by the first image (`_watch_kind`).
+    label_pattern : str, optional
+        Shots: the labels' regular expression (`dropvision.labels.labels_from_pattern`).
     """
 
     frames: int | None = None
@@ -93,6 +106,8 @@ class WatchOptions:
     overwrite: bool = False
     overrides: dict | None = None
     labels: dict | None = None
+    shots: bool | None = None
+    label_pattern: str | None = None
 
 
 @dataclass
@@ -115,6 +130,8 @@ class WatchResult:
         last modification time, on the kernel's coarse clock) to its row on disk (ms).
     left_out : list of str
         Files still being written when the sequence ended (not in the final tables).
+    kind : str
+        ``"sequence"``, or ``"shots"``: ``result`` is then a `dropvision.shots.ShotsResult`.
     """
 
     result: MeasureResult
@@ -123,28 +140,41 @@ class WatchResult:
     n_resumed: int
     latency_ms: list[float]
     left_out: list[str]
+    kind: str = "sequence"
 
 
-def _start_out(out: Path, folder: Path, overwrite: bool) -> list[dict]:
+def _start_out(out: Path, folder: Path, overwrite: bool, kind: str | None = None) -> tuple[list[dict], str | None]:
     """Check OUT before any work and make it ours; the journal rows of an earlier watch of the
-    same folder when OUT holds one (resume), else an empty journal."""
+    same folder when OUT holds one (resume), else an empty journal; and the kind (``"shots"``,
+    ``"sequence"``) of the watch resumed (None: none). With ``kind``, an earlier watch of another
+    kind is not resumed, and a new OUT records it (shots: with an empty shots.parquet)."""
     mode = check_output_dir(out, inputs=[folder], overwrite=overwrite)
     journal, state = out / JOURNAL, out / WATCH_JSON
     if mode != "new" and journal.is_file() and JOURNAL not in foreign_files(out):
         try:
-            same = loads_strict(state.read_text(encoding="utf-8")).get("sequence") == str(folder)
+            doc = loads_strict(state.read_text(encoding="utf-8"))
+            same = doc.get("sequence") == str(folder)
+            recorded = doc.get("kind", "sequence")
         except (OSError, ValueError, AttributeError):
+            same, recorded = False, None
+        if same and kind is not None and recorded != kind:
+            same = False
+        if same and kind == "shots" and "shots.parquet" in foreign_files(out):
             same = False
         if same:
             rows = read_journal(out)
             if not journal.read_bytes().endswith(b"\n") and journal.stat().st_size:  # a cut last line
                 write_text(journal, "".join(json.dumps(r) + "\n" for r in rows))
-            return rows
+            return rows, recorded
     with atomic_dir(out, inputs=[folder], overwrite=overwrite, kind="live measurement") as tmp:
         (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
         (tmp / JOURNAL).write_bytes(b"")
-        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "watching"})
-    return []
+        doc = {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "watching"}
+        if kind == "shots":
+            doc["kind"] = "shots"
+            _live_shots_table([]).to_parquet(tmp / "shots.parquet", index=False)
+        write_json(tmp / WATCH_JSON, doc)
+    return [], None
 
 
 # --- completeness --------------------------------------------------------------------------------
@@ -256,14 +286,108 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
         raise SequenceError(f"{folder}: no such folder")
     check_output_dir(out, inputs=[folder], overwrite=options.overwrite)
     with output_lock(out):  # held to the end: a second watch (or measure) on OUT is refused at once
-        return _watch_locked(folder, out, options, logger, report, stop)
+        rows, recorded = _start_out(out, folder, options.overwrite)
+        kind = _watch_kind(folder, options, recorded if rows else None, stop)
+        if kind == "shots":
+            if logger is not None:
+                warnings.warn(f"{folder}: a folder of shots: not logged to Rerun (sequences only)", stacklevel=2)
+            if recorded != "shots":  # a new watch of shots (or one of another kind before): OUT made for shots
+                rows, _ = _start_out(out, folder, options.overwrite, kind="shots")
+            return _watch_shots_locked(folder, out, options, report, stop, rows)
+        if recorded == "shots":
+            rows, _ = _start_out(out, folder, options.overwrite, kind="sequence")
+        return _watch_locked(folder, out, options, logger, report, stop, rows)
 
 
-def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, stop) -> WatchResult:
-    """`watch_sequence` with OUT locked."""
+def _watch_kind(folder: Path, opts: WatchOptions, recorded: str | None, stop) -> str:
+    """``"shots"`` or ``"sequence"``: ``opts.shots`` when given, else what the earlier watch resumed
+    was, else decided as `dropvision measure` decides (`dropvision.shots`) from what the folder holds,
+    waiting for its first image: a sequence when a frames list or a frame rate is given (sequence.json
+    or options), or an image tells a delay by its name or is a video; shots when the images tell none.
+
+    The wait ends as the watch does (``idle_s`` without an image, ``stop``, Ctrl-C): then no frame
+    arrived, and `dropvision.sequence.SequenceError` says so."""
+    from dropvision.discovery import parse_delay_from_name
+    from dropvision.readers import VIDEO_SUFFIXES
+    from dropvision.shots import sequence_settings_given
+
+    if opts.shots is not None:
+        return "shots" if opts.shots else "sequence"
+    if recorded is not None:
+        return recorded
+    started, ended_by = time.monotonic(), None
+    broken: tuple | None = None  # (size, mtime_ns, since) of a sequence.json that does not parse (yet)
+    try:
+        while True:
+            key = _json_unreadable(folder / SEQUENCE_JSON)
+            if key is None:
+                broken = None
+            else:  # being written, or broken (then open_sequence reports it)
+                if broken is None or broken[:2] != key:
+                    broken = (*key, time.monotonic())
+                if time.monotonic() - broken[2] < opts.unreadable_after_s:
+                    time.sleep(opts.poll_s)
+                    continue
+            if sequence_settings_given(folder, overrides=opts.overrides):
+                return "sequence"
+            try:
+                names = [e.name for e in os.scandir(folder) if _is_frame_name(e.name)]
+            except OSError as exc:
+                raise SequenceError(f"{folder}: cannot list the folder ({exc.strerror or exc})") from None
+            if any(Path(n).suffix.lower() in VIDEO_SUFFIXES or parse_delay_from_name(n) is not None for n in names):
+                return "sequence"
+            pages = [_tiff_pages(folder / n) for n in names]
+            if any(p == "several" for p in pages):  # a stack, or delays stored in the file
+                return "sequence"
+            if names and (None not in pages or time.monotonic() - started >= opts.unreadable_after_s + opts.settle_s):
+                return "shots"
+            if opts.idle_s is not None and time.monotonic() - started >= opts.idle_s:
+                ended_by = "idle"
+                break
+            if stop is not None and stop():
+                ended_by = "next sequence"
+                break
+            time.sleep(opts.poll_s)
+    except KeyboardInterrupt:
+        ended_by = "interrupt"
+    raise SequenceError(f"{folder}: no complete frame arrived (the watch ended by {ended_by})")
+
+
+def _tiff_pages(path: Path) -> str | None:
+    """``"one"`` or ``"several"`` (pages, or delays stored in the file) for a TIFF that probes whole; ``"one"``
+    for other image formats (single frames); None while a TIFF cannot be probed whole (being written)."""
+    from dropvision.readers import reader_for
+
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return "one"
+    reader = reader_for(path)
+    try:
+        info = reader.probe(path)
+    except Exception:  # noqa: BLE001 - being written (or broken: the measurement reports it)
+        return None
+    if not info.complete:
+        return None
+    return "several" if info.n_pages > 1 or info.page_delays else "one"
+
+
+def _json_unreadable(path: Path) -> tuple[int, int] | None:
+    """(size, mtime_ns) of a JSON file that is there and does not parse; None when it parses or is absent."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    try:
+        loads_strict(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError):
+        return st.st_size, st.st_mtime_ns
+    return None
+
+
+def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, stop, rows: list[dict]
+                  ) -> WatchResult:
+    """`watch_sequence` with OUT locked (``rows``: the journal resumed)."""
     from watchdog.observers import Observer  # the command's own dependency, imported when it runs
 
-    rows = _start_out(out, folder, opts.overwrite)
     n_resumed = len(rows)
     done: dict[str, tuple[int, int]] = {}  # complete file -> (size, mtime_ns) it was taken at
     measured = set()  # (file, page) of the rows
@@ -509,6 +633,223 @@ def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, lef
         shutil.copyfile(journal, tmp / JOURNAL)
         write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "state": "finished",
                                       **stats, "left_out": left_out})
+    return result
+
+
+# --- shots: one image per shot ------------------------------------------------------------------
+
+def _live_shots_table(rows: list[dict]):
+    """The live shots.parquet: rows (one dict each: `dvcore.schema.SHOTS` columns, then labels) in
+    arrival order, the label columns in the order first met."""
+    import pandas as pd
+
+    declared = schema.SHOTS.column_names
+    labels: list[str] = []
+    for r in rows:
+        labels += [k for k in r if k not in declared and k not in labels]
+    table = pd.DataFrame(rows, columns=declared + labels)
+    for col in schema.SHOTS.columns:
+        if col.dtype == "int":
+            table[col.name] = table[col.name].astype("Int64")
+        elif col.dtype == "float":
+            table[col.name] = pd.to_numeric(table[col.name]).astype(float)
+        elif col.dtype == "bool":
+            table[col.name] = table[col.name].astype(bool)
+        else:
+            table[col.name] = table[col.name].astype(object)
+    for col in labels:
+        table[col] = pd.to_numeric(table[col]).astype(float)
+    return table
+
+
+def _shot_rows(folder: Path, name: str, opts: WatchOptions) -> tuple[dict, dict]:
+    """Measure one image as a shot, alone (`dropvision.shots.measure_shots`): its shots row (the
+    shot's own notes with it) and its journal row (`dvcore.schema.LIVE_FRAMES`)."""
+    import pandas as pd
+
+    from dropvision.labels import LabelError
+    from dropvision.shots import measure_shots, shots_of, shots_table
+
+    try:
+        shots = shots_of(folder, [name], label_pattern=opts.label_pattern)
+    except LabelError as exc:  # the final measurement refuses the folder as `dropvision measure` does
+        from dropvision.shots import ShotInput
+
+        shots, reason = ShotInput([folder / name], [name], [folder]), str(exc)
+    else:
+        reason = None
+    if reason is None:
+        try:
+            res = measure_shots(shots, None, opts.config, overrides=opts.overrides, option_labels=opts.labels)
+        except SequenceError as exc:
+            reason = str(exc)
+    delay_us = float((opts.overrides or {}).get("delay_us") or 0.0)
+    if reason is not None:
+        empty = pd.DataFrame({c: pd.Series(dtype=object) for c in schema.FRAMES.column_names})
+        row = shots_table(empty, shots, {}, {name: reason}, delay_us=delay_us).iloc[0].to_dict()
+        live = {"file": name, "page": None, "delay_us": delay_us, "repeat": 0, "attached_volume_nl": math.nan,
+                "attached_volume_uncertainty_nl": math.nan, "n_detached": 0, "drop_volume_nl": math.nan,
+                "drop_z_um": math.nan, "drop_x_um": math.nan, "quality": schema.Quality.NOT_MEASURED,
+                "blur_px": math.nan, "gain": math.nan, "error": reason, "calibration_frames": 1}
+        return row, live
+    row = res.shots.iloc[0].to_dict()
+    row["notes"] = "; ".join([*res.summary["notes"], *([row["notes"]] if row["notes"] else [])])
+    f = res.frames.iloc[0]
+    bodies = res.bodies
+    n_detached = 0 if bodies is None else int(bodies["body_class"].isin(("main_drop", "satellite", "tail")).sum())
+    page = f["page"]
+    live = {"file": name, "page": None if pd.isna(page) else int(page), "delay_us": float(f["delay_us"]),
+            "repeat": int(f["repeat"]), "attached_volume_nl": float(f["attached_volume_nl"]),
+            "attached_volume_uncertainty_nl": float(f["attached_volume_uncertainty_nl"]), "n_detached": n_detached,
+            "drop_volume_nl": float(f["drop_volume_nl"]), "drop_z_um": float(f["drop_z_um"]),
+            "drop_x_um": float(f["drop_x_um"]), "quality": str(f["quality"]), "blur_px": float(f["blur_px"]),
+            "gain": float(f["gain"]), "error": None, "calibration_frames": 1}
+    return row, live
+
+
+def _decodes(folder: Path, name: str, opts: WatchOptions) -> str | None:
+    """None when the image decodes (complete), else why not."""
+    try:
+        with open_sequence(folder, overrides=opts.overrides, labels=opts.labels, only_files=[name]) as seq:
+            fr = seq.read(0)
+    except SequenceError as exc:
+        return str(exc)
+    return None if fr.image is not None else (fr.error or "not decoded")
+
+
+def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, stop, rows: list[dict]
+                        ) -> WatchResult:
+    """`watch_sequence` of a folder that receives shots, OUT locked (``rows``: the journal resumed).
+
+    Each image, once complete (as a sequence's frames: `_settled`, then it decodes), is measured alone
+    (`_shot_rows`); its row is appended to OUT/shots.parquet (rewritten atomically, the rows so far in
+    arrival order), then its journal row to ``live/frames.jsonl`` (so every image in the journal is in
+    the table). The watch ends at ``opts.frames`` images, ``idle_s`` without one, ``stop`` or Ctrl-C;
+    then `_finish_shots` writes the tables of ``dropvision measure``."""
+    import pandas as pd
+    from watchdog.observers import Observer
+
+    from dvcore.atomic import write_bytes
+
+    n_resumed = len(rows)
+    done = {r["file"]: (int(r.get("size") or -1), int(r.get("mtime_ns") or -1)) for r in rows}
+    table_path = out / "shots.parquet"
+    try:
+        earlier = pd.read_parquet(table_path)
+    except (OSError, ValueError):
+        earlier = _live_shots_table([])
+    table_rows = [r for r in earlier.to_dict("records") if r["file"] in done]
+    missing = set(done) - {r["file"] for r in table_rows}
+    for name in missing:  # never: the table is written before the journal
+        done.pop(name)
+    journal = Journal(out / JOURNAL)
+    events: queue.Queue = queue.Queue()
+    observer = Observer()
+    observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
+    observer.start()  # before the first look at the folder: nothing written meanwhile is missed
+    pending: dict[str, _Pending] = {}
+    for p in folder.iterdir():
+        if _is_frame_name(p.name):
+            pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
+    latency: list[float] = []
+    n_live, started_ns = 0, time.time_ns()
+    last_frame_at = time.monotonic()
+    ended_by = "interrupt"
+    try:
+        while True:
+            if opts.frames is not None and len(done) >= opts.frames and not pending:
+                ended_by = "frames"
+                break
+            if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
+                ended_by = "idle"
+                break
+            if stop is not None and not pending and stop():
+                ended_by = "next sequence"
+                break
+            _drain(events, pending, opts.poll_s)
+            for name in _settled(folder, pending, done, {}, opts):
+                p = pending[name]
+                failed = _decodes(folder, name, opts)
+                now = time.monotonic()
+                try:
+                    st = os.stat(folder / name)
+                except OSError:
+                    continue  # gone: dropped by the next look
+                file_stat = (st.st_size, st.st_mtime_ns)
+                if failed is not None and (file_stat != (p.size, p.mtime_ns) or now - p.changed_at
+                                           < opts.unreadable_after_s):
+                    p.failed, p.closed = failed, False  # not yet: tried again on its next change
+                    continue
+                row, live = _shot_rows(folder, name, opts)  # an image that stays unreadable: not_measured
+                table_rows = [r for r in table_rows if r["file"] != name] + [row]
+                write_bytes(table_path, _parquet_bytes(_live_shots_table(table_rows)))
+                done[name] = file_stat
+                pending.pop(name, None)
+                live["size"], live["mtime_ns"] = file_stat
+                live["row_unix_s"] = time.time()
+                live["latency_ms"] = (live["row_unix_s"] - file_stat[1] / 1e9) * 1e3
+                journal.append(live)
+                n_live += 1
+                if file_stat[1] >= started_ns:
+                    latency.append(live["latency_ms"])
+                last_frame_at = time.monotonic()
+                if report is not None:
+                    report(live)
+    except KeyboardInterrupt:
+        ended_by = "interrupt"
+    finally:
+        observer.stop()
+        journal.close()
+    observer.join()
+    left_out = sorted(pending)
+    result = _finish_shots(folder, out, opts, done, left_out,
+                           {"ended_by": ended_by, "n_live": n_live, "n_resumed": n_resumed,
+                            "latency_ms_median": statistics.median(latency) if latency else None,
+                            "latency_ms_max": max(latency) if latency else None})
+    return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out, kind="shots")
+
+
+def _parquet_bytes(table) -> bytes:
+    import io
+
+    buf = io.BytesIO()
+    table.to_parquet(buf, index=False)
+    return buf.getvalue()
+
+
+def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_out: list[str], stats: dict):
+    """The final tables of a shot watch: `dropvision.shots.measure_shots` over the complete images
+    (when they are the folder's shots, exactly the input of ``dropvision measure FOLDER``), written
+    as ``dropvision measure`` writes them, with the journal kept."""
+    from dropvision.discovery import images_without_delay, natural_key
+    from dropvision.shots import find_shots, measure_shots, shots_of
+    from dropvision.summary import check_frames_table
+
+    if not done:
+        raise SequenceError(f"{folder}: no complete image arrived (the watch ended by {stats['ended_by']})")
+    listed = images_without_delay(folder)
+    shots = None
+    if listed is not None and set(listed) == set(done):
+        shots = find_shots(folder, overrides=opts.overrides, label_pattern=opts.label_pattern)
+    if shots is None or set(shots.names) != set(done):
+        shots = shots_of(folder, sorted(done, key=natural_key), label_pattern=opts.label_pattern)
+    result = measure_shots(shots, None, opts.config, overrides=opts.overrides, option_labels=opts.labels)
+    check_frames_table(result.frames, out / "frames.parquet")
+    schema.check_table(result.shots, schema.SHOTS, out / "shots.parquet")
+    schema.check_document(result.summary, schema.SHOTS_SUMMARY, out / "summary.json")
+    journal = out / JOURNAL
+    with atomic_dir(out, inputs=[folder], overwrite=opts.overwrite, kind="measurement") as tmp:
+        result.shots.to_parquet(tmp / "shots.parquet", index=False)
+        result.frames.to_parquet(tmp / "frames.parquet", index=False)
+        if opts.csv:
+            result.frames.to_csv(tmp / "frames.csv", index=False)
+        if result.bodies is not None:
+            result.bodies.to_parquet(tmp / "bodies.parquet", index=False)
+        write_json(tmp / "summary.json", result.summary)
+        (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(journal, tmp / JOURNAL)
+        write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "kind": "shots",
+                                      "state": "finished", **stats, "left_out": left_out})
     return result
 
 

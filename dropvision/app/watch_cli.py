@@ -48,7 +48,8 @@ def _run(args: argparse.Namespace) -> int:
     overrides, labels = overrides_from_args(args)
     options = WatchOptions(frames=args.frames, idle_s=args.idle_s, settle_s=args.settle_s,
                            config=MeasureConfig(workers=args.workers), csv=args.csv, overwrite=args.overwrite,
-                           overrides=overrides, labels=labels)
+                           overrides=overrides, labels=labels, shots=True if args.shots else None,
+                           label_pattern=args.label_pattern)
     def report(row: dict) -> None:
         if args.verbose:
             print(f"{row['file']}: delay {row['delay_us']:g} us, attached {row['attached_volume_nl'] or 0:.4g} nl, "
@@ -80,6 +81,15 @@ def _run(args: argparse.Namespace) -> int:
 def _summary_line(res, out) -> str:
     """One line: frames, how the sequence ended, latency, the main results."""
     s = res.result.summary
+    if res.kind == "shots":
+        from dropvision.shots import one_line
+
+        lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
+               f"after each of the {len(res.latency_ms)} images written while watching was complete"
+               if res.latency_ms else "no image written while watching")
+        return (f"watched {s['n_shots']} shots ({res.n_live} live, {res.n_resumed} from the journal; ended by "
+                f"{res.ended_by}); {lat}; {one_line(s, out)}"
+                + (f"; still being written, left out: {', '.join(res.left_out)}" if res.left_out else ""))
     lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
            f"after each of the {len(res.latency_ms)} frames written while watching was complete"
            if res.latency_ms else "no frame written while watching")
@@ -113,16 +123,25 @@ def _run_sequences(args: argparse.Namespace, root: Path, options, report) -> int
 
 def register(subparsers) -> None:
     """Add the ``watch`` sub-command."""
-    p = subparsers.add_parser("watch", help="measure a sequence folder while a drop watcher writes its frames")
-    p.add_argument("folder", help="sequence folder being written (never written to)")
+    p = subparsers.add_parser("watch", help="measure a sequence folder (or shots) while a drop watcher writes them")
+    p.add_argument("folder", help="sequence folder (or folder of shots) being written (never written to)")
     p.add_argument("--out", required=True, help="output folder: live/frames.jsonl grows as frames are measured, "
                    "the tables of `dropvision measure` at the end; an earlier watch of the same folder is resumed")
     p.add_argument("--sequences", action="store_true",
                    help="FOLDER receives one sequence per sub-folder, one after the other: each is watched in turn "
                         "into OUT/<name> (it ends at its frame count, --idle-s without a frame, or when a later "
                         "sub-folder appears); the watch ends --idle-s after the last one, or on Ctrl-C")
+    p.add_argument("--shots", action="store_true",
+                   help="FOLDER receives one image per shot (a drop watcher's exports, no delay in the names): each "
+                        "measured alone as it lands, its row appended to OUT/shots.parquet; at the end the tables of "
+                        "`dropvision measure FOLDER` (default: shots when the first image tells no delay and no "
+                        "frames list or frame rate is given)")
+    p.add_argument("--label-pattern", metavar="REGEX", default=None,
+                   help="shots: read the labels from the file names with this regular expression of named groups "
+                        "(as dropvision measure)")
     p.add_argument("--frames", type=int, default=None, metavar="N",
-                   help="end after N frames (default: the length of sequence.json's frames list, if any)")
+                   help="end after N frames (shots: N images; default: the length of sequence.json's frames list, if "
+                        "any)")
     p.add_argument("--idle-s", type=float, default=None, metavar="S",
                    help="end after S seconds without a new frame (default: wait for --frames or Ctrl-C)")
     p.add_argument("--settle-s", type=float, default=0.05, metavar="S",
