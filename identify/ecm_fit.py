@@ -177,7 +177,12 @@ class EcmData:
     def from_drive(cls, drive, t_us, volume_nl, pinchoff_us: float | None = None, substeps: int = 10) -> "EcmData":
         """A sequence driven by a waveform template (:class:`identify.waveform.Drive`, dead time
         included) with volumes sampled at ``t_us`` (from the trigger): samples after
-        ``pinchoff_us`` dropped, the drive also given ``substeps`` times finer (``u_fine_um``)."""
+        ``pinchoff_us`` dropped, the drive also given ``substeps`` times finer (``u_fine_um``).
+
+        ``u_um`` is the drive in the template's unit (µm for the trapezoid; V for a voltage drive,
+        which Eq. 6 reads as µm of equivalent stroke). ``K_ss`` of Eq. (13) (the ``delta`` method
+        only) is the drive at the last sample, or, where the drive is back at rest there (pulses
+        that end before pinch-off: Eq. 13 has no steady state to use), its largest magnitude."""
         t = np.asarray(t_us, dtype=float)
         y = np.asarray(volume_nl, dtype=float)
         if t.shape != y.shape:

@@ -1,4 +1,7 @@
-"""Trapezoidal piston waveform of a squeeze-mode printhead (Wang & Chiu, Eq. 1 and Eq. 9).
+"""Trapezoidal piston waveform of a squeeze-mode printhead (Wang & Chiu, Eq. 1 and Eq. 9), and
+waveform templates: any printhead's drive as a piecewise-linear function of time in the lab's own
+named parameters (:class:`WaveformTemplate`, :data:`TEMPLATES`: the trapezoid, a three-pulse
+dispenser; :class:`Drive`, :func:`drive_from_document` for sequence.json's ``waveform``).
 
 Units follow the printhead's user interface: stroke velocity ``u1`` and instroke velocity
 ``u3`` in µm/ms, stroke ``u2`` in µm, hold time ``tH`` in µs; time in µs from the start
