@@ -220,3 +220,24 @@ def test_template_model_recovers_a_noise_free_head_and_round_trips():
     with pytest.raises(ValueError, match="need at least 4"):
         fit_template_model(ThreePulseTemplate(), table.iloc[:3], series, dead_time_us=220.0,
                            nozzle_inner_diameter_um=200.0, hydraulics=hyd)
+
+
+def test_the_papers_hybrid_model_is_the_trapezoid_case(tmp_path):
+    """The (u1, u2) hybrid model at orders (1, 1) (`identify.hybrid_fit.fit_hybrid`) and the hybrid model on
+    the trapezoid template (`identify.template_fit`, the drive at the strobe delays as fit_hybrid takes it)
+    are one model: the same ECM and the same predictions, to rounding (the table's columns u1_um_per_ms,
+    u2_um are the template's parameters)."""
+    from identify.hybrid_fit import fit_hybrid
+    from identify.synthetic_dataset import make_synthetic_dataset
+
+    grid = [(a, b) for a in (60.0, 70.0, 80.0) for b in (21.25, 25.0, 28.75)]
+    ds = make_synthetic_dataset(tmp_path / "ds", grid=grid, noise_percent=1.0, seed=3)
+    h = fit_hybrid(ds, orders=((1, 1),), arx=False, folds=3).model
+    m = fit_template_model(TrapezoidTemplate(), ds.summary, ds.timeseries, dead_time_us=ds.dead_time_us,
+                           nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, hydraulics=ds.hydraulics(),
+                           substeps=1)
+    np.testing.assert_allclose(m.ecm_coefficients.to_array(), h.ecm_coefficients.to_array(), rtol=1e-12)
+    for u1, u2 in ((65.0, 23.0), (75.0, 27.0), (60.0, 28.75)):
+        a, b = h.nominal(u1, u2), m.predict({"u1_um_per_ms": u1, "u2_um": u2})
+        for k in ("pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s"):
+            assert b[k] == pytest.approx(a[k], rel=1e-12), k
