@@ -168,11 +168,49 @@ class TemplateModel:
             "notes": list(self.notes),
         }
 
+    def save(self, path):
+        """Write the model's JSON atomically (`dvcore.atomic.write_json`); read it back with
+        :meth:`from_json`."""
+        from dvcore.atomic import write_json
+
+        return write_json(path, self.to_dict())
+
+    @classmethod
+    def from_json(cls, path) -> "TemplateModel":
+        """A model from its JSON file (hardened reading: size, encoding, NaN; one-line errors naming the file)."""
+        from pathlib import Path
+
+        from dvcore.jsonio import load_json_hardened
+
+        path = Path(path)
+        if not path.is_file():
+            raise ValueError(f"{path}: model file not found")
+        return cls.from_dict(load_json_hardened(path, ValueError), source=str(path))
+
     @classmethod
     def from_dict(cls, d: Mapping, source: str = "model.json") -> "TemplateModel":
+        """A model from :meth:`to_dict`; every number checked (finite, the laws' shapes), so that an edited
+        file fails here with one line naming ``source``, never later in a prediction."""
         if not isinstance(d, Mapping) or d.get("schema") != schema.TEMPLATE_MODEL.schema:
             raise ValueError(f"{source}: not a template model (schema {schema.TEMPLATE_MODEL.schema!r} expected)")
         try:
+            schema.check_document(dict(d), schema.TEMPLATE_MODEL, source)
+            inputs = list(d["inputs"])
+            for name in LAWS:
+                law = d[name]
+                k = len(inputs)
+                shapes = {"inputs": k, "centre": k, "scale": k, "coefficients": k + 1}
+                for key, n in shapes.items():
+                    if not isinstance(law.get(key), list) or len(law[key]) != n:
+                        raise ValueError(f"{name}.{key} must be a list of {n}")
+                if list(law["inputs"]) != inputs:
+                    raise ValueError(f"{name}.inputs differ from inputs")
+                vals = np.asarray(law["centre"] + law["scale"] + law["coefficients"], float)
+                if not np.all(np.isfinite(vals)) or not np.all(np.asarray(law["scale"], float) > 0):
+                    raise ValueError(f"{name}: numbers must be finite, scales > 0")
+            coeffs = np.array([float(d["ecm"]["coefficients"][k]) for k in COEFF_NAMES])
+            if not np.all(np.isfinite(coeffs)) or coeffs[0] == 0:
+                raise ValueError("ecm.coefficients must be finite, A3 non-zero")
             return cls(
                 template=template_from_dict(d["waveform"]), dead_time_us=float(d["dead_time_us"]),
                 nozzle_inner_diameter_um=float(d["nozzle_inner_diameter_um"]),
@@ -182,7 +220,9 @@ class TemplateModel:
                 training_region={k: (float(a), float(b)) for k, (a, b) in d["training_region"].items()},
                 ecm={k: v for k, v in d["ecm"].items() if k != "coefficients"}, notes=list(d.get("notes") or []),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except schema.SchemaError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"{source}: invalid template model ({type(exc).__name__}: {exc})") from None
 
 

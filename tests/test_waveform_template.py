@@ -191,7 +191,7 @@ def _noise_free_campaign(settings, ph):
     return pd.DataFrame(rows), pd.concat(series, ignore_index=True)
 
 
-def test_template_model_recovers_a_noise_free_head_and_round_trips():
+def test_template_model_recovers_a_noise_free_head_and_round_trips(tmp_path):
     ph = SynthPhysics()
     c = THREE_PULSE_CENTRE
     train = [{**c, "V1": a, "w1": b} for a in (26.0, 34.0) for b in (180.0, 220.0)] + [dict(c)]
@@ -214,6 +214,17 @@ def test_template_model_recovers_a_noise_free_head_and_round_trips():
     assert p["jetting_velocity_m_s"] == pytest.approx(truth.jetting_velocity_m_s, rel=2e-3)
     back = TemplateModel.from_dict(json.loads(json.dumps(m.to_dict())))
     assert back.predict(test) == p
+    m.save(tmp_path / "model.json")
+    assert TemplateModel.from_json(tmp_path / "model.json").predict(test) == p
+    doc = m.to_dict()
+    doc["volume_adjuster"]["coefficients"] = doc["volume_adjuster"]["coefficients"][:2]
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"bad.json: invalid template model .*volume_adjuster.coefficients must be a "
+                                         r"list of 3"):
+        TemplateModel.from_json(tmp_path / "bad.json")
+    del doc["ecm"]
+    with pytest.raises(ValueError, match="missing key ecm"):
+        TemplateModel.from_dict(doc, "x.json")
     assert m.predict({**test, "V1": 40.0})["outside_training_region"] == ["V1"]
     with pytest.raises(ValueError, match="V2 = 12 differs from the value 10"):
         m.predict({**test, "V2": 12.0})
