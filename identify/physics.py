@@ -289,6 +289,9 @@ class LinearLaw:
     def at(self, values) -> float:
         out = float(self.constant)
         for k, c in self.slopes.items():  # in order, as SynthPhysics writes its (u1, u2) laws
+            if k not in values:
+                raise ValueError(f"a law has a slope for {k!r}, which is not a parameter of the drive "
+                                 f"({', '.join(values)})")
             out = out + float(c) * (float(values[k]) - float(self.centre.get(k, 0.0)))
         return float(out)
 
@@ -297,6 +300,9 @@ class LinearLaw:
 
     @classmethod
     def from_dict(cls, d) -> "LinearLaw":
+        if not isinstance(d, dict) or not isinstance(d.get("constant"), (int, float)) or isinstance(d["constant"], bool):
+            raise ValueError(f"a linear law is {{'constant': number, 'slopes': {{name: number}}, 'centre': "
+                             f"{{name: number}}}}, got {d!r}")
         return cls(float(d["constant"]), dict(d.get("slopes") or {}), dict(d.get("centre") or {}))
 
 
@@ -314,7 +320,11 @@ class TemplateLaws:
 
     @classmethod
     def from_dict(cls, d) -> "TemplateLaws":
-        return cls(*(LinearLaw.from_dict(d[k]) for k in ("pinchoff_us", "volume_adjuster_nl", "velocity_adjuster_m_s")))
+        keys = ("pinchoff_us", "volume_adjuster_nl", "velocity_adjuster_m_s")
+        missing = [k for k in keys if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise ValueError(f"laws: missing {', '.join(missing)} (each a linear law: constant, slopes, centre)")
+        return cls(*(LinearLaw.from_dict(d[k]) for k in keys))
 
 
 def trapezoid_laws(physics: SynthPhysics) -> TemplateLaws:

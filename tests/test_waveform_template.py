@@ -252,3 +252,19 @@ def test_the_papers_hybrid_model_is_the_trapezoid_case(tmp_path):
         a, b = h.nominal(u1, u2), m.predict({"u1_um_per_ms": u1, "u2_um": u2})
         for k in ("pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s"):
             assert b[k] == pytest.approx(a[k], rel=1e-12), k
+
+
+def test_synth_command_line_takes_a_template(tmp_path, capsys):
+    from dropvision.app.cli import main
+
+    doc = {"template": "three_pulse", "parameters": THREE_PULSE_CENTRE}
+    assert main(["synth", str(tmp_path / "s"), "--size", "96x256", "--tip-row", "20.4", "--delays", "0:700:350",
+                 "--no-progress", "--waveform", json.dumps(doc)]) == 0
+    assert json.loads((tmp_path / "s" / "sequence.json").read_text())["waveform"]["parameters"] == THREE_PULSE_CENTRE
+    assert json.loads((tmp_path / "s" / "truth.json").read_text())["pinchoff_instant_us"] == 660.0
+    bad = {**doc, "laws": {"pinchoff_us": {"constant": 600, "slopes": {"u1_um_per_ms": 1}},
+                           "volume_adjuster_nl": {"constant": 0}, "velocity_adjuster_m_s": {"constant": 0}}}
+    capsys.readouterr()
+    assert main(["synth", str(tmp_path / "t"), "--waveform", json.dumps(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "slope for 'u1_um_per_ms', which is not a parameter of the drive (V1, V2" in err and "\n" not in err

@@ -211,10 +211,12 @@ class SynthConfig:
             if "dead_time_us" in self.waveform:
                 bad("waveform", "carries no dead_time_us: the drive starts physics.dead_time_us after the trigger")
             try:
-                self.drive()
-                self.laws()
+                drive, laws = self.drive(), self.laws()
+                for law in (laws.pinchoff_us, laws.volume_adjuster_nl, laws.velocity_adjuster_m_s):
+                    law.at(drive.values)
             except (ValueError, KeyError, TypeError) as exc:
-                raise ValueError(f"SynthConfig.waveform: {exc}") from None
+                msg = str(exc)
+                raise ValueError(msg if msg.startswith("SynthConfig") else f"SynthConfig.waveform: {msg}") from None
 
         object.__setattr__(self, "colour_gains", tuple(float(g) for g in self.colour_gains))
         if isinstance(self.orientation, str):
@@ -306,7 +308,7 @@ class SynthConfig:
         from identify.waveform import drive_from_document
 
         doc = {k: v for k, v in self.waveform.items() if k != "laws"}
-        return drive_from_document({**doc, "dead_time_us": self.physics.dead_time_us}, "SynthConfig.waveform")
+        return drive_from_document({**doc, "dead_time_us": self.physics.dead_time_us}, "SynthConfig")
 
     def laws(self):
         """The template's synthetic laws (`identify.physics.TemplateLaws`), None without ``waveform``."""
