@@ -545,11 +545,16 @@ WAVEFORM = Document("waveform", "sequence.json `waveform` (template form)", "dro
     F("template", "str", "", "waveform template (identify.waveform.TEMPLATES): trapezoid (the paper's Eq. 1; "
       "parameters u1_um_per_ms um/ms, u2_um um; constants u3_um_per_ms, hold_us) or three_pulse (a MicroDrop-style "
       "dispenser; parameters V1, V2, V3 in V: pulse amplitudes, w1, w2, w3 in us: pulse widths at half amplitude, "
-      "d1, d2 in us: delays from the end of one pulse to the start of the next; constant edge_us)"),
+      "d1, d2 in us: delays from the end of one pulse to the start of the next; constant edge_us) or segments (a "
+      "drive the lab declares itself, e.g. a Dimatix multi-segment waveform: constants declare (parameter name -> "
+      "unit: us for a duration, the drive's unit for a level), segments (list of [duration, level] from rest, each "
+      "a number, a declared name or -name; the last level 0), unit (default V), velocity_segment (the segment at "
+      "whose end the jetting velocity is read; null: the first reaching the largest |level|))"),
     F("parameters", "object", "", "parameter name -> value in the template's unit; every declared parameter, no "
       "other"),
-    F("<constant>", "float", "of the template", "the template's constants (trapezoid: u3_um_per_ms default 2, "
-      "hold_us default 20; three_pulse: edge_us default 2, the rise and fall time of each pulse)", required=False),
+    F("<constant>", "object", "of the template", "the template's constants (trapezoid: u3_um_per_ms default 2, "
+      "hold_us default 20; three_pulse: edge_us default 2, the rise and fall time of each pulse; segments: declare, "
+      "segments, unit, velocity_segment)", required=False),
     F("dead_time_us", "float", "us", "trigger to the start of the drive (default 220)", required=False),
 ), "The drive as a piecewise-linear function of time in the lab's own parameters (issue 31); the key of "
    "sequence.json (and of `dropvision.synth`'s SynthConfig.waveform). Without `template` the object is the "

@@ -352,8 +352,132 @@ class ThreePulseTemplate(WaveformTemplate):
         return float(self.check(values)["w1"])
 
 
+class SegmentsTemplate(WaveformTemplate):
+    """A drive of straight segments declared by the lab itself (a Dimatix-style multi-segment
+    voltage waveform, or any other), with its own named parameters.
+
+    Parameters
+    ----------
+    declare : dict
+        Parameter name -> unit, in order: ``"us"`` for a duration, the drive's ``unit`` for a level.
+    segments : list of [duration, level]
+        From rest (level 0 at t = 0), each segment ramps linearly to its level over its duration
+        (µs); the last level must be 0. Each entry is a number, a declared parameter's name, or
+        ``"-name"`` (its negative). A duration must be a number >= 0 or a parameter in us, a level
+        a number or a parameter in ``unit``.
+    unit : str
+        Unit of the drive (default "V").
+    velocity_segment : int or None
+        The jetting velocity is read at the end of this segment (0-based); None: the first segment
+        that ends at the largest |level| (for a trapezoid: the maximum stroke).
+    """
+
+    name = "segments"
+
+    def __init__(self, declare=None, segments=None, unit: str = "V", velocity_segment: int | None = None):
+        declare = {"V": "V", "t": "us"} if declare is None else declare
+        segments = [["t", "V"], ["t", 0.0]] if segments is None else segments
+        if not isinstance(declare, Mapping) or not declare:
+            raise ValueError("segments template: 'declare' must be an object parameter name -> unit")
+        if not isinstance(unit, str) or not unit:
+            raise ValueError("segments template: 'unit' must be a non-empty string")
+        params = []
+        for n, u in declare.items():
+            if not isinstance(n, str) or not n.isidentifier() or not isinstance(u, str):
+                raise ValueError(f"segments template: declared parameter {n!r}: {u!r} must be a name -> a unit")
+            if u not in ("us", unit):
+                raise ValueError(f"segments template: parameter {n} has unit {u!r}: a duration is in us, a level in "
+                                 f"the drive's unit {unit!r}")
+            lo = 0.0 if u == "us" else -1e4
+            params.append(WaveformParameter(n, u, "duration" if u == "us" else "level", lo, 1e6 if u == "us" else 1e4))
+        if not isinstance(segments, (list, tuple)) or not segments:
+            raise ValueError("segments template: 'segments' must be a list of [duration, level]")
+        segs = []
+        for i, seg in enumerate(segments):
+            if not isinstance(seg, (list, tuple)) or len(seg) != 2:
+                raise ValueError(f"segments template: segment {i} must be [duration, level], got {seg!r}")
+            segs.append((self._term(seg[0], declare, "us", f"segment {i} duration"),
+                         self._term(seg[1], declare, unit, f"segment {i} level")))
+        if segs[-1][1] != 0.0:
+            raise ValueError("segments template: the last segment must end at level 0 (the drive back at rest)")
+        if velocity_segment is not None and (isinstance(velocity_segment, bool) or int(velocity_segment) != velocity_segment
+                                             or not 0 <= int(velocity_segment) < len(segs)):
+            raise ValueError(f"segments template: velocity_segment must be a segment index 0..{len(segs) - 1}")
+        self.declare = dict(declare)
+        self.segments = [list(seg) for seg in segments]
+        self.unit = unit
+        self.drive_unit = unit
+        self.velocity_segment = None if velocity_segment is None else int(velocity_segment)
+        self.parameters = tuple(params)
+        self._segs = segs
+
+    @staticmethod
+    def _term(x, declare, unit, what):
+        """A number, or (sign, name) of a declared parameter of ``unit``."""
+        if isinstance(x, str):
+            sign, name = (-1.0, x[1:]) if x.startswith("-") else (1.0, x)
+            if name not in declare:
+                raise ValueError(f"segments template: {what} names {name!r}, which is not declared")
+            if declare[name] != unit:
+                raise ValueError(f"segments template: {what} is in {unit}, but {name} is declared in {declare[name]}")
+            if unit == "us" and sign < 0:
+                raise ValueError(f"segments template: {what} cannot be a negative duration")
+            return (sign, name)
+        if isinstance(x, bool) or not isinstance(x, (int, float)) or not np.isfinite(x):
+            raise ValueError(f"segments template: {what} must be a number or a declared parameter, got {x!r}")
+        if unit == "us" and x < 0:
+            raise ValueError(f"segments template: {what} must be >= 0, got {x!r}")
+        return float(x)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, SegmentsTemplate) and self.constants() == other.constants()
+
+    __hash__ = None
+
+    def __repr__(self) -> str:
+        return f"SegmentsTemplate({self.constants()!r})"
+
+    def constants(self) -> dict:
+        return {"declare": dict(self.declare), "segments": [list(s) for s in self.segments], "unit": self.unit,
+                "velocity_segment": self.velocity_segment}
+
+    @classmethod
+    def from_constants(cls, consts: Mapping) -> "SegmentsTemplate":
+        bad = sorted(set(consts) - {"declare", "segments", "unit", "velocity_segment"})
+        if bad:
+            raise ValueError(f"waveform template segments: unknown constant(s) {', '.join(bad)} "
+                             "(known: declare, segments, unit, velocity_segment)")
+        if "declare" not in consts or "segments" not in consts:
+            raise ValueError("waveform template segments needs 'declare' (name -> unit) and 'segments'")
+        return cls(consts["declare"], consts["segments"], consts.get("unit", "V"), consts.get("velocity_segment"))
+
+    def breakpoints(self, values):
+        v = self.check(values)
+
+        def val(term):
+            return term if isinstance(term, float) else term[0] * v[term[1]]
+
+        t, level = [0.0], [0.0]
+        for dur, lev in self._segs:
+            d = val(dur)
+            if d == 0 and val(lev) != level[-1]:
+                raise ValueError(f"segments template: a segment of zero duration must keep the level "
+                                 f"(a step needs a ramp), at t = {t[-1]:g} us")
+            t.append(t[-1] + d)
+            level.append(val(lev))
+        return _merge_corners(np.array(t), np.array(level))
+
+    def velocity_instant_us(self, values) -> float:
+        v = self.check(values)
+        ends = np.cumsum([dur if isinstance(dur, float) else v[dur[1]] for dur, _ in self._segs])
+        if self.velocity_segment is not None:
+            return float(ends[self.velocity_segment])
+        levels = np.abs([lev if isinstance(lev, float) else lev[0] * v[lev[1]] for _, lev in self._segs])
+        return float(ends[int(np.argmax(levels))])
+
+
 #: Templates by name (``template`` of sequence.json's ``waveform``, of model files).
-TEMPLATES = {"trapezoid": TrapezoidTemplate, "three_pulse": ThreePulseTemplate}
+TEMPLATES = {"trapezoid": TrapezoidTemplate, "three_pulse": ThreePulseTemplate, "segments": SegmentsTemplate}
 
 
 def template_from_dict(d) -> WaveformTemplate:
@@ -363,6 +487,8 @@ def template_from_dict(d) -> WaveformTemplate:
         raise ValueError(f"unknown waveform template {name!r} (known: {', '.join(TEMPLATES)})")
     cls = TEMPLATES[d["template"]]
     consts = {k: v for k, v in d.items() if k != "template"}
+    if hasattr(cls, "from_constants"):
+        return cls.from_constants(consts)
     allowed = set(cls().constants())
     bad = sorted(set(consts) - allowed)
     if bad:

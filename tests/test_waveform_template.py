@@ -7,6 +7,7 @@ trapezoid of `identify.waveform.Waveform` (bit for bit), and to the ECM's own ti
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pandas as pd
@@ -268,3 +269,75 @@ def test_synth_command_line_takes_a_template(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "t"), "--waveform", json.dumps(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert "slope for 'u1_um_per_ms', which is not a parameter of the drive (V1, V2" in err and "\n" not in err
+
+
+def test_segments_template_declared_by_the_lab():
+    """A drive the lab declares itself (Dimatix-style segments), pinned to hand-computed corners; written as
+    segments, the paper's trapezoid is Eq. (1) to rounding."""
+    from identify.waveform import SegmentsTemplate
+
+    dim = SegmentsTemplate({"Vp": "V", "Vn": "V", "t1": "us", "t2": "us"},
+                           [[3, "-Vn"], ["t1", "-Vn"], [2, "Vp"], ["t2", "Vp"], [2, 0], [10, 0]])
+    v = {"Vp": 20.0, "Vn": 5.0, "t1": 4.0, "t2": 6.0}
+    # by hand: 0 -> -5 V over [0, 3], held to 7, -5 -> 20 V over [7, 9], held to 15, back to 0 at 17
+    t = [0.0, 1.5, 3.0, 7.0, 8.0, 9.0, 15.0, 16.0, 17.0, 27.0, 30.0]
+    assert dim.drive(v, t) == pytest.approx([0, -2.5, -5, -5, 7.5, 20, 20, 10, 0, 0, 0], abs=1e-12)
+    assert dim.velocity_instant_us(v) == 9.0  # the end of the first segment reaching |20 V|
+    assert dim.parameter_names == ("Vp", "Vn", "t1", "t2") and dim.units()["t1"] == "us"
+    doc = Drive(dim, v, 100.0).to_dict()
+    back = drive_from_document(json.loads(json.dumps(doc)))
+    assert back.template == dim and back.values == v
+    assert validate_waveform(doc, "s")["segments"] == doc["segments"]
+
+    trap = SegmentsTemplate({"A": "um", "rise": "us", "hold": "us", "fall": "us"},
+                            [["rise", "A"], ["hold", "A"], ["fall", 0]], unit="um")
+    tt = np.arange(-5.0, 13500.0, 0.37)
+    tv = {"A": 25.0, "rise": 1000 * 25 / 70, "hold": 20.0, "fall": 1000 * 25 / 2}
+    np.testing.assert_allclose(trap.drive(tv, tt), Waveform(70.0, 25.0).displacement_um(tt), rtol=0, atol=1e-12)
+    assert trap.velocity_instant_us(tv) == pytest.approx(Waveform(70.0, 25.0).max_stroke_us, rel=1e-15)
+
+    bad = [
+        ({"declare": {"V": "V"}, "segments": [["t", "V"], [1, 0]]}, "names 't', which is not declared"),
+        ({"declare": {"V": "V", "t": "ms"}, "segments": [["t", "V"], [1, 0]]}, "a duration is in us"),
+        ({"declare": {"V": "V", "t": "us"}, "segments": [["V", "t"], [1, 0]]}, "is in us, but V is declared in V"),
+        ({"declare": {"V": "V", "t": "us"}, "segments": [["t", "V"]]}, "must end at level 0"),
+        ({"declare": {"V": "V", "t": "us"}, "segments": [["t", "V"], [1, 0]], "colour": 1}, "unknown constant(s) colour"),
+    ]
+    for consts, why in bad:
+        with pytest.raises(ValueError, match=re.escape(why)):
+            template_from_dict({"template": "segments", **consts})
+    with pytest.raises(ValueError, match="a step needs a ramp"):
+        SegmentsTemplate({"V": "V"}, [[0, "V"], [5, 0]]).drive({"V": 1.0}, [1.0])
+
+
+def test_segments_template_head_identified_noise_free():
+    """The hybrid model fits a head whose drive the lab declared (one trapezoidal pulse, amplitude and
+    plateau varied), exactly without noise."""
+    from identify.physics import LinearLaw, TemplateLaws
+    from identify.waveform import SegmentsTemplate
+
+    ph = SynthPhysics()
+    tpl = SegmentsTemplate({"A": "V", "top": "us"}, [[50, "A"], ["top", "A"], [100, 0]])
+    centre = {"A": 25.0, "top": 150.0}
+    laws = TemplateLaws(LinearLaw(620.0, {"A": 2.0, "top": 0.5}, centre), LinearLaw(0.2, {"A": 0.01}, centre),
+                        LinearLaw(0.3, {"top": 0.001}, centre))
+    rows, series = [], []
+    t = np.arange(0.0, 900.0, 10.0)
+    settings = [{"A": a, "top": b} for a in (20.0, 30.0) for b in (120.0, 180.0)] + [dict(centre)]
+    for i, v in enumerate(settings):
+        h = drive_history(ph, Drive(tpl, v, 220.0), laws)
+        att = t < np.ceil(h.pinchoff_instant_us / 10.0) * 10.0
+        series.append(pd.DataFrame({"sequence_id": i, "delay_us": t, "attached": att,
+                                    "grown_volume_nl": np.where(att, h.grown_volume_nl_at(t), np.nan)}))
+        rows.append({"sequence_id": i, **v, "pinchoff_us": h.pinchoff_instant_us,
+                     "inflight_volume_nl": h.inflight_volume_nl, "jetting_velocity_m_s": h.jetting_velocity_m_s})
+    true = ph.ecm_parameters()
+    m = fit_template_model(tpl.to_dict(), pd.DataFrame(rows), pd.concat(series), dead_time_us=220.0,
+                           nozzle_inner_diameter_um=200.0, hydraulics=(true.LN, true.RN, true.LR, true.RR), la=true.La)
+    for k in ("Ra", "CN", "Kc"):
+        assert m.ecm["parameters"][k]["value"] == pytest.approx(getattr(true, k), rel=1e-6)
+    test = {"A": 27.0, "top": 140.0}
+    truth = drive_history(ph, Drive(tpl, test, 220.0), laws)
+    p = TemplateModel.from_dict(json.loads(json.dumps(m.to_dict()))).predict(test)
+    assert p["inflight_volume_nl"] == pytest.approx(truth.inflight_volume_nl, rel=1e-6)
+    assert p["jetting_velocity_m_s"] == pytest.approx(truth.jetting_velocity_m_s, rel=1e-6)
