@@ -162,6 +162,10 @@ def test_synth_writes_the_template_waveform(tmp_path):
     truth = json.loads((seq / "truth.json").read_text())
     assert truth["pinchoff_instant_us"] == 660.0
     assert truth["parameters"]["laws"]["template"]["parameters"] == THREE_PULSE_CENTRE
+    from dropvision.describe import describe_folder  # dropvision init's report of a waveform given to it
+    desc = describe_folder(seq, overrides={"waveform": {"template": "three_pulse", "parameters": THREE_PULSE_CENTRE}})
+    assert "  waveform   three_pulse: V1 30, V2 10, V3 10, w1 200, w2 80, w3 80, d1 20, d2 20" in desc.lines
+    assert desc.doc["waveform"]["parameters"] == THREE_PULSE_CENTRE
     assert SynthConfig.from_dict(truth["parameters"]["config"]).drive().values == THREE_PULSE_CENTRE
     with pytest.raises(ValueError, match="dead_time_us"):
         SynthConfig(waveform={"template": "three_pulse", "parameters": THREE_PULSE_CENTRE, "dead_time_us": 0})
