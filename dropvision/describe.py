@@ -158,7 +158,10 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         lines.append(f"  pixel size from the nozzle: {d:g} um / "
                      + (f"{width_px:.1f} px = {d / width_px:.4g} um (measured again by measure)" if width_px
                         else "its width in px (not found here)"))
-    if meta.waveform:
+    if meta.waveform and "template" in meta.waveform:  # a waveform template (issue 31)
+        lines.append(f"  waveform   {meta.waveform['template']}: "
+                     + ", ".join(f"{k} {v:g}" for k, v in meta.waveform["parameters"].items()))
+    elif meta.waveform:
         lines.append(f"  waveform   u1 {meta.waveform['u1_um_per_ms']:g} um/ms, u2 {meta.waveform['u2_um']:g} um")
     for item in to_give:
         lines.append(f"  TO GIVE    {item}")

@@ -15,7 +15,7 @@ from dvcore.schema import RANGES
 from dropvision.orientation import ORIENTATIONS
 from dropvision.readers.base import is_number
 from dropvision.sequence_meta import SequenceError
-from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
+from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform, drive_from_document
 
 
 #: Keys of sequence.json that options may give or override (`open_sequence` ``overrides``):
@@ -97,6 +97,8 @@ def validate_waveform(value, where: str) -> dict | None:
         return None
     if not isinstance(value, dict):
         raise SequenceError(f"{where}: 'waveform' must be an object")
+    if "template" in value:  # a waveform template in the lab's own parameters (issue 31)
+        return _validate_template_waveform(value, where)
     out = dict(value)
     out.setdefault("u3_um_per_ms", U3_PRESET_UM_PER_MS)
     out.setdefault("hold_us", HOLD_PRESET_US)
@@ -115,6 +117,27 @@ def validate_waveform(value, where: str) -> dict | None:
     if out["dead_time_us"] < 0:
         raise SequenceError(f"{where}: waveform dead_time_us must be >= 0")
     return out
+
+
+def _validate_template_waveform(value: dict, where: str) -> dict:
+    """The template form of sequence.json's ``waveform`` (`dvcore.schema.WAVEFORM`): checked by
+    `identify.waveform.drive_from_document` and returned complete (constants and dead time filled
+    in); a paper-form key beside ``template`` is refused rather than ignored. The trapezoid template
+    comes back in the paper's flat form (``u1_um_per_ms``, ``u2_um``, ``u3_um_per_ms``, ``hold_us``,
+    ``dead_time_us``), the one form the campaign and the summary read (u1, u2) from."""
+    stray = sorted(set(value) & {"u1_um_per_ms", "u2_um"})
+    if stray:
+        raise SequenceError(f"{where}: waveform {', '.join(stray)} beside template {value.get('template')!r}: "
+                            "give the template's parameters under 'parameters'")
+    if "dead_time_us" in value:
+        ranged_value(value["dead_time_us"], "dead_time_us", "waveform dead_time_us", where)
+    try:
+        drive = drive_from_document(value, where)
+    except ValueError as exc:
+        raise SequenceError(str(exc)) from None
+    if drive.template.name == "trapezoid":  # the paper's own form, which every reader of (u1, u2) knows
+        return {**drive.values, **drive.template.constants(), "dead_time_us": drive.dead_time_us}
+    return drive.to_dict()
 
 
 def validate_ink(value, where: str) -> dict | None:
@@ -209,7 +232,11 @@ def merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Path
         where = labels.get(key, f"argument {key}")
         wheres[key] = where
         if key == "waveform" and isinstance(merged.get("waveform"), dict):
-            value = {**merged["waveform"], **value}
+            old = merged["waveform"]
+            params = value.get("parameters")
+            value = {**old, **value}
+            if isinstance(params, dict) and isinstance(old.get("parameters"), dict):
+                value["parameters"] = {**old["parameters"], **params}  # a template's parameters one by one
         if key == "frame_rate_hz" and merged.get("frames") is not None:
             raise SequenceError(f"{where}: {json_path} has a frames list (delays per frame); "
                                 "frame_rate_hz gives the delays of a recording instead: not both")

@@ -574,10 +574,51 @@ TABULAR_PREDICTION = Table("tabular_prediction", "predictions.csv", "identify.ta
 ), "`identify predict model.json --table ROWS --out FILE` with a table model: one row per row of ROWS (CSV, "
    "or Parquet by the suffix).")
 
+WAVEFORM = Document("waveform", "sequence.json `waveform` (template form)", "dropvision.waveform/1", (
+    F("template", "str", "", "waveform template (identify.waveform.TEMPLATES): trapezoid (the paper's Eq. 1; "
+      "parameters u1_um_per_ms um/ms, u2_um um; constants u3_um_per_ms, hold_us) or three_pulse (a MicroDrop-style "
+      "dispenser; parameters V1, V2, V3 in V: pulse amplitudes, w1, w2, w3 in us: pulse widths at half amplitude, "
+      "d1, d2 in us: delays from the end of one pulse to the start of the next; constant edge_us) or segments (a "
+      "drive the lab declares itself, e.g. a Dimatix multi-segment waveform: constants declare (parameter name -> "
+      "unit: us for a duration, the drive's unit for a level), segments (list of [duration, level] from rest, each "
+      "a number, a declared name or -name; the last level 0), unit (default V), velocity_segment (the segment at "
+      "whose end the jetting velocity is read; null: the first reaching the largest |level|))"),
+    F("parameters", "object", "", "parameter name -> value in the template's unit; every declared parameter, no "
+      "other"),
+    F("<constant>", "object", "of the template", "the template's constants (trapezoid: u3_um_per_ms default 2, "
+      "hold_us default 20; three_pulse: edge_us default 2, the rise and fall time of each pulse; segments: declare, "
+      "segments, unit, velocity_segment)", required=False),
+    F("dead_time_us", "float", "us", "trigger to the start of the drive (default 220)", required=False),
+), "The drive as a piecewise-linear function of time in the lab's own parameters (issue 31); the key of "
+   "sequence.json (and of `dropvision.synth`'s SynthConfig.waveform). Without `template` the object is the "
+   "paper's flat form (u1_um_per_ms, u2_um, ...): the trapezoid template, into which the trapezoid's template "
+   "form is also read.")
+
+TEMPLATE_MODEL = Document("template_model", "model.json", "identify.template-model/1", (
+    F("schema", "str", "", "document id"),
+    F("waveform", "object", "", "the template and its constants ({template, <constant>})"),
+    F("parameters", "object", "", "parameter name -> unit, as the template declares them"),
+    F("drive_unit", "str", "", "unit of the drive u(t) entering Eq. (6) (um: a piston stroke; V: a piezo voltage, "
+      "read as um of equivalent stroke, Kc per V)"),
+    F("dead_time_us", "float", "us", "trigger to the start of the drive"),
+    F("nozzle_inner_diameter_um", "float", "um", "nozzle inner diameter (flow velocity)"),
+    F("inputs", "list", "", "the parameters varied in the training data (the laws' inputs)"),
+    F("fixed", "object", "", "parameter -> the value every training sequence had (required at prediction)"),
+    F("training_region", "object", "", "varied parameter -> [min, max] seen in training"),
+    F("ecm", "object", "", "coefficients A3..B0 (SI), level (physical | coefficients), parameters ({La, Ra, CN, "
+      "Kc: value, ci95}, null at level coefficients), rmse_nl, n_sequences, n_samples, units"),
+    F("pinchoff", "object", "", "pinch-off instant (us after the trigger) linear in the inputs: inputs, centre, "
+      "scale, coefficients (constant first, then per scaled input), rmse, n"),
+    F("volume_adjuster", "object", "", "volume adjuster (nl), the same form"),
+    F("velocity_adjuster", "object", "", "velocity adjuster (m/s), the same form"),
+    F("notes", "list", "", "what the fit left out or kept constant"),
+), "Hybrid model on a waveform template (identify.template_fit.TemplateModel).")
+
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, DATASET_SHOTS,
                                LIVE_FRAMES, TUNING, TABULAR_PREDICTION)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
                                  PREDICTION, TABULAR_MODEL)}
+DOCUMENTS.update({d.name: d for d in (WAVEFORM, TEMPLATE_MODEL)})  # issue 31: waveform templates
 
 
 class Quality:

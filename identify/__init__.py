@@ -10,6 +10,11 @@ The public API (loaded on first use, so ``import identify`` stays cheap)::
     model.save("model.json"); identify.load_model("model.json")
     identify.tune(model, rig, volume_nl=20)            # closed loop on a rig (identify.tuning)
 
+    # any drive with time series: a waveform template in the lab's parameters (identify.template_fit)
+    tpm = identify.fit_template_model(identify.ThreePulseTemplate(), table, timeseries, dead_time_us=220,
+                                      nozzle_inner_diameter_um=200)
+    tpm.predict({"V1": 30, "w1": 200, ...}); tpm.save("model.json")
+
     table = identify.read_table("sweep.csv")           # a table of settings and end-point measurements
     tm = identify.fit_table(table, ["V3", "w1"], ["head_volume_px3", "n_drops"])  # identify.tabular
     tm.predict(rows); tm.save("model.json"); identify.TabularModel.from_json("model.json")
@@ -29,6 +34,11 @@ _LAZY = {
     "HybridModel": "identify.hybrid:HybridModel",
     "FitReport": "identify.hybrid_fit:FitReport",
     "Waveform": "identify.waveform:Waveform",
+    "ThreePulseTemplate": "identify.waveform:ThreePulseTemplate",
+    "TrapezoidTemplate": "identify.waveform:TrapezoidTemplate",
+    "Drive": "identify.waveform:Drive",
+    "fit_template_model": "identify.template_fit:fit_template_model",
+    "TemplateModel": "identify.template_fit:TemplateModel",
     "paper_prediction": "identify.paper:paper_prediction",
     "tune": "identify.tuning:tune",
     "read_tuning": "identify.tuning:read_tuning",

@@ -56,6 +56,14 @@ Euler bias ~5 %, the rest from Eq. 13, the pinch-off volume not being the steady
 Eq. 12), > 1000 % with 1-2 % noise (equation-error bias: the third difference of noisy
 samples).
 
+Any drive (issue 31): ``u_um`` is whatever drives Eq. (6), the paper's piston stroke or a waveform
+template's drive (:mod:`identify.waveform`; a voltage is read as µm of equivalent stroke, Kc then per
+volt). A drive whose corners fall between the samples (pulse edges of 2 µs, samples every 10 µs)
+is not linear between them: :meth:`EcmData.from_drive` also stores it on a finer grid
+(``u_fine_um``, ``substeps``) and the output-error fits simulate on that grid. Noise-free
+three-pulse campaign (``tests/test_waveform_template.py``): exact on the 1 µs grid; held linear
+between the 10 µs samples, Ra +43 %, CN +22 %, Kc +11 %.
+
 Units: SI for the physical parameters and coefficients; µs, µm and nl for the data.
 """
 
@@ -110,6 +118,13 @@ class EcmData:
         Piston displacement at pinch-off, ``K_ss`` of Eq. (13) (µm).
     u1_um_per_ms, u2_um : float, optional
         Waveform labels (reported in ``EcmFit.per_sequence``).
+    u_fine_um : array_like, optional
+        The drive on a grid ``substeps`` times finer than ``t_us`` (``(n - 1) substeps + 1``
+        samples from ``t_us[0]``): the output-error fits simulate on it, so that a drive whose
+        corners fall between the samples (a waveform template's pulses) is followed exactly
+        (:meth:`from_drive`). None: the drive is ``u_um``, linear between samples.
+    substeps : int
+        Sub-steps per sample of ``u_fine_um`` (1 without it).
     """
 
     t_us: np.ndarray
@@ -119,6 +134,8 @@ class EcmData:
     pinchoff_displacement_um: float
     u1_um_per_ms: float = float("nan")
     u2_um: float = float("nan")
+    u_fine_um: np.ndarray | None = None
+    substeps: int = 1
 
     def __post_init__(self) -> None:
         arrays = {}
@@ -147,11 +164,45 @@ class EcmData:
             object.__setattr__(self, name, v)
         if self.pinchoff_displacement_um == 0:
             raise ValueError("EcmData.pinchoff_displacement_um must be non-zero (K_ss of Eq. 13)")
+        if int(self.substeps) != self.substeps or self.substeps < 1:
+            raise ValueError(f"EcmData.substeps must be an integer >= 1, got {self.substeps!r}")
+        object.__setattr__(self, "substeps", int(self.substeps))
+        if self.u_fine_um is not None:
+            fine = np.asarray(self.u_fine_um, dtype=float)
+            if fine.shape != ((n - 1) * self.substeps + 1,) or not np.all(np.isfinite(fine)):
+                raise ValueError(f"EcmData.u_fine_um must hold {(n - 1) * self.substeps + 1} finite samples "
+                                 f"((n - 1) substeps + 1), got shape {fine.shape}")
+            object.__setattr__(self, "u_fine_um", fine)
+        elif self.substeps != 1:
+            raise ValueError("EcmData.substeps > 1 needs u_fine_um")
 
     @property
     def interval_us(self) -> float:
         """Sampling interval (µs)."""
         return float(self.t_us[1] - self.t_us[0])
+
+    @classmethod
+    def from_drive(cls, drive, t_us, volume_nl, pinchoff_us: float | None = None, substeps: int = 10) -> "EcmData":
+        """A sequence driven by a waveform template (:class:`identify.waveform.Drive`, dead time
+        included) with volumes sampled at ``t_us`` (from the trigger): samples after
+        ``pinchoff_us`` dropped, the drive also given ``substeps`` times finer (``u_fine_um``).
+
+        ``u_um`` is the drive in the template's unit (µm for the trapezoid; V for a voltage drive,
+        which Eq. 6 reads as µm of equivalent stroke). ``K_ss`` of Eq. (13) (the ``delta`` method
+        only) is the drive at the last sample, or, where the drive is back at rest there (pulses
+        that end before pinch-off: Eq. 13 has no steady state to use), its largest magnitude."""
+        t = np.asarray(t_us, dtype=float)
+        y = np.asarray(volume_nl, dtype=float)
+        if t.shape != y.shape:
+            raise ValueError("from_drive: t_us and volume_nl must have equal shapes")
+        if pinchoff_us is not None:
+            keep = t <= pinchoff_us + 1e-9
+            t, y = t[keep], y[keep]
+        u = drive.at(t)
+        fine_t = t[0] + np.arange((t.size - 1) * substeps + 1) * ((t[-1] - t[0]) / max(t.size - 1, 1) / substeps)
+        return cls(t_us=t, u_um=u, volume_nl=y, pinchoff_volume_nl=float(y[-1]),
+                   pinchoff_displacement_um=float(u[-1]) if u[-1] != 0 else float(np.max(np.abs(u)) or 1.0),
+                   u_fine_um=drive.at(fine_t), substeps=substeps)
 
     @classmethod
     def from_waveform(
@@ -337,6 +388,24 @@ def _stack(sequences: Sequence[EcmData]) -> tuple[float, np.ndarray, np.ndarray,
     return h, U, Y, mask
 
 
+def _simulator(sequences: Sequence[EcmData], h: float, U: np.ndarray):
+    """``sim(coeffs) -> volume (m, n)`` of the stacked sequences: :func:`simulate_sampled` on
+    ``U``, or, where the sequences carry a finer drive (``u_fine_um``), on that grid, read back
+    every ``substeps`` samples."""
+    subs = {s.substeps for s in sequences}
+    if subs == {1}:
+        return lambda c: simulate_sampled(c, h, U)[0]
+    if len(subs) != 1 or any(s.u_fine_um is None for s in sequences):
+        raise ValueError("fit_ecm: the sequences must all carry a fine drive with the same substeps, or none")
+    sub = subs.pop()
+    n = (U.shape[1] - 1) * sub + 1
+    F = np.empty((len(sequences), n))
+    for i, s in enumerate(sequences):
+        F[i, :s.u_fine_um.size] = s.u_fine_um
+        F[i, s.u_fine_um.size:] = s.u_fine_um[-1]
+    return lambda c: simulate_sampled(c, h / sub, F)[0][:, ::sub]
+
+
 def _delta_cov(fun, q, cov_q, rel_step: float = 1e-6) -> np.ndarray:
     """Delta-method covariance of fun(q) for a covariance of q."""
     q = np.asarray(q, dtype=float)
@@ -375,12 +444,12 @@ _FRES_GRID = np.geomspace(100.0, 2e4, 11)  # meniscus resonance (Hz)
 def _fit_oe(sequences, hyd: Hydraulics, la: float, initial: EcmParameters | None) -> EcmFit:
     h, U, Y, mask = _stack(sequences)
     y = Y[mask]
+    sim = _simulator(sequences, h, U)
 
     def shape_response(ra: float, cn: float) -> np.ndarray:
         """Volume for Kc = -1 (the volume is linear in Kc)."""
         c = _params_from(la, ra, cn, -1.0, hyd).coefficients()
-        vol, _ = simulate_sampled(c, h, U)
-        return vol[mask]
+        return sim(c)[mask]
 
     def kc_star(v1: np.ndarray) -> float:
         den = float(v1 @ v1)
@@ -414,7 +483,7 @@ def _fit_oe(sequences, hyd: Hydraulics, la: float, initial: EcmParameters | None
     def sim_q(qf) -> np.ndarray:
         la_, ra_, cn_, kca = np.exp(qf)
         c = _params_from(la_, ra_, cn_, np.sign(kc) * kca, hyd).coefficients()
-        return simulate_sampled(c, h, U)[0][mask]
+        return sim(c)[mask]
 
     q_full = np.log([la, ra, cn, abs(kc)])
     J = np.empty((n_obs, 4))
@@ -649,11 +718,12 @@ def fit_ecm_coefficients(sequences: Sequence[EcmData], initial: EcmCoefficients 
     """
     h, U, Y, mask = _stack(list(sequences))
     y = Y[mask]
+    sim = _simulator(list(sequences), h, U)
 
     def basis(q3) -> np.ndarray:
         p, a1, a0 = np.exp(q3)
-        v1 = simulate_sampled(_coeffs_of(p, a1, a0, 1.0, 0.0), h, U)[0][mask]
-        v0 = simulate_sampled(_coeffs_of(p, a1, a0, 0.0, 1.0), h, U)[0][mask]
+        v1 = sim(_coeffs_of(p, a1, a0, 1.0, 0.0))[mask]
+        v0 = sim(_coeffs_of(p, a1, a0, 0.0, 1.0))[mask]
         return np.column_stack([v1, v0])
 
     def solve_b(X) -> np.ndarray:

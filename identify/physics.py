@@ -23,9 +23,10 @@ from scipy.interpolate import CubicHermiteSpline
 
 from identify.ecm import EcmParameters, flow_velocity_m_s, simulate
 from identify.hydraulics import hydraulics_from_dimensions
-from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform
+from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Drive, Waveform
 
-__all__ = ["SynthPhysics", "DropHistory", "drop_history"]
+__all__ = ["SynthPhysics", "DropHistory", "drop_history", "LinearLaw", "TemplateLaws", "drive_history",
+           "THREE_PULSE_LAWS", "THREE_PULSE_CENTRE", "trapezoid_laws", "DEFAULT_LAWS"]
 
 
 @dataclass(frozen=True)
@@ -197,6 +198,8 @@ class DropHistory:
     jetting_velocity_m_s: float
     nozzle_inner_diameter_um: float
     volume_spline: CubicHermiteSpline = field(repr=False, compare=False, default=None)
+    #: the drive of a waveform template (:func:`drive_history`): its ``to_dict()``; None for (u1, u2)
+    drive: dict | None = field(default=None, compare=False)
 
     def grown_volume_nl_at(self, t_us) -> np.ndarray:
         """ECM grown volume (nl) at arbitrary times (cubic Hermite between grid points)."""
@@ -269,3 +272,137 @@ def drop_history(physics: SynthPhysics, u1_um_per_ms: float, u2_um: float, *,
         jetting_velocity_m_s=v_jet, nozzle_inner_diameter_um=physics.nozzle_inner_diameter_um,
         volume_spline=spline,
     )
+
+
+# --------------------------------------------------------------------------- waveform templates
+
+
+@dataclass(frozen=True)
+class LinearLaw:
+    """A law linear in named waveform parameters: ``constant + sum_k slopes[k] (x_k - centre[k])``
+    (a parameter absent from ``centre`` is centred at 0; absent from ``slopes``: no effect)."""
+
+    constant: float
+    slopes: dict = field(default_factory=dict)
+    centre: dict = field(default_factory=dict)
+
+    def at(self, values) -> float:
+        out = float(self.constant)
+        for k, c in self.slopes.items():  # in order, as SynthPhysics writes its (u1, u2) laws
+            if k not in values:
+                raise ValueError(f"a law has a slope for {k!r}, which is not a parameter of the drive "
+                                 f"({', '.join(values)})")
+            out = out + float(c) * (float(values[k]) - float(self.centre.get(k, 0.0)))
+        return float(out)
+
+    def to_dict(self) -> dict:
+        return {"constant": float(self.constant), "slopes": dict(self.slopes), "centre": dict(self.centre)}
+
+    @classmethod
+    def from_dict(cls, d) -> "LinearLaw":
+        if not isinstance(d, dict) or not isinstance(d.get("constant"), (int, float)) or isinstance(d["constant"], bool):
+            raise ValueError(f"a linear law is {{'constant': number, 'slopes': {{name: number}}, 'centre': "
+                             f"{{name: number}}}}, got {d!r}")
+        return cls(float(d["constant"]), dict(d.get("slopes") or {}), dict(d.get("centre") or {}))
+
+
+@dataclass(frozen=True)
+class TemplateLaws:
+    """The synthetic printhead's pinch-off instant (µs after the trigger) and adjusters (nl, m/s)
+    as laws linear in a template's parameters (the data-driven part of Eq. 8, for any template)."""
+
+    pinchoff_us: LinearLaw
+    volume_adjuster_nl: LinearLaw
+    velocity_adjuster_m_s: LinearLaw
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k).to_dict() for k in ("pinchoff_us", "volume_adjuster_nl", "velocity_adjuster_m_s")}
+
+    @classmethod
+    def from_dict(cls, d) -> "TemplateLaws":
+        keys = ("pinchoff_us", "volume_adjuster_nl", "velocity_adjuster_m_s")
+        missing = [k for k in keys if not isinstance(d, dict) or k not in d]
+        if missing:
+            raise ValueError(f"laws: missing {', '.join(missing)} (each a linear law: constant, slopes, centre)")
+        return cls(*(LinearLaw.from_dict(d[k]) for k in keys))
+
+
+def trapezoid_laws(physics: SynthPhysics) -> TemplateLaws:
+    """The (u1, u2) laws of ``physics`` written as :class:`TemplateLaws` of the trapezoid template
+    (the same numbers: :func:`drive_history` of the trapezoid equals :func:`drop_history`)."""
+    c0, c1, c2 = physics.pinchoff_law_us
+    p = physics.volume_adjuster_nl
+    q = physics.velocity_adjuster_m_s
+    names = ("u1_um_per_ms", "u2_um")
+    return TemplateLaws(LinearLaw(c0, dict(zip(names, (c1, c2))), dict(zip(names, (70.0, 25.0)))),
+                        LinearLaw(p[0], dict(zip(names, p[1:]))), LinearLaw(q[0], dict(zip(names, q[1:]))))
+
+
+#: Laws of the synthetic three-pulse dispenser (`dropvision.synth` with a ``waveform`` of the
+#: three_pulse template), centred on :data:`THREE_PULSE_CENTRE`: there the drive ends 626 us after
+#: the trigger (dead time 220 us) and the drop pinches off at 660 us, later for a stronger or longer
+#: main pulse, a stronger second pulse or a longer first delay.
+THREE_PULSE_CENTRE = {"V1": 30.0, "V2": 10.0, "V3": 10.0, "w1": 200.0, "w2": 80.0, "w3": 80.0, "d1": 20.0, "d2": 20.0}
+THREE_PULSE_LAWS = TemplateLaws(
+    LinearLaw(660.0, {"V1": 1.5, "w1": 0.3, "V2": 1.0, "d1": 0.3}, THREE_PULSE_CENTRE),
+    LinearLaw(0.3, {"V1": 0.02, "w1": 0.002, "V2": -0.01}, THREE_PULSE_CENTRE),
+    LinearLaw(0.4, {"V1": 0.01, "w1": -0.0005, "V3": 0.005}, THREE_PULSE_CENTRE),
+)
+
+
+def drive_history(physics: SynthPhysics, drive: Drive, laws: TemplateLaws, *, t_end_us: float = 2500.0,
+                  dt_us: float = 0.5) -> DropHistory:
+    """:func:`drop_history` for the drive of a waveform template: the ECM of ``physics`` simulated
+    (first-order hold on a ``dt_us`` grid, exact where the drive's corners fall on it) with
+    ``drive.at(t)`` as its input u(t), the pinch-off instant and the adjusters from ``laws``, the
+    jetting velocity read at ``drive.velocity_instant_us`` (the trapezoid: the maximum stroke).
+    ``physics.dead_time_us`` is not used: the drive carries its own."""
+    if not dt_us > 0:
+        raise ValueError(f"dt_us must be > 0, got {dt_us!r}")
+    values = drive.values
+    tp = laws.pinchoff_us.at(values)
+    t_end = max(float(t_end_us), tp + 50.0)
+    t = np.arange(0.0, t_end + 0.5 * dt_us, dt_us)
+    u = drive.at(t)
+    coeffs = physics.ecm_parameters().coefficients()
+    volume, flow = simulate(coeffs, t, u)
+    label = ", ".join(f"{k} {v:g}" for k, v in values.items())
+    if not drive.dead_time_us < tp:
+        raise ValueError(f"pinch-off law gives t_p = {tp:.1f} µs for ({label}): before the drive starts")
+    spline = CubicHermiteSpline(t, volume, flow)
+    v_tp = float(spline(tp))
+    adj_v = laws.volume_adjuster_nl.at(values)
+    adj_u = laws.velocity_adjuster_m_s.at(values)
+    t_max = drive.velocity_instant_us
+    fv_max = float(flow_velocity_m_s(np.interp(t_max, t, flow), physics.nozzle_inner_diameter_um))
+    inflight = v_tp + adj_v
+    v_jet = fv_max + adj_u
+    if not inflight > 0 or not v_jet > 0:
+        raise ValueError(f"({label}) gives a non-physical drop: in-flight volume {inflight:.3g} nl, "
+                         f"jetting velocity {v_jet:.3g} m/s")
+    nan = float("nan")
+    return DropHistory(
+        u1_um_per_ms=float(values.get("u1_um_per_ms", nan)), u2_um=float(values.get("u2_um", nan)), t_us=t,
+        volume_nl=volume, flow_nl_per_us=flow, pinchoff_instant_us=tp, grown_volume_at_pinchoff_instant_nl=v_tp,
+        volume_adjuster_nl=adj_v, velocity_adjuster_m_s=adj_u, inflight_volume_nl=inflight,
+        max_stroke_instant_us=t_max, flow_velocity_at_max_stroke_m_s=fv_max,
+        jetting_velocity_m_s=v_jet, nozzle_inner_diameter_um=physics.nozzle_inner_diameter_um,
+        volume_spline=spline, drive=drive.to_dict(),
+    )
+
+
+#: Default laws of a template without its own (`dropvision.synth`'s ``waveform`` without ``laws``).
+DEFAULT_LAWS = {"three_pulse": THREE_PULSE_LAWS}
+
+
+def laws_for(template_name: str, physics: SynthPhysics, laws=None) -> TemplateLaws:
+    """The laws of a synthetic printhead driven by ``template_name``: ``laws`` (a
+    :class:`TemplateLaws` or its dict) when given, else the trapezoid's from ``physics`` or the
+    template's default (:data:`DEFAULT_LAWS`)."""
+    if laws is not None:
+        return laws if isinstance(laws, TemplateLaws) else TemplateLaws.from_dict(laws)
+    if template_name == "trapezoid":
+        return trapezoid_laws(physics)
+    if template_name not in DEFAULT_LAWS:
+        raise ValueError(f"no default synthetic laws for waveform template {template_name!r}: give 'laws'")
+    return DEFAULT_LAWS[template_name]

@@ -30,6 +30,18 @@ def _holder(text: str):
         raise argparse.ArgumentTypeError(f"holder {text!r}: expected yes, no or a width in µm") from None
 
 
+def _waveform(text: str) -> dict:
+    import json
+
+    try:
+        doc = json.loads(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"waveform {text!r}: not JSON ({exc})") from None
+    if not isinstance(doc, dict) or "template" not in doc:
+        raise argparse.ArgumentTypeError(f"waveform {text!r}: expected a JSON object with a 'template' key")
+    return doc
+
+
 def _rig_names() -> list[str]:
     # the preset names, without importing the synthesizer (kept in step by a test)
     return ["clean", "watcher-side", "watcher-blurred-holder", "pendant-saturated", "low-contrast", "tilted-dusty",
@@ -55,6 +67,11 @@ def register(subparsers) -> argparse.ArgumentParser:
                    "files are replaced, the others kept (a folder dropvision did not write is refused)")
     p.add_argument("--u1", type=float, default=70.0, help="stroke velocity u1 (µm/ms), default 70")
     p.add_argument("--u2", type=float, default=25.0, help="stroke u2 (µm), default 25")
+    p.add_argument("--waveform", type=_waveform, default=None,
+                   help="drive the head with a waveform template instead of --u1/--u2: sequence.json's template "
+                        "form as JSON, e.g. '{\"template\": \"three_pulse\", \"parameters\": {\"V1\": 30, \"V2\": 10, "
+                        "\"V3\": 10, \"w1\": 200, \"w2\": 80, \"w3\": 80, \"d1\": 20, \"d2\": 20}}' (pinch-off and "
+                        "adjusters: the template's synthetic laws, identify.physics.DEFAULT_LAWS, or a \"laws\" key)")
     p.add_argument("--format", choices=("png", "tiff", "tiff-stack"), default="png")
     p.add_argument("--bit-depth", type=int, choices=(8, 12, 16), default=8)
     p.add_argument("--noise", type=float, default=1.0,
@@ -120,6 +137,8 @@ def run(args) -> int:
             tilt_deg=args.tilt_deg, drift_mrad=args.drift_mrad, delays_us=parse_delays(args.delays),
             repeats=args.repeats, satellites=args.satellites, dust=args.dust, blur_px=args.blur_px,
             falloff=args.falloff, noise=args.noise, bit_depth=args.bit_depth, format=args.format)
+        if args.waveform is not None:
+            base["waveform"] = args.waveform
         realism = {field: getattr(args, opt) for opt, field in _REALISM.items() if getattr(args, opt) is not None}
         if args.jpeg_quality is not None:
             realism["format"] = "jpeg"
@@ -147,11 +166,11 @@ def run(args) -> int:
 
 
 #: defaults of the plain options (to tell which ones the user gave with --rig)
-_BASE_DEFAULTS = {"u1": 70.0, "u2": 25.0, "seed": 0, "size": (640, 1024), "pixel_size_um": 4.73,
+_BASE_DEFAULTS = {"u1": 70.0, "u2": 25.0, "waveform": None, "seed": 0, "size": (640, 1024), "pixel_size_um": 4.73,
                   "tip_row": None, "axis_col": None, "tilt_deg": 0.0, "drift_mrad": 0.0, "delays": "0:1800:10",
                   "repeats": 1, "satellites": 0, "dust": 2, "blur_px": 0.8, "falloff": 0.1, "noise": 1.0,
                   "bit_depth": 8, "format": "png"}
-_BASE_FIELDS = {"u1_um_per_ms": "u1", "u2_um": "u2", "seed": "seed", "pixel_size_um": "pixel_size_um",
+_BASE_FIELDS = {"u1_um_per_ms": "u1", "u2_um": "u2", "waveform": "waveform", "seed": "seed", "pixel_size_um": "pixel_size_um",
                 "tip_row": "tip_row", "axis_col": "axis_col", "tilt_deg": "tilt_deg", "drift_mrad": "drift_mrad",
                 "delays_us": "delays", "repeats": "repeats", "satellites": "satellites", "dust": "dust",
                 "blur_px": "blur_px", "falloff": "falloff", "noise": "noise", "bit_depth": "bit_depth",

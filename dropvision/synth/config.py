@@ -139,6 +139,13 @@ class SynthConfig:
         ``pendant_bond``, needle of ``needle_diameter_um``, default the nozzle outer diameter).
     write_nozzle_diameters : bool
         False: sequence.json carries no nozzle diameters (pixel size only).
+    waveform : dict or None
+        The drive as a waveform template (`identify.waveform`, issue 31): sequence.json's template
+        form ``{"template": "three_pulse", "parameters": {"V1": 30, ...}, <constants>}`` plus,
+        optionally, ``"laws"`` (`identify.physics.TemplateLaws` as a dict: pinch-off instant and
+        adjusters linear in the parameters; default `identify.physics.DEFAULT_LAWS`). The flow comes
+        from that drive through the ECM of ``physics`` (`identify.physics.drive_history`); the dead
+        time is ``physics.dead_time_us``. None (default): the trapezoid of ``u1_um_per_ms``, ``u2_um``.
     """
 
     u1_um_per_ms: float = 70.0
@@ -192,10 +199,24 @@ class SynthConfig:
     pendant_bond: float = 0.2
     needle_diameter_um: float | None = None
     write_nozzle_diameters: bool = True
+    waveform: dict | None = None
 
     def __post_init__(self) -> None:
         def bad(name, why):
             raise ValueError(f"SynthConfig.{name}: {why}, got {getattr(self, name)!r}")
+
+        if self.waveform is not None:
+            if not isinstance(self.waveform, dict) or "template" not in self.waveform:
+                bad("waveform", "must be a template form {'template': ..., 'parameters': {...}}")
+            if "dead_time_us" in self.waveform:
+                bad("waveform", "carries no dead_time_us: the drive starts physics.dead_time_us after the trigger")
+            try:
+                drive, laws = self.drive(), self.laws()
+                for law in (laws.pinchoff_us, laws.volume_adjuster_nl, laws.velocity_adjuster_m_s):
+                    law.at(drive.values)
+            except (ValueError, KeyError, TypeError) as exc:
+                msg = str(exc)
+                raise ValueError(msg if msg.startswith("SynthConfig") else f"SynthConfig.waveform: {msg}") from None
 
         object.__setattr__(self, "colour_gains", tuple(float(g) for g in self.colour_gains))
         if isinstance(self.orientation, str):
@@ -279,6 +300,23 @@ class SynthConfig:
         for name in ("liquid_transmission", "nozzle_transmission", "spot_transmission"):
             if not 0 <= getattr(self, name) <= 1:
                 bad(name, "must be in [0, 1]")
+
+    def drive(self):
+        """The template drive (`identify.waveform.Drive`), None without ``waveform``."""
+        if self.waveform is None:
+            return None
+        from identify.waveform import drive_from_document
+
+        doc = {k: v for k, v in self.waveform.items() if k != "laws"}
+        return drive_from_document({**doc, "dead_time_us": self.physics.dead_time_us}, "SynthConfig")
+
+    def laws(self):
+        """The template's synthetic laws (`identify.physics.TemplateLaws`), None without ``waveform``."""
+        if self.waveform is None:
+            return None
+        from identify.physics import laws_for
+
+        return laws_for(self.waveform["template"], self.physics, self.waveform.get("laws"))
 
     @property
     def jitter_um(self) -> float:

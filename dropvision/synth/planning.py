@@ -12,7 +12,7 @@ import numpy as np
 from dropvision.synth.config import STACK_FILE, LUMA_WEIGHTS, SynthConfig
 from dropvision.synth.render import CameraGeometry, Renderer, Structure
 from dropvision.synth.shapes import DropShapeModel, PendantShapeModel
-from identify.physics import DropHistory, drop_history
+from identify.physics import DropHistory, drive_history, drop_history
 
 
 #: Transmission of the holder block, of its wedge shadow and of a cuvette wall.
@@ -145,8 +145,14 @@ def _structures(cfg: SynthConfig, geom: CameraGeometry) -> list:
 def plan(config: SynthConfig) -> SynthPlan:
     """Physics, shape model, geometry, dust and the frame list of a configuration."""
     cfg = config
-    t_end = max(max(cfg.delays_us), cfg.physics.pinchoff_instant_us(cfg.u1_um_per_ms, cfg.u2_um)) + 50.0
-    hist = drop_history(cfg.physics, cfg.u1_um_per_ms, cfg.u2_um, t_end_us=t_end)
+    drive = cfg.drive()
+    if drive is None:
+        t_end = max(max(cfg.delays_us), cfg.physics.pinchoff_instant_us(cfg.u1_um_per_ms, cfg.u2_um)) + 50.0
+        hist = drop_history(cfg.physics, cfg.u1_um_per_ms, cfg.u2_um, t_end_us=t_end)
+    else:  # a waveform template: its drive through the ECM (issue 31)
+        laws = cfg.laws()
+        t_end = max(max(cfg.delays_us), laws.pinchoff_us.at(drive.values)) + 50.0
+        hist = drive_history(cfg.physics, drive, laws, t_end_us=t_end)
     if cfg.scene == "pendant":
         model = PendantShapeModel(cfg.pendant_apex_radius_um, cfg.pendant_bond,
                                   0.5 * cfg.needle_outer_diameter_um, cfg.shape)

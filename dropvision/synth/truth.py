@@ -158,6 +158,25 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
     return doc
 
 
+def _laws(cfg) -> dict:
+    """The truth's ``laws``: the (u1, u2) laws of the physics, or a waveform template's."""
+    if cfg.waveform is not None:
+        return {"template": cfg.drive().to_dict(), **cfg.laws().to_dict(),
+                "law": "constant + sum_k slopes[k] (x_k - centre[k]) over the template's parameters",
+                "inflight_volume": "grown volume at the pinch-off instant + volume adjuster",
+                "jetting_velocity": "flow velocity at the template's velocity instant + velocity adjuster"}
+    return {
+        "pinchoff_us": "c0 + c_u1 (u1 - 70) + c_u2 (u2 - 25)",
+        "pinchoff_coefficients": list(cfg.physics.pinchoff_law_us),
+        "volume_adjuster_nl": "p00 + p10 u1 + p01 u2",
+        "volume_adjuster_coefficients": list(cfg.physics.volume_adjuster_nl),
+        "velocity_adjuster_m_s": "p00 + p10 u1 + p01 u2",
+        "velocity_adjuster_coefficients": list(cfg.physics.velocity_adjuster_m_s),
+        "inflight_volume": "grown volume at the pinch-off instant + volume adjuster",
+        "jetting_velocity": "flow velocity at maximum stroke + velocity adjuster",
+    }
+
+
 def _bead_dims(bead_um: float) -> tuple[float, float]:
     """(base radius, height) of the bead segment (see `dropvision.synth.profiles.bead_segment`)."""
     b = bead_segment(0.0, bead_um)
@@ -201,16 +220,7 @@ def _jetting_truth(p: SynthPlan, delays, tp, attached, detached, ecm, coeffs) ->
             "ecm_coefficients": coeffs.to_dict(),
             "ecm_natural_frequency_hz": ecm.natural_frequency_hz(),
             "ecm_damping_ratio": ecm.damping_ratio(),
-            "laws": {
-                "pinchoff_us": "c0 + c_u1 (u1 - 70) + c_u2 (u2 - 25)",
-                "pinchoff_coefficients": list(cfg.physics.pinchoff_law_us),
-                "volume_adjuster_nl": "p00 + p10 u1 + p01 u2",
-                "volume_adjuster_coefficients": list(cfg.physics.volume_adjuster_nl),
-                "velocity_adjuster_m_s": "p00 + p10 u1 + p01 u2",
-                "velocity_adjuster_coefficients": list(cfg.physics.velocity_adjuster_m_s),
-                "inflight_volume": "grown volume at the pinch-off instant + volume adjuster",
-                "jetting_velocity": "flow velocity at maximum stroke + velocity adjuster",
-            },
+            "laws": _laws(cfg),
             "history": h.summary(),
             "shape_model": m.describe(),
             "dust": [list(d) for d in p.dust],

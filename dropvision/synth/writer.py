@@ -29,6 +29,7 @@ def sequence_metadata(config: SynthConfig, frames) -> dict:
         d_in = float(ph.nozzle_inner_diameter_um) if cfg.needle_diameter_um is None else 0.6 * d_out
     else:
         d_out, d_in = float(ph.nozzle_outer_diameter_um), float(ph.nozzle_inner_diameter_um)
+    drive = cfg.drive()
     meta = {
         "pixel_size_um": float(cfg.pixel_size_um),
         "nozzle_inner_diameter_um": d_in,
@@ -36,7 +37,7 @@ def sequence_metadata(config: SynthConfig, frames) -> dict:
         "orientation": cfg.orientation,
         "waveform": {"u1_um_per_ms": float(cfg.u1_um_per_ms), "u2_um": float(cfg.u2_um),
                      "u3_um_per_ms": float(ph.u3_um_per_ms), "hold_us": float(ph.hold_us),
-                     "dead_time_us": float(ph.dead_time_us)},
+                     "dead_time_us": float(ph.dead_time_us)} if drive is None else drive.to_dict(),
         "ink": {"name": ph.ink_name, "density_kg_m3": float(ph.density_kg_m3),
                 "viscosity_mPa_s": float(ph.viscosity_mpa_s),
                 "surface_tension_mN_m": float(ph.surface_tension_mn_m)},
