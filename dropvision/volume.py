@@ -73,6 +73,7 @@ class BodyVolume:
     dark_t: float = float("nan")  # the body's darkest level (`RowEdges.dark_t`): see edge_definition_px
     slope_t_per_px: float = float("nan")  # its edges' slope at the edge level (`RowEdges.slope_t_per_px`)
     bright_t: float = float("nan")  # the background next to its edges (`RowEdges.bright_t`)
+    bright_noise_t: float = float("nan")  # those samples' own noise (`RowEdges.bright_noise_t`)
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -180,6 +181,7 @@ def integrate(
         edges.dark_t,
         edges.slope_t_per_px,
         edges.bright_t,
+        edges.bright_noise_t,
     )
 
 
@@ -234,8 +236,10 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
       the calibrated interior median (its bright spot left out);
     - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
       one edge width out: the 10th percentile of its samples plus the 1.28 noise standard
-      deviations by which the 10th percentile of noise lies below its mean) is not the model's 1
-      where mist, flare, a diffraction halo or JPEG ringing lie over it.
+      deviations by which the 10th percentile of noise lies below its mean; the noise is the
+      larger of the frame's and the samples' own, `dropvision.edges.RowEdges.bright_noise_t`, which
+      holds a JPEG coder's ringing beside the edge) is not the model's 1 where mist, flare or a
+      diffraction halo lie over it.
 
     Real optics justify any edge level between half-way to the calibrated levels and half-way
     between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
@@ -262,7 +266,8 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
     """
     noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
     dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
-    bright = volume.bright_t + 1.2816 * noise if np.isfinite(volume.bright_t) else 1.0
+    own = float(volume.bright_noise_t) if np.isfinite(volume.bright_noise_t) else 0.0
+    bright = volume.bright_t + 1.2816 * max(noise, own) if np.isfinite(volume.bright_t) else 1.0
     slope = volume.slope_t_per_px
     if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
         return 0.0
@@ -511,6 +516,6 @@ def split_at_row(edges: RowEdges, row: int) -> tuple[RowEdges, RowEdges]:
         return RowEdges(np.concatenate([edges.row[sel], edges.row[at]]),
                         np.concatenate([edges.left_px[sel], half_l]),
                         np.concatenate([edges.right_px[sel], half_r]), edges.touches,
-                        edges.dark_t, edges.slope_t_per_px, edges.bright_t)
+                        edges.dark_t, edges.slope_t_per_px, edges.bright_t, edges.bright_noise_t)
 
     return part(up), part(down)

@@ -171,6 +171,34 @@ def test_edge_definition_is_half_the_move_across_the_band_of_levels():
     assert edge_definition_px(misty, 0.25, noise_t=0.0) > 10 * clean
 
 
+def test_bright_end_noise_is_read_off_the_samples_themselves():
+    """The samples beside a body's edges carry their own noise (`RowEdges.bright_noise_t`): a JPEG
+    coder's ringing beside a strong edge, which the frame's noise (measured on flat background)
+    does not hold.  Against known row-to-row dips of sd 0.02 laid beside the edges of a clean disc
+    (the frame's own noise 0): the samples' noise is found (within 20 %) and the band of edge
+    levels they would claim through their 10th percentile goes (from > 0.05 px to < 0.015 px);
+    a mist shadow over a stretch of the outline (smooth along it) is no noise and keeps its band."""
+    from dropvision.edges import edge_threshold
+    from dropvision.volume import edge_definition_px, integrate
+
+    t = _blurred_disc(0.25)
+    clean = integrate(_edges_at(t, edge_threshold(0.25)))
+    assert clean.bright_noise_t < 0.002
+    rng = np.random.default_rng(3)
+    ring = rng.normal(0.0, 0.02, t.shape[0]).astype(np.float32)  # a dip or bump per row, beside both edges
+    rung = np.where(t > 0.9, t + ring[:, None], t).astype(np.float32)
+    ringing = integrate(_edges_at(rung, edge_threshold(0.25)))
+    assert ringing.bright_noise_t == pytest.approx(0.02, rel=0.2)
+    # the frame's noise (0) alone would leave the 10th percentile's 1.28 sd below the mean as a band
+    raw_band_px = 0.5 * (1.0 - ringing.bright_t) / ringing.slope_t_per_px / np.sqrt(3.0)
+    assert raw_band_px > 0.02
+    assert edge_definition_px(ringing, 0.25, noise_t=0.0) < 0.3 * raw_band_px
+    t_mist = t.copy()
+    t_mist[:, 54:] *= 0.9
+    misty = integrate(_edges_at(t_mist, edge_threshold(0.25)))
+    assert misty.bright_noise_t < 0.005 and edge_definition_px(misty, 0.25, noise_t=0.0) > 0.05
+
+
 # --- calibration of the volume uncertainty (issue 29 item 4): neither too narrow nor many times too wide ---
 def _tilted_spheroid_edges(a_px: float, b_px: float, tilt_rad: float):
     """Row edges of a spheroid (semi-axes ``a`` along its axis, ``b`` across) whose axis is tilted by
