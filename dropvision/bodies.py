@@ -45,6 +45,7 @@ from dropvision.volume import (
     edge_definition_px,
     interpolation_error_px,
     plane_cut_uncertainty_px3,
+    plane_span_chord_px,
     random_volume_uncertainty_px3,
     tilt_model_uncertainty_px3,
     volume_uncertainty_px3,
@@ -171,8 +172,9 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
         ed = edges_in_the_halo(roi, ctx, ed, found, gain)
         if not found.liquid:  # the face's blurred halo: no liquid, but as much could hide in it
             return nothing_hangs(ed, integrate(ed, ctx.tilt_rad, ctx.tip_roi, 0.0).volume_px3 * ctx.nl_per_px3)
+    span = plane_span_chord_px(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
     clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
-    bv = integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px)
+    bv = replace(integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px), plane_span_px=span)
     near = out_of_focus_nozzle_px3(bv, ctx.nozzle_blur_px) * ctx.nl_per_px3
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,

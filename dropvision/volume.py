@@ -74,6 +74,8 @@ class BodyVolume:
     slope_t_per_px: float = float("nan")  # its edges' slope at the edge level (`RowEdges.slope_t_per_px`)
     bright_t: float = float("nan")  # the background next to its edges (`RowEdges.bright_t`)
     bright_noise_t: float = float("nan")  # those samples' own noise (`RowEdges.bright_noise_t`)
+    # the chord across which a tilted tip plane runs (`plane_span_chord_px`; 0: the top chord)
+    plane_span_px: float = 0.0
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -345,12 +347,38 @@ def random_volume_uncertainty_px3(volume: BodyVolume, edge_noise_px: float, tilt
 
 def plane_cut_uncertainty_px3(volume: BodyVolume, plane_sigma_px: float, tilt_rad: float = 0.0) -> float:
     """Standard uncertainty (px^3) of a volume cut at a plane placed to ``plane_sigma_px``: the
-    slice there, ``pi (c/2)^2`` per px.  A tilted plane rises by ``c tan(tilt)`` across the
-    slice it cuts, which the rows resolve only to a row: that span's uniform spread,
-    ``c |tan(tilt)| / sqrt(12)``, adds to the plane's place in quadrature."""
+    slice there, ``pi (c/2)^2`` per px (``c`` the top chord).  A tilted plane rises by
+    ``C tan(tilt)`` across the body it cuts, which the rows resolve only to a row: the slab it
+    crosses, ``pi (C/2)^2 C |tan(tilt)|``, is cut by horizontal rows (`row_weights`) and a clipped
+    chord (`clip_to_tip_plane`), not by the plane; its uniform spread over ``sqrt(12)`` adds in
+    quadrature.  ``C`` is the chord the plane runs across before the clip
+    (``volume.plane_span_px``, `plane_span_chord_px`), not the clipped top chord, which shortens as
+    the tilt grows (on the synthetic tilted nozzle: 0.026 nl stated against 0.043 nl of error at
+    3 deg, 0.041 nl against 0.017 nl at 1.5 deg, with the clipped chord)."""
     c = volume.top_chord_px
-    sigma = math.hypot(plane_sigma_px, c * abs(math.tan(tilt_rad)) / math.sqrt(12.0))
-    return float(math.pi * 0.25 * c * c * sigma)
+    span = max(float(volume.plane_span_px), c) if np.isfinite(volume.plane_span_px) else c
+    tilt = math.pi * 0.25 * span * span * span * abs(math.tan(tilt_rad)) / math.sqrt(12.0)
+    return float(math.hypot(math.pi * 0.25 * c * c * plane_sigma_px, tilt))
+
+
+def plane_span_chord_px(edges: RowEdges, tip_row: float, axis_col: float, tilt_rad: float) -> float:
+    """The widest chord (px) of the liquid a tilted tip plane crosses, before `clip_to_tip_plane` cuts
+    it, read on the side where the plane is above the tip row (its rows below the tip hold liquid
+    only; on the other side the nozzle's outer wall reaches below the tip row until the clip cuts
+    it): twice the distance of that side's edge from the axis, in the rows whose centres lie below
+    the tip row down to ``tip + |tan(tilt)| chord + 1`` (the rows the clip looks at).  0 without a
+    tilt or such a row."""
+    tan = math.tan(tilt_rad) if np.isfinite(tilt_rad) else 0.0
+    if edges.row.size == 0 or not np.isfinite(tip_row) or abs(tan) < 1e-9:
+        return 0.0
+    chord = edges.right_px - edges.left_px
+    near = (edges.row > tip_row) & (edges.row < tip_row + abs(tan) * chord + 1.0)
+    if not np.any(near):
+        return 0.0
+    # the axis at each row (it leans with the tilt), and the edge on the plane's high side
+    axis = axis_col + (edges.row[near] - tip_row) * tan
+    half = edges.right_px[near] - axis if tan > 0 else axis - edges.left_px[near]
+    return float(2.0 * max(float(half.max()), 0.0))
 
 
 def equivalent_diameter_um(volume_nl: float) -> float:
