@@ -258,7 +258,9 @@ def test_interpolation_error_is_the_rms_of_linear_crossings(sigma_px):
 def test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide(tmp_path):
     """On two sweep cases (one tilted 1.5 deg), shortened to their in-flight frames, the main drop's
     median |error| / stated uncertainty lies in [0.3, 1.0] (0.67 for a calibrated Gaussian; the
-    fixed 0.05 px edge floor gave ~0.1) and +-2u covers >= 95 % of the frames."""
+    fixed 0.05 px edge floor gave ~0.1) and +-2u covers >= 95 % of the frames, pooled (each short
+    case alone lies at the narrow end: 0.97 and 1.02; 0.83 and 0.77 on the full cases); the report's
+    figures (`accuracy_report.uncertainty_coverage`) are the same medians."""
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
@@ -273,7 +275,10 @@ def test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide(tmp_path):
         m = res.frames.merge(pd.read_csv(seq / "truth_frames.csv"), on=["file", "delay_us", "repeat"],
                              suffixes=("", "_t"), validate="one_to_one")
         sel = m["inflight_t"] & m["drop_in_view"] & m["drop_volume_nl"].notna()
-        z += list(((m["drop_volume_nl"] - m["drop_volume_nl_t"]).abs() / m["drop_volume_uncertainty_nl"])[sel])
+        zc = ((m["drop_volume_nl"] - m["drop_volume_nl_t"]).abs() / m["drop_volume_uncertainty_nl"])[sel].to_numpy()
+        r = ar.uncertainty_coverage(m)
+        assert r["drop_volume_cov_n"] == zc.size > 0 and r["drop_volume_z50"] == pytest.approx(float(np.median(zc)))
+        z += list(zc)
     z = np.asarray(z)
     assert z.size >= 16 and np.isfinite(z).all(), z
     assert 0.3 <= float(np.median(z)) <= 1.0, np.round(z, 2)

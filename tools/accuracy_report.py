@@ -231,6 +231,21 @@ def print_uncertainty_table(table: pd.DataFrame) -> None:
             mark = "*" if not (0.3 <= z <= 1.0) or cov < 0.95 else ""
             cells.append(f"{z:.2f} ({cov:.3f}, {int(n)}){mark}")
         print(f"  {case}: " + " / ".join(cells))
+    seeded = table.index.to_series().str.rsplit("#", n=1)
+    if seeded.str.len().eq(2).any():  # several seeds: each case's median over its seeds (one frame each: pooled)
+        print("over the seeds: median of the seeds' median |err|/u (lowest +-2u coverage, seeds)")
+        for name, grp in table.groupby(seeded.str[0], sort=False):
+            cells = []
+            for col in COVERAGE_COLUMNS:
+                key = col[:-3]
+                done = grp[grp[f"{key}_cov_n"].fillna(0) > 0] if f"{key}_cov_n" in grp else grp.iloc[0:0]
+                if done.empty:
+                    cells.append("-")
+                    continue
+                z, cov = float(done[f"{key}_z50"].median()), float(done[f"{key}_cov2"].min())
+                mark = "*" if not (0.3 <= z <= 1.0) or cov < 0.95 else ""
+                cells.append(f"{z:.2f} ({cov:.3f}, {len(done)}){mark}")
+            print(f"  {name}: " + " / ".join(cells))
 
 
 def run_realism_case(name: str, kw: dict, workdir, transform=None) -> dict:
