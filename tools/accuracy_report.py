@@ -1,6 +1,13 @@
 """Accuracy of `dropvision measure` against the synthesizer's exact truth, over a sweep.
 
-    python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--out report.csv]
+    python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--case NAME ...] [--seeds N]
+                                    [--seed-offset K] [--out report.csv]
+
+Each run ends with a table of the stated uncertainties against the truth: per case, the median
+|error| / u and the share within +-2u of the attached, grown and main-drop volumes (`*` where the
+median is outside [0.3, 1.0] or the share below 0.95); ``--case`` runs single cases, ``--seeds``
+and ``--seed-offset`` other noise draws of the same cases (with several seeds, each case's median
+over them: a single-frame case has one frame a seed).
 
 Renders each case of the sweep (waveforms, noise, blur, tilt, bit depth, fall-off, dust,
 satellites, repeated frames) into a temporary folder, measures it and compares with
