@@ -177,6 +177,10 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         cal.pixel_size_source += (f" = {cal.pixel_size_um:.5g} +- {cal.pixel_size_uncertainty_um:.2g} um (width "
                                   f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
                                                                      cal.nozzle_width_terms_px.items()) + ")")
+    clip_light = illumination_under_clip(first, cal, max_value)
+    if clip_light is not None:
+        ctx = replace(ctx, clip_light=clip_light,
+                      clip_term_px=float(cal.edge_position_terms_px.get("clipped background", 0.0)))
     if nozzle is not None and not focus.nozzle_out_of_focus:
         cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
         cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
@@ -411,6 +415,107 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
         rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
         terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
     return terms
+
+
+@dataclass(frozen=True)
+class ClipIllumination:
+    """The backlight under a clipped background, extrapolated from the part of it that is seen.
+
+    The level used wherever the background is clipped is read at the nozzle (`dropvision.background.
+    unclipped_level`) and used everywhere; the backlight under the clip is not flat (vignetting,
+    fall-off).  The background below the clip (its unclipped pixels away from dark bodies) is fitted
+    by smooth polynomials in the frame's coordinates (normalised to [-1, 1]) of degree 2 and 3; their
+    values relative to their mean at the nozzle's walls (where the level was read) say how far a
+    body's own background lies from the level used: `level_offsets`.
+
+    Attributes
+    ----------
+    coef2, coef3 : tuple of float
+        Coefficients of the two fits (terms ``u^i v^j``, ``i + j <= degree``, in `_poly_terms` order).
+    shape : (int, int)
+        Frame rows, columns (canonical orientation).
+    ref2, ref3 : float
+        The fits' mean over the nozzle's walls.
+    level_rel_se : float
+        The level's own relative standard error (``level_uncertainty / level``).
+    """
+
+    coef2: tuple
+    coef3: tuple
+    shape: tuple
+    ref2: float
+    ref3: float
+    level_rel_se: float
+
+    def _value(self, coef, row, col) -> float:
+        h, w = self.shape
+        u = (float(col) - 0.5 * (w - 1)) / (0.5 * (w - 1))
+        v = (float(row) - 0.5 * (h - 1)) / (0.5 * (h - 1))
+        deg = 2 if len(coef) == 6 else 3
+        return float(sum(c * u ** i * v ** j for c, (i, j) in zip(coef, _poly_terms(deg))))
+
+    def level_offsets(self, row: float, col: float) -> tuple[float, float]:
+        """Relative offset of the backlight at (row, col) (full frame, px) from the level used, by
+        the degree-2 and degree-3 fits."""
+        return (self._value(self.coef2, row, col) / self.ref2 - 1.0,
+                self._value(self.coef3, row, col) / self.ref3 - 1.0)
+
+    def relative_error(self, row: float, col: float) -> float:
+        """Standard uncertainty (relative) of the level at a body at (row, col): the degree-2 fit's
+        offset there (the level used is the nozzle's: off by that much), the two fits' disagreement
+        (the extrapolation's own error) and the level's standard error, in quadrature."""
+        d2, d3 = self.level_offsets(row, col)
+        return float(math.sqrt(d2 * d2 + (d3 - d2) ** 2 + self.level_rel_se ** 2))
+
+
+def _poly_terms(degree: int) -> list[tuple[int, int]]:
+    return [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
+
+
+def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
+                            min_pixels: int = 500) -> ClipIllumination | None:
+    """The backlight under a clipped background (`ClipIllumination`), from the frame's unclipped background.
+
+    Only for a clipped background whose level was estimated (``cal.clipped`` used, level known) and a
+    nozzle found; the background pixels between 30 % and 97 % of the sensor maximum, away from dark
+    bodies (`dropvision.background.dark_bodies_mask`), at least ``min_pixels`` of them (at most ~20000
+    used).  None otherwise (a background clipped everywhere shows nothing of its
+    shape: the level's excess over the clip stays the term, `edge_position_terms_px`).
+    """
+    from dropvision.background import dark_bodies_mask
+
+    clipped = cal.clipped or {}
+    if not (clipped.get("used") and clipped.get("level_known") and cal.nozzle_found
+            and np.isfinite(cal.tip_row) and np.isfinite(cal.axis_col)):
+        return None
+    img = np.asarray(image, np.float32)
+    h, w = img.shape
+    seen = ~dark_bodies_mask(img, 6) & (img > 0.3 * max_value) & (img < 0.97 * max_value)
+    rows, cols = np.nonzero(seen)
+    if rows.size < min_pixels:
+        return None
+    step = max(1, rows.size // 20000)  # every step-th seen pixel: at most ~20000
+    rows, cols = rows[::step], cols[::step]
+    u = (cols - 0.5 * (w - 1)) / (0.5 * (w - 1))
+    v = (rows - 0.5 * (h - 1)) / (0.5 * (h - 1))
+    y = img[rows, cols].astype(np.float64)
+    half = 0.5 * float(cal.nozzle_outer_diameter_px) if np.isfinite(cal.nozzle_outer_diameter_px) else 10.0
+    wall_r = np.linspace(0.0, max(float(cal.tip_row), 0.0), 12)
+    wall_c = np.array([cal.axis_col - half - 3.0, cal.axis_col + half + 3.0])
+    fits, refs = [], []
+    for deg in (2, 3):
+        terms = _poly_terms(deg)
+        coef, *_ = np.linalg.lstsq(np.stack([u ** i * v ** j for i, j in terms], axis=1), y, rcond=None)
+        fits.append(tuple(float(c) for c in coef))
+        wu = (wall_c[None, :] - 0.5 * (w - 1)) / (0.5 * (w - 1))
+        wv = (wall_r[:, None] - 0.5 * (h - 1)) / (0.5 * (h - 1))
+        refs.append(float(np.mean(sum(c * wu ** i * wv ** j for c, (i, j) in zip(coef, terms)))))
+    if not (refs[0] > 0 and refs[1] > 0):
+        return None
+    level = float(clipped["level"])
+    rel_se = float(clipped.get("level_uncertainty", float("nan"))) / level
+    return ClipIllumination(coef2=fits[0], coef3=fits[1], shape=(h, w), ref2=refs[0], ref3=refs[1],
+                            level_rel_se=rel_se if np.isfinite(rel_se) else 0.0)
 
 
 #: Fields of `detached_appearances` (one record per body): the calibration frame it is in, its

@@ -84,6 +84,11 @@ class FrameContext:
     face_b: float = 0.0
     # liquid was seen hanging from it in focus in a calibration frame: a dark bump there is liquid
     face_liquid_seen: bool = False
+    # a clipped background whose shape is seen below the clip (`dropvision.calibration_pass.ClipIllumination`):
+    # each body's level error from where it lies replaces the sequence's "clipped background" term
+    # (``clip_term_px``, px, within edge_position_sigma_px)
+    clip_light: object = None
+    clip_term_px: float = 0.0
 
     @classmethod
     def build(cls, cal: Calibration, sigma_px: float, dtype, max_value: int, config: MeasureConfig,

@@ -141,8 +141,13 @@ class RowEdges:
         Median slope of the transmission across the body's edges at the edge level (transmission
         per px, from the two samples either side of each crossing; NaN when not measured).
     bright_t : float
-        The background next to the body: the mean transmission one edge width beyond its edges
-        (`subpixel_edges`; 1 for a background model that holds there; NaN when not measured).
+        The background next to the body: the 10th percentile of the transmission one edge width
+        beyond its edges (`subpixel_edges`; 1 for a background model that holds there; NaN when
+        not measured).
+    bright_noise_t : float
+        The spread (standard deviation) of those samples from row to row along each side of the
+        outline (`_bright_level`): the noise a percentile of them carries, JPEG ringing included
+        (NaN when not measured).
     """
 
     row: np.ndarray
@@ -152,6 +157,7 @@ class RowEdges:
     dark_t: float = float("nan")
     slope_t_per_px: float = float("nan")
     bright_t: float = float("nan")
+    bright_noise_t: float = float("nan")
 
     @property
     def chord_px(self) -> np.ndarray:
@@ -229,24 +235,33 @@ def subpixel_edges(
     b = rows >= bright_row_min
     if not b.any():
         b = np.ones(rows.size, bool)
+    bright, bright_noise = _bright_level(image, inv_background, rows[b], s[b], e[b], threshold,
+                                         ((t_out_l - t_in_l)[b], (t_out_r - t_in_r)[b]), scale)
     return RowEdges(np.asarray(rows), left.astype(float), right.astype(float), touches,
-                    slope_t_per_px=slope,
-                    bright_t=_bright_level(image, inv_background, rows[b], s[b], e[b], threshold,
-                                           ((t_out_l - t_in_l)[b], (t_out_r - t_in_r)[b]), scale))
+                    slope_t_per_px=slope, bright_t=bright, bright_noise_t=bright_noise)
 
 
-def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: tuple, scale: float) -> float:
+def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: tuple,
+                  scale: float) -> tuple[float, float]:
     """The background one edge width beyond a body's edges: the 10th percentile of its samples'
     transmission (NaN if none; `dropvision.volume.edge_definition_px` adds back the 1.28 noise
-    standard deviations by which noise alone puts it below the mean).  A mean would dilute an
-    out-of-focus mist droplet's shadow lying over a tenth of the outline.
+    standard deviations by which noise alone puts it below the mean), and the noise of those
+    samples.  A mean would dilute an out-of-focus mist droplet's shadow lying over a tenth of the
+    outline.
+
+    The samples' noise is read off themselves: the robust spread (1.4826 MAD) of the differences
+    between neighbouring samples along each side of the outline, over sqrt(2).  What changes from
+    row to row is noise (the sensor's, and a JPEG coder's ringing beside a strong edge, which the
+    frame's noise measured on flat background does not hold: 2x it on a quality-85 JPEG); a mist
+    shadow or a halo lying over a stretch of the outline changes slowly along it and stays in the
+    level.  NaN with fewer than 10 differences.
 
     An edge's width along its row is its contrast over its slope there, ``2 (1 - threshold) /
     slope`` (about 2.5 Gaussian sigmas across a steep edge, more along the row where the edge is
     oblique); each sample lies that far (at least 2 px, at most 8 px) beyond the edge's bright
     sample.  A sample darker than the edge level is another body, not background: left out."""
     if rows.size == 0:
-        return float("nan")
+        return float("nan"), float("nan")
     w = image.shape[1]
     contrast = 2.0 * (1.0 - threshold)
     # integer clips by minimum/maximum (np.clip costs ~30 us a call here); both sides in one gather
@@ -258,11 +273,17 @@ def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: t
     c = np.minimum(np.maximum(c, 0), w - 1)
     rr = np.concatenate([rows, rows])
     t = image[rr, c] * inv_background[rr, c] * scale
-    t = t[t >= threshold]
+    bright = t >= threshold
+    # neighbouring samples along each side (the runs come in row order), both of them background
+    d = np.concatenate([np.diff(t[:n])[bright[:n][1:] & bright[:n][:-1]],
+                        np.diff(t[n:])[bright[n:][1:] & bright[n:][:-1]]])
+    noise = (float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)) if d.size >= 10
+             else float("nan"))
+    t = t[bright]
     if t.size == 0:
-        return float("nan")
+        return float("nan"), noise
     k = t.size // 10  # the 10th percentile: a mist droplet's shadow over a part of the outline counts
-    return float(np.partition(t, k)[k])
+    return float(np.partition(t, k)[k]), noise
 
 
 def dark_level(image: np.ndarray, inv_background: np.ndarray, mask: np.ndarray, y0: int, x0: int,

@@ -73,6 +73,9 @@ class BodyVolume:
     dark_t: float = float("nan")  # the body's darkest level (`RowEdges.dark_t`): see edge_definition_px
     slope_t_per_px: float = float("nan")  # its edges' slope at the edge level (`RowEdges.slope_t_per_px`)
     bright_t: float = float("nan")  # the background next to its edges (`RowEdges.bright_t`)
+    bright_noise_t: float = float("nan")  # those samples' own noise (`RowEdges.bright_noise_t`)
+    # the chord across which a tilted tip plane runs (`plane_span_chord_px`; 0: the top chord)
+    plane_span_px: float = 0.0
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -180,6 +183,7 @@ def integrate(
         edges.dark_t,
         edges.slope_t_per_px,
         edges.bright_t,
+        edges.bright_noise_t,
     )
 
 
@@ -234,8 +238,10 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
       the calibrated interior median (its bright spot left out);
     - the bright end: the background next to its edges (`dropvision.edges.RowEdges.bright_t`,
       one edge width out: the 10th percentile of its samples plus the 1.28 noise standard
-      deviations by which the 10th percentile of noise lies below its mean) is not the model's 1
-      where mist, flare, a diffraction halo or JPEG ringing lie over it.
+      deviations by which the 10th percentile of noise lies below its mean; the noise is the
+      larger of the frame's and the samples' own, `dropvision.edges.RowEdges.bright_noise_t`, which
+      holds a JPEG coder's ringing beside the edge) is not the model's 1 where mist, flare or a
+      diffraction halo lie over it.
 
     Real optics justify any edge level between half-way to the calibrated levels and half-way
     between the body's own: ``(1 + T_liquid) / 2`` and ``(bright + dark) / 2``.  Across that band
@@ -262,7 +268,8 @@ def edge_definition_px(volume: BodyVolume, liquid_level: float, noise_t: float =
     """
     noise = max(float(noise_t), 0.0) if np.isfinite(noise_t) else 0.0
     dark = min(volume.dark_t + 2.05 * noise, liquid_level) if np.isfinite(liquid_level) else float("nan")
-    bright = volume.bright_t + 1.2816 * noise if np.isfinite(volume.bright_t) else 1.0
+    own = float(volume.bright_noise_t) if np.isfinite(volume.bright_noise_t) else 0.0
+    bright = volume.bright_t + 1.2816 * max(noise, own) if np.isfinite(volume.bright_t) else 1.0
     slope = volume.slope_t_per_px
     if not (np.isfinite(dark) and np.isfinite(slope) and slope > 0):
         return 0.0
@@ -340,12 +347,38 @@ def random_volume_uncertainty_px3(volume: BodyVolume, edge_noise_px: float, tilt
 
 def plane_cut_uncertainty_px3(volume: BodyVolume, plane_sigma_px: float, tilt_rad: float = 0.0) -> float:
     """Standard uncertainty (px^3) of a volume cut at a plane placed to ``plane_sigma_px``: the
-    slice there, ``pi (c/2)^2`` per px.  A tilted plane rises by ``c tan(tilt)`` across the
-    slice it cuts, which the rows resolve only to a row: that span's uniform spread,
-    ``c |tan(tilt)| / sqrt(12)``, adds to the plane's place in quadrature."""
+    slice there, ``pi (c/2)^2`` per px (``c`` the top chord).  A tilted plane rises by
+    ``C tan(tilt)`` across the body it cuts, which the rows resolve only to a row: the slab it
+    crosses, ``pi (C/2)^2 C |tan(tilt)|``, is cut by horizontal rows (`row_weights`) and a clipped
+    chord (`clip_to_tip_plane`), not by the plane; its uniform spread over ``sqrt(12)`` adds in
+    quadrature.  ``C`` is the chord the plane runs across before the clip
+    (``volume.plane_span_px``, `plane_span_chord_px`), not the clipped top chord, which shortens as
+    the tilt grows (on the synthetic tilted nozzle: 0.026 nl stated against 0.043 nl of error at
+    3 deg, 0.041 nl against 0.017 nl at 1.5 deg, with the clipped chord)."""
     c = volume.top_chord_px
-    sigma = math.hypot(plane_sigma_px, c * abs(math.tan(tilt_rad)) / math.sqrt(12.0))
-    return float(math.pi * 0.25 * c * c * sigma)
+    span = max(float(volume.plane_span_px), c) if np.isfinite(volume.plane_span_px) else c
+    tilt = math.pi * 0.25 * span * span * span * abs(math.tan(tilt_rad)) / math.sqrt(12.0)
+    return float(math.hypot(math.pi * 0.25 * c * c * plane_sigma_px, tilt))
+
+
+def plane_span_chord_px(edges: RowEdges, tip_row: float, axis_col: float, tilt_rad: float) -> float:
+    """The widest chord (px) of the liquid a tilted tip plane crosses, before `clip_to_tip_plane` cuts
+    it, read on the side where the plane is above the tip row (its rows below the tip hold liquid
+    only; on the other side the nozzle's outer wall reaches below the tip row until the clip cuts
+    it): twice the distance of that side's edge from the axis, in the rows whose centres lie below
+    the tip row down to ``tip + |tan(tilt)| chord + 1`` (the rows the clip looks at).  0 without a
+    tilt or such a row."""
+    tan = math.tan(tilt_rad) if np.isfinite(tilt_rad) else 0.0
+    if edges.row.size == 0 or not np.isfinite(tip_row) or abs(tan) < 1e-9:
+        return 0.0
+    chord = edges.right_px - edges.left_px
+    near = (edges.row > tip_row) & (edges.row < tip_row + abs(tan) * chord + 1.0)
+    if not np.any(near):
+        return 0.0
+    # the axis at each row (it leans with the tilt), and the edge on the plane's high side
+    axis = axis_col + (edges.row[near] - tip_row) * tan
+    half = edges.right_px[near] - axis if tan > 0 else axis - edges.left_px[near]
+    return float(2.0 * max(float(half.max()), 0.0))
 
 
 def equivalent_diameter_um(volume_nl: float) -> float:
@@ -511,6 +544,6 @@ def split_at_row(edges: RowEdges, row: int) -> tuple[RowEdges, RowEdges]:
         return RowEdges(np.concatenate([edges.row[sel], edges.row[at]]),
                         np.concatenate([edges.left_px[sel], half_l]),
                         np.concatenate([edges.right_px[sel], half_r]), edges.touches,
-                        edges.dark_t, edges.slope_t_per_px, edges.bright_t)
+                        edges.dark_t, edges.slope_t_per_px, edges.bright_t, edges.bright_noise_t)
 
     return part(up), part(down)

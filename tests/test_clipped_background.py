@@ -104,3 +104,51 @@ def test_clipped_pendant_drop_within_3_percent(tmp_path, exposure):
     v = float(r.frames["attached_volume_nl"].iloc[0])
     assert abs(v / truth["attached_volume_nl"] - 1) * 100 < truth["tolerance_percent"]
     assert r.frames["quality"].iloc[0] == "clipped_background"
+
+
+def _vignetted_clipped_frame(vignetting: float = 0.25, peak: float = 290.0, h: int = 240, w: int = 320):
+    """A backlight ``peak (1 - vignetting rho^2)`` (rho 1 at the corners) clipped at 255, a dark nozzle
+    from the top edge to row 40 at column 160 (40 px wide), nothing else; and the backlight itself."""
+    rr = (np.arange(h) - 0.5 * (h - 1)) / (0.5 * (h - 1))
+    cc = (np.arange(w) - 0.5 * (w - 1)) / (0.5 * (w - 1))
+    light = peak * (1.0 - vignetting * 0.5 * (rr[:, None] ** 2 + cc[None, :] ** 2))
+    img = np.minimum(light, 255.0)
+    img[:41, 140:181] = 0.08 * light[:41, 140:181]
+    return img.astype(np.float32), light
+
+
+def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
+    """Against a known backlight (quadratic vignetting, 13 % over the clip at the centre): the
+    offset `ClipIllumination` predicts at a body's place from the level read at the nozzle's walls is
+    the backlight's own ratio (within 0.3 %), and the body's clipped term (`clip_level_px`) is that
+    offset over the edge's slope, never less than the sequence's term."""
+    from types import SimpleNamespace
+
+    from dropvision.bodies import clip_level_px, common_edge_sigma_px
+    from dropvision.calibration_pass import illumination_under_clip
+
+    img, light = _vignetted_clipped_frame()
+    assert 0.3 < np.mean(img >= 255.0) < 0.9
+    cal = SimpleNamespace(clipped={"used": True, "level_known": True, "level": 280.0, "level_uncertainty": 0.5},
+                          nozzle_found=True, tip_row=40.0, axis_col=160.0, nozzle_outer_diameter_px=40.0)
+    fit = illumination_under_clip(img, cal, 255)
+    assert fit is not None
+    walls = np.mean([light[r, c] for r in np.linspace(0, 40, 12).round().astype(int) for c in (137, 183)])
+    for row, col in ((120, 160), (150, 100), (60, 250)):
+        d2, d3 = fit.level_offsets(row, col)
+        assert d2 == pytest.approx(light[row, col] / walls - 1.0, abs=0.003)
+        assert abs(d3 - d2) < 0.003
+    # the body's term: the relative offset over the edge's slope, sqrt(2 pi) sigma / (1 - T_liquid)
+    ctx = SimpleNamespace(clip_light=fit, clip_term_px=0.01, r0=0, c0=0, sigma_px=1.0, liquid_level=0.1,
+                          edge_position_sigma_px=0.02, edge_floor_px=0.0)
+    body = SimpleNamespace(centroid_row=120.0, centroid_col=160.0)
+    rel = fit.relative_error(120.0, 160.0)
+    assert rel > 0.05  # the centre lies well above the level read at the nozzle
+    assert clip_level_px(body, ctx) == pytest.approx(rel * np.sqrt(2.0 * np.pi) / 0.9, rel=1e-9)
+    assert common_edge_sigma_px(ctx, body) == pytest.approx(
+        np.sqrt(0.02**2 - 0.01**2 + clip_level_px(body, ctx) ** 2), rel=1e-9)
+    # the sequence's term (the level's excess over the clip) is the least: where it is larger, it stays
+    wide = SimpleNamespace(**{**vars(ctx), "clip_term_px": 0.5, "edge_position_sigma_px": 0.5})
+    assert clip_level_px(body, wide) < 0.5 and common_edge_sigma_px(wide, body) == pytest.approx(0.5)
+    # a background clipped everywhere shows nothing of its shape: no fit
+    assert illumination_under_clip(np.minimum(img * 0 + 255.0, 255.0), cal, 255) is None

@@ -85,7 +85,9 @@ def test_the_pixel_size_uncertainty_widens_the_volumes(pendant_folder):
     expect = np.hypot(given["attached_volume_uncertainty_nl"] * needle["attached_volume_nl"]
                       / given["attached_volume_nl"], rel3 * needle["attached_volume_nl"])
     assert needle["attached_volume_uncertainty_nl"] == pytest.approx(expect, rel=0.05)
-    assert needle["attached_volume_uncertainty_nl"] > 1.5 * given["attached_volume_uncertainty_nl"]
+    # the pixel size's part is no small addition: over half the given-scale uncertainty of this clipped drop
+    assert rel3 * needle["attached_volume_nl"] > 0.5 * given["attached_volume_uncertainty_nl"]
+    assert needle["attached_volume_uncertainty_nl"] > 1.1 * given["attached_volume_uncertainty_nl"]
 
 
 def test_a_given_pixel_size_is_still_checked_against_the_needle(pendant_folder):

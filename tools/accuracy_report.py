@@ -1,6 +1,13 @@
 """Accuracy of `dropvision measure` against the synthesizer's exact truth, over a sweep.
 
-    python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--out report.csv]
+    python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--case NAME ...] [--seeds N]
+                                    [--seed-offset K] [--out report.csv]
+
+Each run ends with a table of the stated uncertainties against the truth: per case, the median
+|error| / u and the share within +-2u of the attached, grown and main-drop volumes (`*` where the
+median is outside [0.3, 1.0] or the share below 0.95); ``--case`` runs single cases, ``--seeds``
+and ``--seed-offset`` other noise draws of the same cases (with several seeds, each case's median
+over them: a single-frame case has one frame a seed).
 
 Renders each case of the sweep (waveforms, noise, blur, tilt, bit depth, fall-off, dust,
 satellites, repeated frames) into a temporary folder, measures it and compares with
@@ -213,6 +220,41 @@ def uncertainty_coverage(m: pd.DataFrame) -> dict:
     return out
 
 
+def print_uncertainty_table(table: pd.DataFrame) -> None:
+    """One line per case: median |error| / u and the +-2u coverage of each volume (`uncertainty_coverage`),
+    ``*`` beside a median outside [0.3, 1.0] or a coverage below 0.95; ``-`` where no frame is compared."""
+    if table.empty:
+        return
+    print("median |err|/u (+-2u coverage, frames): " + " / ".join(c[:-10] for c in COVERAGE_COLUMNS))
+    for case, r in table.iterrows():
+        cells = []
+        for col in COVERAGE_COLUMNS:
+            key = col[:-3]
+            n = r.get(f"{key}_cov_n", 0)
+            if not (isinstance(n, (int, float, np.integer)) and n > 0):
+                cells.append("-")
+                continue
+            z, cov = float(r[f"{key}_z50"]), float(r[f"{key}_cov2"])
+            mark = "*" if not (0.3 <= z <= 1.0) or cov < 0.95 else ""
+            cells.append(f"{z:.2f} ({cov:.3f}, {int(n)}){mark}")
+        print(f"  {case}: " + " / ".join(cells))
+    seeded = table.index.to_series().str.rsplit("#", n=1)
+    if seeded.str.len().eq(2).any():  # several seeds: each case's median over its seeds (one frame each: pooled)
+        print("over the seeds: median of the seeds' median |err|/u (lowest +-2u coverage, seeds)")
+        for name, grp in table.groupby(seeded.str[0], sort=False):
+            cells = []
+            for col in COVERAGE_COLUMNS:
+                key = col[:-3]
+                done = grp[grp[f"{key}_cov_n"].fillna(0) > 0] if f"{key}_cov_n" in grp else grp.iloc[0:0]
+                if done.empty:
+                    cells.append("-")
+                    continue
+                z, cov = float(done[f"{key}_z50"].median()), float(done[f"{key}_cov2"].min())
+                mark = "*" if not (0.3 <= z <= 1.0) or cov < 0.95 else ""
+                cells.append(f"{z:.2f} ({cov:.3f}, {len(done)}){mark}")
+            print(f"  {name}: " + " / ".join(cells))
+
+
 def run_realism_case(name: str, kw: dict, workdir, transform=None) -> dict:
     """Render the rig preset ``name`` with overrides ``kw`` into ``workdir`` and compare.
 
@@ -305,21 +347,32 @@ def main(argv=None) -> int:
     ap.add_argument("--tier", choices=("clean", "realism", "all"), default="all",
                     help="clean sweep, realism tier (rig presets), or both (default)")
     ap.add_argument("--seeds", type=int, default=1, help="realism tier: render each case with this many seeds")
+    ap.add_argument("--seed-offset", type=int, default=0,
+                    help="add this to every case's seed (another noise draw of the same cases)")
+    ap.add_argument("--case", action="append", default=[], metavar="NAME",
+                    help="run only this case (realism preset or sweep name; repeatable)")
     ap.add_argument("--out", help="also write the table(s) as CSV (realism tier: NAME-realism.csv)")
     args = ap.parse_args(argv)
+    known = set(REALISM) | set(SWEEP)
+    unknown = [c for c in args.case if c not in known]
+    if unknown:
+        ap.error(f"unknown case {unknown[0]!r}: one of {', '.join(sorted(known))}")
     if args.tier in ("realism", "all"):
         rrows = []
         for name, kw in realism_cases(args.full).items():
+            if args.case and name not in args.case:
+                continue
             for k in range(args.seeds):
                 with tempfile.TemporaryDirectory() as tmp:
-                    r = run_realism_case(name, {**kw, "seed": kw.get("seed", 0) + 100 * k}, tmp)
+                    r = run_realism_case(name, {**kw, "seed": kw.get("seed", 0) + 100 * k + args.seed_offset}, tmp)
                 r["case"] = name if args.seeds == 1 else f"{name}#{k}"
                 rrows.append(r)
                 print(f"realism {r['case']}: " + ", ".join(f"{key} {v:.3g}" if isinstance(v, float) else f"{key} {v}"
                                                           for key, v in r.items() if key != "case"), flush=True)
-        rtable = pd.DataFrame(rrows).set_index("case")
+        rtable = pd.DataFrame(rrows).set_index("case") if rrows else pd.DataFrame()
         with pd.option_context("display.width", 200, "display.max_columns", 50):
             print(rtable.T.to_string(float_format=lambda v: f"{v:.4g}"))
+        print_uncertainty_table(rtable)
         if args.out:
             out = Path(args.out)
             rtable.to_csv(out.with_name(out.stem + "-realism" + out.suffix))
@@ -327,6 +380,9 @@ def main(argv=None) -> int:
             return 0
     rows = []
     for name, kw in cases(args.full).items():
+        if args.case and name not in args.case:
+            continue
+        kw = {**kw, "seed": kw.get("seed", 0) + args.seed_offset}
         with tempfile.TemporaryDirectory() as tmp:
             r = run_case(kw, tmp)
         r["case"] = name
@@ -335,9 +391,10 @@ def main(argv=None) -> int:
               f"{r['drop_max_pct']:.3f} %, in-flight {r['inflight_pct']:+.3f} %, velocity {r['velocity_pct']:+.3f} %, "
               f"pinch-off {'ok' if r['pinchoff_ok'] else 'WRONG'}, satellites {'ok' if r['satellites_ok'] else 'WRONG'}, "
               f"dust {'ok' if r['dust_ok'] else 'WRONG'} ({r['measure_s']:.2f} s)", flush=True)
-    table = pd.DataFrame(rows).set_index("case")
+    table = pd.DataFrame(rows).set_index("case") if rows else pd.DataFrame()
     with pd.option_context("display.width", 200, "display.max_columns", 50):
         print(table.T.to_string(float_format=lambda v: f"{v:.4g}"))
+    print_uncertainty_table(table)
     if args.out:
         table.to_csv(args.out)
     return 0

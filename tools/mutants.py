@@ -113,7 +113,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "us.append(sign * (x[keep] - xe) / np.hypot(1.0, s))", "us.append(sign * (x[keep] - xe))",
            STAGE, "edge spread measured along the row, not the outline's normal"),
     Mutant("plane_cut_sqrt12", "dropvision/volume.py",
-           "c * abs(math.tan(tilt_rad)) / math.sqrt(12.0)", "c * abs(math.tan(tilt_rad)) / math.sqrt(3.0)",
+           "span * abs(math.tan(tilt_rad)) / math.sqrt(12.0)", "span * abs(math.tan(tilt_rad)) / math.sqrt(3.0)",
            STAGE, "plane-cut tilt term sqrt(3) instead of sqrt(12)"),
     Mutant("waist_lobe_off_by_one", "dropvision/volume.py",
            "j0 < min_lobe_rows or n - 1 - j1 < min_lobe_rows", "j0 <= min_lobe_rows or n - 1 - j1 < min_lobe_rows",
