@@ -8,8 +8,10 @@ lies within ``tolerance_percent`` of the value; a count output ``n_drops=1`` ask
 candidates are the lattice of each input's distinct training values (an input with more than
 :data:`LEVELS_PER_INPUT` distinct values: that many evenly spaced values over its range), each
 kept only when :meth:`identify.tabular.TrainingRegion.check` finds it inside (within each input's
-range, and no farther from a training row than training rows are from each other). A lab's sweep
-is such a lattice; the settings it can dial are its values.
+range, and no farther from a training row than any training row is from its nearest other one)
+and, stricter, no farther from a training row than the median of those distances (the sparse
+edges of the region, where the fit is least checked, are left out). A lab's sweep is such a
+lattice; the settings it can dial are its values.
 
 **What it chooses.** For each candidate the probability that one shot meets every target: per
 continuous target, the normal probability that the drop falls in the window (fitted scale: the
@@ -147,7 +149,17 @@ def candidates(model: TabularModel, *, seed: int = 0) -> np.ndarray:
         grid = np.column_stack([a[rng.integers(0, a.size, MAX_CANDIDATES)] for a in axes])
     grid = np.unique(np.vstack([grid, X]), axis=0)  # the training settings are candidates too
     inside, _ = model.region.check(grid, X)
-    return grid[~inside]
+    grid = grid[~inside]
+    # where the sweep is as dense as it typically is: no farther from a measured setting than the
+    # median distance between a measured setting and its nearest other one (the region's edges,
+    # up to the largest such distance, are sparse: a fit there is least checked)
+    from scipy.spatial import cKDTree
+
+    step = model.region.step
+    tree = cKDTree(X / step)
+    typical = float(np.median(tree.query(X / step, k=2)[0][:, 1])) if len(X) > 1 else 0.0
+    d, _ = tree.query(grid / step, k=1)
+    return grid[d <= typical * (1 + 1e-9) + 1e-12]
 
 
 class _Surface:
@@ -531,7 +543,12 @@ def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, t
         i, constrained = _choose(prob, counts, min_probability, X, near, span)
         settings = {n: float(v) for n, v in zip(model.inputs, X[i])}
         outside, _ = model.region.check(X[i:i + 1], train)
-        answer = rig(dict(settings), k)
+        try:
+            answer = rig(dict(settings), k)
+        except (TabularError, OSError):
+            raise
+        except Exception as exc:  # noqa: BLE001 - the lab's own code failed: one line naming the rig and shot
+            raise TabularError(f"rig {name}: shot {k}: the rig failed ({type(exc).__name__}: {exc})") from exc
         measured = _measured(model, tg, answer, f"rig {name}: shot {k}")
         rec: dict = {"shot": k, **settings}
         within = True

@@ -72,6 +72,12 @@ def test_candidates_stay_inside_the_training_region(model):
     assert len(X) > 100 and not outside.any()
     # the never-swept corner is not searched: every candidate is near a training row
     assert not ((X[:, 0] >= 8) & (X[:, 2] >= 8)).any()
+    # stricter than the region: no farther from a measured setting than the median nearest-row distance
+    from scipy.spatial import cKDTree
+
+    T = model.training_inputs() / model.region.step
+    typical = np.median(cKDTree(T).query(T, k=2)[0][:, 1])
+    assert cKDTree(T).query(X / model.region.step)[0].max() <= typical + 1e-9
     # the lattice: each setting a value the sweep used
     for j in range(3):
         assert set(np.unique(X[:, j])) <= set(np.unique(model.training_inputs()[:, j]))
@@ -157,6 +163,11 @@ def test_rig_answers_are_checked(model):
         tune_table(model, lambda s, k: [1000.0, 1], ["volume_px3=1100"])
     with pytest.raises(TabularError, match="is not a count"):
         tune_table(model, lambda s, k: {"volume_px3": 1000.0, "n_drops": 1.5}, ["volume_px3=1100", "n_drops=1"])
+    def broken(settings, shot):
+        raise RuntimeError("camera lost")
+
+    with pytest.raises(TabularError, match=r"rig lab: shot 1: the rig failed \(RuntimeError: camera lost\)"):
+        tune_table(model, broken, ["volume_px3=1100"], rig_name="lab")
     with pytest.raises(TabularError, match="--shots must be an integer >= 1"):
         tune_table(model, _rig(), ["volume_px3=1100"], shots=0)
 
@@ -218,3 +229,18 @@ def test_cli_design_and_tune_with_a_table_model(model_path, tmp_path, capsys):
         assert msg in err.err and len(err.err.strip().splitlines()) == 1, err.err
         assert "shot 1" not in err.out and not (tmp_path / "x").exists()
     assert main(["design", str(model_path)]) == 2 and "--target" in capsys.readouterr().err
+
+
+def test_an_interrupted_run_keeps_its_shots(model, tmp_path):
+    plant = _rig(gain=1.2)  # far off: shot 1 misses
+
+    def fire(settings, shot):
+        if shot == 2:
+            raise OSError("camera lost")
+        return plant(settings, shot)
+
+    with pytest.raises(OSError, match="camera lost"):
+        tune_table(model, fire, ["volume_px3=1300", "n_drops=1"],
+                   progress=lambda so_far: write_table_tuning(so_far, tmp_path / "run"))
+    back = read_table_tuning(tmp_path / "run")
+    assert len(back.shots) == 1 and back.message.startswith("in progress: 1 of at most 5") and not back.converged
