@@ -95,6 +95,8 @@ def parse_targets(model: TabularModel, specs) -> list[Target]:
         No target, a malformed one, an output the model does not hold, a count it never saw, a
         non-positive value of an output fitted on its logarithm, an output named twice.
     """
+    if isinstance(specs, (list, tuple)) and specs and all(isinstance(t, Target) for t in specs):
+        return list(specs)
     items = list(specs.items()) if isinstance(specs, dict) else []
     if not isinstance(specs, dict):
         for s in specs or ():
@@ -294,7 +296,7 @@ def design_table(model: TabularModel, targets, *, tolerance_percent: float = 2.0
         Seed of the subset of a lattice larger than :data:`MAX_CANDIDATES`.
     """
     _check_options(tolerance_percent, min_probability)
-    tg = targets if targets and isinstance(targets, list) and isinstance(targets[0], Target) else parse_targets(model, targets)
+    tg = parse_targets(model, targets)
     tol = tolerance_percent / 100.0
     X = candidates(model, seed=seed)
     surface = _Surface(model, tg, X)

@@ -4,7 +4,9 @@ Fits (or loads: ``--model``) the table model on ../shared/realdata/waveform-swee
 `identify fit dev.csv --inputs V3,w1,w2,w3,d1,d2 --outputs head_volume_px3,n_drops` does, then for
 each twin seed (tools/waveform_twin.py: another dispenser per seed) and each target (the head
 volumes at the 25th, 50th and 75th percentiles of the single-drop rows, with n_drops = 1) runs
-`identify.tabular_tuning.tune_table` (2 % tolerance, 5 shots) and prints the shots to target:
+`identify.tabular_tuning.tune_table` (2 % tolerance, 5 shots) and prints the shots to target
+(``--holdout``: per seed, the model fitted on a random half of the rows and the twin built from
+the other half, so that the model never sees the twin's rows):
 per target, the success rate, median and max shots (over the runs that succeeded), and the
 open-loop success (shot 1 = `identify design`).
 
@@ -34,15 +36,25 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--shots", type=int, default=5)
     ap.add_argument("--tolerance-percent", type=float, default=2.0)
+    ap.add_argument("--holdout", action="store_true",
+                    help="per seed: the model fitted on a random half of the rows, the twin built from the other "
+                         "half (the model never sees the twin's rows; each has half the data)")
     args = ap.parse_args(argv)
     dev = pd.read_csv(DEV)
-    model = (TabularModel.from_json(args.model) if args.model is not None
-             else fit_table(dev, INPUTS, ["head_volume_px3", "n_drops"], source=str(DEV)))
+    model = None
+    if not args.holdout:
+        model = (TabularModel.from_json(args.model) if args.model is not None
+                 else fit_table(dev, INPUTS, ["head_volume_px3", "n_drops"], source=str(DEV)))
     single = dev.loc[dev.n_drops == 1, "head_volume_px3"]
     targets = {f"p{int(q * 100)}": float(single.quantile(q)) for q in (0.25, 0.5, 0.75)}
     rows = []
     for seed in range(args.seeds):
-        twin = Twin(dev, seed=seed)
+        if args.holdout:
+            half = np.random.default_rng(10_000 + seed).permutation(len(dev)) < len(dev) // 2
+            model = fit_table(dev[half].reset_index(drop=True), INPUTS, ["head_volume_px3", "n_drops"])
+            twin = Twin(dev[~half].reset_index(drop=True), seed=seed)
+        else:
+            twin = Twin(dev, seed=seed)
         for name, v in targets.items():
             t0 = time.perf_counter()
             res = tune_table(model, twin, {"head_volume_px3": v, "n_drops": 1}, shots=args.shots,

@@ -326,8 +326,9 @@ def cmd_design(args) -> int:
 
     if is_table_model(args.model):
         return cmd_design_table(args)
-    if args.target:
-        raise UsageError("--target is for a table model (identify fit TABLE); this model takes --volume-nl")
+    if args.target or args.min_probability is not None:
+        raise UsageError("--target and --min-probability are for a table model (identify fit TABLE); this model "
+                         "takes --volume-nl")
     if args.volume_nl is None:
         raise UsageError("--volume-nl is required (the target in-flight volume)")
     if args.tolerance_percent is None:
