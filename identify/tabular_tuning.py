@@ -27,7 +27,9 @@ continuous target, the rig's offset from the model on the fitted scale (``log me
 fit``: a relative bias) is a Gaussian process over the inputs normalised to their training
 ranges (mean 0, standard deviation ``prior_bias_percent`` and the fit's uncertainty in
 quadrature, squared-exponential correlation ``lengthscale``), observed with the drop-to-drop
-scatter; per count target, the model's probability is the prior of a Beta update by the counts
+scatter (robustly: a shot beyond :data:`ROBUST_Z` standard deviations of what was expected counts
+as that far, until a second such shot nearby confirms it); per count target, the model's
+probability is the prior of a Beta update by the counts
 seen at nearby shots (weight = the same correlation, prior weight :data:`COUNT_PRIOR_SHOTS`
 shots). The next proposal maximises the corrected probability of meeting every target (the
 bias's posterior variance adds to the window's spread, so a setting where the bias is known
@@ -428,16 +430,30 @@ class TableTuningResult:
 
 
 def _gp(obs: list, prior_sd: float, lengthscale: float, at: np.ndarray):
-    """Posterior mean and variance of a zero-mean GP offset at ``at`` from ``obs`` [(x, r, sd)]."""
-    ok = [(x, r, s) for x, r, s in obs if math.isfinite(r)]
+    """Posterior mean and variance of a zero-mean GP offset at ``at`` from ``obs``.
+
+    ``obs``: ``(x, r, sd, sd_gross, sign)`` per shot: ``sd_gross`` (> ``sd``) for a shot that was
+    a gross deviation (``sign`` its direction, 0: none). A gross deviation counts with
+    ``sd_gross`` alone; once another gross deviation of the same sign confirms it nearby
+    (correlation >= 1/2) both count with ``sd``: one failed detection teaches nothing, two in the
+    same place are the rig.
+    """
+    ok = [o for o in obs if math.isfinite(o[1])]
     p2 = prior_sd**2
     if not ok:
         return np.zeros(len(at)), np.full(len(at), p2)
-    x = np.array([a for a, _, _ in ok])
-    r = np.array([b for _, b, _ in ok])
-    s = np.array([c for _, _, c in ok])
+    x = np.array([o[0] for o in ok])
+    r = np.array([o[1] for o in ok])
+    s = np.array([o[2] for o in ok])
+    gross = np.array([o[3] for o in ok])
+    sign = np.array([o[4] for o in ok])
     d2 = np.sum((x[:, None, :] - x[None, :, :]) ** 2, axis=-1)
-    cov = p2 * np.exp(-0.5 * d2 / lengthscale**2) + np.diag(s**2)
+    corr = np.exp(-0.5 * d2 / lengthscale**2)
+    for i in np.flatnonzero(sign != 0):
+        confirmed = np.any((sign == sign[i]) & (corr[i] >= 0.5) & (np.arange(len(ok)) != i))
+        if not confirmed:
+            s[i] = gross[i]
+    cov = p2 * corr + np.diag(s**2)
     k = p2 * np.exp(-0.5 * np.sum((at[:, None, :] - x[None, :, :]) ** 2, axis=-1) / lengthscale**2)
     w = np.linalg.solve(cov, k.T)
     return r @ w, np.maximum(p2 - np.sum(k * w.T, axis=1), 0.0)
@@ -567,14 +583,16 @@ def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, t
                 z = (math.log(value) if value > 0 else float("nan")) if log else value
                 # a robust update: a shot farther than ROBUST_Z standard deviations from what was
                 # expected counts as that far (the heavy tails of real scatter: a failed detection
-                # must not teach the loop a bias)
+                # must not teach the loop a bias) until a second one nearby confirms it (_gp)
                 r_obs = z - f if math.isfinite(z) else float("nan")
                 s_obs = float(surface.drop_sd[o][i])
                 expect_sd = math.sqrt(s_obs**2 + float(var[o][i]))
                 innovation = r_obs - float(offsets[o][i])
+                s_gross, sign = s_obs, 0
                 if math.isfinite(innovation) and abs(innovation) > ROBUST_Z * expect_sd:
-                    s_obs = math.sqrt((abs(innovation) / ROBUST_Z) ** 2 - float(var[o][i]))
-                obs[o].append((Z[i], r_obs, s_obs))
+                    s_gross = math.sqrt((abs(innovation) / ROBUST_Z) ** 2 - float(var[o][i]))
+                    sign = 1 if innovation > 0 else -1
+                obs[o].append((Z[i], r_obs, s_obs, s_gross, sign))
                 after, after_var = _gp(obs[o], prior_sd[o], lengthscale, Z[i:i + 1])
                 err = 100.0 * (value / t.value - 1.0) if math.isfinite(value) else float("nan")
                 within = within and math.isfinite(err) and abs(err) <= tolerance_percent

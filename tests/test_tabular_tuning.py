@@ -244,3 +244,21 @@ def test_an_interrupted_run_keeps_its_shots(model, tmp_path):
                    progress=lambda so_far: write_table_tuning(so_far, tmp_path / "run"))
     back = read_table_tuning(tmp_path / "run")
     assert len(back.shots) == 1 and back.message.startswith("in progress: 1 of at most 5") and not back.converged
+
+
+def test_one_gross_shot_is_discounted_two_are_believed():
+    """The offset's update (identify.tabular_tuning._gp): a single shot far off what was expected
+    (a failed detection) moves the offset little; a second one nearby, same sign, confirms it."""
+    from identify.tabular_tuning import _gp
+
+    at = np.array([[0.5, 0.5]])
+    one = [(np.array([0.5, 0.5]), -0.30, 0.01, 0.10, -1)]
+    m1, _ = _gp(one, 0.02, 0.25, at)
+    two = one + [(np.array([0.55, 0.5]), -0.28, 0.01, 0.09, -1)]
+    m2, _ = _gp(two, 0.02, 0.25, at)
+    plain = [(np.array([0.5, 0.5]), -0.30, 0.01, 0.01, 0)]
+    m0, _ = _gp(plain, 0.02, 0.25, at)
+    assert -0.02 < m1[0] < 0 and m2[0] < -0.2 and m0[0] < -0.2
+    # opposite signs do not confirm each other
+    mixed = one + [(np.array([0.55, 0.5]), 0.28, 0.01, 0.09, 1)]
+    assert abs(_gp(mixed, 0.02, 0.25, at)[0][0]) < 0.02
