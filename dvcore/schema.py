@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 __all__ = [
     "Field", "Table", "Document", "SchemaError", "TABLES", "DOCUMENTS", "TUNING", "TUNING_RUN", "PREDICTION", "TABULAR_MODEL",
-    "TABULAR_PREDICTION", "Quality",
+    "TABULAR_PREDICTION", "TABULAR_TUNING", "TABULAR_TUNING_RUN", "TABULAR_DESIGN", "Quality",
     "QUALITY_CODES", "RANGES", "check_table", "check_document", "markdown",
 ]
 
@@ -614,10 +614,75 @@ TEMPLATE_MODEL = Document("template_model", "model.json", "identify.template-mod
     F("notes", "list", "", "what the fit left out or kept constant"),
 ), "Hybrid model on a waveform template (identify.template_fit.TemplateModel).")
 
+TABULAR_TUNING = Table("tabular_tuning", "tuning.parquet", "identify.tabular-tuning/1", (
+    F("shot", "int", "", "shot number, 1 = the open-loop `identify design` proposal", nullable=False),
+    F("<input>", "float", "of <input>", "per input of the model, in its order and under its name: the setting "
+      "fired (a value of the training lattice, inside the training region)", nullable=False),
+    F("<o>_target", "float", "of <o>", "per target output <o>: the target (a count target: the count asked)"),
+    F("<o>_predicted", "float", "of <o>", "per continuous target: the model's fit at the setting"),
+    F("<o>_corrected", "float", "of <o>", "the fit corrected by the rig's offset learnt before the shot"),
+    F("<o>_one_drop_low", "float", "of <o>", "one-drop interval of the corrected value (the model's conformal "
+      "quantiles x the drop scatter and the offset's uncertainty)"),
+    F("<o>_one_drop_high", "float", "of <o>", "its upper end"),
+    F("<o>", "float", "of <o>", "per output the rig measured (every target output): the measured value (NaN: "
+      "nothing measured)"),
+    F("<o>_error_percent", "float", "%", "per continuous target: measured / target - 1"),
+    F("<o>_bias_percent", "float", "%", "the rig's offset from the model at the setting after this shot "
+      "(relative; posterior mean)"),
+    F("<o>_bias_se_percent", "float", "%", "its posterior standard error"),
+    F("<o>_p<k>_predicted", "float", "", "per count target <o> = k: the model's P(<o> = k) at the setting"),
+    F("<o>_p<k>_corrected", "float", "", "that probability updated by the counts seen at nearby shots"),
+    F("probability_on_target", "float", "", "the corrected probability that one shot meets every target",
+      nullable=False),
+    F("feasible", "bool", "", "the corrected fit lies within the tolerance and each count target reaches "
+      "min_probability", nullable=False),
+    F("outside_training_region", "bool", "", "the setting lies outside the training region (never: only "
+      "settings inside are proposed)", nullable=False),
+    F("within_tolerance", "bool", "", "the measured shot meets every target", nullable=False),
+    F("rig_<key>", "float", "", "a number the rig returned that is not an output of the model"),
+), "Closed-loop tuning of a table model (`identify tune model.json --target O=V ... --rig module:function`): one "
+   "row per shot, in order.")
+
+TABULAR_TUNING_RUN = Document("tabular_tuning_run", "tuning.json", "identify.tabular-tuning-run/1", (
+    F("schema", "str", "", "document id"),
+    F("inputs", "list", "", "the model's inputs (the setting columns of tuning.parquet)"),
+    F("targets", "object", "", "output -> target value (a count output: the count asked)"),
+    F("tolerance_percent", "float", "%", "a continuous output within this of its target is met"),
+    F("min_probability", "float", "", "a count target's constraint: P(that count) at least this"),
+    F("converged", "bool", "", "the last shot met every target"),
+    F("shots_fired", "int", "", "rows of tuning.parquet"),
+    F("message", "str", "", "one-line outcome"),
+    F("seed", "int", "", "seed of the candidate subset"),
+    F("shot_budget", "int", "", "most shots allowed"),
+    F("prior_bias_percent", "float", "%", "prior standard deviation of the rig's offset beyond the fit's "
+      "uncertainty"),
+    F("bias_lengthscale", "float", "", "correlation length of the offset, in units of the inputs' training ranges"),
+    F("candidates", "int", "", "settings searched (the lattice inside the training region)"),
+    F("rig", "str", "", "the rig (module:function)"),
+    F("model_file", "str", "", "the model file (null: a model in memory)"),
+    F("model_sha256", "str", "", "SHA-256 of the model file's bytes"),
+    F("versions", "object", "", "software versions"),
+), "What a table model's tuning run was run for; the shots are tuning.parquet.")
+
+TABULAR_DESIGN = Document("tabular_design", "identify design --json", "identify.tabular-design/1", (
+    F("schema", "str", "", "document id"),
+    F("feasible", "bool", "", "the fit lies within the tolerance and each count target reaches min_probability"),
+    F("settings", "object", "", "input -> the proposed value (inside the training region)"),
+    F("targets", "object", "", "output -> target value"),
+    F("tolerance_percent", "float", "%", "tolerance of the continuous targets"),
+    F("min_probability", "float", "", "constraint of the count targets"),
+    F("predicted", "object", "", "the model's prediction at the settings (the columns of `identify predict "
+      "--table`)"),
+    F("probability_on_target", "float", "", "P(one shot meets every target) by the model"),
+    F("candidates", "int", "", "settings searched"),
+    F("outside_training_region", "bool", "", "always false: only settings inside are searched"),
+    F("message", "str", "", "one-line outcome"),
+), "`identify design model.json --target O=V ... --json` with a table model: one JSON object on stdout.")
+
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, DATASET_SHOTS,
-                               LIVE_FRAMES, TUNING, TABULAR_PREDICTION)}
+                               LIVE_FRAMES, TUNING, TABULAR_PREDICTION, TABULAR_TUNING)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
-                                 PREDICTION, TABULAR_MODEL)}
+                                 PREDICTION, TABULAR_MODEL, TABULAR_TUNING_RUN, TABULAR_DESIGN)}
 DOCUMENTS.update({d.name: d for d in (WAVEFORM, TEMPLATE_MODEL)})  # issue 31: waveform templates
 
 

@@ -550,6 +550,28 @@ class TabularModel:
         out["outside_training_region_why"] = why
         return pd.DataFrame(out, index=table.index if isinstance(table, pd.DataFrame) else None)
 
+    def training_inputs(self) -> np.ndarray:
+        """The training rows' inputs (rows x inputs, a copy)."""
+        return self._X.copy()
+
+    def fitted_scale(self, output: str, X: np.ndarray) -> dict:
+        """A continuous output on its fitted scale (the logarithm of a positive output) at the rows
+        of ``X`` (rows x inputs): ``fit``, ``scale`` (the local median absolute residual, floored)
+        and ``fit_std`` (the jackknife standard deviation of the fold models); ``log``."""
+        c = self.continuous[output]
+        with _one_thread():
+            f = c.final.predict(X)
+            s = np.maximum(c.scale.predict(X), c.floor)
+            fk = np.array([m.predict(X) for m in c.fold_models])
+        K = fk.shape[0]
+        sd = np.sqrt((K - 1) / K * np.sum((fk - fk.mean(axis=0)) ** 2, axis=0))
+        return {"fit": f, "scale": s, "fit_std": sd, "log": c.log, "q_lo": c.q_lo, "q_hi": c.q_hi}
+
+    def count_probabilities(self, output: str, X: np.ndarray) -> dict:
+        """``{"<output>_p<k>": P(k)}`` of a count output at the rows of ``X`` (rows x inputs)."""
+        with _one_thread():
+            return _predict_count(self.counts[output], X)
+
     def cv_table(self) -> pd.DataFrame:
         """The cross-validation scores of every candidate (one row per output, step and candidate)."""
         rows = []

@@ -308,6 +308,131 @@ def stuck(records: list) -> bool:
     return abs(a["u1_um_per_ms"] - b["u1_um_per_ms"]) < 1e-3 and abs(a["u2_um"] - b["u2_um"]) < 1e-3
 
 
+#: Two-output targets: the first trust radius (normalised (u1, u2), units of the region's span), its bounds.
+TRUST_RADIUS_START, TRUST_RADIUS_MIN, TRUST_RADIUS_MAX = 0.3, 0.01, 1.5
+#: Prior standard deviation of the correction of the model's log slopes (per unit of the region's span).
+SLOPE_PRIOR_STD = 0.3
+#: Distance (units of the region's span) over which a shot informs the slopes at the best shot.
+SLOPE_LENGTHSCALE = 0.3
+#: A step shorter than this (units of the region's span) that the corrected model says cannot meet
+#: both targets: a local minimum off target; the next shot solves the corrected targets anew.
+RESTART_STEP = 0.05
+
+
+def _joint_cost(errors: dict, outputs: dict) -> float:
+    """Sum of the squared relative errors in units of each output's tolerance (1: on the edge)."""
+    return float(sum((errors[o] / tol) ** 2 for o, (_, t, tol) in outputs.items() if t is not None))
+
+
+def _shot_cost(rec: dict, outputs: dict) -> float:
+    errs = {o: rec.get(f"{o}_error_percent", float("nan")) for o in outputs}
+    c = _joint_cost(errs, outputs)
+    return c if math.isfinite(c) else math.inf
+
+
+def _trust_region_step(model, region, records, obs, outputs, trust):
+    """Next (u1, u2) for a volume-and-velocity target: a damped (trust-region) step.
+
+    The corrected model, around the best shot so far ``c`` (both outputs' residuals jointly: the
+    sum of their squared relative errors in units of their tolerances), is the model's own
+    nonlinear law through what was measured at ``c``, plus a linear correction of its slopes:
+    ``log g(u) = log m(u) - log m(c) + log y(c) + D (u - c)`` per output (u normalised by the
+    region's span). ``D`` is the ridge estimate (prior 0, standard deviation
+    :data:`SLOPE_PRIOR_STD`) from the other shots' misfits of the same law (a secant update: the
+    plant's slopes learnt where the model's are wrong). The step minimises the corrected joint
+    cost over the printable region within ``trust["radius"]`` of ``c``; :func:`_update_trust`
+    grows or shrinks the radius from how well the corrected model predicted the improvement.
+    Solving the two targets anew over the whole region after every shot (what
+    :func:`identify.design.design` does for a corrected target) jumps between far points on a
+    plant whose bias curves: each jump lands where the learnt bias does not hold.
+
+    Returns ``(u1, u2, feasible, goal)``: ``feasible`` when the corrected model meets both
+    tolerances there; ``goal`` the design targets there (the model's values that the corrected
+    model maps onto the targets).
+    """
+    from scipy.optimize import minimize
+
+    span = region.span
+    outs = [(o, key, t, tol) for o, (key, t, tol) in outputs.items() if t is not None]
+    costs = [_shot_cost(r, outputs) for r in records]
+    since = trust.get("since", 0)  # after a restart: the best shot since then
+    ib = since + int(np.argmin(costs[since:]))
+    c = np.array([records[ib]["u1_um_per_ms"], records[ib]["u2_um"]])
+    X = np.array([[r["u1_um_per_ms"], r["u2_um"]] for r in records]) / span
+    pm = model.predict_grid(X[:, 0] * span[0], X[:, 1] * span[1])
+    # log misfit of each shot against the target, and of the model's law through the best shot
+    y = np.column_stack([np.log(np.array([r[f"measured_{o}_{'nl' if o == 'volume' else 'm_s'}"] for r in records])
+                                / t) for o, _, t, _ in outs])
+    lm = np.column_stack([np.log(pm[key].to_numpy()) for _, key, _, _ in outs])
+    e = (y - y[ib]) - (lm - lm[ib])  # what the model's law through c misses at the other shots
+    dx = X - X[ib]
+    std = np.array([[s for _, s in obs[o]] for o, _, _, _ in outs]).T  # (shots, outputs)
+    D = np.zeros((len(outs), 2))
+    ok = np.isfinite(e).all(axis=1) & (np.arange(len(records)) != ib) & (np.arange(len(records)) >= since)
+    for j in range(len(outs)):
+        if ok.any():
+            # nearby shots tell the local slopes; far ones (the law curves) less
+            near = np.exp(-0.5 * np.sum(dx[ok] ** 2, axis=1) / SLOPE_LENGTHSCALE**2)
+            w = near / (std[ok, j] ** 2 + std[ib, j] ** 2)
+            A = (dx[ok] * w[:, None]).T @ dx[ok] + np.eye(2) / SLOPE_PRIOR_STD**2
+            D[j] = np.linalg.solve(A, (dx[ok] * w[:, None]).T @ e[ok, j])
+    tol_log = np.array([math.log1p(tol / 100.0) for _, _, _, tol in outs])
+
+    def cost_of(u1, u2):
+        u1, u2 = np.atleast_1d(u1).astype(float), np.atleast_1d(u2).astype(float)
+        p = model.predict_grid(u1, u2)
+        d = np.column_stack([u1 / span[0], u2 / span[1]]) - X[ib]
+        r = np.column_stack([np.log(p[key].to_numpy()) for _, key, _, _ in outs]) - lm[ib] + y[ib] + d @ D.T
+        cst = np.sum((r / tol_log) ** 2, axis=1)
+        return np.where(np.isfinite(cst), cst, np.inf), r
+
+    rad = trust["radius"]
+    g = np.linspace(-rad, rad, 41)
+    A_, B_ = (a.ravel() for a in np.meshgrid(g, g, indexing="ij"))
+    disk = A_**2 + B_**2 <= rad**2
+    U1, U2 = c[0] + A_[disk] * span[0], c[1] + B_[disk] * span[1]
+    inside = region.inside(U1, U2)
+    U1, U2 = np.append(U1[inside], c[0]), np.append(U2[inside], c[1])
+    cost, _ = cost_of(U1, U2)
+    i = int(np.argmin(cost))
+    x0 = np.array([U1[i], U2[i]])
+
+    def f(x):
+        dist = math.hypot((x[0] - c[0]) / span[0], (x[1] - c[1]) / span[1])
+        if dist > rad * (1 + 1e-9) or not region.inside(x[0], x[1])[0]:
+            return 1e12 + dist
+        v = float(cost_of(x[0], x[1])[0][0])
+        return v if math.isfinite(v) else 1e12
+
+    res = minimize(f, x0, method="Nelder-Mead", options={"xatol": 1e-5, "fatol": 1e-10, "maxiter": 200})
+    x = res.x if res.fun <= f(x0) else x0
+    cst, r = cost_of(x[0], x[1])
+    trust["predicted"], trust["from_cost"] = float(cst[0]), float(costs[ib])  # ib: the best since any restart
+    trust["step"] = math.hypot((x[0] - c[0]) / span[0], (x[1] - c[1]) / span[1])
+    p = model.predict_grid(x[0], x[1])
+    goal = {o: None for o in outputs}
+    for j, (o, key, t, _) in enumerate(outs):  # the model's value the corrected model maps onto the target
+        goal[o] = float(p[key].iloc[0] * math.exp(-r[0, j]))
+    return float(x[0]), float(x[1]), bool(cst[0] <= 1.0), goal
+
+
+def _update_trust(trust: dict, records: list, rec: dict, outputs: dict) -> None:
+    """The usual trust-region rule: a shot that improved on the best by at least a quarter of what
+    the corrected model promised keeps the radius, or doubles it when the step went to its edge;
+    any other shot halves the step it took (the model's correction does not hold that far)."""
+    before = trust.get("from_cost", math.inf)
+    if not math.isfinite(before):  # a restart: nothing was promised
+        return
+    now = _shot_cost(rec, outputs)
+    promised = before - trust["predicted"]
+    step = trust.get("step", trust["radius"])
+    if math.isfinite(before) and promised > 0 and now <= before - 0.25 * promised:
+        if step >= 0.9 * trust["radius"]:
+            trust["radius"] = min(trust["radius"] * 2.0, TRUST_RADIUS_MAX)
+    else:
+        trust["radius"] = max(min(trust["radius"], step) / 2.0, TRUST_RADIUS_MIN)
+
+
 def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, shots: int = 5,
          volume_tolerance_percent: float = 0.5, velocity_tolerance_percent: float = 1.0,
          prior_bias_percent: float = 5.0, bias_lengthscale: float | None = 0.25, samples: int = 2000,
@@ -412,12 +537,26 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
                             velocity_tolerance_percent=float(velocity_tolerance_percent),
                             converged=converged, message=msg, meta=dict(meta))
 
+    region = Region(model.controls)
+    two = velocity_m_s is not None
+    trust = {"radius": TRUST_RADIUS_START, "predicted": float("nan")}
     for k in range(1, int(shots) + 1):
         goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
         last = (records[-1]["u1_um_per_ms"], records[-1]["u2_um"]) if records else None  # move as little as needed
-        # design's own default tolerance: shot 1 is exactly what `identify design` proposes
-        d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
-        u1, u2 = d.u1_um_per_ms, d.u2_um
+        if two and records:  # both outputs: a damped step on the corrected model, from the best shot
+            u1, u2, feasible, goal = _trust_region_step(model, region, records, obs, outputs, trust)
+            if not feasible and trust["step"] < RESTART_STEP:
+                # a local minimum off target (e.g. on the region's edge): the corrected targets solved anew
+                # over the whole region, as for shot 1
+                goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
+                d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
+                u1, u2, feasible = d.u1_um_per_ms, d.u2_um, d.feasible
+                trust.update(radius=TRUST_RADIUS_START, predicted=float("nan"), from_cost=math.inf,
+                             since=len(records))  # the next steps start from this shot
+        else:
+            # design's own default tolerance: shot 1 is exactly what `identify design` proposes
+            d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
+            u1, u2, feasible = d.u1_um_per_ms, d.u2_um, d.feasible
         iv = model.interval_prediction(u1, u2, samples=samples, seed=seed + k, level=level)
         positions.append((u1 / span[0], u2 / span[1]))
         if not prior:
@@ -425,7 +564,7 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
                 e = iv[key]
                 prior[o] = math.hypot(e["mean_drop_std"] / abs(e["mean"]), prior_bias_percent / 100.0)
         measured = _as_shot(rig(u1, u2, k), f"rig {getattr(rig, 'name', 'rig')}: shot {k}")
-        rec: dict = {"shot": k, "u1_um_per_ms": u1, "u2_um": u2, "feasible": d.feasible}
+        rec: dict = {"shot": k, "u1_um_per_ms": u1, "u2_um": u2, "feasible": bool(feasible)}
         within = True
         for o, (key, target, tol) in outputs.items():
             e = iv[key]
@@ -460,6 +599,8 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
                 within = within and math.isfinite(err) and abs(err) <= tol
         rec["within_tolerance"] = bool(within)
         rec.update({f"rig_{x}": v for x, v in measured.extra.items()})
+        if two and records:  # the trust region: grows where the corrected model was right, shrinks where not
+            _update_trust(trust, records, rec, outputs)
         records.append(rec)
         if progress is not None:
             progress(result(records, bool(within), final=False))

@@ -5,9 +5,11 @@
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
     identify predict model.json --table ROWS.csv --out PREDICTIONS.csv       (a table model)
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
+    identify design model.json --target head_volume_px3=V --target n_drops=1  (a table model)
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
     identify report model.json --dataset DATASET --out DIR [--at U1,U2 ...] [--overwrite]
     identify tune model.json --volume-nl V [--velocity-m-s W] --rig simulated|folder|module:function --out DIR [--rerun F.rrd]
+    identify tune model.json --target head_volume_px3=V --target n_drops=1 --rig module:function --out DIR  (a table model)
 
 Bad input exits with status 2 and a one-line message on stderr.
 """
@@ -49,6 +51,16 @@ def _level(text):
         raise argparse.ArgumentTypeError(f"--level must be a number, got {text!r}") from None
     if not 0 < v < 1:
         raise argparse.ArgumentTypeError(f"--level must be in (0, 1), got {text!r}")
+    return v
+
+
+def _probability(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--min-probability must be a number, got {text!r}") from None
+    if not 0 <= v <= 1:
+        raise argparse.ArgumentTypeError(f"--min-probability must be in [0, 1], got {text!r}")
     return v
 
 
@@ -309,8 +321,18 @@ INTERVAL_NOTE = ("parameters only = the parameter Monte Carlo band alone (not an
 
 
 def cmd_design(args) -> int:
+    from identify.app.tabular_cli import cmd_design_table, is_table_model
     from identify.design import design
 
+    if is_table_model(args.model):
+        return cmd_design_table(args)
+    if args.target or args.min_probability is not None:
+        raise UsageError("--target and --min-probability are for a table model (identify fit TABLE); this model "
+                         "takes --volume-nl")
+    if args.volume_nl is None:
+        raise UsageError("--volume-nl is required (the target in-flight volume)")
+    if args.tolerance_percent is None:
+        args.tolerance_percent = 1.0
     _check_samples(args.samples)
     m = _load_model(args.model)
     r = design(m, args.volume_nl, args.velocity_m_s, tolerance_percent=args.tolerance_percent,
@@ -326,8 +348,18 @@ def cmd_design(args) -> int:
 
 def cmd_tune(args) -> int:
     from dvcore.atomic import check_output_dir
+    from identify.app.tabular_cli import cmd_tune_table, is_table_model
     from identify.tuning import load_rig, tune, write_tuning
 
+    if is_table_model(args.model):
+        return cmd_tune_table(args)
+    if args.target or args.tolerance_percent is not None or args.min_probability is not None:
+        raise UsageError("--target, --tolerance-percent and --min-probability are for a table model "
+                         "(identify fit TABLE); this model takes --volume-nl")
+    if args.volume_nl is None:
+        raise UsageError("--volume-nl is required (the target in-flight volume)")
+    if args.prior_bias_percent is None:
+        args.prior_bias_percent = 5.0
     _check_samples(args.samples)
     if args.shots < 1:
         raise UsageError(f"--shots must be >= 1, got {args.shots}")
@@ -453,9 +485,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("design", help="find (u1, u2) for a target drop volume (and velocity)")
     d.add_argument("model")
-    d.add_argument("--volume-nl", type=_positive("--volume-nl"), required=True)
+    d.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
+                   help="target in-flight volume (a hybrid model; required there)")
     d.add_argument("--velocity-m-s", type=_positive("--velocity-m-s"), default=None)
-    d.add_argument("--tolerance-percent", type=_positive("--tolerance-percent"), default=1.0)
+    d.add_argument("--target", action="append", default=[], metavar="OUTPUT=VALUE",
+                   help="a table model: a target (repeatable), e.g. head_volume_px3=712000 and n_drops=1 (a count: "
+                        "P(that count) >= --min-probability)")
+    d.add_argument("--tolerance-percent", type=_positive("--tolerance-percent"), default=None,
+                   help="default 1 %% (a hybrid model), 2 %% (a table model)")
+    d.add_argument("--min-probability", type=_probability, default=None,
+                   help="a table model: least P(count) of a count target (default 0.9)")
     d.add_argument("--samples", type=int, default=2000)
     d.add_argument("--seed", type=int, default=0)
     d.add_argument("--json", action="store_true")
@@ -463,7 +502,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     t = sub.add_parser("tune", help="closed loop: propose (u1, u2), fire a rig, measure, correct, until on target")
     t.add_argument("model")
-    t.add_argument("--volume-nl", type=_positive("--volume-nl"), required=True, help="target in-flight volume (nl)")
+    t.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
+                   help="target in-flight volume (nl; a hybrid model, required there)")
+    t.add_argument("--target", action="append", default=[], metavar="OUTPUT=VALUE",
+                   help="a table model: a target (repeatable), e.g. head_volume_px3=712000 and n_drops=1")
+    t.add_argument("--tolerance-percent", type=_positive("--tolerance-percent"), default=None,
+                   help="a table model: a continuous target within this is met (default 2 %%)")
+    t.add_argument("--min-probability", type=_probability, default=None,
+                   help="a table model: least P(count) of a count target (default 0.9)")
     t.add_argument("--velocity-m-s", type=_positive("--velocity-m-s"), default=None, help="target jetting velocity")
     t.add_argument("--rig", required=True,
                    help="simulated (a synthetic printhead, measured from rendered frames), folder (waits for "
@@ -472,8 +518,9 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--shots", type=int, default=5, help="shot budget (default 5)")
     t.add_argument("--volume-tolerance-percent", type=_positive("--volume-tolerance-percent"), default=0.5)
     t.add_argument("--velocity-tolerance-percent", type=_positive("--velocity-tolerance-percent"), default=1.0)
-    t.add_argument("--prior-bias-percent", type=_positive("--prior-bias-percent"), default=5.0,
-                   help="prior standard deviation of the rig's bias beyond the model's interval (default 5 %%)")
+    t.add_argument("--prior-bias-percent", type=_positive("--prior-bias-percent"), default=None,
+                   help="prior standard deviation of the rig's bias beyond the model's interval (default 5 %%; "
+                        "a table model: 2 %%)")
     t.add_argument("--bias-lengthscale", type=_positive("--bias-lengthscale"), default=0.25,
                    help="correlation length of the rig's bias over (u1, u2), in training-region spans (default 0.25)")
     t.add_argument("--viscosity-factor", type=_positive("--viscosity-factor"), default=1.0,

@@ -149,3 +149,97 @@ def cmd_predict_table(args) -> int:
         print(f"warning: {n_out} row(s) outside the training region (column outside_training_region_why): "
               "their numbers are unchecked there", file=sys.stderr)
     return 0
+
+
+def _load(path):
+    import warnings
+
+    from identify.tabular import RefitMismatchWarning, TabularModel
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", RefitMismatchWarning)
+        m = TabularModel.from_json(path)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    return m
+
+
+def _no_hybrid_options(args) -> None:
+    if args.volume_nl is not None or args.velocity_m_s is not None:
+        raise UsageError(f"{args.model}: a table model takes --target OUTPUT=VALUE, not --volume-nl/--velocity-m-s "
+                         "(its outputs are named in the model)")
+    if not args.target:
+        raise UsageError(f"{args.model}: a table model needs --target OUTPUT=VALUE (e.g. --target n_drops=1)")
+
+
+def cmd_design_table(args) -> int:
+    """`identify design model.json --target O=V ...` with a table model."""
+    import json
+
+    from identify.tabular_tuning import design_table
+
+    _no_hybrid_options(args)
+    m = _load(args.model)
+    r = design_table(m, args.target, tolerance_percent=2.0 if args.tolerance_percent is None else args.tolerance_percent,
+                     min_probability=0.9 if args.min_probability is None else args.min_probability, seed=args.seed)
+    if args.json:
+        print(json.dumps(r.to_dict()))
+    else:
+        print(r.message)
+        print(f"searched {r.candidates} settings inside the training region")
+    return 0 if r.feasible else 1
+
+
+def cmd_tune_table(args) -> int:
+    """`identify tune model.json --target O=V ... --rig module:function --out DIR` with a table model."""
+    from dvcore.atomic import check_output_dir, check_outside_inputs
+    from identify.tabular_tuning import load_table_rig, tune_table, write_table_tuning
+
+    _no_hybrid_options(args)
+    for flag, v, default in (("--viscosity-factor", args.viscosity_factor, 1.0),
+                             ("--nozzle-diameter-factor", args.nozzle_diameter_factor, 1.0),
+                             ("--rig-folder", args.rig_folder, None)):
+        if v != default:
+            raise UsageError(f"{flag} is an option of the simulated and folder rigs of a hybrid model, not a table's")
+    for flag in ("rerun", "rerun_spawn", "rerun_connect"):
+        if getattr(args, flag, None):
+            raise UsageError(f"--{flag.replace('_', '-')} is not available for a table model (yet)")
+    if args.shots < 1:
+        raise UsageError(f"--shots must be >= 1, got {args.shots}")
+    inputs = [args.model]
+    check_outside_inputs(inputs, args.out)
+    check_output_dir(args.out, inputs=inputs, overwrite=args.overwrite)  # refused before any shot
+    m = _load(args.model)
+    rig = load_table_rig(args.rig)
+
+    def show(so_far):
+        write_table_tuning(so_far, args.out, inputs=inputs, overwrite=args.overwrite)  # every shot kept
+        if args.json:
+            return
+        r = so_far.shots[-1]
+        where = ", ".join(f"{n} = {r[n]:g}" for n in m.inputs)
+        got = []
+        for o in so_far.targets:
+            if f"{o}_error_percent" in r:
+                got.append(f"{o} predicted {r[o + '_corrected']:.4g} [{r[o + '_one_drop_low']:.4g}, "
+                           f"{r[o + '_one_drop_high']:.4g}], measured {r[o]:.4g} ({r[o + '_error_percent']:+.2f} %)")
+            else:
+                got.append(f"{o} measured {r[o]:g}")
+        print(f"shot {r['shot']}: {where}; " + "; ".join(got) + f"; P(on target) {r['probability_on_target']:.2f}",
+              flush=True)
+
+    res = tune_table(m, rig, args.target, shots=args.shots,
+                     tolerance_percent=2.0 if args.tolerance_percent is None else args.tolerance_percent,
+                     min_probability=0.9 if args.min_probability is None else args.min_probability,
+                     prior_bias_percent=2.0 if args.prior_bias_percent is None else args.prior_bias_percent,
+                     lengthscale=args.bias_lengthscale, seed=args.seed, rig_name=args.rig, model_path=args.model,
+                     progress=show)
+    write_table_tuning(res, args.out, inputs=inputs, overwrite=args.overwrite)
+    if args.json:
+        from dvcore.atomic import to_json
+
+        print(to_json({**res.to_dict(), "shots": res.shots}, indent=None), end="")
+    else:
+        print(res.message)
+        print(f"wrote {args.out}/tuning.parquet and tuning.json")
+    return 0 if res.converged else 1
