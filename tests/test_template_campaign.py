@@ -103,6 +103,9 @@ def test_identify_fit_of_the_campaign_recovers_the_ecm(campaign, tmp_path, capsy
     capsys.readouterr()
     assert identify_main(["fit", str(ds), "--out", str(out), "--folds", "4"]) == 2
     assert "--folds not available" in capsys.readouterr().err
+    # the (u1, u2) commands say what the file is and where it is read
+    assert identify_main(["predict", str(out), "--u1", "70", "--u2", "25"]) == 2
+    assert "a model on a waveform template (identify.template-model/1)" in capsys.readouterr().err
 
 
 def test_a_campaign_mixing_templates_is_refused(campaign, tmp_path, capsys):

@@ -214,6 +214,15 @@ def _with_recording(args, log) -> None:
 def _load_model(path):
     from identify.hybrid import HybridModel
 
+    try:
+        with open(path, encoding="utf-8") as fh:
+            is_template = json.loads(fh.read(1 << 20)).get("schema") == schema.TEMPLATE_MODEL.schema
+    except (OSError, ValueError, AttributeError, RecursionError):
+        is_template = False  # HybridModel.from_json says what is wrong with it
+    if is_template:
+        raise UsageError(f"{path}: a model on a waveform template ({schema.TEMPLATE_MODEL.schema}): this command "
+                         "reads (u1, u2) models; predict it from Python: "
+                         "identify.TemplateModel.from_json(path).predict({'V1': ..., ...})")
     return HybridModel.from_json(path)
 
 
