@@ -159,8 +159,10 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
                      + (f"{width_px:.1f} px = {d / width_px:.4g} um (measured again by measure)" if width_px
                         else "its width in px (not found here)"))
     if meta.waveform and "template" in meta.waveform:  # a waveform template (issue 31)
+        params = meta.waveform.get("parameters")
         lines.append(f"  waveform   {meta.waveform['template']}: "
-                     + ", ".join(f"{k} {v:g}" for k, v in meta.waveform["parameters"].items()))
+                     + (", ".join(f"{k} {v:g}" for k, v in params.items()) if params
+                        else "its parameters from each shot's labels"))
     elif meta.waveform:
         lines.append(f"  waveform   u1 {meta.waveform['u1_um_per_ms']:g} um/ms, u2 {meta.waveform['u2_um']:g} um")
     for item in to_give:

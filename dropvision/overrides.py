@@ -15,7 +15,9 @@ from dvcore.schema import RANGES
 from dropvision.orientation import ORIENTATIONS
 from dropvision.readers.base import is_number
 from dropvision.sequence_meta import SequenceError
-from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform, drive_from_document
+from identify.waveform import (
+    DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform, drive_from_document, template_from_dict,
+)
 
 
 #: Keys of sequence.json that options may give or override (`open_sequence` ``overrides``):
@@ -124,13 +126,24 @@ def _validate_template_waveform(value: dict, where: str) -> dict:
     `identify.waveform.drive_from_document` and returned complete (constants and dead time filled
     in); a paper-form key beside ``template`` is refused rather than ignored. The trapezoid template
     comes back in the paper's flat form (``u1_um_per_ms``, ``u2_um``, ``u3_um_per_ms``, ``hold_us``,
-    ``dead_time_us``), the one form the campaign and the summary read (u1, u2) from."""
+    ``dead_time_us``), the one form the campaign and the summary read (u1, u2) from.
+
+    Without ``parameters`` the template alone comes back (``{template, <constants>,
+    dead_time_us}``): in a shot folder each shot's labels are its parameters
+    (`dropvision.shots.label_waveform`); a strobe sequence is measured without them, and
+    `dropvision campaign` leaves it out of the dataset, saying why."""
     stray = sorted(set(value) & {"u1_um_per_ms", "u2_um"})
     if stray:
         raise SequenceError(f"{where}: waveform {', '.join(stray)} beside template {value.get('template')!r}: "
                             "give the template's parameters under 'parameters'")
     if "dead_time_us" in value:
         ranged_value(value["dead_time_us"], "dead_time_us", "waveform dead_time_us", where)
+    if "parameters" not in value:  # the parameters are each shot's labels (dropvision.shots.label_waveform)
+        try:
+            template = template_from_dict({k: v for k, v in value.items() if k != "dead_time_us"})
+        except ValueError as exc:
+            raise SequenceError(f"{where}: {exc}") from None
+        return {**template.to_dict(), "dead_time_us": float(value.get("dead_time_us", DEAD_TIME_US))}
     try:
         drive = drive_from_document(value, where)
     except ValueError as exc:
@@ -220,6 +233,22 @@ def check_overrides(overrides, labels=None) -> dict:
     return out
 
 
+def merged_waveform(old: dict, given: dict) -> dict:
+    """sequence.json's ``waveform`` with the one given as options or arguments laid over it: key by key
+    (a template's ``parameters`` one by one). A template given without parameters
+    (``--waveform-template``: the shots' labels give them) replaces the file's waveform but for its
+    ``dead_time_us`` and, for the same template, its constants."""
+    if "template" in given and "parameters" not in given:
+        keep = {k: v for k, v in old.items()
+                if k == "dead_time_us" or (old.get("template") == given["template"] and k not in ("parameters",))}
+        return {**keep, **given}
+    params = given.get("parameters")
+    value = {**old, **given}
+    if isinstance(params, dict) and isinstance(old.get("parameters"), dict):
+        value["parameters"] = {**old["parameters"], **params}  # a template's parameters one by one
+    return value
+
+
 def merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Path
                      ) -> tuple[dict | None, dict]:
     """sequence.json merged with validated options; returns (doc, key -> where) where
@@ -232,11 +261,7 @@ def merge_overrides(doc: dict | None, given: dict, labels: dict, json_path: Path
         where = labels.get(key, f"argument {key}")
         wheres[key] = where
         if key == "waveform" and isinstance(merged.get("waveform"), dict):
-            old = merged["waveform"]
-            params = value.get("parameters")
-            value = {**old, **value}
-            if isinstance(params, dict) and isinstance(old.get("parameters"), dict):
-                value["parameters"] = {**old["parameters"], **params}  # a template's parameters one by one
+            value = merged_waveform(merged["waveform"], value)
         if key == "frame_rate_hz" and merged.get("frames") is not None:
             raise SequenceError(f"{where}: {json_path} has a frames list (delays per frame); "
                                 "frame_rate_hz gives the delays of a recording instead: not both")

@@ -16,6 +16,13 @@ background, holder's place and orientation, blur reference, pixel size computed 
 - ``shots.parquet`` (`dvcore.schema.SHOTS`): one row per image, its labels as numbers
   (`dropvision.labels`), built from the frames table by `shots_table` (nothing is measured again);
 - ``summary.json`` (`dvcore.schema.SHOTS_SUMMARY`): the count, the medians, what was parsed from where.
+
+A waveform template declared without its parameters (sequence.json ``waveform: {"template":
+"three_pulse"}``, or ``--waveform-template three_pulse``) makes each shot's labels its parameters
+(`label_waveform`: ``images_V1--86_V2-12_V3--30_w1-26_w2-10_w3-31_d1-7_d2-5.jpg`` is V1 = -86 V, ...,
+d2 = 5 us): every parameter must be a label of every shot, each within the template's ranges, and no
+other label may stand beside them (a one-line error naming the image otherwise); summary.json
+``waveform`` records the template.
 """
 
 from __future__ import annotations
@@ -47,7 +54,7 @@ if TYPE_CHECKING:  # pandas loads where a table is made
     import pandas as pd
 
 __all__ = ["ShotInput", "ShotsResult", "find_shots", "is_shot_folder", "sequence_settings_given", "shots_of",
-           "measure_shots", "shots_table", "one_line", "double_exposure_velocity", "shot_metadata",
+           "measure_shots", "label_waveform", "shots_table", "one_line", "double_exposure_velocity", "shot_metadata",
            "STROBE_INTERVAL_LABEL", "SHOT_METADATA_LABELS"]
 
 #: sequence.json keys (and options) that make a folder a sequence, not shots
@@ -419,6 +426,75 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
     return out
 
 
+def label_waveform(shots: ShotInput, overrides: dict | None = None, option_labels: dict | None = None) -> dict | None:
+    """The waveform template whose parameters are the shots' labels, checked shot by shot.
+
+    The template is sequence.json's ``waveform`` (of each folder read), or the one given as an
+    option (``overrides``' ``waveform``, laid over the file's: `dropvision.overrides.merged_waveform`),
+    in the template form without ``parameters``. Each shot's labels named like the template's
+    parameters are its parameters, in the template's units; labels with a meaning of their own
+    (`SHOT_METADATA_LABELS`, `STROBE_INTERVAL_LABEL`) may stand beside them, no other.
+
+    Returns
+    -------
+    dict or None
+        ``{template, <constants>, dead_time_us, parameters_from: "labels"}`` (summary.json
+        ``waveform``); None where no template waits for the labels (no waveform, the paper's flat
+        form, a template with its parameters).
+
+    Raises
+    ------
+    SequenceError
+        One line naming the image: a parameter missing from its labels, a label that is no
+        parameter of the template, a value outside the template's range; or naming the option or
+        sequence.json: an unknown template, folders of different templates.
+    """
+    from dropvision.overrides import merged_waveform, validate_waveform
+    from identify.waveform import template_from_dict
+
+    given = (overrides or {}).get("waveform")
+    where_given = (option_labels or {}).get("waveform", "argument waveform")
+    by_folder: dict[Path, dict] = {}
+    for folder in shots.inputs:
+        doc = _sequence_doc(folder) or {}
+        wf, where = doc.get("waveform"), str(folder / SEQUENCE_JSON)
+        if isinstance(given, dict):
+            wf, where = (merged_waveform(wf, given) if isinstance(wf, dict) else given), where_given
+        if not isinstance(wf, dict):
+            continue  # none, or not an object: open_sequence reports it
+        wf = validate_waveform(wf, where)
+        if "template" in wf and "parameters" not in wf:
+            by_folder[folder] = wf
+    if not by_folder:
+        return None
+    declared = list(by_folder.values())
+    if any(d != declared[0] for d in declared[1:]):
+        raise SequenceError(f"{shots.inputs[0]}: the folders of these images declare different waveform templates "
+                            f"({', '.join(sorted({d['template'] for d in declared}))}): measure each folder alone")
+    other = (*SHOT_METADATA_LABELS, STROBE_INTERVAL_LABEL)
+    for path, name in zip(shots.paths, shots.names):
+        wf = by_folder.get(path.parent)
+        if wf is None:
+            continue
+        template = template_from_dict({k: v for k, v in wf.items() if k != "dead_time_us"})
+        params = template.parameter_names
+        labels = shots.labels.get(name, {})
+        missing = [p for p in params if p not in labels]
+        if missing:
+            found = ", ".join(labels) or "none"
+            raise SequenceError(f"{path}: no label {', '.join(missing)} of waveform template {template.name} (its "
+                                f"parameters: {', '.join(params)}; this image's labels: {found})")
+        unknown = [k for k in labels if k not in params and k not in other]
+        if unknown:
+            raise SequenceError(f"{path}: label {unknown[0]} is no parameter of waveform template {template.name} "
+                                f"({', '.join(params)}); name only its parameters, or pick them with --label-pattern")
+        try:
+            template.check({p: labels[p] for p in params}, str(path))
+        except ValueError as exc:
+            raise SequenceError(str(exc)) from None
+    return {**declared[0], "parameters_from": "labels"}
+
+
 def _median(values) -> float | None:
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
@@ -484,6 +560,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     if shots is None:
         raise SequenceError(f"{paths}: a sequence, not a folder of shots (its frames tell their delays, or "
                             "sequence.json lists them): measure it with measure_sequence")
+    waveform = label_waveform(shots, overrides, option_labels)  # before any image is measured
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
     frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
@@ -552,6 +629,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         "shots": per_shot,
         "shared_calibration": (rig.to_dict() if rig is not None
                                else {"reference": None, "calibrated_from": [], "left_out": [], "reason": no_rig}),
+        **({"waveform": waveform} if waveform is not None else {}),
         "software": software_versions(),
         "config": asdict(config),
     }

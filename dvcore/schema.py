@@ -285,30 +285,42 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
       "reference (the shot the others are checked against), calibrated_from (the shots it comes from), left_out "
       "(calibration shots that disagree: file, reason); reference null and a reason where every shot was "
       "calibrated alone"),
+    F("waveform", "object", "", "the waveform template whose parameters are each shot's labels (sequence.json "
+      "`waveform` or --waveform-template without parameters): {template, <constant>, dead_time_us, "
+      "parameters_from: \"labels\"}; the parameters are the label columns of shots.parquet of the same names, in "
+      "the template's units (absent where no template waits for the labels)", required=False),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
 ), "summary.json of a shot folder (`dropvision measure` over images with no delay to tell).")
 
 # ----------------------------------------------------------------------------- campaign dataset
+#: u1/u2 columns of the campaign dataset: the paper's trapezoid only (issue 31)
+_TRAPEZOID_ONLY = ("(the paper's trapezoid; absent in a dataset of another waveform template, whose parameters take "
+                   "its place)")
+_TEMPLATE_COLUMNS = ("A dataset of another waveform template than the paper's trapezoid (dataset.json `waveform`: "
+                     "three_pulse, segments) has, in place of u1_um_per_ms and u2_um, one float column per parameter "
+                     "of the template, named and in the unit as it declares them (dataset.json "
+                     "`waveform_parameters`: `V1` in V, `w1` in us, ...).")
 TIMESERIES = Table("timeseries", "timeseries.parquet", "dropvision.timeseries/1", (
     F("sequence_id", "id", "", "sequence (its folder relative to the campaign root)", nullable=False),
-    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1", nullable=False),
-    F("u2_um", "float", "um", "stroke u2", nullable=False),
+    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1 " + _TRAPEZOID_ONLY, nullable=False, required=False),
+    F("u2_um", "float", "um", "stroke u2 " + _TRAPEZOID_ONLY, nullable=False, required=False),
     F("delay_us", "float", "us", "strobe delay after the trigger", nullable=False),
     F("grown_volume_nl", "float", "nl", "grown volume (initial meniscus subtracted); NaN only once detached"),
     F("flow_velocity_m_s", "float", "m/s", "average flow velocity in the nozzle"),
     F("attached", "bool", "", "every frame at this delay shows the drop joined to the nozzle", nullable=False),
-), "Training time series: one row per sequence and strobe delay.")
+), "Training time series: one row per sequence and strobe delay. " + _TEMPLATE_COLUMNS)
 
 DATASET_SUMMARY = Table("dataset_summary", "summary.parquet", "dropvision.dataset-summary/1", (
     F("sequence_id", "id", "", "sequence", nullable=False),
-    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1", nullable=False),
-    F("u2_um", "float", "um", "stroke u2", nullable=False),
+    F("u1_um_per_ms", "float", "um/ms", "stroke velocity u1 " + _TRAPEZOID_ONLY, nullable=False, required=False),
+    F("u2_um", "float", "um", "stroke u2 " + _TRAPEZOID_ONLY, nullable=False, required=False),
     F("pinchoff_us", "float", "us", "pinch-off instant after the trigger"),
     F("grown_volume_at_pinchoff_nl", "float", "nl", "grown volume right before pinch-off"),
     F("inflight_volume_nl", "float", "nl", "in-flight drop volume"),
     F("jetting_velocity_m_s", "float", "m/s", "jetting velocity"),
-    F("flow_velocity_at_max_stroke_m_s", "float", "m/s", "flow velocity at maximum stroke"),
+    F("flow_velocity_at_max_stroke_m_s", "float", "m/s", "flow velocity at maximum stroke (NaN in a dataset of "
+      "another waveform template)"),
     F("inflight_volume_std_nl", "float", "nl", "scatter of the in-flight volume", required=False),
     F("jetting_velocity_se_m_s", "float", "m/s", "standard error of the jetting velocity", required=False),
     F("satellites", "float", "", "satellite count", required=False),
@@ -319,7 +331,7 @@ DATASET_SUMMARY = Table("dataset_summary", "summary.parquet", "dropvision.datase
     F("pixel_size_ratio_uncertainty", "float", "", "its standard uncertainty", required=False),
     F("inflight_frames", "float", "", "in-flight frames behind inflight_volume_nl (its standard error: "
       "inflight_volume_std_nl / sqrt(inflight_frames))", required=False),
-), "Training summary: one row per sequence.")
+), "Training summary: one row per sequence. " + _TEMPLATE_COLUMNS)
 
 DATASET_SHOTS = Table("dataset_shots", "shots.parquet", "dropvision.dataset-shots/1", (
     F("shot_folder", "str", "", "the shot folder (its path relative to the campaign root)", nullable=False),
@@ -336,6 +348,11 @@ DATASET = Document("dataset", "dataset.json", "dropvision.dataset/1", (
     F("dead_time_us", "float", "us", "trigger-to-piston dead time (default 220)", required=False),
     F("u3_um_per_ms", "float", "um/ms", "instroke velocity (default 2)", required=False),
     F("hold_us", "float", "us", "hold time (default 20)", required=False),
+    F("waveform", "object", "", "the waveform template every sequence shares and its constants ({template, "
+      "<constant>}: identify.waveform); absent: the paper's trapezoid in u1_um_per_ms, u2_um (u3_um_per_ms, "
+      "hold_us)", required=False),
+    F("waveform_parameters", "object", "", "with `waveform`: parameter name -> unit, in the template's order: the "
+      "columns of summary.parquet and timeseries.parquet in place of u1_um_per_ms, u2_um", required=False),
     F("ink", "object", "", "density_kg_m3, viscosity_mPa_s, surface_tension_mN_m", required=False),
     F("nozzle", "object", "", "length_mm, reservoir_channel_radius_um, reservoir_channel_length_mm",
       required=False),

@@ -60,11 +60,15 @@ from identify.waveform import DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS,
 SCHEMA = schema.DATASET.schema
 
 _KIND = {"id": "id", "float": "f", "bool": "b"}
+#: The trapezoid's parameters: required here (a dataset of another waveform template has the
+#: template's parameters in their place: `identify.template_dataset`).
+_CONTROLS = ("u1_um_per_ms", "u2_um")
 #: Required columns of timeseries.parquet and their kinds ("f" float, "b" bool, "id"), from
 #: `dvcore.schema.TIMESERIES`.
-TIMESERIES_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.TIMESERIES.columns if c.required}
+TIMESERIES_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.TIMESERIES.columns if c.required or c.name in _CONTROLS}
 #: Required columns of summary.parquet, from `dvcore.schema.DATASET_SUMMARY`.
-SUMMARY_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.DATASET_SUMMARY.columns if c.required}
+SUMMARY_COLUMNS = {c.name: _KIND[c.dtype] for c in schema.DATASET_SUMMARY.columns
+                   if c.required or c.name in _CONTROLS}
 #: Least number of contiguous samples from delay 0 that a sequence needs for the ECM/ARX fits.
 MIN_RUN_SAMPLES = 8
 

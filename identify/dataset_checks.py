@@ -389,6 +389,12 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
         schema.check_document(meta, schema.DATASET, files["dataset.json"])
     except schema.SchemaError as exc:
         raise DatasetError(str(exc)) from None
+    if meta.get("waveform") is not None:  # issue 31: its parameters, not (u1, u2), are the columns
+        wf = meta["waveform"]
+        name = wf.get("template") if isinstance(wf, dict) else wf
+        raise DatasetError(f"{files['dataset.json']}: a dataset of the waveform template {name!r}, not of the paper's "
+                           "(u1, u2): the hybrid model on a template reads it (identify.template_dataset; "
+                           "`identify fit` of this folder)")
     frames = {}
     for n in ("timeseries.parquet", "summary.parquet"):
         try:

@@ -182,13 +182,21 @@ def _fit_quietly(model, X, y, notes: list | None = None, what: str = ""):
 
 
 # ----------------------------------------------------------------------------- reading
+#: The table of a `dropvision campaign` dataset folder that :func:`read_table` reads: its shot
+#: folders' rows, one per image, the labels as columns (`dvcore.schema.DATASET_SHOTS`).
+SHOT_TABLE = "shots.parquet"
+
+
 def read_table(path) -> pd.DataFrame:
-    """Read a CSV or Parquet table.
+    """Read a CSV or Parquet table, or the shot table of a campaign dataset folder.
 
     Parameters
     ----------
     path : str or Path
-        ``*.csv`` (comma-separated, a header row) or ``*.parquet`` / ``*.pq``.
+        ``*.csv`` (comma-separated, a header row) or ``*.parquet`` / ``*.pq``; or a dataset
+        folder written by ``dropvision campaign`` over shot folders: its :data:`SHOT_TABLE`
+        (one row per image: ``drop_volume_nl``, ``n_satellites``, ... and the shots' labels, e.g.
+        ``V1``, ``w1``, as columns).
 
     Returns
     -------
@@ -197,9 +205,15 @@ def read_table(path) -> pd.DataFrame:
     Raises
     ------
     TabularError
-        Not found, another format, unreadable or empty (one line naming the file).
+        Not found, another format, unreadable or empty, a folder without a shot table (one line
+        naming the file).
     """
     path = Path(path)
+    if path.is_dir():
+        if not (path / SHOT_TABLE).is_file():
+            raise TabularError(f"{path}: a folder: a table is a .csv or .parquet file, or a campaign dataset folder "
+                               f"holding {SHOT_TABLE} (dropvision campaign over shot folders); this one has none")
+        path = path / SHOT_TABLE
     if not path.is_file():
         raise TabularError(f"{path}: table not found" if not path.exists() else f"{path}: not a file")
     suffix = path.suffix.lower()

@@ -139,13 +139,18 @@ def test_sequence_json_template_form():
         ({"template": "three_pulse", "parameters": PULSES, "hold_us": 3}, "unknown constant(s) hold_us"),
         ({"template": "three_pulse", "parameters": PULSES, "u1_um_per_ms": 70}, "beside template"),
         ({"template": "sine", "parameters": {}}, "unknown waveform template 'sine'"),
-        ({"template": "three_pulse"}, "needs 'parameters'"),
+        ({"template": "sine"}, "unknown waveform template 'sine'"),
+        ({"template": "three_pulse", "w1": 3}, "unknown constant(s) w1"),
     ]
     for doc, why in bad:
         with pytest.raises(SequenceError, match="^s/sequence.json: ") as e:
             validate_waveform(doc, "s/sequence.json")
         assert why in str(e.value) and "\n" not in str(e.value)
     assert template_from_dict({"template": "three_pulse", "edge_us": 3}).edge_us == 3.0
+    # without parameters: the template alone, its parameters each shot's labels (tests/test_shot_waveform_labels.py;
+    # a strobe sequence of it is left out of a campaign's dataset: tests/test_template_campaign.py)
+    assert validate_waveform({"template": "three_pulse"}, "s") == {"template": "three_pulse", "edge_us": 2.0,
+                                                                   "dead_time_us": 220.0}
 
 
 def test_synth_writes_the_template_waveform(tmp_path):

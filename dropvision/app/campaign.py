@@ -8,7 +8,10 @@ writes the dataset:
 - ``timeseries.parquet``: sequence_id, u1_um_per_ms, u2_um, delay_us, grown_volume_nl,
   flow_velocity_m_s, attached — one row per strobe delay (repeated frames at one delay are
   averaged over their attached frames; ``attached`` is True when every frame at that delay
-  still shows the drop joined to the nozzle);
+  still shows the drop joined to the nozzle); in a campaign of another waveform template
+  (sequence.json ``waveform`` in the template form, e.g. three_pulse) the template's parameters
+  take the place of u1_um_per_ms, u2_um here and in summary.parquet, and dataset.json records the
+  template (``waveform``, ``waveform_parameters``);
 - ``summary.parquet``: one row per measured sequence: sequence_id, u1_um_per_ms, u2_um,
   pinchoff_us, grown_volume_at_pinchoff_nl, inflight_volume_nl, jetting_velocity_m_s,
   flow_velocity_at_max_stroke_m_s (+ inflight_volume_std_nl, jetting_velocity_se_m_s,
@@ -53,7 +56,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from dvcore import __version__
-from dropvision.app.campaign_dataset import ShardPart, assemble_dataset, shard_part
+from dropvision.app.campaign_dataset import ShardPart, assemble_dataset, sequence_controls, shard_part
 from dropvision.app.executors import SerialExecutor, check_executor_args, make_executor
 from dropvision.app.options import grouped_warnings, warning_lines
 from dropvision.app.rerun_log import RerunLogger
@@ -311,8 +314,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
             "nozzle": (meta.extra or {}).get("nozzle"),
         }
         part = None
-        wf = meta.waveform or {}
-        if seq_id is not None and "u1_um_per_ms" in wf and "u2_um" in wf:
+        if seq_id is not None and sequence_controls(meta.waveform)[2] is None:
             shard = Path(shard_dir)
             try:  # the same reading as the client's, of the files just written
                 part = shard_part(shard.parent.parent, seq_id, {"meta": info, "shard": shard.name,
@@ -550,6 +552,11 @@ def run_campaign(
                 return
             if part is not None:
                 parts[sid] = part
+            elif entries[sid].get("status") == "failed":  # measured, but no row of the dataset (it says why)
+                for done in (result.measured, result.skipped):
+                    if sid in done:
+                        done.remove(sid)
+                result.failed[sid] = entries[sid].get("error")
 
         def record(future, sid: str) -> None:
             """One finished sequence into the manifest's entries (the caller then rewrites the

@@ -45,6 +45,10 @@ def _run(args: argparse.Namespace) -> int:
     if getattr(args, "strobe_interval_us", None) is not None:
         raise UsageError(f"--strobe-interval-us: {paths[0]} is a sequence (its frames tell their delays), not a "
                          "folder of shots; a double exposure's interval is read for shots only")
+    if getattr(args, "wave_template", None) is not None:
+        raise UsageError(f"--waveform-template: {paths[0]} is a sequence (its frames tell their delays), not a folder "
+                         "of shots whose labels give the parameters: give them in sequence.json's waveform "
+                         "(template and parameters)")
     if args.label_pattern is not None:
         raise UsageError(f"--label-pattern: {paths[0]} is a sequence (its frames tell their delays), not a folder "
                          "of shots; labels are read for shots only")

@@ -59,6 +59,10 @@ def add_metadata_args(p: argparse.ArgumentParser) -> None:
     for opt, key, text in _WAVEFORM_OPTIONS:
         g.add_argument(opt, dest=f"wave_{key}", type=float, default=None,
                        metavar="UM_PER_MS" if key.endswith("per_ms") else key.rsplit("_", 1)[1].upper(), help=text)
+    g.add_argument("--waveform-template", dest="wave_template", default=None, metavar="NAME",
+                   help="waveform template (three_pulse, segments, trapezoid: identify.waveform) whose parameters "
+                        "are each shot's labels (images_V1--86_V2-12_..._d2-5.jpg); its constants and dead time from "
+                        "sequence.json's waveform of the same template")
 
 
 def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
@@ -71,9 +75,13 @@ def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
             labels[key] = f"command line {opt}"
     wave = {key: getattr(args, f"wave_{key}") for _, key, _ in _WAVEFORM_OPTIONS
             if getattr(args, f"wave_{key}", None) is not None}
+    opts = [opt for opt, key, _ in _WAVEFORM_OPTIONS if key in wave]
+    if getattr(args, "wave_template", None) is not None:
+        wave["template"] = args.wave_template
+        opts.insert(0, "--waveform-template")
     if wave:
         overrides["waveform"] = wave
-        labels["waveform"] = "command line " + " ".join(opt for opt, key, _ in _WAVEFORM_OPTIONS if key in wave)
+        labels["waveform"] = "command line " + " ".join(opts)
     return overrides, labels
 
 

@@ -1,7 +1,8 @@
 """`identify` command line: fit, predict, design, paper.
 
-    identify fit DATASET --out model.json
+    identify fit DATASET --out model.json      (a waveform template's dataset: identify.template_dataset)
     identify fit TABLE.csv --inputs A,B,... --outputs Y,N --out model.json   (a table: identify.tabular)
+    identify fit DATASET --inputs V1,w1 --outputs drop_volume_nl --out model.json   (its shots.parquet)
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
     identify predict model.json --table ROWS.csv --out PREDICTIONS.csv       (a table model)
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
@@ -91,7 +92,7 @@ def _is_model_file(path) -> bool:
         return True
     try:
         with open(path, encoding="utf-8") as fh:
-            return json.loads(fh.read(1 << 20)).get("schema") == SCHEMA
+            return json.loads(fh.read(1 << 20)).get("schema") in (SCHEMA, schema.TEMPLATE_MODEL.schema)
     except (OSError, ValueError, AttributeError, RecursionError):
         return False
 
@@ -113,6 +114,10 @@ def cmd_fit(args) -> int:
         from dvcore.atomic import check_output_dir
 
         check_output_dir(args.report, inputs=[args.dataset, args.out], overwrite=args.overwrite)
+    from identify.template_dataset import is_template_dataset
+
+    if is_template_dataset(args.dataset):  # a waveform template's parameters, not (u1, u2) (issue 31)
+        return _fit_template(args)
     ds = load_dataset(args.dataset)
     rep = fit_hybrid(ds, folds=10 if args.folds is None else args.folds, seed=args.seed, arx=not args.no_arx, ecm_method=args.ecm_method,
                      adjuster_reference=args.adjuster_reference, progress=sys.stderr.isatty())
@@ -142,6 +147,44 @@ def cmd_fit(args) -> int:
                          overwrite=args.overwrite, seed=args.seed)
         print(f"wrote {r.index}")
     _with_recording(args, lambda rec, lg: lg.log_model_fit(rec, ds, m, rep.arx_selection))
+    return 0
+
+
+def _fit_template(args) -> int:
+    """`identify fit DATASET` of a waveform template's dataset: the hybrid model on the template
+    (`identify.template_dataset.fit_template_dataset`), its figures printed, model.json written."""
+    from identify.template_dataset import fit_template_dataset, load_template_dataset
+
+    refused = [flag for flag, given in (
+        ("--folds", args.folds is not None), ("--ecm-method", args.ecm_method != "oe"),
+        ("--adjuster-reference", args.adjuster_reference != "ecm"), ("--report", args.report is not None),
+        ("--rerun", any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect")))) if given]
+    if refused:
+        raise UsageError(f"{args.dataset}: a dataset of a waveform template: {', '.join(refused)} not available for its "
+                         "model (output-error ECM, laws linear in the parameters, no structure selection)")
+    ds = load_template_dataset(args.dataset)
+    m = fit_template_dataset(ds)
+    tpl = m.template
+    print(f"{ds.n_sequences} sequences of {args.dataset}; waveform template {tpl.describe()}")
+    e = m.ecm
+    print(f"\nECM ({e['level']}; drive in {tpl.drive_unit}): output-error rmse {e['rmse_nl']:.4g} nl over "
+          f"{e['n_sequences']} sequences, {e['n_samples']} samples")
+    c = m.ecm_coefficients
+    for k in ("A3", "A2", "A1", "A0", "B1", "B0"):
+        print(f"  {k} = {getattr(c, k):.5g}")
+    for k, p in (e.get("parameters") or {}).items():
+        lo, hi = p["ci95"]
+        print(f"  {k} = {p['value']:.5g} (95 % [{lo:.4g}, {hi:.4g}])" if math.isfinite(lo) and math.isfinite(hi) and lo != hi
+              else f"  {k} = {p['value']:.5g} (fixed)")
+    units = tpl.units()
+    print("\nlaws linear in " + ", ".join(f"{k} ({units[k]})" for k in m.inputs) + " (rmse over the training sequences)")
+    for name, law, unit in (("pinch-off instant", m.pinchoff, "us"), ("volume adjuster", m.volume_adjuster, "nl"),
+                            ("velocity adjuster", m.velocity_adjuster, "m/s")):
+        print(f"  {name:18s} rmse {law.rmse:.4g} {unit} ({law.n} sequences)")
+    for n in m.notes:
+        print(f"note: {n}")
+    m.save(args.out)
+    print(f"\nwrote {args.out}")
     return 0
 
 
@@ -183,6 +226,15 @@ def _with_recording(args, log) -> None:
 def _load_model(path):
     from identify.hybrid import HybridModel
 
+    try:
+        with open(path, encoding="utf-8") as fh:
+            is_template = json.loads(fh.read(1 << 20)).get("schema") == schema.TEMPLATE_MODEL.schema
+    except (OSError, ValueError, AttributeError, RecursionError):
+        is_template = False  # HybridModel.from_json says what is wrong with it
+    if is_template:
+        raise UsageError(f"{path}: a model on a waveform template ({schema.TEMPLATE_MODEL.schema}): this command "
+                         "reads (u1, u2) models; predict it from Python: "
+                         "identify.TemplateModel.from_json(path).predict({'V1': ..., ...})")
     return HybridModel.from_json(path)
 
 
@@ -451,7 +503,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder, or models of a table's outputs")
-    f.add_argument("dataset", help="a dataset folder, or a .csv/.parquet table (with --inputs/--outputs)")
+    f.add_argument("dataset", help="a dataset folder (of (u1, u2) or of a waveform template), or a .csv/.parquet "
+                   "table (with --inputs/--outputs; with them a campaign dataset folder is its shots.parquet)")
     f.add_argument("--inputs", default=None, metavar="A,B,...", help="a table's parameter columns")
     f.add_argument("--outputs", default=None, metavar="Y,N,...",
                    help="a table's measured columns (a count such as n_drops: probabilities of each count)")
