@@ -51,6 +51,9 @@ import numpy as np
 PLATE_MIN_WIDTH = 0.9
 #: ... and its lower edge is a straight line for at least this fraction of the columns (within 3 px).
 PLATE_MIN_STRAIGHT = 0.6
+#: A drop line counts towards a row when its largest body has at least this fraction of the
+#: area of the largest line's (`row_layout`).
+MIN_LINE_AREA_RATIO = 0.2
 #: Bodies smaller than this (px) are noise, mist or dust.
 MIN_BODY_AREA_PX = 12
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
@@ -120,11 +123,12 @@ def _components(t: np.ndarray, plate: Plate, threshold: float):
 
 def _line_groups(cols: np.ndarray, sizes: np.ndarray) -> list[np.ndarray]:
     """Indices of bodies grouped into lines: sorted by column, split where the gap is wider than
-    four drop sizes (at least 20 px)."""
+    1.5 drop sizes (the largest; at least 10 px): the bodies of one line lie within a fraction of
+    a drop of its axis, two nozzles a pitch apart."""
     if cols.size == 0:
         return []
     order = np.argsort(cols)
-    gap = max(4.0 * float(np.max(sizes)), 20.0)
+    gap = max(1.5 * float(np.max(sizes)), 10.0)
     groups, cur = [], [order[0]]
     for a, b in zip(order[:-1], order[1:]):
         if cols[b] - cols[a] > gap:
@@ -143,12 +147,25 @@ def row_layout(image: np.ndarray) -> Plate | None:
     if plate is None:
         return None
     n, lab, stats, cen = _components(t, plate, 0.5)
-    big = [k for k in range(1, n) if stats[k, cv2.CC_STAT_AREA] >= MIN_BODY_AREA_PX]
+    h, w = t.shape
+
+    def liquid(k):  # not noise, not cut by the frame's border (a vignetted corner), not a sliver of the plate's edge
+        x0, y0, bw, bh, area = stats[k]
+        if area < MIN_BODY_AREA_PX or x0 == 0 or x0 + bw >= w or y0 + bh >= h:
+            return False
+        return bh >= 5 or y0 > plate.row_at(x0 + 0.5 * bw) + 1.5
+
+    big = [k for k in range(1, n) if liquid(k)]
     if len(big) < 2:
         return None
     cols = cen[big, 0]
     sizes = np.maximum(stats[big, cv2.CC_STAT_WIDTH], stats[big, cv2.CC_STAT_HEIGHT]).astype(float)
-    return plate if len(_line_groups(cols, sizes)) >= 2 else None
+    areas = stats[big, cv2.CC_STAT_AREA].astype(float)
+    # drop lines of nozzles of one head carry drops of like size: a speck of dust beside one
+    # nozzle's drops is no second nozzle (a line counts when its largest body has at least
+    # MIN_LINE_AREA_RATIO of the largest line's)
+    mains = np.array([areas[g].max() for g in _line_groups(cols, sizes)])
+    return plate if int(np.sum(mains >= MIN_LINE_AREA_RATIO * mains.max())) >= 2 else None
 
 
 # ----------------------------------------------------------------------------- measurement
@@ -212,6 +229,8 @@ def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) ->
             continue  # cut by the frame's border: not measurable
         top = float(plate.row_at(x0 + 0.5 * bw))
         attached = y0 <= top + 1.5
+        if attached and bh < 5:
+            continue  # a sliver of the plate's edge (`row_layout`'s rule)
         ed = body_edges(img, inv_bg, lab, j, (x0, y0, x0 + bw, y0 + bh), thr)
         vol = integrate(ed, 0.0, top if attached else None, sigma)
         if vol.volume_px3 <= 0:
