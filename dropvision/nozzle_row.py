@@ -278,6 +278,57 @@ def _tracks(lines: list[Line]) -> list[Track]:
     return tracks
 
 
+def _predict(tr: Track, delay: float, vr0: float) -> tuple[float, float]:
+    """Where a track's main drop is at ``delay``: its straight line over the delays (two or more),
+    else straight down at the row's typical speed ``vr0`` (px/µs)."""
+    d = np.array([ln.main.delay_us for ln in tr.lines])
+    r = np.array([ln.main.row_px for ln in tr.lines])
+    c = np.array([ln.main.col_px for ln in tr.lines])
+    if np.ptp(d) > 0:
+        kr, r0 = np.polyfit(d, r, 1)
+        kc, c0 = np.polyfit(d, c, 1)
+        return float(r0 + kr * delay), float(c0 + kc * delay)
+    return float(r[-1] + vr0 * (delay - d[-1])), float(c[-1])
+
+
+def _link(lines: list[Line], first: list[Track]) -> list[Track]:
+    """Tracks by trajectory: frame after frame (by delay), each drop line joins the track whose
+    straight line predicts it best (within half the smallest spacing of the lines), so that a
+    deviated drop flying past its neighbour's column stays with its own nozzle.  ``first``: the
+    tracks by column, which give the row's typical downward speed for tracks of one point."""
+    speeds = []
+    for tr in first:
+        d = np.array([ln.main.delay_us for ln in tr.lines])
+        if np.ptp(d) > 0:
+            speeds.append(np.polyfit(d, [ln.main.row_px for ln in tr.lines], 1)[0])
+    if not speeds:
+        return first
+    vr0 = float(np.median(speeds))
+    by_frame: dict = {}
+    for ln in lines:
+        by_frame.setdefault(ln.frame, []).append(ln)
+    gaps = [np.min(np.diff(np.sort([ln.main.col_px for ln in lns]))) for lns in by_frame.values() if len(lns) > 1]
+    gate = 0.5 * float(np.median(gaps)) if gaps else float("inf")
+    tracks: list[Track] = []
+    for f in sorted(by_frame, key=lambda f: (by_frame[f][0].main.delay_us, f)):
+        lns = by_frame[f]
+        delay = lns[0].main.delay_us
+        pairs = []
+        for ti, tr in enumerate(tracks):
+            pr, pc = _predict(tr, delay, vr0)
+            for li, ln in enumerate(lns):
+                pairs.append((math.hypot(ln.main.row_px - pr, ln.main.col_px - pc), ti, li))
+        used_t, used_l = set(), set()
+        for dist, ti, li in sorted(pairs):
+            if dist > gate or ti in used_t or li in used_l:
+                continue
+            tracks[ti].lines.append(lns[li])
+            used_t.add(ti)
+            used_l.add(li)
+        tracks.extend(Track([ln]) for li, ln in enumerate(lns) if li not in used_l)
+    return tracks
+
+
 def _fit_trajectory(tr: Track, plate: Plate, px: float) -> None:
     """Velocity, angle and plate column of a track: straight lines row(t), col(t) fitted to its
     main drops (two delays or more), else the line through its bodies (one frame)."""
@@ -426,7 +477,7 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         bs = _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px)
         bodies.extend(bs)
         lines.extend(_lines(bs))
-    tracks = _tracks(lines)
+    tracks = _link(lines, _tracks(lines))
     for tr in tracks:
         _fit_trajectory(tr, plate, px)
     notes = []

@@ -97,3 +97,17 @@ def test_bad_pitch_is_an_error(tmp_path):
     (folder / "sequence.json").write_text(json.dumps(doc))
     with pytest.raises(SequenceError, match="sequence.json: nozzle_pitch_um"):
         measure_sequence(open_sequence(folder), None)
+
+
+def test_deviated_drop_past_its_neighbours_column_stays_with_its_nozzle(tmp_path):
+    # nozzle 2 leans 250 mrad: by the last frame its drop is nearer nozzle 3's column than its own
+    cfg = RowConfig(delays_us=tuple(range(40, 151, 10)), **{**ROW, "deviated_mrad": 250.0,
+                                                               "planted": {1: "missing", 2: "deviated"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    tb = pd.read_csv(folder / "truth_bodies.csv")
+    last = tb[(tb.delay_us == 150.0) & (tb.nozzle == 2)].iloc[0]
+    cols = truth.col_px.to_numpy()
+    assert abs(last.col - cols[3]) < abs(last.col - cols[2])  # nearest column: the wrong nozzle
+    measure_sequence(folder, tmp_path / "out")
+    _check(tmp_path / "out", truth, single=False)
