@@ -141,11 +141,13 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
 
 
 def _row_plate(seq: Sequence):
-    """The plate of a printhead row when the first frame shows one (else None)."""
-    from dropvision.nozzle_row import row_layout
+    """(plate, scan labels or None) of a printhead row when the first frame shows one, or of a
+    scan (frames named by nozzle under a plate); else None."""
+    from dropvision.nozzle_row import row_layout, scan_layout
 
     fr = seq.read(0)
-    return None if fr.error is not None else row_layout(fr.image)
+    plate = None if fr.error is not None else row_layout(fr.image)
+    return (plate, None) if plate is not None else scan_layout(seq)
 
 
 def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,
@@ -155,14 +157,14 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
     n = len(seq)
     if n == 0:
         raise SequenceError(f"{meta.path}: no frames")
-    plate = _row_plate(seq)
-    if plate is not None:  # several nozzles under one plate (issue 32)
+    row = _row_plate(seq)
+    if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
         from dropvision.nozzle_row import measure_row_sequence
 
         try:
             nozzles, frames, bodies, summary = measure_row_sequence(
-                seq, out_dir, plate, inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
-                extra_summary=source_keys(meta))
+                seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
+                extra_summary=source_keys(meta), scan=row[1])
         finally:
             seq.close()
         return MeasureResult(frames, summary, bodies, nozzles)

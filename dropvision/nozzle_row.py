@@ -43,6 +43,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -166,6 +167,37 @@ def row_layout(image: np.ndarray) -> Plate | None:
     # MIN_LINE_AREA_RATIO of the largest line's)
     mains = np.array([areas[g].max() for g in _line_groups(cols, sizes)])
     return plate if int(np.sum(mains >= MIN_LINE_AREA_RATIO * mains.max())) >= 2 else None
+
+
+#: A scan's frame names carry the nozzle's label: ``nozzle_03.png``, ``scan-nozzle7.tif``, ``noz12_...``.
+SCAN_LABEL = r"(?:^|[^a-z])noz(?:zle)?[ _-]?(\d+)"
+
+
+def scan_labels(meta) -> dict | None:
+    """file -> nozzle label when every frame's name carries one (`SCAN_LABEL`) and there are two
+    labels or more: a scanning drop watcher's folder (one nozzle per frame); else None."""
+    import re
+
+    out = {}
+    for f in meta.frames:
+        m = re.search(SCAN_LABEL, Path(f.file).stem, re.IGNORECASE)
+        if m is None:
+            return None
+        out[f.file] = int(m.group(1))
+    return out if len(set(out.values())) >= 2 else None
+
+
+def scan_layout(seq) -> tuple[Plate, dict] | None:
+    """(plate, labels) of a scan: frame names labelled by nozzle (`scan_labels`) and a plate
+    spanning the top of the first frame; else None."""
+    labels = scan_labels(seq.meta)
+    if labels is None:
+        return None
+    fr = seq.read(0)
+    if fr.error is not None:
+        return None
+    plate = find_plate(rough_transmission(fr.image))
+    return None if plate is None else (plate, labels)
 
 
 # ----------------------------------------------------------------------------- measurement
@@ -423,8 +455,82 @@ def _cv(x: np.ndarray, u: np.ndarray) -> tuple[float, float]:
     return cv, float(np.sqrt(np.sum((grad * u) ** 2)))
 
 
-def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None):
-    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict)."""
+def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes):
+    """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
+    its standard error (function), nozzle ids, pitch µm, pitch source)."""
+    tracks = _link(lines, _tracks(lines))
+    for tr in tracks:
+        _fit_trajectory(tr, plate, px)
+    given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
+    if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
+        from dropvision.sequence import SequenceError
+        raise SequenceError(f"{meta.path / 'sequence.json'}: nozzle_pitch_um must be a number > 0, got {given!r}")
+    pitch_src = (pitch_source or "sequence.json") if given is not None else \
+        "estimated from the found nozzles (smallest spacing, least-squares grid)"
+    cols = np.array([tr.plate_col for tr in tracks])
+    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
+    kmin = int(kk.min()) if kk.size else 0
+    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
+    for tr, k in zip(tracks, kk):
+        tr.nozzle = int(k - kmin)
+    # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
+    seen: dict = {}
+    for tr in tracks:
+        g = c0 + pitch * (tr.nozzle + kmin)
+        if tr.nozzle in seen:
+            i, other = tr.nozzle, seen[tr.nozzle]
+            if abs(tr.plate_col - g) < abs(other.plate_col - g):
+                other.nozzle, seen[i] = None, tr
+            else:
+                tr.nozzle = None
+            notes.append(f"two drop lines meet the plate at nozzle {i}: the farther left unassigned")
+        else:
+            seen[tr.nozzle] = tr
+    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
+    # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
+    # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
+    k_in = kk[inl].astype(float)
+    s_grid = grid_rms if np.isfinite(grid_rms) else 0.5
+    sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
+
+    def grid_se(i: int) -> float:
+        if k_in.size == 0:
+            return 0.5
+        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
+        return s_grid * math.sqrt(v)
+
+    return seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px), pitch_src
+
+
+def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
+    """A scan's tracks: one per label (its frames' largest drop lines); the stage brings every nozzle
+    to one place, so each nozzle's column at the plate is the scan's common column (the median of
+    the trajectories' plate columns; its standard error from their scatter)."""
+    labels = sorted(set(scan.values()))
+    by_label: dict = {}
+    for ln in lines:
+        d = by_label.setdefault(scan[ln.main.file], {})
+        if ln.frame not in d or ln.main.volume_nl > d[ln.frame].main.volume_nl:
+            d[ln.frame] = ln
+    seen = {}
+    for lab in labels:
+        if lab in by_label:
+            tr = Track(sorted(by_label[lab].values(), key=lambda ln: ln.main.delay_us), nozzle=lab)
+            _fit_trajectory(tr, plate, px)
+            seen[lab] = tr
+    cols = np.array([tr.plate_col for tr in seen.values()])
+    ref = float(np.median(cols)) if cols.size else float("nan")
+    sd = _robust_sd(cols)
+    se = sd / math.sqrt(cols.size) if np.isfinite(sd) else 0.5
+
+    return (seen, {lab: ref for lab in labels}, lambda i: se, labels, float("nan"),
+            "a scan: one nozzle per frame, brought to one place by the stage")
+
+
+def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
+                scan: dict | None = None):
+    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
+    ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
     import pandas as pd
 
     from dropvision.background import estimate_background
@@ -446,7 +552,8 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         from dropvision.sequence import SequenceError
         raise SequenceError(f"{meta.path}: no readable frame of the printhead row")
     pick = [frames[i][2] for i in np.unique(np.linspace(0, len(frames) - 1, min(5, len(frames))).astype(int))]
-    bg = estimate_background(pick, static_dust=len(pick) >= 3).background
+    # a scan's drops sit at one place in every frame: no static dust looked for (it would be the liquid)
+    bg = estimate_background(pick, static_dust=len(pick) >= 3 and scan is None).background
     inv_bg = (1.0 / np.maximum(bg, 1e-6)).astype(np.float32)
     t0 = frames[0][2].astype(np.float32) * inv_bg
     plate = find_plate(t0) or plate_hint
@@ -477,54 +584,19 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         bs = _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px)
         bodies.extend(bs)
         lines.extend(_lines(bs))
-    tracks = _link(lines, _tracks(lines))
-    for tr in tracks:
-        _fit_trajectory(tr, plate, px)
     notes = []
-    given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
-    if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
-        from dropvision.sequence import SequenceError
-        raise SequenceError(f"{meta.path / 'sequence.json'}: nozzle_pitch_um must be a number > 0, got {given!r}")
-    pitch_src = (pitch_source or ("sequence.json" if given is not None else None)) if given is not None else \
-        "estimated from the found nozzles (smallest spacing, least-squares grid)"
-    cols = np.array([tr.plate_col for tr in tracks])
-    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
-    kmin = int(kk.min()) if kk.size else 0
-    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
-    for tr, k in zip(tracks, kk):
-        tr.nozzle = int(k - kmin)
-    # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
-    seen: dict = {}
-    for tr in tracks:
-        g = c0 + pitch * (tr.nozzle + kmin)
-        if tr.nozzle in seen:
-            other = seen[tr.nozzle]
-            if abs(tr.plate_col - g) < abs(other.plate_col - g):
-                other.nozzle, seen[tr.nozzle] = None, tr
-            else:
-                tr.nozzle = None
-            notes.append(f"two drop lines meet the plate at nozzle {tr.nozzle}: the farther left unassigned")
-        else:
-            seen[tr.nozzle] = tr
-    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
-    # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
-    # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
-    k_in = kk[inl].astype(float)
-    s_grid = grid_rms if np.isfinite(grid_rms) else 0.5
-    sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
-
-    def grid_se(i: int) -> float:
-        if k_in.size == 0:
-            return 0.5
-        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
-        return s_grid * math.sqrt(v)
+    if scan is not None:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _scan_nozzles(lines, scan, plate, px)
+    else:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
+                                                                         pitch_source, notes)
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
     rows = []
-    for i in range(n_noz):
+    for i in ids:
         tr = seen.get(i)
-        row = {"nozzle": i, "col_px": float(grid_cols[i]), "plate_row_px": float(plate.row_at(grid_cols[i]))}
+        row = {"nozzle": i, "col_px": float(grid_col[i]), "plate_row_px": float(plate.row_at(grid_col[i]))}
         if tr is None:
-            row.update(state="missing", reason="no drop line meets the plate at this grid position",
+            row.update(state="missing", reason="no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)"),
                        volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan,
                        velocity_uncertainty_m_s=np.nan, angle_mrad=np.nan, angle_uncertainty_mrad=np.nan,
                        satellites=0.0, satellite_volume_nl=np.nan, n_frames=0)
@@ -543,7 +615,7 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         if single or not np.isfinite(tr.angle_mrad):
             m = mains[0]
             dz = m.row_px - plate.row_at(m.col_px)
-            ang = math.atan2(m.col_px - grid_cols[i], dz) * 1e3
+            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3
             ang_u = math.hypot(grid_se(i), 0.05) / max(dz, 1.0) * 1e3
         else:
             ang, ang_u = tr.angle_mrad, tr.angle_u_mrad
@@ -579,9 +651,10 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
     counts = {s: int((nozzles.state == s).sum()) for s in STATES}
     summary = {
         "schema_version": "dropvision.row-summary/1", "kind": "printhead-row", "sequence": str(meta.path),
-        "n_frames": n, "n_measured": len(frames), "n_nozzles": n_noz, "n_live": int(n_noz - counts["missing"]),
+        "layout": "scan" if scan is not None else "row",
+        "n_frames": n, "n_measured": len(frames), "n_nozzles": len(ids), "n_live": int(len(ids) - counts["missing"]),
         "state_counts": counts,
-        "pitch_um": float(pitch * px), "pitch_source": pitch_src,
+        "pitch_um": pitch_um, "pitch_source": pitch_src,
         "plate_row_px": float(plate.row_at((t0.shape[1] - 1) / 2.0)), "plate_slope_mrad": float(math.atan(plate.slope) * 1e3),
         "volume_cv": vcv, "volume_cv_uncertainty": vcv_u, "velocity_cv": ucv, "velocity_cv_uncertainty": ucv_u,
         "limits": {"weak_k": WEAK_K, "weak_floor": WEAK_FLOOR, "deviated_mrad": DEVIATED_MRAD},
@@ -620,14 +693,16 @@ def _states(rows: list[dict]) -> None:
 
 
 def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bool = False,
-                         nozzle_pitch_um: float | None = None, extra_summary: dict | None = None):
+                         nozzle_pitch_um: float | None = None, extra_summary: dict | None = None,
+                         scan: dict | None = None):
     """`measure_row` and its files written atomically into ``out_dir`` (None: nothing written);
     ``extra_summary`` joins summary.json.  Returns (nozzles, frames, bodies, summary)."""
     from dvcore.atomic import atomic_dir, write_json
     from dvcore.versions import software_versions
 
     nozzles, ftab, btab, summary = measure_row(seq, plate, nozzle_pitch_um=nozzle_pitch_um,
-                                               pitch_source="command line --nozzle-pitch-um" if nozzle_pitch_um else None)
+                                               pitch_source="command line --nozzle-pitch-um" if nozzle_pitch_um else None,
+                                               scan=scan)
     summary.update(extra_summary or {})
     summary["software"] = software_versions()
     if out_dir is not None:

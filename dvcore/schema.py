@@ -618,8 +618,8 @@ TEMPLATE_MODEL = Document("template_model", "model.json", "identify.template-mod
 NOZZLE_STATES = ("ok", "missing", "weak", "deviated", "satellites")
 
 NOZZLES = Table("nozzles", "nozzles.parquet", "dropvision.nozzles/1", (
-    F("nozzle", "int", "", "nozzle index from 0, left to right in the canonical frame (missing nozzles included)",
-      nullable=False),
+    F("nozzle", "int", "", "nozzle index from 0, left to right in the canonical frame (missing nozzles included); "
+      "a scan: the label in the file name", nullable=False),
     F("state", "str", "", "one of " + ", ".join(NOZZLE_STATES) + " (the first that applies in that order; "
       "rules in dropvision.nozzle_row)", nullable=False),
     F("reason", "str", "", "every rule the nozzle met, with the figures compared (empty for ok)", nullable=False),
@@ -667,14 +667,16 @@ ROW_BODIES = Table("row_bodies", "bodies.parquet", "dropvision.row-bodies/1", (
 ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1", (
     F("schema_version", "str", "", "document id"),
     F("kind", "str", "", "\"printhead-row\""),
+    F("layout", "str", "", "row (several nozzles in a frame) or scan (one nozzle per frame, labelled in the file "
+      "name: nozzle_03.png)"),
     F("sequence", "str", "", "measured sequence folder"),
     F("n_frames", "int", "", "frames in the sequence", nullable=False),
     F("n_measured", "int", "", "frames measured", nullable=False),
-    F("n_nozzles", "int", "", "nozzles of the row, missing ones included (between the first and last live one)",
-      nullable=False),
+    F("n_nozzles", "int", "", "nozzles of the row, missing ones included (a row: between the first and last live "
+      "one; a scan: its labels)", nullable=False),
     F("n_live", "int", "", "nozzles that fired", nullable=False),
     F("state_counts", "object", "", "nozzles per state"),
-    F("pitch_um", "float", "um", "nozzle pitch (given, or fitted to the found nozzles)"),
+    F("pitch_um", "float", "um", "nozzle pitch (given, or fitted to the found nozzles; null for a scan)"),
     F("pitch_source", "str", "", "sequence.json, command line --nozzle-pitch-um, or how it was estimated"),
     F("plate_row_px", "float", "px", "row of the plate's lower edge at the frame's centre column"),
     F("plate_slope_mrad", "float", "mrad", "slope of the plate's lower edge in the canonical frame"),

@@ -71,8 +71,9 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if s.get("kind") == "printhead-row":  # issue 32: one line per row
         counts = ", ".join(f"{v} {k}" for k, v in s["state_counts"].items() if v)
+        pitch = "a scan" if s.get("layout") == "scan" else f"pitch {s['pitch_um']:.1f} um"
         print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; printhead row of "
-              f"{s['n_nozzles']} nozzles ({counts}), pitch {s['pitch_um']:.1f} um, volume CV "
+              f"{s['n_nozzles']} nozzles ({counts}), {pitch}, volume CV "
               f"{s['volume_cv']:.3g} +- {s['volume_cv_uncertainty']:.2g}")
         sys.stdout.flush()
         return 0
