@@ -136,6 +136,11 @@ def for_rig(name: str, **overrides) -> RowConfig:
     """`RowConfig` of a row rig (`ROW_RIGS`) with ``overrides``."""
     if name not in ROW_RIGS:
         raise ValueError(f"unknown printhead rig {name!r}: expected one of {', '.join(ROW_RIGS)}")
+    if "planted" not in overrides and "n_nozzles" in overrides:
+        # the default plantings that fit inside a shorter row (none on its last nozzle: a missing
+        # nozzle at a row's end is no gap in the pitch)
+        default = RowConfig().planted
+        overrides["planted"] = {k: v for k, v in default.items() if k < int(overrides["n_nozzles"]) - 1}
     return RowConfig(**{"scan": name == "printhead-scan", **overrides})
 
 
