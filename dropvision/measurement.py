@@ -164,7 +164,7 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
         try:
             nozzles, frames, bodies, summary = measure_row_sequence(
                 seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
-                extra_summary=source_keys(meta), scan=row[1])
+                extra_summary=source_keys(meta), scan=row[1], csv=csv)
         finally:
             seq.close()
         return MeasureResult(frames, summary, bodies, nozzles)

@@ -694,7 +694,7 @@ def _states(rows: list[dict]) -> None:
 
 def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bool = False,
                          nozzle_pitch_um: float | None = None, extra_summary: dict | None = None,
-                         scan: dict | None = None):
+                         scan: dict | None = None, csv: bool = False):
     """`measure_row` and its files written atomically into ``out_dir`` (None: nothing written);
     ``extra_summary`` joins summary.json.  Returns (nozzles, frames, bodies, summary)."""
     from dvcore.atomic import atomic_dir, write_json
@@ -709,6 +709,8 @@ def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bo
         with atomic_dir(out_dir, inputs=list(inputs), overwrite=overwrite, kind="measurement") as tmp:
             nozzles.to_parquet(tmp / "nozzles.parquet", index=False)
             ftab.to_parquet(tmp / "frames.parquet", index=False)
+            if csv:
+                ftab.to_csv(tmp / "frames.csv", index=False)
             btab.to_parquet(tmp / "bodies.parquet", index=False)
             write_json(tmp / "summary.json", summary)
     return nozzles, ftab, btab, summary
