@@ -49,6 +49,8 @@ class MeasureResult:
     frames: pd.DataFrame
     summary: dict
     bodies: pd.DataFrame | None = None
+    #: a printhead row's nozzles.parquet (`dropvision.nozzle_row`); None for one nozzle
+    nozzles: pd.DataFrame | None = None
 
     def per_delay(self) -> pd.DataFrame:
         """Mean, std and count of the numeric columns per delay (columns ``<name>_mean`` ...)."""
@@ -77,7 +79,7 @@ def source_keys(meta) -> dict:
 
 def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfig(), *, progress: bool = False,
                      logger=None, csv: bool = False, overwrite: bool = False, overrides: dict | None = None,
-                     labels: dict | None = None) -> MeasureResult:
+                     labels: dict | None = None, nozzle_pitch_um: float | None = None) -> MeasureResult:
     """Measure a strobe sequence.
 
     Parameters
@@ -103,6 +105,12 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Values of sequence.json keys given outside the file (options), and how they were given;
         see `dropvision.sequence.open_sequence`. They are named in summary.json's ``*_source``
         keys.
+    nozzle_pitch_um : float, optional
+        A printhead row's nozzle pitch (overrides sequence.json's ``nozzle_pitch_um``).
+
+    A frame of several nozzles under one flat plate (`dropvision.nozzle_row.row_layout`) is a
+    printhead row: measured per nozzle by `dropvision.nozzle_row.measure_row_sequence`
+    (nozzles.parquet; the result carries ``nozzles``).
 
     Returns
     -------
@@ -121,7 +129,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir, overrides=overrides, labels=labels)
     inputs = [] if isinstance(seq, ArraySequence) else [seq.meta.path]  # in memory: no folder
     if out_dir is None:
-        return _measure(seq, None, inputs, config, progress, logger, csv, overwrite)
+        return _measure(seq, None, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um)
     with contextlib.ExitStack() as held:
         try:  # before any work: the output may destroy nothing, and no other run writes it
             check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
@@ -129,16 +137,37 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         except BaseException:
             seq.close()
             raise
-        return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite)
+        return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um)
+
+
+def _row_plate(seq: Sequence):
+    """(plate, scan labels or None) of a printhead row when the first frame shows one, or of a
+    scan (frames named by nozzle under a plate); else None."""
+    from dropvision.nozzle_row import row_layout, scan_layout
+
+    fr = seq.read(0)
+    plate = None if fr.error is not None else row_layout(fr.image)
+    return (plate, None) if plate is not None else scan_layout(seq)
 
 
 def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,
-             overwrite: bool) -> MeasureResult:
+             overwrite: bool, nozzle_pitch_um: float | None = None) -> MeasureResult:
     """`measure_sequence` after its checks (the output folder locked)."""
     meta = seq.meta
     n = len(seq)
     if n == 0:
         raise SequenceError(f"{meta.path}: no frames")
+    row = _row_plate(seq)
+    if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
+        from dropvision.nozzle_row import measure_row_sequence
+
+        try:
+            nozzles, frames, bodies, summary = measure_row_sequence(
+                seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
+                extra_summary=source_keys(meta), scan=row[1], csv=csv)
+        finally:
+            seq.close()
+        return MeasureResult(frames, summary, bodies, nozzles)
     errors: list[dict] = []
     decoded: dict = {}
     # frames measured in forked processes (decided again at the fork): OpenCV's pool is not started

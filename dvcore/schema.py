@@ -696,11 +696,92 @@ TABULAR_DESIGN = Document("tabular_design", "identify design --json", "identify.
     F("message", "str", "", "one-line outcome"),
 ), "`identify design model.json --target O=V ... --json` with a table model: one JSON object on stdout.")
 
+# ----------------------------------------------------------------------------- printhead rows (issue 32)
+NOZZLE_STATES = ("ok", "missing", "weak", "deviated", "satellites")
+
+NOZZLES = Table("nozzles", "nozzles.parquet", "dropvision.nozzles/1", (
+    F("nozzle", "int", "", "nozzle index from 0, left to right in the canonical frame (missing nozzles included); "
+      "a scan: the label in the file name", nullable=False),
+    F("state", "str", "", "one of " + ", ".join(NOZZLE_STATES) + " (the first that applies in that order; "
+      "rules in dropvision.nozzle_row)", nullable=False),
+    F("reason", "str", "", "every rule the nozzle met, with the figures compared (empty for ok)", nullable=False),
+    F("col_px", "float", "px", "column where the nozzle's trajectory meets the plate (the pitch grid's position)",
+      nullable=False),
+    F("plate_row_px", "float", "px", "row of the plate's lower edge at that column", nullable=False),
+    F("volume_nl", "float", "nl", "main-drop volume, mean over the frames (null: missing)"),
+    F("volume_uncertainty_nl", "float", "nl", "its standard uncertainty: the frames' common (edge) uncertainty "
+      "and the scatter's standard error in quadrature"),
+    F("velocity_m_s", "float", "m/s", "main-drop speed along its trajectory (null for a single delay)"),
+    F("velocity_uncertainty_m_s", "float", "m/s", "its standard uncertainty (the straight-line fits)"),
+    F("angle_mrad", "float", "mrad", "trajectory angle from the plate normal, + towards increasing canonical "
+      "column (IEC 62899-302-3 projected angle); a single delay: from the grid position to the drop"),
+    F("angle_uncertainty_mrad", "float", "mrad", "its standard uncertainty"),
+    F("satellites", "float", "", "median number of satellites per frame", nullable=False),
+    F("satellite_volume_nl", "float", "nl", "mean volume of the satellites where there are some (0: none)"),
+    F("n_frames", "int", "", "frames where the nozzle's main drop was measured", nullable=False),
+), "One row per nozzle of a printhead row (`dropvision measure` on a frame of several nozzles under one plate).")
+
+ROW_FRAMES = Table("row_frames", "frames.parquet", "dropvision.row-frames/1", (
+    F("file", "str", "", "image file (relative to the sequence folder)", nullable=False),
+    F("delay_us", "float", "us", "strobe delay after the firing trigger", nullable=False),
+    F("nozzle", "int", "", "nozzle the drop line came from (null: not assigned)"),
+    F("volume_nl", "float", "nl", "main-drop volume (attached: below the plate)", nullable=False),
+    F("volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
+    F("row_px", "float", "px", "main-drop centroid row (canonical frame)", nullable=False),
+    F("col_px", "float", "px", "main-drop centroid column (canonical frame)", nullable=False),
+    F("attached", "bool", "", "the main body hangs from the plate", nullable=False),
+    F("n_satellites", "int", "", "other bodies on the drop line", nullable=False),
+    F("satellite_volume_nl", "float", "nl", "their volume", nullable=False),
+), "frames.parquet of a printhead row: one row per frame and drop line (nozzle).")
+
+ROW_BODIES = Table("row_bodies", "bodies.parquet", "dropvision.row-bodies/1", (
+    F("file", "str", "", "image file", nullable=False),
+    F("delay_us", "float", "us", "strobe delay", nullable=False),
+    F("nozzle", "int", "", "nozzle the body came from, by trajectory (null: not assigned)"),
+    F("body_class", "str", "", "main_drop, satellite, attached or unassigned", nullable=False),
+    F("area_px", "int", "px", "pixels of the body's silhouette", nullable=False),
+    F("volume_nl", "float", "nl", "disc-integrated volume (attached: below the plate)", nullable=False),
+    F("volume_uncertainty_nl", "float", "nl", "its standard uncertainty"),
+    F("row_px", "float", "px", "centroid row (canonical frame)", nullable=False),
+    F("col_px", "float", "px", "centroid column (canonical frame)", nullable=False),
+), "bodies.parquet of a printhead row: one row per dark body below the plate per frame.")
+
+ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1", (
+    F("schema_version", "str", "", "document id"),
+    F("kind", "str", "", "\"printhead-row\""),
+    F("layout", "str", "", "row (several nozzles in a frame) or scan (one nozzle per frame, labelled in the file "
+      "name: nozzle_03.png)"),
+    F("sequence", "str", "", "measured sequence folder"),
+    F("n_frames", "int", "", "frames in the sequence", nullable=False),
+    F("n_measured", "int", "", "frames measured", nullable=False),
+    F("n_nozzles", "int", "", "nozzles of the row, missing ones included (a row: between the first and last live "
+      "one; a scan: its labels)", nullable=False),
+    F("n_live", "int", "", "nozzles that fired", nullable=False),
+    F("state_counts", "object", "", "nozzles per state"),
+    F("pitch_um", "float", "um", "nozzle pitch (given, or fitted to the found nozzles; null for a scan)"),
+    F("pitch_source", "str", "", "sequence.json, command line --nozzle-pitch-um, or how it was estimated"),
+    F("plate_row_px", "float", "px", "row of the plate's lower edge at the frame's centre column"),
+    F("plate_slope_mrad", "float", "mrad", "slope of the plate's lower edge in the canonical frame"),
+    F("volume_cv", "float", "", "uniformity: CV (SD / mean) of the live nozzles' volumes"),
+    F("volume_cv_uncertainty", "float", "", "its standard uncertainty from the nozzles' volume uncertainties"),
+    F("velocity_cv", "float", "", "CV of the live nozzles' velocities (null for a single delay)"),
+    F("velocity_cv_uncertainty", "float", "", "its standard uncertainty"),
+    F("limits", "object", "", "weak_k, weak_floor (fraction of the median), deviated_mrad"),
+    F("edge_blur_px", "float", "px", "edge blur (Gaussian sigma) of the liquid's edges"),
+    F("liquid_level", "float", "", "transmission inside the liquid"),
+    F("edge_threshold", "float", "", "transmission level of the edges"),
+    F("errors", "list", "", "frames that could not be read"),
+    F("notes", "list", "", "what the measurement could not settle"),
+    F("orientation", "str", "", "direction the drops travel in the stored images", required=False),
+    F("software", "object", "", "versions of Python and of every package the result depends on"),
+), "summary.json of a printhead row (`dropvision.nozzle_row`); the *_source keys of a sequence's summary.json too.")
+
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, DATASET_SHOTS,
-                               LIVE_FRAMES, TUNING, TABULAR_PREDICTION, TABULAR_TUNING)}
+                               LIVE_FRAMES, TUNING, TABULAR_PREDICTION, TABULAR_TUNING, NOZZLES, ROW_FRAMES, ROW_BODIES)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
                                  PREDICTION, TABULAR_MODEL, TABULAR_TUNING_RUN, TABULAR_DESIGN)}
 DOCUMENTS.update({d.name: d for d in (WAVEFORM, TEMPLATE_MODEL)})  # issue 31: waveform templates
+DOCUMENTS[ROW_SUMMARY.name] = ROW_SUMMARY  # issue 32: printhead rows
 
 
 class Quality:

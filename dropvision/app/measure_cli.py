@@ -64,13 +64,22 @@ def _run(args: argparse.Namespace) -> int:
                 seq = open_sequence(seq, overrides=overrides, labels=labels, only_files=only)
                 overrides = labels = None  # applied when opened
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
-                                   logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels)
+                                   logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels,
+                                   nozzle_pitch_um=args.nozzle_pitch_um)
         finally:
             if logger is not None:
                 logger.close()
             print_warnings("dropvision measure", warning_lines(caught), args)
     s = res.summary
     if args.quiet:
+        return 0
+    if s.get("kind") == "printhead-row":  # issue 32: one line per row
+        counts = ", ".join(f"{v} {k}" for k, v in s["state_counts"].items() if v)
+        pitch = "a scan" if s.get("layout") == "scan" else f"pitch {s['pitch_um']:.1f} um"
+        print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; printhead row of "
+              f"{s['n_nozzles']} nozzles ({counts}), {pitch}, volume CV "
+              f"{s['volume_cv']:.3g} +- {s['volume_cv_uncertainty']:.2g}")
+        sys.stdout.flush()
         return 0
     if args.verbose:
         for key in _SOURCES:
@@ -151,6 +160,9 @@ def register(subparsers) -> None:
                    help="write into an existing --out that holds other files (those are kept)")
     p.add_argument("--csv", action="store_true", help="also write frames.csv")
     p.add_argument("--workers", type=int, default=2, help="decoding/measuring workers (default 2): processes on Linux for 32 frames or more, else threads (always with --rerun); DROPVISION_NO_FORK=1 keeps threads")
+    p.add_argument("--nozzle-pitch-um", type=float, default=None, metavar="UM",
+                   help="a printhead row's nozzle pitch (µm; default: sequence.json nozzle_pitch_um, else estimated "
+                        "from the nozzles found)")
     add_output_args(p)
     add_metadata_args(p)
     add_rerun_args(p)

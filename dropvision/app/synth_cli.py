@@ -91,7 +91,14 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     r = p.add_argument_group("realism tier (docs/SYNTH_REALISM.md); an option given explicitly overrides the rig")
-    r.add_argument("--rig", default=None, help="start from a rig preset: " + ", ".join(_rig_names()))
+    r.add_argument("--rig", default=None, help="start from a rig preset: " + ", ".join(_rig_names() + list(_ROW_RIGS))
+                   + " (printhead-row: a row of nozzles under a flat plate, one frame at 120 µs unless --delays; "
+                   "printhead-scan: one frame per nozzle, docs in dropvision.synth.printhead)")
+    r.add_argument("--nozzles", type=int, default=None, help="printhead rigs: nozzles in the row (default 8)")
+    r.add_argument("--nozzle-pitch-um", type=float, default=None,
+                   help="printhead rigs: nozzle pitch (µm, default 423.3 = 60 per inch)")
+    r.add_argument("--write-pitch", action="store_true", default=False,
+                   help="printhead rigs: write nozzle_pitch_um into sequence.json")
     r.add_argument("--orientation", choices=("down", "up", "left", "right"), default=None,
                    help="direction the drops travel in the stored frames (default down)")
     r.add_argument("--jpeg-quality", type=int, default=None,
@@ -122,7 +129,48 @@ def _explicit(parser_defaults: dict, args) -> set:
     return {k for k, v in vars(args).items() if k in parser_defaults and v != parser_defaults[k]}
 
 
+#: printhead rigs (`dropvision.synth.printhead.ROW_RIGS`, named here without importing it)
+_ROW_RIGS = ("printhead-row", "printhead-scan")
+
+
+def _run_row(args) -> int:
+    """``--rig printhead-row`` / ``printhead-scan``: `dropvision.synth.printhead.write_row`."""
+    from dropvision.synth.config import parse_delays
+    from dropvision.synth.printhead import for_rig, write_row
+
+    given = _explicit(_BASE_DEFAULTS, args)
+    kw = {}
+    if "size" in given:
+        kw.update(width_px=args.size[0], height_px=args.size[1])
+    for opt, name in (("pixel_size_um", "pixel_size_um"), ("seed", "seed"), ("noise", "noise"), ("blur_px", "blur_px"),
+                      ("bit_depth", "bit_depth"), ("format", "format")):
+        if opt in given:
+            kw[name] = getattr(args, opt)
+    if "delays" in given:
+        kw["delays_us"] = parse_delays(args.delays)
+    if args.orientation is not None:
+        kw["orientation"] = args.orientation
+    if args.nozzles is not None:
+        kw["n_nozzles"] = args.nozzles
+    if args.nozzle_pitch_um is not None:
+        kw["pitch_um"] = args.nozzle_pitch_um
+    if args.write_pitch:
+        kw["write_pitch"] = True
+    try:
+        cfg = for_rig(args.rig, **kw)
+        t0 = time.perf_counter()
+        out = write_row(cfg, args.out, overwrite=args.overwrite)
+    except ValueError as exc:
+        raise UsageError(str(exc)) from None
+    n = cfg.n_nozzles if cfg.scan else len(cfg.delays_us)
+    print(f"dropvision synth: wrote {n} frames of a {cfg.n_nozzles}-nozzle row to {out} in "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def run(args) -> int:
+    if args.rig in _ROW_RIGS:
+        return _run_row(args)
     from dropvision.synth.sequence import SynthConfig, parse_delays
 
     from dropvision.synth.writer import write_synthetic_sequence
