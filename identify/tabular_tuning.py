@@ -646,22 +646,10 @@ def write_table_tuning(result: TableTuningResult, out_dir, *, inputs=(), overwri
 def read_table_tuning(folder) -> TableTuningResult:
     """Read a table tuning run folder back, checked against `dvcore.schema.TABULAR_TUNING` and
     `TABULAR_TUNING_RUN` (a :class:`dvcore.schema.SchemaError` names the file)."""
-    from dvcore.jsonio import load_json_hardened
-    from dvcore.schema import TABULAR_TUNING_RUN, SchemaError, check_document
-    from identify.tuning import TUNING_FILES
+    from dvcore.schema import TABULAR_TUNING_RUN, SchemaError
+    from identify.tuning import read_run_folder
 
-    folder = Path(folder)
-    table, doc_path = folder / TUNING_FILES[0], folder / TUNING_FILES[1]
-    if not doc_path.is_file():
-        raise FileNotFoundError(f"{doc_path}: missing file (a tuning run folder holds {', '.join(TUNING_FILES)})")
-    doc = load_json_hardened(doc_path, SchemaError)
-    check_document(doc, TABULAR_TUNING_RUN, doc_path)
-    try:
-        df = pd.read_parquet(table)
-    except (OSError, ValueError) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
-        raise SchemaError(f"{table}: not a readable Parquet table ({exc})") from None
+    df, doc, table = read_run_folder(folder, TABULAR_TUNING_RUN)
     need = list(FIXED_COLUMNS) + list(doc["inputs"]) + list(doc["targets"])
     missing = [c for c in need if c not in df.columns]
     if missing:

@@ -634,6 +634,37 @@ def write_tuning(result: TuningResult, out_dir, *, inputs=(), overwrite: bool = 
     return Path(out_dir)
 
 
+def read_run_folder(folder, run_document):
+    """(tuning.parquet as read, tuning.json checked against ``run_document``, the table's path) of a
+    tuning run folder; the table's columns are the caller's to check.
+
+    Raises
+    ------
+    OSError
+        A file is missing or unreadable.
+    dvcore.schema.SchemaError
+        tuning.json does not match ``run_document`` or tuning.parquet is no Parquet table (naming the file).
+    """
+    import pandas as pd
+
+    from dvcore.jsonio import load_json_hardened
+    from dvcore.schema import SchemaError, check_document
+
+    folder = Path(folder)
+    table, doc_path = folder / TUNING_FILES[0], folder / TUNING_FILES[1]
+    if not doc_path.is_file():
+        raise FileNotFoundError(f"{doc_path}: missing file (a tuning run folder holds {', '.join(TUNING_FILES)})")
+    doc = load_json_hardened(doc_path, SchemaError)
+    check_document(doc, run_document, doc_path)
+    try:
+        df = pd.read_parquet(table)
+    except (OSError, ValueError) as exc:
+        if isinstance(exc, FileNotFoundError):
+            raise
+        raise SchemaError(f"{table}: not a readable Parquet table ({exc})") from None
+    return df, doc, table
+
+
 def read_tuning(folder) -> TuningResult:
     """Read a tuning run folder back (tuning.parquet + tuning.json), checked against the schema.
 
@@ -644,23 +675,9 @@ def read_tuning(folder) -> TuningResult:
     dvcore.schema.SchemaError
         A file does not match its declaration (naming the file).
     """
-    import pandas as pd
+    from dvcore.schema import TUNING, TUNING_RUN, check_table
 
-    from dvcore.jsonio import load_json_hardened
-    from dvcore.schema import TUNING, TUNING_RUN, SchemaError, check_document, check_table
-
-    folder = Path(folder)
-    table, doc_path = folder / TUNING_FILES[0], folder / TUNING_FILES[1]
-    if not doc_path.is_file():
-        raise FileNotFoundError(f"{doc_path}: missing file (a tuning run folder holds {', '.join(TUNING_FILES)})")
-    doc = load_json_hardened(doc_path, SchemaError)
-    check_document(doc, TUNING_RUN, doc_path)
-    try:
-        df = pd.read_parquet(table)
-    except (OSError, ValueError) as exc:
-        if isinstance(exc, FileNotFoundError):
-            raise
-        raise SchemaError(f"{table}: not a readable Parquet table ({exc})") from None
+    df, doc, table = read_run_folder(folder, TUNING_RUN)
     check_table(df, TUNING, table)
     keys = {"target_volume_nl", "target_velocity_m_s", "volume_tolerance_percent", "velocity_tolerance_percent",
             "converged", "message", "schema", "shots_fired"}

@@ -386,8 +386,6 @@ def _json_unreadable(path: Path) -> tuple[int, int] | None:
 def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, stop, rows: list[dict]
                   ) -> WatchResult:
     """`watch_sequence` with OUT locked (``rows``: the journal resumed)."""
-    from watchdog.observers import Observer  # the command's own dependency, imported when it runs
-
     n_resumed = len(rows)
     done: dict[str, tuple[int, int]] = {}  # complete file -> (size, mtime_ns) it was taken at
     measured = set()  # (file, page) of the rows
@@ -395,14 +393,7 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
         done[r["file"]] = (int(r.get("size") or -1), int(r.get("mtime_ns") or -1))
         measured.add((r["file"], r.get("page")))
     journal = Journal(out / JOURNAL)
-    events: queue.Queue = queue.Queue()
-    observer = Observer()
-    observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
-    observer.start()  # before the first look at the folder: nothing written meanwhile is missed
-    pending: dict[str, _Pending] = {}
-    for p in folder.iterdir():
-        if _is_frame_name(p.name):
-            pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
+    observer, events, pending = _start_watching(folder)
     state = _LiveState(folder, opts, logger)
     listed = _ListedCount(folder)
     latency: list[float] = []
@@ -451,6 +442,22 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
                       "latency_ms_median": statistics.median(latency) if latency else None,
                       "latency_ms_max": max(latency) if latency else None})
     return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out)
+
+
+def _start_watching(folder: Path):
+    """(observer, its event queue, the frames already there): the observer starts before the first
+    look at the folder, so that nothing written meanwhile is missed; what was there is settled."""
+    from watchdog.observers import Observer  # the command's own dependency, imported when it runs
+
+    events: queue.Queue = queue.Queue()
+    observer = Observer()
+    observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
+    observer.start()
+    pending: dict[str, _Pending] = {}
+    for p in folder.iterdir():
+        if _is_frame_name(p.name):
+            pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
+    return observer, events, pending
 
 
 def _drain(events: queue.Queue, pending: dict, wait_s: float) -> None:
@@ -727,7 +734,6 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
     the table). The watch ends at ``opts.frames`` images, ``idle_s`` without one, ``stop`` or Ctrl-C;
     then `_finish_shots` writes the tables of ``dropvision measure``."""
     import pandas as pd
-    from watchdog.observers import Observer
 
     from dvcore.atomic import write_bytes
 
@@ -743,14 +749,7 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
     for name in missing:  # never: the table is written before the journal
         done.pop(name)
     journal = Journal(out / JOURNAL)
-    events: queue.Queue = queue.Queue()
-    observer = Observer()
-    observer.schedule(_event_handler(events), str(folder), recursive=False, event_filter=_write_event_types())
-    observer.start()  # before the first look at the folder: nothing written meanwhile is missed
-    pending: dict[str, _Pending] = {}
-    for p in folder.iterdir():
-        if _is_frame_name(p.name):
-            pending[p.name] = _Pending(changed_at=-math.inf)  # there before we looked: settled
+    observer, events, pending = _start_watching(folder)
     latency: list[float] = []
     n_live, started_ns = 0, time.time_ns()
     last_frame_at = time.monotonic()
