@@ -402,15 +402,10 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
     ended_by = "interrupt"
     try:
         while True:
-            expected = opts.frames if opts.frames is not None else listed.count()
-            if expected is not None and len(measured) >= expected and not pending:
-                ended_by = "frames"
-                break
-            if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
-                ended_by = "idle"
-                break
-            if stop is not None and not pending and stop():
-                ended_by = "next sequence"
+            ended = _why_ended(opts, len(measured), opts.frames if opts.frames is not None else listed.count(),
+                               pending, last_frame_at, stop)
+            if ended is not None:
+                ended_by = ended
                 break
             _drain(events, pending, opts.poll_s)
             ready = _settled(folder, pending, done, state.unlisted, opts)
@@ -442,6 +437,18 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
                       "latency_ms_median": statistics.median(latency) if latency else None,
                       "latency_ms_max": max(latency) if latency else None})
     return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out)
+
+
+def _why_ended(opts, n_done: int, expected, pending: dict, last_frame_at: float, stop) -> str | None:
+    """Why a watch ends now (``frames``: ``expected`` measured and nothing pending; ``idle``: no
+    frame for ``opts.idle_s``; ``next sequence``: ``stop()`` with nothing pending), or None."""
+    if expected is not None and n_done >= expected and not pending:
+        return "frames"
+    if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
+        return "idle"
+    if stop is not None and not pending and stop():
+        return "next sequence"
+    return None
 
 
 def _start_watching(folder: Path):
@@ -756,14 +763,9 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
     ended_by = "interrupt"
     try:
         while True:
-            if opts.frames is not None and len(done) >= opts.frames and not pending:
-                ended_by = "frames"
-                break
-            if opts.idle_s is not None and time.monotonic() - last_frame_at >= opts.idle_s:
-                ended_by = "idle"
-                break
-            if stop is not None and not pending and stop():
-                ended_by = "next sequence"
+            ended = _why_ended(opts, len(done), opts.frames, pending, last_frame_at, stop)
+            if ended is not None:
+                ended_by = ended
                 break
             _drain(events, pending, opts.poll_s)
             for name in _settled(folder, pending, done, {}, opts):
