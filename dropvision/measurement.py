@@ -157,7 +157,9 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
     n = len(seq)
     if n == 0:
         raise SequenceError(f"{meta.path}: no frames")
-    row = _row_plate(seq)
+    forking = processes_usable(n, max(1, config.workers))
+    with serial_native_pools(forking):  # the row check before a fork starts no native pool either
+        row = _row_plate(seq)
     if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
         from dropvision.nozzle_row import measure_row_sequence
 
