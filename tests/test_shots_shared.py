@@ -55,7 +55,8 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
     alone = measure_shots(folder, overrides=PIXEL, workers=1, shared_calibration=False)
     rig = shared.summary["shared_calibration"]
     assert rig["reference"] == sorted(truth)[0] and rig["left_out"] == []
-    assert sorted(rig["calibrated_from"]) == sorted(truth)  # every shot is a calibration shot here
+    # the reference and one other shot (two: a drop at the same place in three would be taken for dust)
+    assert rig["calibrated_from"] == sorted(truth)[:2]
     assert all(s["shared_calibration"] for s in shared.summary["shots"])
     assert not any(s["shared_calibration"] for s in alone.summary["shots"])
     assert alone.summary["shared_calibration"]["reference"] is None
@@ -70,7 +71,7 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
         assert s.loc[name, "drop_z_um"] == pytest.approx(a.loc[name, "drop_z_um"], abs=1.0)
         assert s.loc[name, "quality"] == a.loc[name, "quality"] == "ok"
     # the shared calibration is stated once, for the folder
-    assert any(n.startswith("calibration shared by the shots of one rig: from 4 shot(s)")
+    assert any(n.startswith("calibration shared by the shots of one rig: from 2 shot(s)")
                for n in shared.summary["notes"])
 
 
@@ -180,8 +181,36 @@ def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
         cv2.imwrite(str(turned / name), np.ascontiguousarray(np.rot90(cv2.imread(str(folder / name),
                                                                                  cv2.IMREAD_UNCHANGED))))
     res = measure_shots(turned, overrides=PIXEL, workers=1)
-    assert sorted(res.summary["shared_calibration"]["calibrated_from"]) == sorted(truth)
+    assert res.summary["shared_calibration"]["calibrated_from"] == sorted(truth)[:2]
     assert all(s["shared_calibration"] and s["orientation"] == "right" for s in res.summary["shots"])
     table = res.shots.set_index("file")
     for name, t in truth.items():
         assert table.loc[name, "drop_volume_nl"] == pytest.approx(t["drop_volume_nl"], rel=0.02)
+
+
+def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_path):
+    """The holder at two places in one folder (three shots 6 px aside): two shared calibrations, one per
+    place, each shot measured with its own place's; every answer is the solo one within TOLERANCE_U of
+    its uncertainty."""
+    folder, truth = rig_shots
+    two = tmp_path / "two"
+    shutil.copytree(folder, two)
+    names = sorted(truth)
+    moved = {f"images_B-moved{k}.png": names[k] for k in range(3)}
+    for name, src in moved.items():
+        _shifted(folder / src, two / name, 6.0, 0.0)
+    res = measure_shots(two, overrides=PIXEL, workers=1)
+    rig = res.summary["shared_calibration"]
+    assert rig["calibrated_from"] == names[:2] and rig["left_out"] == []
+    assert [o["calibrated_from"] for o in rig["others"]] == [sorted(moved)[:2]]
+    assert all(s["shared_calibration"] for s in res.summary["shots"])
+    table = res.shots.set_index("file")
+    alone = measure_shots(two, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
+    for name in moved:
+        assert "calibration shared by the shots of one rig: from 2 shot(s) (images_B-moved0" in table.loc[name, "notes"]
+    for name in list(truth) + list(moved):
+        u = table.loc[name, "drop_volume_uncertainty_nl"]
+        assert u > 0
+        assert abs(table.loc[name, "drop_volume_nl"] - alone.loc[name, "drop_volume_nl"]) <= TOLERANCE_U * u, name
+        ref = truth[moved.get(name, name)]["drop_volume_nl"]
+        assert table.loc[name, "drop_volume_nl"] == pytest.approx(ref, rel=0.02)
