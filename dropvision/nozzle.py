@@ -73,6 +73,13 @@ class Nozzle:
         return self.axis_a + self.axis_b * row
 
 
+def components_with_stats(mask: np.ndarray):
+    """``cv2.connectedComponentsWithStats(mask, connectivity=8)``, by the block-based algorithm (BBDT):
+    the same labels and statistics (checked on real frames and random masks), some 3 times faster on a
+    2048 x 1536 frame than the default one (whose statistics pass costs most of its time)."""
+    return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_BBDT)
+
+
 def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
     """(start, stop) of the nozzle's straight part: a run of rows of constant width.
 
@@ -216,7 +223,7 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     t = np.asarray(transmission, np.float32)
     h, w = t.shape
     mask = (t < threshold).astype(np.uint8)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, lab, stats, _ = components_with_stats(mask)
     top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0]
     if not top:
         raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
