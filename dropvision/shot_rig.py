@@ -13,8 +13,8 @@ to some 512 px, over its bright level): the shift of the static scene (the outli
 bodies touching the frame's edge: holder, nozzle) and the change of the background's shape beyond a
 gain (`scene_distance`, `disagreement`). The shot agreeing with most others (the medoid) is the
 reference of the first group: those agreeing with it; the same again among the shots left, while a
-group holds two or more (`calibrate_rigs`: several rigs, or the holder at several places, in one
-folder, each place with its own calibration). A group's calibration comes from its reference and one
+group holds two or more, up to `MAX_GROUPS` groups (`calibrate_rigs`: several rigs, or the holder
+at several places, in one folder, each place with its own calibration; one by default, see there). A group's calibration comes from its reference and one
 other of its shots (a drop watcher's drops fly at the same place shot after shot: with three frames or
 more a body dark in all of them would be folded into the background as static dust). Every shot is
 checked against the groups' references, in that order, and measured with the first calibration that
@@ -59,6 +59,11 @@ MAX_SHIFT_PX = 2.0
 #: Largest change of the background's shape beyond a gain (the ratio of the two frames over their
 #: bright pixels, block by block, off its median: `scene_distance`) for the shared calibration to hold.
 MAX_BACKGROUND_CHANGE = 0.05
+#: Most groups of agreeing calibration shots that get a shared calibration (`calibrate_rigs`). One: on the
+#: real drop-watcher frames a second group (two shots at another holder place, one of which finds no nozzle
+#: alone) measured a marginal speck as a satellite with the pair's blur reference (1 satellite alone, 2 shared;
+#: outside that frame's accepted count), so further groups are calibrated alone shot by shot.
+MAX_GROUPS = 1
 #: Fewest shots measured in forked processes (a shot costs a decoding and an assembly, ~50-100 ms
 #: for a 2048 x 1536 JPEG: far more than a fork).
 MIN_SHOTS_FOR_PROCESSES = 4
@@ -112,7 +117,7 @@ _BAND, _SEARCH = 9, 16
 _BLOCKS = 16
 
 
-def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
+def scene_distance(fp: Fingerprint, ref: Fingerprint, max_shift_px: float = math.inf) -> tuple[float, float]:
     """(shift of the static scene in full-frame px, change of the background's shape) of ``fp``
     against ``ref``; (inf, inf) for frames of other sizes.
 
@@ -121,7 +126,8 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
     the margin where the match is at the edge of the search. The change: the frame over the
     reference in `_BLOCKS` x `_BLOCKS` blocks (the median over the pixels bright in both and 2 px
     away from any dark body, blocks at least half such), over their median; the 90th percentile of
-    their departures from 1 (a drop spoils a few blocks, another light most)."""
+    their departures from 1 (a drop spoils a few blocks, another light most). A shift beyond
+    ``max_shift_px``: the change is not computed (NaN)."""
     import cv2
 
     if fp.shape != ref.shape or fp.image.shape != ref.image.shape:
@@ -137,6 +143,8 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
     dx = x - m + (sub(res[y, x], res[y, x - 1], res[y, x + 1]) if 0 < x < res.shape[1] - 1 else 0.0)
     dy = y - m + (sub(res[y, x], res[y - 1, x], res[y + 1, x]) if 0 < y < res.shape[0] - 1 else 0.0)
     shift = math.hypot(dx, dy) * fp.scale
+    if shift > max_shift_px:
+        return float(shift), math.nan
     dark = ((fp.image < 0.5) | (ref.image < 0.5)).astype(np.uint8)
     both = cv2.dilate(dark, np.ones((5, 5), np.uint8)) == 0  # bright in both, away from any body's edge
     h, w = both.shape
@@ -165,7 +173,7 @@ def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
     if fp.shape != ref.shape:
         return (f"its size {fp.shape[1]}x{fp.shape[0]} differs from the shared calibration's "
                 f"{ref.shape[1]}x{ref.shape[0]}")
-    shift, change = scene_distance(fp, ref)
+    shift, change = scene_distance(fp, ref, MAX_SHIFT_PX)
     if shift > MAX_SHIFT_PX:
         return f"its scene is shifted by {shift:.1f} px against the shared calibration's (most {MAX_SHIFT_PX:g} px)"
     if change > MAX_BACKGROUND_CHANGE:
@@ -176,7 +184,7 @@ def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
 
 
 def _agree(fp: Fingerprint, ref: Fingerprint) -> bool:
-    shift, change = scene_distance(fp, ref)
+    shift, change = scene_distance(fp, ref, MAX_SHIFT_PX)
     return shift <= MAX_SHIFT_PX and change <= MAX_BACKGROUND_CHANGE
 
 
@@ -251,7 +259,7 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
 
 
 def calibrate_rigs(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
-                   option_labels: dict | None = None
+                   option_labels: dict | None = None, max_groups: int | None = None
                    ) -> tuple[list[RigCalibration], str | None, dict[int, str]]:
     """The calibrations the shots share, from up to ``config.calibration_frames`` of them: one per
     group of calibration shots that agree (several rigs, or one camera at several places, in one folder).
@@ -267,6 +275,8 @@ def calibrate_rigs(shots, config: MeasureConfig = MeasureConfig(), *, overrides:
     config : MeasureConfig
     overrides, option_labels : dict, optional
         As for `dropvision.sequence.open_sequence` (they apply to every shot).
+    max_groups : int, optional
+        Most groups calibrated (`MAX_GROUPS` by default); the shots of the others are measured alone.
 
     Returns
     -------
@@ -278,6 +288,7 @@ def calibrate_rigs(shots, config: MeasureConfig = MeasureConfig(), *, overrides:
     """
     from dropvision.sequence import open_sequence, pixel_size_from_nozzle
 
+    max_groups = MAX_GROUPS if max_groups is None else max_groups
     n = len(shots.paths)
     if n < 2:
         return [], "a single shot", {}
@@ -313,7 +324,7 @@ def calibrate_rigs(shots, config: MeasureConfig = MeasureConfig(), *, overrides:
     failed: list[str] = []
     grouped: set[int] = set()
     left = list(keys)
-    while len(left) >= 2:
+    while len(left) >= 2 and len(rigs) + len(failed) < max_groups:
         groups = {i: sorted(agree[i] & set(left)) for i in left}
         reference = max(left, key=lambda i: (len(groups[i]), -keys.index(i)))  # the first of the most agreeing
         members = groups[reference]

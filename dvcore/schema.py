@@ -284,8 +284,8 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
     F("shared_calibration", "object", "", "the calibration the shots of one rig share (dropvision.shot_rig): "
       "reference (the shot the others are checked against), calibrated_from (the shots it comes from), left_out "
       "(calibration shots that agree with no group: file, reason), others (the same for each further group of "
-      "agreeing calibration shots: another rig, or the holder at another place; a shot takes the first that "
-      "holds for it); reference null and a reason where every shot was calibrated alone"),
+      "agreeing calibration shots, up to dropvision.shot_rig.MAX_GROUPS: another rig, or the holder at another "
+      "place; a shot takes the first that holds for it); reference null and a reason where every shot was calibrated alone"),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
     F("config", "object", "", "the measurement configuration (MeasureConfig)"),
 ), "summary.json of a shot folder (`dropvision measure` over images with no delay to tell).")

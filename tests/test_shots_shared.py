@@ -188,10 +188,10 @@ def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
         assert table.loc[name, "drop_volume_nl"] == pytest.approx(t["drop_volume_nl"], rel=0.02)
 
 
-def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_path):
-    """The holder at two places in one folder (three shots 6 px aside): two shared calibrations, one per
-    place, each shot measured with its own place's; every answer is the solo one within TOLERANCE_U of
-    its uncertainty."""
+def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_path, monkeypatch):
+    """The holder at two places in one folder (three shots 6 px aside), two groups allowed: two shared
+    calibrations, one per place, each shot measured with its own place's; every answer is the solo one
+    within TOLERANCE_U of its uncertainty. One group (the default): the second place's shots alone."""
     folder, truth = rig_shots
     two = tmp_path / "two"
     shutil.copytree(folder, two)
@@ -199,6 +199,10 @@ def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_
     moved = {f"images_B-moved{k}.png": names[k] for k in range(3)}
     for name, src in moved.items():
         _shifted(folder / src, two / name, 6.0, 0.0)
+    default = measure_shots(two, overrides=PIXEL, workers=1)
+    assert default.summary["shared_calibration"]["others"] == []
+    assert {s["file"] for s in default.summary["shots"] if not s["shared_calibration"]} == set(moved)
+    monkeypatch.setattr(shot_rig, "MAX_GROUPS", 2)
     res = measure_shots(two, overrides=PIXEL, workers=1)
     rig = res.summary["shared_calibration"]
     assert rig["calibrated_from"] == names[:2] and rig["left_out"] == []
