@@ -216,7 +216,7 @@ def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndar
     sl = (slice(0, hb * block), slice(0, wb * block))
     rel = np.where(valid[sl], mean[sl] / np.maximum(background[sl], 1e-6) - 1.0, 0.0)
     rel = rel.reshape(hb, block, wb, block).mean(axis=(1, 3))
-    ok = valid[sl].reshape(hb, block, wb, block).all(axis=(1, 3))
+    ok = valid[sl].reshape(hb, block, wb * block).all(axis=1).reshape(hb, wb, block).all(axis=2)
     r = rel[ok]
     if r.size < 20:
         return 0.0

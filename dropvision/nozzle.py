@@ -123,16 +123,20 @@ def _straight_stretch(x: np.ndarray, y: np.ndarray, band_px: float, min_points: 
     (seeded: the same answer every time), inliers within ``band_px`` of the line through the pair.
     A boolean mask, or None when no line holds ``min_points``."""
     rng = np.random.default_rng(0)
-    best = None
-    for _ in range(300):
-        i, j = rng.choice(x.size, 2, replace=False)
-        if x[i] == x[j]:
-            continue
+    pairs = [rng.choice(x.size, 2, replace=False) for _ in range(300)]  # the same draws, in the same order
+    pairs = np.array([(i, j) for i, j in pairs if x[i] != x[j]], dtype=np.intp).reshape(-1, 2)
+    if not len(pairs):
+        return None
+    best, best_count = None, -1
+    for a in range(0, len(pairs), 50):  # 50 lines at once (the same arithmetic, element by element)
+        i, j = pairs[a:a + 50, 0], pairs[a:a + 50, 1]
         slope = (y[j] - y[i]) / (x[j] - x[i])
-        inl = np.abs(y - (y[i] + slope * (x - x[i]))) <= band_px
-        if best is None or inl.sum() > best.sum():
-            best = inl
-    return None if best is None or best.sum() < min_points else best
+        inl = np.abs(y[None, :] - (y[i][:, None] + slope[:, None] * (x[None, :] - x[i][:, None]))) <= band_px
+        counts = inl.sum(axis=1)
+        k = int(np.argmax(counts))  # the first of the most inliers, as one line after the other
+        if counts[k] > best_count:
+            best, best_count = inl[k], int(counts[k])
+    return None if best is None or best_count < min_points else best
 
 
 def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int, int, float] | None:
