@@ -55,13 +55,15 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
     alone = measure_shots(folder, overrides=PIXEL, workers=1, shared_calibration=False)
     rig = shared.summary["shared_calibration"]
     assert rig["reference"] == sorted(truth)[0] and rig["left_out"] == []
-    # the reference and one other shot (two: a drop at the same place in three would be taken for dust)
-    assert rig["calibrated_from"] == sorted(truth)[:2]
+    # the reference's own calibration: its row is its row alone, to the bit (but the notes)
+    assert rig["calibrated_from"] == sorted(truth)[:1]
     assert all(s["shared_calibration"] for s in shared.summary["shots"])
     assert not any(s["shared_calibration"] for s in alone.summary["shots"])
     assert alone.summary["shared_calibration"]["reference"] is None
     a, s = alone.shots.set_index("file"), shared.shots.set_index("file")
     assert list(a.index) == list(s.index) == sorted(truth)
+    ref = sorted(truth)[0]
+    pd.testing.assert_series_equal(s.loc[ref].drop("notes"), a.loc[ref].drop("notes"))
     for name, t in truth.items():
         u = s.loc[name, "drop_volume_uncertainty_nl"]
         assert u > 0
@@ -71,7 +73,7 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
         assert s.loc[name, "drop_z_um"] == pytest.approx(a.loc[name, "drop_z_um"], abs=1.0)
         assert s.loc[name, "quality"] == a.loc[name, "quality"] == "ok"
     # the shared calibration is stated once, for the folder
-    assert any(n.startswith("calibration shared by the shots of one rig: from 2 shot(s)")
+    assert any(n.startswith("calibration shared by the shots of one rig: from 1 shot(s)")
                for n in shared.summary["notes"])
 
 
@@ -181,7 +183,7 @@ def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
         cv2.imwrite(str(turned / name), np.ascontiguousarray(np.rot90(cv2.imread(str(folder / name),
                                                                                  cv2.IMREAD_UNCHANGED))))
     res = measure_shots(turned, overrides=PIXEL, workers=1)
-    assert res.summary["shared_calibration"]["calibrated_from"] == sorted(truth)[:2]
+    assert res.summary["shared_calibration"]["calibrated_from"] == sorted(truth)[:1]
     assert all(s["shared_calibration"] and s["orientation"] == "right" for s in res.summary["shots"])
     table = res.shots.set_index("file")
     for name, t in truth.items():
@@ -205,13 +207,13 @@ def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_
     monkeypatch.setattr(shot_rig, "MAX_GROUPS", 2)
     res = measure_shots(two, overrides=PIXEL, workers=1)
     rig = res.summary["shared_calibration"]
-    assert rig["calibrated_from"] == names[:2] and rig["left_out"] == []
-    assert [o["calibrated_from"] for o in rig["others"]] == [sorted(moved)[:2]]
+    assert rig["calibrated_from"] == names[:1] and rig["left_out"] == []
+    assert [o["calibrated_from"] for o in rig["others"]] == [sorted(moved)[:1]]
     assert all(s["shared_calibration"] for s in res.summary["shots"])
     table = res.shots.set_index("file")
     alone = measure_shots(two, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
     for name in moved:
-        assert "calibration shared by the shots of one rig: from 2 shot(s) (images_B-moved0" in table.loc[name, "notes"]
+        assert "calibration shared by the shots of one rig: from 1 shot(s) (images_B-moved0" in table.loc[name, "notes"]
     for name in list(truth) + list(moved):
         u = table.loc[name, "drop_volume_uncertainty_nl"]
         assert u > 0
