@@ -451,9 +451,10 @@ def _alone(shots, i: int, config: MeasureConfig, overrides, option_labels):
     return measure_parts(seq, config)
 
 
-def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: float):
+def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: float, decoded: dict | None = None):
     """(parts, None) measured with the first shared calibration that holds for the shot (a
-    `dropvision.measurement.MeasuredParts`), or (None, why none holds: the first's reason)."""
+    `dropvision.measurement.MeasuredParts`), or (None, why none holds: the first's reason).
+    ``decoded`` receives (orientation, shape, dtype) -> (frame, fingerprint or why not) of the shot."""
     from dropvision.frame import measure_frame
     from dropvision.measurement import MeasuredParts, light_calibration
     from dropvision.sequence import Sequence
@@ -462,7 +463,8 @@ def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: floa
         rigs = [rigs]
     if not _inside_own_folder(path):
         return None, "a link outside its folder"
-    first_why, decoded = None, {}
+    first_why = None
+    decoded = {} if decoded is None else decoded
     for rig in rigs:
         meta = dataclasses.replace(rig.meta, path=path.parent, frames=(_shot_ref(path, name, delay_us),),
                                    reordered=False)
@@ -492,6 +494,36 @@ def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: floa
     return None, first_why
 
 
+def _alone_as_decoded(path: Path, name: str, rig: RigCalibration, config: MeasureConfig, delay_us: float,
+                      decoded: dict):
+    """The parts of a shot measured alone (its own calibration, as `_alone`) from its frame as decoded
+    in the shared calibration's geometry (orientation, size, pixel type: its scene was compared with the
+    reference's, so it is the same view), without opening it again: None when not decoded so (another
+    size or pixel type, unreadable: `_alone` says what it is)."""
+    from dropvision.measurement import measure_parts
+    from dropvision.sequence import ArraySequence, Sequence
+
+    meta = dataclasses.replace(rig.meta, path=path.parent, frames=(_shot_ref(path, name, delay_us),),
+                               reordered=False)
+    key = (rig.meta.orientation, rig.meta.shape, np.dtype(rig.dtype).str)
+    sources = dict(rig.meta.sources or {})
+    sources["orientation"] = (f"the shared calibration's reference's, {rig.reference_name} (the same view, its scene "
+                              f"compared): {sources.get('orientation')}")
+    if key not in decoded:
+        seq = Sequence(meta, rig.dtype)
+        try:
+            fr = seq.read(0)
+            decoded[key] = (fr, None)
+        except SequenceError:
+            return None
+        finally:
+            seq.close()
+    fr = decoded[key][0]
+    if fr is None or fr.image is None:
+        return None
+    return measure_parts(ArraySequence(dataclasses.replace(meta, sources=sources), [fr.image]), config)
+
+
 def _measure_one(i: int, state) -> ShotOutcome:
     """Shot ``i``: with a shared calibration where one holds, else alone (its own calibration);
     its warnings recorded (given in the calling process, in order). The outcome holds the shot's
@@ -503,22 +535,31 @@ def _measure_one(i: int, state) -> ShotOutcome:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            why = None
+            why, decoded, same_view = None, {}, False
             if rigs and _own_metadata(shots, i):
                 why = "its own pixel size or nozzle diameter labels"
             elif rigs and i in known_alone:  # a calibration shot that agrees with no group: compared already
                 why = known_alone[i]
+                same_view = why.startswith(_SAME_VIEW)
             elif rigs:
-                out.parts, why = _with_rig(path, name, rigs, config, delay)
+                out.parts, why = _with_rig(path, name, rigs, config, delay, decoded)
                 out.shared = out.parts is not None
+                same_view = out.parts is None and why is not None and why.startswith(_SAME_VIEW)
+            if out.parts is None and same_view:  # its scene was compared: the same view, measured alone
+                out.parts = _alone_as_decoded(path, name, rigs[0], config, delay, decoded)
             if out.parts is None:
                 out.parts = _alone(shots, i, config, overrides, option_labels)
-                if why is not None:
-                    out.note = f"calibrated alone: {why}"
+            if not out.shared and why is not None:
+                out.note = f"calibrated alone: {why}"
         except SequenceError as exc:
             out.parts, out.error = None, str(exc)
     out.warnings = [(w.category, str(w.message)) for w in caught]
     return out
+
+
+#: The reasons of `disagreement` for a shot of the same view as the reference (same size, its scene compared):
+#: such a shot measured alone is measured from its frame as decoded, in the reference's orientation.
+_SAME_VIEW = ("its scene is shifted by", "its background differs by")
 
 
 # what a forked worker measures: (shots, rig, config, overrides, option_labels), set just before the pool

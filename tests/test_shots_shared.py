@@ -113,6 +113,9 @@ def test_an_odd_shot_is_measured_alone_with_a_note(rig_shots, tmp_path):
     alone = measure_shots(odd, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
     for name in (moved, lit):
         assert table.loc[name, "drop_volume_nl"] == alone.loc[name, "drop_volume_nl"]
+        # measured from its frame as decoded for the comparison (not opened again): its whole row, its orientation
+        pd.testing.assert_series_equal(table.loc[name].drop("notes"), alone.loc[name].drop("notes"))
+        assert by_file[name]["orientation_source"].startswith("the shared calibration's reference's")
 
 def test_fingerprints_tell_a_moved_camera_and_another_light(rig_shots):
     folder, truth = rig_shots
