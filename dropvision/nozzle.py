@@ -232,7 +232,7 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     if not top:
         raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
     k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
-    body = fill_holes((lab == k).astype(np.uint8) * 255) > 0
+    body = fill_holes(cv2.compare(lab, int(k), cv2.CMP_EQ)) > 0  # 255 where lab == k
     y1 = stats[k, cv2.CC_STAT_TOP] + stats[k, cv2.CC_STAT_HEIGHT]
     rr, s, e = runs(body[:y1])
     # outer silhouette per row: first start .. last stop
@@ -266,7 +266,7 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
         rows = np.arange(a + 2 if a > 0 else a, b - 4)  # 2 rows off a holder's face above the walls
     else:
         rows = np.arange(a, max(a + 1, b - 1) if face_slope is not None else max(a + 3, b - 2))
-    ones = np.ones_like(t)
+    ones = np.broadcast_to(np.float32(1.0), t.shape)  # no background here (t is one): read, never written
     edges = subpixel_edges(t, ones, rows, a_start[rows], a_stop[rows], threshold)
     left, right = edges.left_px, edges.right_px
     mid = 0.5 * (left + right)
