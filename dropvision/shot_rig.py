@@ -62,9 +62,11 @@ MAX_SHIFT_PX = 2.0
 #: bright pixels, block by block, off its median: `scene_distance`) for the shared calibration to hold.
 MAX_BACKGROUND_CHANGE = 0.05
 #: Most groups of agreeing calibration shots that get a shared calibration (`calibrate_rigs`). One: on the
-#: real drop-watcher frames a second group (two shots at another holder place, one of which finds no nozzle
-#: alone) measured a marginal speck as a satellite with the pair's blur reference (1 satellite alone, 2 shared;
-#: outside that frame's accepted count), so further groups are calibrated alone shot by shot.
+#: real drop-watcher frames a second group (frames 3 and 4 of watcher-dod, at one holder place) gave answers of
+#: another kind than alone -- calibrated from both, a speck of frame 4 became a satellite (1 -> 2, outside its
+#: accepted count); with the reference's own calibration (frame 4's, which finds no nozzle), frame 3 was
+#: measured without a nozzle (quality ok -> no_nozzle, attached volume NaN, +0.38 u) -- so further groups are
+#: calibrated alone shot by shot.
 MAX_GROUPS = 1
 #: Fewest shots measured in forked processes (a shot costs a decoding and an assembly, ~50-100 ms
 #: for a 2048 x 1536 JPEG: far more than a fork).
