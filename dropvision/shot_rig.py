@@ -387,6 +387,9 @@ def _calibrate_group(shots, config, overrides, option_labels, first_meta, picks,
         frames = tuple(FrameRef(k, str(shots.paths[i]), None, float(k), 0, k) for k, i in enumerate(members))
         pseudo = ArraySequence(dataclasses.replace(meta, frames=frames), images)
         cal, sigma, ctx = calibrate_sequence(pseudo, config)
+        if not cal.nozzle_found:  # whether the nozzle is found differs between shots of one place (real frames)
+            return None, ("the reference shot's calibration finds no nozzle (a shot of its place may find one "
+                          "alone): no shared calibration")
         cal.rest_meniscus_delay_us = delay if math.isfinite(cal.rest_meniscus_delay_us) else cal.rest_meniscus_delay_us
         check_scale_in_focus(cal, meta)
     except (SequenceError, ValueError) as exc:

@@ -223,3 +223,25 @@ def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_
         assert abs(table.loc[name, "drop_volume_nl"] - alone.loc[name, "drop_volume_nl"]) <= TOLERANCE_U * u, name
         ref = truth[moved.get(name, name)]["drop_volume_nl"]
         assert table.loc[name, "drop_volume_nl"] == pytest.approx(ref, rel=0.02)
+
+
+def test_a_reference_without_a_nozzle_shares_nothing(rig_shots, monkeypatch):
+    """Whether the nozzle is found differs between real shots of one holder place: a reference whose
+    calibration finds none gives no shared calibration (each shot its own, as alone)."""
+    import dropvision.calibration_pass as calibration_pass
+
+    folder, truth = rig_shots
+    plain = calibration_pass.calibrate_sequence
+
+    def no_nozzle(seq, config, **kwargs):
+        cal, sigma, ctx = plain(seq, config, **kwargs)
+        if seq.meta.frames[0].file.startswith("/"):  # the shared calibration's in-memory frames only
+            cal.nozzle_found = False
+        return cal, sigma, ctx
+
+    monkeypatch.setattr(calibration_pass, "calibrate_sequence", no_nozzle)
+    res = measure_shots(folder, overrides=PIXEL, workers=1)
+    rig = res.summary["shared_calibration"]
+    assert rig["reference"] is None and "finds no nozzle" in rig["reason"]
+    assert not any(s["shared_calibration"] for s in res.summary["shots"])
+    assert list(res.shots["quality"]) == ["ok"] * len(truth)
