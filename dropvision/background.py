@@ -173,14 +173,18 @@ def estimate_background(
     if not images:
         raise CalibrationError("no readable frame to estimate the background from")
     h, w = images[0].shape
-    acc = np.zeros((h, w), np.float64)
-    cnt = np.zeros((h, w), np.int32)
-    for img in images:
-        bright = ~dark_bodies_mask(img, margin_px)
-        np.add(acc, img, out=acc, where=bright)  # in place, no gathered copies
-        cnt += bright
-    valid = cnt > 0
-    mean = np.where(valid, acc / np.maximum(cnt, 1), 0.0).astype(np.float32)
+    if len(images) == 1:  # the frame itself where valid (its values elsewhere are never read), no sums
+        valid = ~dark_bodies_mask(images[0], margin_px)
+        mean = np.asarray(images[0], np.float32)
+    else:
+        acc = np.zeros((h, w), np.float64)
+        cnt = np.zeros((h, w), np.int32)
+        for img in images:
+            bright = ~dark_bodies_mask(img, margin_px)
+            np.add(acc, img, out=acc, where=bright)  # in place, no gathered copies
+            cnt += bright
+        valid = cnt > 0
+        mean = np.where(valid, acc / np.maximum(cnt, 1), 0.0).astype(np.float32)
     step = max(2, int(np.sqrt(h * w / 20000)))
     smooth = _fit_smooth(mean, valid, degree, step)
     smooth = np.maximum(smooth, 1e-3 * float(np.max(smooth)))
@@ -217,7 +221,7 @@ def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndar
     sl = (slice(0, hb * block), slice(0, wb * block))
     rel = np.where(valid[sl], mean[sl] / np.maximum(background[sl], 1e-6) - 1.0, 0.0)
     rel = rel.reshape(hb, block, wb, block).mean(axis=(1, 3))
-    ok = valid[sl].reshape(hb, block, wb, block).all(axis=(1, 3))
+    ok = valid[sl].reshape(hb, block, wb * block).all(axis=1).reshape(hb, wb, block).all(axis=2)
     r = rel[ok]
     if r.size < 20:
         return 0.0

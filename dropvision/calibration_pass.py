@@ -29,7 +29,7 @@ from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_
 from dropvision.config import MeasureConfig
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
-from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line, needle_width_terms_px
+from dropvision.nozzle import bottom_profile, components_with_stats, find_nozzle, fit_face_line, needle_width_terms_px
 from dropvision.segmentation import dark_mask, fill_holes, find_nozzle_body, segment
 from dropvision.sequence import SequenceError, pixel_size_from_nozzle
 from dropvision.volume import outline
@@ -637,7 +637,7 @@ def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> 
     its lower outline's straight line (`dropvision.nozzle.fit_face_line`).  None without one.
     """
     mask = (np.asarray(transmission) < threshold).astype(np.uint8)
-    n, lab, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    n, lab, stats, _ = components_with_stats(mask)
     c = int(round(axis_col)) if np.isfinite(axis_col) else -1
     top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0
            and stats[k, cv2.CC_STAT_LEFT] <= c < stats[k, cv2.CC_STAT_LEFT] + stats[k, cv2.CC_STAT_WIDTH]]
@@ -794,9 +794,11 @@ def transmission_noise(transmission: np.ndarray, default: float) -> float:
     float
         Noise standard deviation, in transmission units (MAD of horizontal differences).
     """
-    d = np.diff(transmission, axis=1)[(transmission[:, 1:] > 0.9) & (transmission[:, :-1] > 0.9)]
-    if d.size > 100:
-        return float(1.4826 * np.median(np.abs(d - np.median(d))) / np.sqrt(2.0))
+    bright = transmission > 0.9
+    d = np.diff(transmission, axis=1)[bright[:, 1:] & bright[:, :-1]]
+    if d.size > 100:  # d is ours: the medians partition it in place (the same values, no copies)
+        return float(1.4826 * np.median(np.abs(d - np.median(d, overwrite_input=True)), overwrite_input=True)
+                     / np.sqrt(2.0))
     return default
 
 

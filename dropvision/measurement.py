@@ -153,23 +153,41 @@ def _row_plate(seq: Sequence):
 def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,
              overwrite: bool, nozzle_pitch_um: float | None = None) -> MeasureResult:
     """`measure_sequence` after its checks (the output folder locked)."""
+    meta, n = seq.meta, len(seq)
+    if n:
+        forking = processes_usable(n, max(1, config.workers))
+        with serial_native_pools(forking):  # the row check before a fork starts no native pool either
+            row = _row_plate(seq)
+        if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
+            from dropvision.nozzle_row import measure_row_sequence
+
+            try:
+                nozzles, frames, bodies, summary = measure_row_sequence(
+                    seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
+                    extra_summary=source_keys(meta), scan=row[1], csv=csv)
+            finally:
+                seq.close()
+            return MeasureResult(frames, summary, bodies, nozzles)
+    records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config, logger, progress)
+    result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
+    frames, summary = result.frames, result.summary
+    if logger is not None:
+        logger.log_table(frames)
+        logger.log_summary(summary)
+    if out_dir is not None:
+        with atomic_dir(out_dir, inputs=inputs, overwrite=overwrite, kind="measurement") as tmp:
+            write_result(result, tmp, csv=csv)
+    return result
+
+
+def _calibrated_records(seq: Sequence, config: MeasureConfig, logger=None, progress: bool = False):
+    """The calibration pass and every frame of ``seq`` measured, ``seq`` closed: (records,
+    calibration, blur sigma, frame context, metadata, errors)."""
     meta = seq.meta
     n = len(seq)
     if n == 0:
+        seq.close()
         raise SequenceError(f"{meta.path}: no frames")
-    forking = processes_usable(n, max(1, config.workers))
-    with serial_native_pools(forking):  # the row check before a fork starts no native pool either
-        row = _row_plate(seq)
-    if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
-        from dropvision.nozzle_row import measure_row_sequence
-
-        try:
-            nozzles, frames, bodies, summary = measure_row_sequence(
-                seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
-                extra_summary=source_keys(meta), scan=row[1], csv=csv)
-        finally:
-            seq.close()
-        return MeasureResult(frames, summary, bodies, nozzles)
     errors: list[dict] = []
     decoded: dict = {}
     # frames measured in forked processes (decided again at the fork): OpenCV's pool is not started
@@ -182,15 +200,43 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
     if cal.pixel_size_from_nozzle:  # the calibration's width is the pixel size (the opening's was provisional)
         meta = dataclasses.replace(meta, pixel_size_um=cal.pixel_size_um, pixel_size_source=cal.pixel_size_source,
                                    sources={**(meta.sources or {}), "pixel_size": cal.pixel_size_source})
-    result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
-    frames, summary = result.frames, result.summary
-    if logger is not None:
-        logger.log_table(frames)
-        logger.log_summary(summary)
-    if out_dir is not None:
-        with atomic_dir(out_dir, inputs=inputs, overwrite=overwrite, kind="measurement") as tmp:
-            write_result(result, tmp, csv=csv)
-    return result
+    return records, cal, sigma, ctx, meta, errors
+
+
+@dataclass
+class MeasuredParts:
+    """What `result_from_records` takes of a measured sequence, without pandas and without the
+    frame-sized arrays (`light_calibration`): what a forked worker sends back, the tables being made
+    where pandas may load (`dropvision.shot_rig`: after the fork, in the calling process)."""
+
+    records: list
+    cal: object
+    sigma_px: float
+    edge_blur_ref_px: float
+    edge_blur_ref_source: str
+    meta: object
+    errors: list
+
+    def result(self, config: MeasureConfig) -> MeasureResult:
+        """The `MeasureResult` `measure_sequence` gives (`result_from_records`)."""
+        return result_from_records(self.records, self.cal, self.sigma_px, self, self.meta, config, self.errors)
+
+
+def light_calibration(cal):
+    """A copy of a `dropvision.calibration.Calibration` without its frame-sized arrays (background
+    model, opaque specks): what its summary needs, and cheap to send between processes."""
+    bg = dataclasses.replace(cal.background, background=np.zeros((0, 0), np.float32), opaque=None)
+    out = dataclasses.replace(cal, background=bg)
+    out.notes = list(cal.notes)
+    return out
+
+
+def measure_parts(seq: Sequence, config: MeasureConfig = MeasureConfig()) -> MeasuredParts:
+    """`measure_sequence` of an open sequence, up to its tables: ``.result(config)`` gives them
+    (the same `MeasureResult`). ``seq`` is closed."""
+    records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config)
+    return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.edge_blur_ref_px),
+                         ctx.edge_blur_ref_source, meta, errors)
 
 
 def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: list, decoded: dict):

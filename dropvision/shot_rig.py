@@ -11,18 +11,28 @@ Robustness: the calibration shots (up to ``config.calibration_frames``, spread o
 first included) are compared with each other by their fingerprint (`fingerprint`: the frame reduced
 to some 512 px, over its bright level): the shift of the static scene (the outlines of the dark
 bodies touching the frame's edge: holder, nozzle) and the change of the background's shape beyond a
-gain (`scene_distance`, `disagreement`). The shot agreeing with most others (the
-medoid) is the reference; the calibration shots that disagree with it are left out, so that one odd
-shot does not spoil the shared calibration. Every shot is checked against the reference before it is
-measured with the shared calibration; one that disagrees (another camera position, another
-illumination, another size) is measured alone, as a folder holding only that image is, with a note.
-Fewer than two calibration shots agreeing: no shared calibration, every shot alone (as before).
+gain (`scene_distance`, `disagreement`). The shot agreeing with most others (the medoid) is the
+reference of the first group: those agreeing with it; the same again among the shots left, while a
+group holds two or more, up to `MAX_GROUPS` groups (`calibrate_rigs`: several rigs, or the holder
+at several places, in one folder, each place with its own calibration; one by default, see there). A
+group's calibration is its reference's own, the one that shot gets alone (its row in the folder is its
+row alone; with the frames of several shots the blur reference would be the sharpest body of all, and
+with three or more a drop at the same place in all of them would be folded into the background as
+static dust: a drop watcher's drops fly at the same place shot after shot). Every shot is
+checked against the groups' references, in that order, and measured with the first calibration that
+holds for it; one for which none holds (another camera position, another illumination, another size)
+is measured alone, as a folder holding only that image is, with a note. Fewer than two calibration
+shots agreeing: no shared calibration, every shot alone (as before).
 
-What differs from a shot measured alone: the background is estimated from the calibration shots
-together (with three or more, static dust is folded into it), the liquid's level and the blur
-reference are the calibration shots' (the sharpest body of all), the orientation the reference
-shot's; hence volumes within a fraction of their uncertainty of the solo ones (tools/bench_shots.py
-prints the table).
+Costs (tools/bench_shots.py): a forked worker sends back what a shot's tables are made of
+(`dropvision.measurement.MeasuredParts`), and the tables are made in the calling process, so pandas
+(some 0.5 s of CPU to import) loads once, not once more in every worker; a calibration shot that
+agrees with no group is not decoded and compared again.
+
+What differs from a shot measured alone (all but the references): the background, the liquid's level,
+the blur reference and the orientation are its group's reference shot's; hence volumes within a
+fraction of their uncertainty of the solo ones (tools/bench_shots.py prints the table: within 0.3 u on
+the 12 synthetic shots and the 2 real ones of one holder place; the references to the bit).
 """
 
 from __future__ import annotations
@@ -40,7 +50,7 @@ import numpy as np
 from dropvision.config import MeasureConfig
 from dropvision.sequence_meta import FrameRef, SequenceError
 
-__all__ = ["Fingerprint", "RigCalibration", "ShotOutcome", "calibrate_rig", "disagreement", "fingerprint",
+__all__ = ["Fingerprint", "RigCalibration", "ShotOutcome", "calibrate_rig", "calibrate_rigs", "disagreement", "fingerprint",
            "measure_each"]
 
 #: Longest side (px) of the reduced frame a fingerprint is taken on.
@@ -51,6 +61,13 @@ MAX_SHIFT_PX = 2.0
 #: Largest change of the background's shape beyond a gain (the ratio of the two frames over their
 #: bright pixels, block by block, off its median: `scene_distance`) for the shared calibration to hold.
 MAX_BACKGROUND_CHANGE = 0.05
+#: Most groups of agreeing calibration shots that get a shared calibration (`calibrate_rigs`). One: on the
+#: real drop-watcher frames a second group (frames 3 and 4 of watcher-dod, at one holder place) gave answers of
+#: another kind than alone -- calibrated from both, a speck of frame 4 became a satellite (1 -> 2, outside its
+#: accepted count); with the reference's own calibration (frame 4's, which finds no nozzle), frame 3 was
+#: measured without a nozzle (quality ok -> no_nozzle, attached volume NaN, +0.38 u) -- so further groups are
+#: calibrated alone shot by shot.
+MAX_GROUPS = 1
 #: Fewest shots measured in forked processes (a shot costs a decoding and an assembly, ~50-100 ms
 #: for a 2048 x 1536 JPEG: far more than a fork).
 MIN_SHOTS_FOR_PROCESSES = 4
@@ -104,7 +121,7 @@ _BAND, _SEARCH = 9, 16
 _BLOCKS = 16
 
 
-def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
+def scene_distance(fp: Fingerprint, ref: Fingerprint, max_shift_px: float = math.inf) -> tuple[float, float]:
     """(shift of the static scene in full-frame px, change of the background's shape) of ``fp``
     against ``ref``; (inf, inf) for frames of other sizes.
 
@@ -113,7 +130,8 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
     the margin where the match is at the edge of the search. The change: the frame over the
     reference in `_BLOCKS` x `_BLOCKS` blocks (the median over the pixels bright in both and 2 px
     away from any dark body, blocks at least half such), over their median; the 90th percentile of
-    their departures from 1 (a drop spoils a few blocks, another light most)."""
+    their departures from 1 (a drop spoils a few blocks, another light most). A shift beyond
+    ``max_shift_px``: the change is not computed (NaN)."""
     import cv2
 
     if fp.shape != ref.shape or fp.image.shape != ref.image.shape:
@@ -129,6 +147,8 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint) -> tuple[float, float]:
     dx = x - m + (sub(res[y, x], res[y, x - 1], res[y, x + 1]) if 0 < x < res.shape[1] - 1 else 0.0)
     dy = y - m + (sub(res[y, x], res[y - 1, x], res[y + 1, x]) if 0 < y < res.shape[0] - 1 else 0.0)
     shift = math.hypot(dx, dy) * fp.scale
+    if shift > max_shift_px:
+        return float(shift), math.nan
     dark = ((fp.image < 0.5) | (ref.image < 0.5)).astype(np.uint8)
     both = cv2.dilate(dark, np.ones((5, 5), np.uint8)) == 0  # bright in both, away from any body's edge
     h, w = both.shape
@@ -157,7 +177,7 @@ def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
     if fp.shape != ref.shape:
         return (f"its size {fp.shape[1]}x{fp.shape[0]} differs from the shared calibration's "
                 f"{ref.shape[1]}x{ref.shape[0]}")
-    shift, change = scene_distance(fp, ref)
+    shift, change = scene_distance(fp, ref, MAX_SHIFT_PX)
     if shift > MAX_SHIFT_PX:
         return f"its scene is shifted by {shift:.1f} px against the shared calibration's (most {MAX_SHIFT_PX:g} px)"
     if change > MAX_BACKGROUND_CHANGE:
@@ -168,7 +188,7 @@ def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
 
 
 def _agree(fp: Fingerprint, ref: Fingerprint) -> bool:
-    shift, change = scene_distance(fp, ref)
+    shift, change = scene_distance(fp, ref, MAX_SHIFT_PX)
     return shift <= MAX_SHIFT_PX and change <= MAX_BACKGROUND_CHANGE
 
 
@@ -236,7 +256,22 @@ def _inside_own_folder(path: Path) -> bool:
 
 def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                   option_labels: dict | None = None) -> tuple[RigCalibration | None, str | None]:
-    """The calibration the shots share, from up to ``config.calibration_frames`` of them.
+    """The calibration most of the calibration shots share (the first of `calibrate_rigs`), or
+    None and why there is none."""
+    rigs, why, _ = calibrate_rigs(shots, config, overrides=overrides, option_labels=option_labels)
+    return (rigs[0] if rigs else None), why
+
+
+def calibrate_rigs(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
+                   option_labels: dict | None = None, max_groups: int | None = None
+                   ) -> tuple[list[RigCalibration], str | None, dict[int, str]]:
+    """The calibrations the shots share, from up to ``config.calibration_frames`` of them: one per
+    group of calibration shots that agree (several rigs, or one camera at several places, in one folder).
+
+    The calibration shots are compared pairwise (`fingerprint`, `scene_distance`); the shot agreeing
+    with most others (the first of them on a tie) and those agreeing with it are the first group, the
+    largest; the same again among the shots left, while a group holds two or more. Each group is
+    calibrated from its shots together (the reference: that shot).
 
     Parameters
     ----------
@@ -244,21 +279,23 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
     config : MeasureConfig
     overrides, option_labels : dict, optional
         As for `dropvision.sequence.open_sequence` (they apply to every shot).
+    max_groups : int, optional
+        Most groups calibrated (`MAX_GROUPS` by default); the shots of the others are measured alone.
 
     Returns
     -------
-    (RigCalibration or None, reason)
-        None and why when no shared calibration holds (fewer than two calibration shots agree,
-        the reference cannot be opened or calibrated): every shot is then measured alone.
+    (list of RigCalibration, reason, alone)
+        The groups' calibrations, the largest first (empty, and why, when no two calibration shots
+        agree, the reference cannot be opened or calibrated: every shot is then measured alone);
+        ``alone``: calibration shot index -> why it agrees with no group (it is measured alone
+        without being compared again).
     """
-    from dropvision.calibration_pass import calibrate_sequence
-    from dropvision.measurement import calibration_flags, check_scale_in_focus
-    from dropvision.orientation import to_canonical
-    from dropvision.sequence import ArraySequence, Sequence, open_sequence, pixel_size_from_nozzle
+    from dropvision.sequence import open_sequence, pixel_size_from_nozzle
 
+    max_groups = MAX_GROUPS if max_groups is None else max_groups
     n = len(shots.paths)
     if n < 2:
-        return None, "a single shot"
+        return [], "a single shot", {}
     picks = [i for i in _spread(n, config.calibration_frames) if _inside_own_folder(shots.paths[i])
              and not _own_metadata(shots, i)]
     stored: dict[int, np.ndarray] = {}
@@ -269,17 +306,16 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
             if first_meta is None:
                 first_meta = open_sequence(path.parent, overrides=overrides, labels=option_labels,
                                            only_files=[path.name]).meta
-            probe = Sequence(dataclasses.replace(first_meta, path=path.parent, orientation="down", shape=(0, 0),
-                                                 frames=(_shot_ref(path, shots.names[i], 0.0),)), np.uint8)
+            probe = _stored_sequence(first_meta, path, shots.names[i])
             stored[i] = probe._decode(probe.meta.frames[0], warn=False)
         except Exception:  # noqa: BLE001 - an unreadable calibration shot is left out (measured alone, it says why)
             continue
     if len(stored) < 2:
-        return None, "fewer than two calibration shots could be read"
+        return [], "fewer than two calibration shots could be read", {}
     if first_meta.pixel_size_source in _FILE_PIXEL_SIZE:
-        return None, f"the pixel size is each image's own (its {first_meta.pixel_size_source} metadata)"
+        return [], f"the pixel size is each image's own (its {first_meta.pixel_size_source} metadata)", {}
     if pixel_size_from_nozzle(first_meta):
-        return None, "the pixel size is each shot's own needle width (no pixel size given)"
+        return [], "the pixel size is each shot's own needle width (no pixel size given)", {}
     prints = {i: fingerprint(img) for i, img in stored.items()}
     keys = list(prints)
     agree: dict[int, set[int]] = {i: {i} for i in keys}
@@ -288,12 +324,56 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
             if _agree(prints[j], prints[i]):
                 agree[i].add(j)
                 agree[j].add(i)
-    reference = max(keys, key=lambda i: (len(agree[i]), -keys.index(i)))  # the first of the most agreeing
-    members = sorted(agree[reference])
-    if len(members) < 2:
-        return None, f"no two of the {len(keys)} calibration shots agree (camera position or light differ)"
-    left_out = {shots.names[i]: disagreement(prints[i], prints[reference]) or "disagrees" for i in keys
-                if i not in agree[reference]}
+    rigs: list[RigCalibration] = []
+    failed: list[str] = []
+    grouped: set[int] = set()
+    left = list(keys)
+    while len(left) >= 2 and len(rigs) + len(failed) < max_groups:
+        groups = {i: sorted(agree[i] & set(left)) for i in left}
+        reference = max(left, key=lambda i: (len(groups[i]), -keys.index(i)))  # the first of the most agreeing
+        members = groups[reference]
+        if len(members) < 2:
+            break
+        left = [i for i in left if i not in members]
+        # the reference's own calibration (its answer in the folder is its answer alone): with several
+        # frames, the blur reference would be the sharpest body of all, and with three or more a body dark
+        # in all of them is folded into the background as static dust -- a drop watcher's drops fly at the
+        # same place shot after shot (`dropvision.background.estimate_background`)
+        rig, why = _calibrate_group(shots, config, overrides, option_labels, first_meta, picks, stored,
+                                    [reference], reference)
+        if rig is None:
+            failed.append(why)
+        else:
+            rigs.append(rig)
+            grouped |= set(members)
+    if not rigs:
+        return [], (failed[0] if failed else
+                    f"no two of the {len(keys)} calibration shots agree (camera position or light differ)"), {}
+    # the calibration shots in no group: measured alone, as the largest group's reference judged them
+    main_ref = next(i for i in keys if shots.names[i] == rigs[0].reference_name)
+    alone = {i: disagreement(prints[i], prints[main_ref]) or "it agrees with no shared calibration"
+             for i in keys if i not in grouped}
+    rigs[0].left_out = {shots.names[i]: why for i, why in alone.items()}
+    return rigs, None, alone
+
+
+def _stored_sequence(meta, path: Path, name: str):
+    """A one-frame `dropvision.sequence.Sequence` of the image at ``path`` read as stored."""
+    from dropvision.sequence import Sequence
+
+    return Sequence(dataclasses.replace(meta, path=path.parent, orientation="down", shape=(0, 0),
+                                        frames=(_shot_ref(path, name, 0.0),)), np.uint8)
+
+
+def _calibrate_group(shots, config, overrides, option_labels, first_meta, picks, stored, members, reference
+                     ) -> tuple[RigCalibration | None, str | None]:
+    """The `RigCalibration` of one group of agreeing calibration shots (``members``, indices into
+    ``shots``; ``stored``: their images as stored), or None and why it failed."""
+    from dropvision.calibration_pass import calibrate_sequence
+    from dropvision.measurement import calibration_flags, check_scale_in_focus
+    from dropvision.orientation import to_canonical
+    from dropvision.sequence import ArraySequence, open_sequence
+
     first = members[0]
     try:
         meta = first_meta if first == picks[0] else open_sequence(
@@ -308,6 +388,9 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
         pseudo = ArraySequence(dataclasses.replace(meta, frames=frames), images)
         # the drops of shots at one strobe delay sit at nearly one place: not dust (as for a shot alone)
         cal, sigma, ctx = calibrate_sequence(pseudo, config, static_dust=False)
+        if not cal.nozzle_found:  # whether the nozzle is found differs between shots of one place (real frames)
+            return None, ("the reference shot's calibration finds no nozzle (a shot of its place may find one "
+                          "alone): no shared calibration")
         cal.rest_meniscus_delay_us = delay if math.isfinite(cal.rest_meniscus_delay_us) else cal.rest_meniscus_delay_us
         check_scale_in_focus(cal, meta)
     except (SequenceError, ValueError) as exc:
@@ -318,7 +401,7 @@ def calibrate_rig(shots, config: MeasureConfig = MeasureConfig(), *, overrides: 
     rig = RigCalibration(meta=meta, dtype=images[0].dtype, cal=cal, sigma_px=float(sigma), ctx=ctx,
                          flags=calibration_flags(cal, sigma, config),
                          reference=fingerprint(to_canonical(stored[reference], meta.orientation)),
-                         reference_name=shots.names[reference], calibrated_from=names, left_out=left_out)
+                         reference_name=shots.names[reference], calibrated_from=names)
     return rig, None
 
 
@@ -333,6 +416,8 @@ class ShotOutcome:
     name: str
     result: object = None
     error: str | None = None
+    #: what the shot's tables are made of (`dropvision.measurement.MeasuredParts`), until `measure_each` makes them
+    parts: object = None
     shared: bool = False
     note: str | None = None
     warnings: list = field(default_factory=list)
@@ -363,67 +448,124 @@ def _own_metadata(shots, i: int) -> bool:
 
 
 def _alone(shots, i: int, config: MeasureConfig, overrides, option_labels):
-    from dropvision.measurement import measure_sequence
+    """Shot ``i`` measured as a folder holding only that image is (`dropvision.measurement.measure_parts`)."""
+    from dropvision.measurement import measure_parts
     from dropvision.sequence import open_sequence
     path = shots.paths[i]
     over, how = shot_metadata(shots, shots.names[i], overrides, option_labels)
     seq = open_sequence(path.parent, overrides=over, labels=how, only_files=[path.name])
-    return measure_sequence(seq, None, config)
+    return measure_parts(seq, config)
 
 
-def _with_rig(path: Path, name: str, rig: RigCalibration, config: MeasureConfig, delay_us: float):
-    """(result, None) measured with the shared calibration, or (None, why it does not hold)."""
+def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: float, decoded: dict | None = None):
+    """(parts, None) measured with the first shared calibration that holds for the shot (a
+    `dropvision.measurement.MeasuredParts`), or (None, why none holds: the first's reason).
+    ``decoded`` receives (orientation, shape, dtype) -> (frame, fingerprint or why not) of the shot."""
     from dropvision.frame import measure_frame
-    from dropvision.measurement import result_from_records
+    from dropvision.measurement import MeasuredParts, light_calibration
     from dropvision.sequence import Sequence
 
+    if isinstance(rigs, RigCalibration):
+        rigs = [rigs]
     if not _inside_own_folder(path):
         return None, "a link outside its folder"
+    first_why = None
+    decoded = {} if decoded is None else decoded
+    for rig in rigs:
+        meta = dataclasses.replace(rig.meta, path=path.parent, frames=(_shot_ref(path, name, delay_us),),
+                                   reordered=False)
+        key = (rig.meta.orientation, rig.meta.shape, np.dtype(rig.dtype).str)
+        if key not in decoded:
+            seq = Sequence(meta, rig.dtype)
+            try:
+                fr = seq.read(0)
+                decoded[key] = (fr, None if fr.image is None else fingerprint(fr.image))
+            except SequenceError as exc:  # another size or pixel type: its own calibration says what it is
+                decoded[key] = (None, str(exc).split(": ", 1)[-1])
+            finally:
+                seq.close()
+        fr, fp = decoded[key]
+        if fr is None or fr.image is None:
+            why = fp if fr is None else fr.error
+        else:
+            why = disagreement(fp, rig.reference)
+        if why is None:
+            rec = measure_frame(fr.image, rig.ctx, fr.ref)
+            rec.flags = list(rig.flags) + rec.flags
+            return MeasuredParts([rec], light_calibration(rig.cal), rig.sigma_px, float(rig.ctx.edge_blur_ref_px),
+                                 rig.ctx.edge_blur_ref_source, meta, []), None
+        first_why = first_why or why
+        if fr is None or fr.image is None:
+            break
+    return None, first_why
+
+
+def _alone_as_decoded(path: Path, name: str, rig: RigCalibration, config: MeasureConfig, delay_us: float,
+                      decoded: dict):
+    """The parts of a shot measured alone (its own calibration, as `_alone`) from its frame as decoded
+    in the shared calibration's geometry (orientation, size, pixel type: its scene was compared with the
+    reference's, so it is the same view), without opening it again: None when not decoded so (another
+    size or pixel type, unreadable: `_alone` says what it is)."""
+    from dropvision.measurement import measure_parts
+    from dropvision.sequence import ArraySequence, Sequence
+
     meta = dataclasses.replace(rig.meta, path=path.parent, frames=(_shot_ref(path, name, delay_us),),
                                reordered=False)
-    seq = Sequence(meta, rig.dtype)
-    try:
-        fr = seq.read(0)
-    except SequenceError as exc:  # another size or pixel type: its own calibration says what it is
-        return None, str(exc).split(": ", 1)[-1]
-    finally:
-        seq.close()
-    if fr.image is None:
-        return None, fr.error
-    why = disagreement(fingerprint(fr.image), rig.reference)
-    if why is not None:
-        return None, why
-    rec = measure_frame(fr.image, rig.ctx, fr.ref)
-    rec.flags = list(rig.flags) + rec.flags
-    cal = copy.copy(rig.cal)
-    cal.notes = list(rig.cal.notes)
-    return result_from_records([rec], cal, rig.sigma_px, rig.ctx, meta, config, []), None
+    key = (rig.meta.orientation, rig.meta.shape, np.dtype(rig.dtype).str)
+    sources = dict(rig.meta.sources or {})
+    sources["orientation"] = (f"the shared calibration's reference's, {rig.reference_name} (the same view, its scene "
+                              f"compared): {sources.get('orientation')}")
+    if key not in decoded:
+        seq = Sequence(meta, rig.dtype)
+        try:
+            fr = seq.read(0)
+            decoded[key] = (fr, None)
+        except SequenceError:
+            return None
+        finally:
+            seq.close()
+    fr = decoded[key][0]
+    if fr is None or fr.image is None:
+        return None
+    return measure_parts(ArraySequence(dataclasses.replace(meta, sources=sources), [fr.image]), config)
 
 
 def _measure_one(i: int, state) -> ShotOutcome:
-    """Shot ``i``: with the shared calibration where it holds, else alone (its own calibration);
-    its warnings recorded (given in the calling process, in order)."""
-    shots, rig, config, overrides, option_labels = state
+    """Shot ``i``: with a shared calibration where one holds, else alone (its own calibration);
+    its warnings recorded (given in the calling process, in order). The outcome holds the shot's
+    `dropvision.measurement.MeasuredParts` (``parts``): its tables are made by `measure_each`."""
+    shots, rigs, known_alone, config, overrides, option_labels = state
     path, name = shots.paths[i], shots.names[i]
     out = ShotOutcome(name)
     delay = float((overrides or {}).get("delay_us") or 0.0)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         try:
-            why = None
-            if rig is not None and _own_metadata(shots, i):
+            why, decoded, same_view = None, {}, False
+            if rigs and _own_metadata(shots, i):
                 why = "its own pixel size or nozzle diameter labels"
-            elif rig is not None:
-                out.result, why = _with_rig(path, name, rig, config, delay)
-                out.shared = out.result is not None
-            if out.result is None:
-                out.result = _alone(shots, i, config, overrides, option_labels)
-                if why is not None:
-                    out.note = f"calibrated alone: {why}"
+            elif rigs and i in known_alone:  # a calibration shot that agrees with no group: compared already
+                why = known_alone[i]
+                same_view = why.startswith(_SAME_VIEW)
+            elif rigs:
+                out.parts, why = _with_rig(path, name, rigs, config, delay, decoded)
+                out.shared = out.parts is not None
+                same_view = out.parts is None and why is not None and why.startswith(_SAME_VIEW)
+            if out.parts is None and same_view:  # its scene was compared: the same view, measured alone
+                out.parts = _alone_as_decoded(path, name, rigs[0], config, delay, decoded)
+            if out.parts is None:
+                out.parts = _alone(shots, i, config, overrides, option_labels)
+            if not out.shared and why is not None:
+                out.note = f"calibrated alone: {why}"
         except SequenceError as exc:
-            out.result, out.error = None, str(exc)
+            out.parts, out.error = None, str(exc)
     out.warnings = [(w.category, str(w.message)) for w in caught]
     return out
+
+
+#: The reasons of `disagreement` for a shot of the same view as the reference (same size, its scene compared):
+#: such a shot measured alone is measured from its frame as decoded, in the reference's orientation.
+_SAME_VIEW = ("its scene is shifted by", "its background differs by")
 
 
 # what a forked worker measures: (shots, rig, config, overrides, option_labels), set just before the pool
@@ -494,8 +636,8 @@ def _each_forked(state, indices: list[int], workers: int):
 
 def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                  option_labels: dict | None = None, shared: bool = True, workers: int | None = None
-                 ) -> tuple[list[ShotOutcome], RigCalibration | None, str | None]:
-    """Measure every shot: with one shared calibration (`calibrate_rig`) where it holds, else alone.
+                 ) -> tuple[list[ShotOutcome], list[RigCalibration], str | None]:
+    """Measure every shot: with a shared calibration (`calibrate_rigs`) where one holds, else alone.
 
     Parameters
     ----------
@@ -507,22 +649,25 @@ def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: d
         False: every shot alone, as a folder holding only that image (no shared calibration).
     workers : int, optional
         Forked processes (``config.workers`` by default; 1: in this process). The outcomes are the
-        same either way.
+        same either way. A worker sends back what the tables are made of
+        (`dropvision.measurement.MeasuredParts`); the tables are made here, after the workers are
+        done (pandas, whose import starts a thread and costs more than a shot, loads once, here).
 
     Returns
     -------
-    (outcomes in the shots' order, the shared calibration or None, why there is none or None)
+    (outcomes in the shots' order, the shared calibrations (the largest group's first; empty
+    when none), why there is none or None)
     """
     from dropvision.frame import processes_usable, serial_native_pools
 
     workers = max(1, config.workers if workers is None else workers)
     n = len(shots.paths)
     forked = processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES)
-    rig, why = None, "not asked for" if not shared else None
+    rigs, known_alone, why = [], {}, "not asked for" if not shared else None
     with serial_native_pools(forked):  # this process still runs one thread when it forks (issue 29)
         if shared:
-            rig, why = calibrate_rig(shots, config, overrides=overrides, option_labels=option_labels)
-        state = (shots, rig, config, overrides, option_labels)
+            rigs, why, known_alone = calibrate_rigs(shots, config, overrides=overrides, option_labels=option_labels)
+        state = (shots, rigs, known_alone, config, overrides, option_labels)
         indices = list(range(n))
         if forked and processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES):
             outcomes = list(_each_forked(state, indices, workers))
@@ -534,5 +679,14 @@ def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: d
         first_colour_note = None
 
     for out in outcomes:
+        if out.parts is not None:
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                try:
+                    out.result = out.parts.result(config)
+                except SequenceError as exc:
+                    out.result, out.error = None, str(exc)
+            out.parts = None
+            out.warnings += [(w.category, str(w.message)) for w in caught]
         give_warnings(_Names, out.warnings)
-    return outcomes, rig, why
+    return outcomes, rigs, why

@@ -565,7 +565,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
     frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
     # pandas (with pyarrow's allocator thread) only after the worker processes are forked
-    outcomes, rig, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
+    outcomes, rigs, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
                                          shared=shared_calibration, workers=workers)
     import pandas as pd
     for out in outcomes:
@@ -627,8 +627,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         "errors": errors,
         "notes": common,
         "shots": per_shot,
-        "shared_calibration": (rig.to_dict() if rig is not None
-                               else {"reference": None, "calibrated_from": [], "left_out": [], "reason": no_rig}),
+        "shared_calibration": ({**rigs[0].to_dict(), "others": [r.to_dict() for r in rigs[1:]]} if rigs
+                               else {"reference": None, "calibrated_from": [], "left_out": [], "others": [],
+                                     "reason": no_rig}),
         **({"waveform": waveform} if waveform is not None else {}),
         "software": software_versions(),
         "config": asdict(config),

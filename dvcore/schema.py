@@ -283,8 +283,9 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
       "calibration, or error (why it could not be measured)"),
     F("shared_calibration", "object", "", "the calibration the shots of one rig share (dropvision.shot_rig): "
       "reference (the shot the others are checked against), calibrated_from (the shots it comes from), left_out "
-      "(calibration shots that disagree: file, reason); reference null and a reason where every shot was "
-      "calibrated alone"),
+      "(calibration shots that agree with no group: file, reason), others (the same for each further group of "
+      "agreeing calibration shots, up to dropvision.shot_rig.MAX_GROUPS: another rig, or the holder at another "
+      "place; a shot takes the first that holds for it); reference null and a reason where every shot was calibrated alone"),
     F("waveform", "object", "", "the waveform template whose parameters are each shot's labels (sequence.json "
       "`waveform` or --waveform-template without parameters): {template, <constant>, dead_time_us, "
       "parameters_from: \"labels\"}; the parameters are the label columns of shots.parquet of the same names, in "

@@ -55,12 +55,15 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
     alone = measure_shots(folder, overrides=PIXEL, workers=1, shared_calibration=False)
     rig = shared.summary["shared_calibration"]
     assert rig["reference"] == sorted(truth)[0] and rig["left_out"] == []
-    assert sorted(rig["calibrated_from"]) == sorted(truth)  # every shot is a calibration shot here
+    # the reference's own calibration: its row is its row alone, to the bit (but the notes)
+    assert rig["calibrated_from"] == sorted(truth)[:1]
     assert all(s["shared_calibration"] for s in shared.summary["shots"])
     assert not any(s["shared_calibration"] for s in alone.summary["shots"])
     assert alone.summary["shared_calibration"]["reference"] is None
     a, s = alone.shots.set_index("file"), shared.shots.set_index("file")
     assert list(a.index) == list(s.index) == sorted(truth)
+    ref = sorted(truth)[0]
+    pd.testing.assert_series_equal(s.loc[ref].drop("notes"), a.loc[ref].drop("notes"))
     for name, t in truth.items():
         u = s.loc[name, "drop_volume_uncertainty_nl"]
         assert u > 0
@@ -70,7 +73,7 @@ def test_the_shared_calibration_gives_the_solo_answers(rig_shots):
         assert s.loc[name, "drop_z_um"] == pytest.approx(a.loc[name, "drop_z_um"], abs=1.0)
         assert s.loc[name, "quality"] == a.loc[name, "quality"] == "ok"
     # the shared calibration is stated once, for the folder
-    assert any(n.startswith("calibration shared by the shots of one rig: from 4 shot(s)")
+    assert any(n.startswith("calibration shared by the shots of one rig: from 1 shot(s)")
                for n in shared.summary["notes"])
 
 
@@ -110,6 +113,9 @@ def test_an_odd_shot_is_measured_alone_with_a_note(rig_shots, tmp_path):
     alone = measure_shots(odd, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
     for name in (moved, lit):
         assert table.loc[name, "drop_volume_nl"] == alone.loc[name, "drop_volume_nl"]
+        # measured from its frame as decoded for the comparison (not opened again): its whole row, its orientation
+        pd.testing.assert_series_equal(table.loc[name].drop("notes"), alone.loc[name].drop("notes"))
+        assert by_file[name]["orientation_source"].startswith("the shared calibration's reference's")
 
 def test_fingerprints_tell_a_moved_camera_and_another_light(rig_shots):
     folder, truth = rig_shots
@@ -180,7 +186,7 @@ def test_a_rotated_rig_shares_its_calibration(rig_shots, tmp_path):
         cv2.imwrite(str(turned / name), np.ascontiguousarray(np.rot90(cv2.imread(str(folder / name),
                                                                                  cv2.IMREAD_UNCHANGED))))
     res = measure_shots(turned, overrides=PIXEL, workers=1)
-    assert sorted(res.summary["shared_calibration"]["calibrated_from"]) == sorted(truth)
+    assert res.summary["shared_calibration"]["calibrated_from"] == sorted(truth)[:1]
     assert all(s["shared_calibration"] and s["orientation"] == "right" for s in res.summary["shots"])
     table = res.shots.set_index("file")
     for name, t in truth.items():
@@ -204,3 +210,57 @@ def test_drops_at_one_place_in_every_shot_are_not_dust(tmp_path):
     assert list(shared.shots["quality"]) == list(alone.shots["quality"]) == ["ok"] * 3
     diff = np.abs(shared.shots["drop_volume_nl"] - alone.shots["drop_volume_nl"])
     assert np.isfinite(diff).all() and (diff <= TOLERANCE_U * alone.shots["drop_volume_uncertainty_nl"]).all()
+
+
+def test_each_group_of_agreeing_shots_shares_its_own_calibration(rig_shots, tmp_path, monkeypatch):
+    """The holder at two places in one folder (three shots 6 px aside), two groups allowed: two shared
+    calibrations, one per place, each shot measured with its own place's; every answer is the solo one
+    within TOLERANCE_U of its uncertainty. One group (the default): the second place's shots alone."""
+    folder, truth = rig_shots
+    two = tmp_path / "two"
+    shutil.copytree(folder, two)
+    names = sorted(truth)
+    moved = {f"images_B-moved{k}.png": names[k] for k in range(3)}
+    for name, src in moved.items():
+        _shifted(folder / src, two / name, 6.0, 0.0)
+    default = measure_shots(two, overrides=PIXEL, workers=1)
+    assert default.summary["shared_calibration"]["others"] == []
+    assert {s["file"] for s in default.summary["shots"] if not s["shared_calibration"]} == set(moved)
+    monkeypatch.setattr(shot_rig, "MAX_GROUPS", 2)
+    res = measure_shots(two, overrides=PIXEL, workers=1)
+    rig = res.summary["shared_calibration"]
+    assert rig["calibrated_from"] == names[:1] and rig["left_out"] == []
+    assert [o["calibrated_from"] for o in rig["others"]] == [sorted(moved)[:1]]
+    assert all(s["shared_calibration"] for s in res.summary["shots"])
+    table = res.shots.set_index("file")
+    alone = measure_shots(two, overrides=PIXEL, workers=1, shared_calibration=False).shots.set_index("file")
+    for name in moved:
+        assert "calibration shared by the shots of one rig: from 1 shot(s) (images_B-moved0" in table.loc[name, "notes"]
+    for name in list(truth) + list(moved):
+        u = table.loc[name, "drop_volume_uncertainty_nl"]
+        assert u > 0
+        assert abs(table.loc[name, "drop_volume_nl"] - alone.loc[name, "drop_volume_nl"]) <= TOLERANCE_U * u, name
+        ref = truth[moved.get(name, name)]["drop_volume_nl"]
+        assert table.loc[name, "drop_volume_nl"] == pytest.approx(ref, rel=0.02)
+
+
+def test_a_reference_without_a_nozzle_shares_nothing(rig_shots, monkeypatch):
+    """Whether the nozzle is found differs between real shots of one holder place: a reference whose
+    calibration finds none gives no shared calibration (each shot its own, as alone)."""
+    import dropvision.calibration_pass as calibration_pass
+
+    folder, truth = rig_shots
+    plain = calibration_pass.calibrate_sequence
+
+    def no_nozzle(seq, config, **kwargs):
+        cal, sigma, ctx = plain(seq, config, **kwargs)
+        if seq.meta.frames[0].file.startswith("/"):  # the shared calibration's in-memory frames only
+            cal.nozzle_found = False
+        return cal, sigma, ctx
+
+    monkeypatch.setattr(calibration_pass, "calibrate_sequence", no_nozzle)
+    res = measure_shots(folder, overrides=PIXEL, workers=1)
+    rig = res.summary["shared_calibration"]
+    assert rig["reference"] is None and "finds no nozzle" in rig["reason"]
+    assert not any(s["shared_calibration"] for s in res.summary["shots"])
+    assert list(res.shots["quality"]) == ["ok"] * len(truth)

@@ -7,8 +7,11 @@ and 12 synthetic drop-watcher shots of one rig (`dropvision synth --rig watcher-
 All measured at --pixel-size-um 3 (the real frames' assumption; the synthetic ones' volumes are then
 relative, as for any comparison alone against in the folder).
 
-Prints: the wall times and the speed-up; the per-shot cost of a 2048 x 1536 JPEG of one rig (the
-marginal cost: a folder of the 12 synthetic shots against one of 4, over the 8 more); per shot, the
+Prints: the wall times and the speed-up (CPU seconds too: the robust figure on a loaded machine), for the
+20 shots and for the 8 real ones alone (one folder of the 8 against their 8 one-image runs); the per-shot
+cost of a 2048 x 1536 JPEG of one rig (the marginal cost: a folder of the 12 synthetic shots against one
+of 4, over the 8 more) and of one calibrated alone (a folder of the last 4 real frames, each at its own
+holder place, against one of the last 2 of them, over the 2 more); per shot, the
 main drop's volume alone and in the folder and their difference in units of its uncertainty; and
 whether the 8 real rows of the folder of 8 meet the rules of ../shared/realdata/README.md (score.py's).
 
@@ -101,13 +104,18 @@ def main() -> int:
         c0 = CPU[0]
         t_folder = run(["measure", str(both), "--out", str(root / "out20")] + PIXEL)
         c_folder, c0 = CPU[0] - c0, CPU[0]
-        t_alone = 0.0
+        t_alone = t_alone8 = c_alone8 = 0.0
         alone = {}
         for i, image in enumerate(images):
             one = root / f"alone{i:02d}"
             one.mkdir()
             shutil.copy(image, one / image.name)
-            t_alone += run(["measure", str(one), "--out", str(root / f"out{i:02d}")] + PIXEL)
+            c1 = CPU[0]
+            t = run(["measure", str(one), "--out", str(root / f"out{i:02d}")] + PIXEL)
+            t_alone += t
+            if image.name in real_names:
+                t_alone8 += t
+                c_alone8 += CPU[0] - c1
             alone[image.name] = pd.read_parquet(root / f"out{i:02d}" / "frames.parquet").iloc[0]
         c_alone = CPU[0] - c0
         # the marginal cost of a shot of one rig: 12 synthetic shots against 4
@@ -124,20 +132,39 @@ def main() -> int:
         c12, c0 = CPU[0] - c0, CPU[0]
         t4 = run(["measure", str(syn4), "--out", str(root / "o4")] + PIXEL)
         c4 = CPU[0] - c0
-        run(["measure", str(real), "--out", str(root / "out8")] + PIXEL)
+        c0 = CPU[0]
+        t8 = run(["measure", str(real), "--out", str(root / "out8")] + PIXEL)
+        c8 = CPU[0] - c0
+        # the marginal cost of a shot calibrated alone: the last 4 real frames (4 holder places) against 2
+        own4, own2 = root / "own4", root / "own2"
+        own4.mkdir()
+        own2.mkdir()
+        for k, name in enumerate(sorted(real_names)[-4:]):
+            shutil.copy(real / name, own4 / name)
+            if k >= 2:
+                shutil.copy(real / name, own2 / name)
+        c0 = CPU[0]
+        t_own4 = run(["measure", str(own4), "--out", str(root / "oo4")] + PIXEL)
+        c_own4, c0 = CPU[0] - c0, CPU[0]
+        t_own2 = run(["measure", str(own2), "--out", str(root / "oo2")] + PIXEL)
+        c_own2 = CPU[0] - c0
         print(f"20 shots (8 real watcher-dod + 12 synthetic watcher-blurred-holder, 2048x1536 JPEG), "
               f"{os.cpu_count()} CPUs, workers 2:")
         print(f"  20 one-image runs {t_alone:.1f} s wall ({c_alone:.1f} s CPU); one folder run {t_folder:.1f} s wall "
               f"({c_folder:.1f} s CPU): {t_alone / t_folder:.1f}x faster ({c_alone / c_folder:.1f}x less CPU)")
+        print(f"  the 8 real shots alone: 8 one-image runs {t_alone8:.1f} s wall ({c_alone8:.1f} s CPU); one folder run "
+              f"{t8:.1f} s wall ({c8:.1f} s CPU): {t_alone8 / t8:.1f}x faster ({c_alone8 / c8:.1f}x less CPU)")
         print(f"  per shot of one rig (2048x1536 JPEG): {1000 * (t12 - t4) / 8:.0f} ms wall, {1000 * (c12 - c4) / 8:.0f} ms "
-              f"CPU (folder of 12 against folder of 4, over the 8 more); one-image run "
+              f"CPU (folder of 12 against folder of 4, over the 8 more); calibrated alone "
+              f"{1000 * (t_own4 - t_own2) / 2:.0f} ms wall, {1000 * (c_own4 - c_own2) / 2:.0f} ms CPU; one-image run "
               f"{1000 * t_alone / len(images):.0f} ms wall, {1000 * c_alone / len(images):.0f} ms CPU per image")
         table = pd.read_parquet(root / "out20" / "shots.parquet").set_index("file")
         summary = json.loads((root / "out20" / "summary.json").read_text())
         shared = {s["file"]: s.get("shared_calibration") for s in summary["shots"]}
-        print(f"  shared calibration from {len(summary['shared_calibration']['calibrated_from'])} shot(s), "
-              f"reference {summary['shared_calibration']['reference']}; "
-              f"{sum(bool(v) for v in shared.values())} of {len(shared)} shots measured with it")
+        groups = [summary["shared_calibration"]] + list(summary["shared_calibration"].get("others", []))
+        print(f"  {len(groups)} shared calibration(s) (references "
+              + ", ".join(str(g["reference"]) for g in groups) + "); "
+              f"{sum(bool(v) for v in shared.values())} of {len(shared)} shots measured with one")
         print(f"  {'shot':<62} {'shared':>6} {'alone nl':>10} {'folder nl':>10} {'u nl':>7} {'diff/u':>7}")
         for name in table.index:
             a = alone[name]
@@ -149,8 +176,9 @@ def main() -> int:
         t8 = pd.read_parquet(root / "out8" / "shots.parquet").set_index("file")
         s8 = json.loads((root / "out8" / "summary.json").read_text())
         shared8 = {s["file"]: s.get("shared_calibration") for s in s8["shots"]}
-        print(f"  the 8 real shots as one folder (shared calibration from "
-              f"{s8['shared_calibration']['calibrated_from']}):")
+        groups8 = [s8["shared_calibration"]] + list(s8["shared_calibration"].get("others", []))
+        print("  the 8 real shots as one folder (shared calibrations from "
+              + "; ".join(", ".join(g["calibrated_from"]) for g in groups8) + "):")
         for name in real_names:
             a, row = alone[name], t8.loc[name]
             u = float(row["drop_volume_uncertainty_nl"])
