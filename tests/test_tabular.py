@@ -196,3 +196,18 @@ def test_few_rows_still_give_a_finite_interval_and_say_so(tmp_path):
     m.save(tmp_path / "m.json")
     p = TabularModel.from_json(tmp_path / "m.json").predict(small.head(3))
     assert np.isfinite(p.filter(like="volume_px3").to_numpy()).all()
+
+
+def test_fit_command_line_logs_the_jetting_window_to_rerun(tmp_path):
+    """`identify fit TABLE ... --rerun FILE`: the report's maps as images (a probability per count,
+    the prediction per continuous output), the training settings as points, the axes as text."""
+    from rrdtools import Rrd  # tests/ is on the path (conftest)
+
+    rng = np.random.default_rng(5)
+    _draw(rng, *_grid(rng, 120)).to_csv(tmp_path / "sweep.csv", index=False)
+    rrd = tmp_path / "fit.rrd"
+    assert main(["fit", str(tmp_path / "sweep.csv"), "--inputs", "a,b,c", "--outputs", "volume_px3,n_drops",
+                 "--folds", "3", "--out", str(tmp_path / "model.json"), "--rerun", str(rrd)]) == 0
+    ents = Rrd(rrd).entities()
+    assert {"/identify/window/volume_px3_mean", "/identify/window/n_drops_p1",
+            "/identify/window/n_drops_p1/training", "/identify/window/about"} <= ents, sorted(ents)

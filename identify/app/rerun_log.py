@@ -175,6 +175,8 @@ class _State:
     #: (view title, path part, (camera position, look target) in the view's space)
     surfaces: list[tuple[str, str, Any]] = field(default_factory=list)
     tuning: bool = False
+    #: (title, prediction column) of each jetting-window map logged (a table model)
+    window: list[tuple[str, str]] = field(default_factory=list)
 
 
 _STATES: dict[int, _State] = {}
@@ -305,7 +307,9 @@ def close_recording(rec: rr.RecordingStream) -> None:
         rmse = np.array([q.rmse_nl for q in order], dtype=float)
         rec.log("/identify/fit/rmse_nl", rr.BarChart(np.nan_to_num(rmse, nan=0.0), color=(230, 80, 60),
                                                      abscissa=np.arange(1, rmse.size + 1)), static=True)
-    if st.tuning and not order:
+    if st.window and not order:
+        blueprint = window_blueprint(st.window)
+    elif st.tuning and not order:
         blueprint = tuning_blueprint()
     else:
         blueprint = identify_blueprint([(f"{q.rmse_nl:.2g} nl: {q.name}", q.part) for q in order],
@@ -877,6 +881,63 @@ def log_prediction(rec: rr.RecordingStream, mc: Any, *, model: Any = None, level
 # --- closed-loop tuning (identify tune) --------------------------------------------------------
 
 _TUNING_OUTPUTS = (("volume", "nl", "in-flight volume [nl]"), ("velocity", "m_s", "jetting velocity [m/s]"))
+
+
+def log_jetting_window(rec: rr.RecordingStream, model: Any) -> None:
+    """Log a table model's jetting window (issue 31 item 4), the maps of the report's
+    ``jetting_window.png`` (`identify.app.tabular_report`): per count output the probability of each
+    count, per continuous output its prediction, over the two inputs that move the window most, the
+    others held at their training medians.
+
+    * ``/identify/window/<column>``: an image per map (viridis: 0 to 1 for a probability, the map's
+      own range otherwise; the first input to the right, the second downwards, grey where the
+      setting lies outside the training region);
+    * ``/identify/window/<column>/training``: the training settings as points in the same pixels;
+    * ``/identify/window/about``: the axes, their ranges, the held values and each map's range.
+    """
+    import rerun as rr
+
+    from identify.app.tabular_report import held_point, map_axes, window_grid, window_panels
+
+    ax_i, ax_j = map_axes(model)
+    held = held_point(model)
+    gi, gj, pred = window_grid(model, ax_i, ax_j, held)
+    n = gi.shape[0]
+    outside = pred["outside_training_region"].to_numpy(bool).reshape(gi.shape)
+    lo_i, hi_i = model.region.low[ax_i], model.region.high[ax_i]
+    lo_j, hi_j = model.region.low[ax_j], model.region.high[ax_j]
+    X = model.data[model.inputs].to_numpy(float)
+    px = np.column_stack([(X[:, ax_i] - lo_i) / max(hi_i - lo_i, 1e-300) * (n - 1) + 0.5,
+                          (X[:, ax_j] - lo_j) / max(hi_j - lo_j, 1e-300) * (n - 1) + 0.5])
+    lines = [f"## Jetting window over ({model.inputs[ax_i]} right, {model.inputs[ax_j]} down)", "",
+             f"{model.inputs[ax_i]}: {lo_i:g} to {hi_i:g}; {model.inputs[ax_j]}: {lo_j:g} to {hi_j:g}; "
+             + ("held: " + ", ".join(f"{nm} = {v:g}" for k, (nm, v) in enumerate(zip(model.inputs, held))
+                                     if k not in (ax_i, ax_j)) if len(model.inputs) > 2 else "no other input"),
+             "", "| map | low | high |", "|---|---|---|"]
+    for col, title, prob in window_panels(model):
+        z = pred[col].to_numpy(float).reshape(gi.shape)
+        lo, hi = (0.0, 1.0) if prob else (float(np.nanmin(z)), float(np.nanmax(z)))
+        rgb = _viridis((z - lo) / (hi - lo) if hi > lo else np.zeros_like(z))
+        rgb[outside] = (128, 128, 128)
+        rec.log(f"/identify/window/{col}", rr.Image(rgb), static=True)
+        rec.log(f"/identify/window/{col}/training", rr.Points2D(px, radii=0.4, colors=(200, 200, 200)), static=True)
+        lines.append(f"| {title} | {lo:.4g} | {hi:.4g} |")
+    rec.log("/identify/window/about", rr.TextDocument("\n".join(lines), media_type="text/markdown"), static=True)
+    _state(rec).window = [(title, col) for col, title, _ in window_panels(model)]
+
+
+def window_blueprint(panels: Sequence[tuple[str, str]]) -> rrb.Blueprint:
+    """Layout of a table model's recording: one 2-D view per map of the jetting window, and the
+    axes and ranges as text."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Grid(*[rrb.Spatial2DView(name=title, origin=f"/identify/window/{col}") for title, col in panels],
+                 rrb.TextDocumentView(name="axes, held values, ranges", origin="/identify/window/about")),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        collapse_panels=False,
+    )
 
 
 def tuning_blueprint() -> rrb.Blueprint:

@@ -63,9 +63,6 @@ def cmd_fit_table(args) -> int:
     from identify.tabular import fit_table, read_table
 
     inputs, outputs = _names(args.inputs, "--inputs"), _names(args.outputs, "--outputs")
-    for flag in ("rerun", "rerun_spawn", "rerun_connect"):
-        if getattr(args, flag, None):
-            raise UsageError(f"--{flag.replace('_', '-')} is not available for a table model (yet)")
     if args.no_arx or args.ecm_method != "oe" or args.adjuster_reference != "ecm":
         raise UsageError("--no-arx, --ecm-method and --adjuster-reference are hybrid-model options, not a table's")
     check_outside_inputs([args.dataset], args.out, args.report)
@@ -101,6 +98,15 @@ def cmd_fit_table(args) -> int:
         from identify.app.tabular_report import write_table_report
 
         print(f"wrote {write_table_report(args.report, m, inputs=[args.dataset, args.out], overwrite=args.overwrite)}")
+    if any(getattr(args, flag, None) for flag in ("rerun", "rerun_spawn", "rerun_connect")):
+        from identify.app import rerun_log
+
+        rec = rerun_log.recording_from_args(args)
+        if rec is not None:
+            try:
+                rerun_log.log_jetting_window(rec, m)  # the report's maps, in the viewer
+            finally:
+                rerun_log.close_recording(rec)
     return 0
 
 

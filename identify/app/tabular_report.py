@@ -105,9 +105,13 @@ def _panels(model) -> list[tuple[str, str, bool]]:
     return out
 
 
-def _figure(plt, path, model, ax_i, ax_j, held):
-    xi = np.linspace(model.region.low[ax_i], model.region.high[ax_i], MAP_POINTS)
-    xj = np.linspace(model.region.low[ax_j], model.region.high[ax_j], MAP_POINTS)
+def window_grid(model, ax_i: int, ax_j: int, held, points: int = MAP_POINTS):
+    """The model's predictions on a ``points`` x ``points`` grid over inputs ``ax_i`` (columns) and
+    ``ax_j`` (rows) across the training region, the other inputs at ``held``: (grid of ax_i, grid of
+    ax_j, predictions with ``<o>_one_drop_width_percent`` per continuous output; one row per grid
+    point, row by row)."""
+    xi = np.linspace(model.region.low[ax_i], model.region.high[ax_i], points)
+    xj = np.linspace(model.region.low[ax_j], model.region.high[ax_j], points)
     gi, gj = np.meshgrid(xi, xj)
     rows = np.tile(held, (gi.size, 1))
     rows[:, ax_i], rows[:, ax_j] = gi.ravel(), gj.ravel()
@@ -115,6 +119,21 @@ def _figure(plt, path, model, ax_i, ax_j, held):
     for o in model.continuous:
         pred[f"{o}_one_drop_width_percent"] = (
             (pred[f"{o}_one_drop_high"] - pred[f"{o}_one_drop_low"]) / pred[f"{o}_mean"].abs() * 100)
+    return gi, gj, pred
+
+
+def window_panels(model) -> list[tuple[str, str, bool]]:
+    """(prediction column, title, is a probability) of each map of the jetting window."""
+    return _panels(model)
+
+
+def held_point(model) -> np.ndarray:
+    """Where the inputs off the map are held (each input's training value nearest its median)."""
+    return _held(model)
+
+
+def _figure(plt, path, model, ax_i, ax_j, held):
+    gi, gj, pred = window_grid(model, ax_i, ax_j, held)
     panels = _panels(model)
     cols = min(3, len(panels))
     nrows = -(-len(panels) // cols)
