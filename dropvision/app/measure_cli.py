@@ -65,7 +65,7 @@ def _run(args: argparse.Namespace) -> int:
                 overrides = labels = None  # applied when opened
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels,
-                                   nozzle_pitch_um=args.nozzle_pitch_um)
+                                   nozzle_pitch_um=args.nozzle_pitch_um, row_limits=_row_limits(args))
         finally:
             if logger is not None:
                 logger.close()
@@ -79,6 +79,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; printhead row of "
               f"{s['n_nozzles']} nozzles ({counts}), {pitch}, volume CV "
               f"{s['volume_cv']:.3g} +- {s['volume_cv_uncertainty']:.2g}")
+        hp = s.get("head_pass")
+        if hp is not None:
+            print("head PASSES the limits" if hp["pass"] else
+                  f"head FAILS the limits: nozzles {', '.join(map(str, hp['failed_nozzles']))} (nozzles.parquet pass_reason)")
         sys.stdout.flush()
         return 0
     if args.verbose:
@@ -163,10 +167,25 @@ def register(subparsers) -> None:
     p.add_argument("--nozzle-pitch-um", type=float, default=None, metavar="UM",
                    help="a printhead row's nozzle pitch (µm; default: sequence.json nozzle_pitch_um, else estimated "
                         "from the nozzles found)")
+    for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
+                      ("angle-limit-mrad", "mrad")):
+        p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
+                       help=f"a printhead row's pass/fail limit ({unit}; default: sequence.json "
+                       f"{key.replace('-', '_')}): nozzles.parquet pass, summary.json head_pass")
+    p.add_argument("--reference-nozzles", default=None, metavar="PATH",
+                   help="a printhead row: a reference head's nozzles.parquet; the limits apply to each nozzle's "
+                   "difference from its reference nozzle (default: sequence.json reference_nozzles; without it "
+                   "volume and velocity are compared with the row's median, the angle with the plate normal)")
     add_output_args(p)
     add_metadata_args(p)
     add_rerun_args(p)
     p.set_defaults(func=_run)
+
+
+def _row_limits(args) -> dict:
+    """The row's pass/fail options (None: not given)."""
+    return {k: getattr(args, k, None) for k in ("volume_tolerance_percent", "velocity_tolerance_percent",
+                                                  "angle_limit_mrad", "reference_nozzles")}
 
 
 def _one_frame(row) -> str:
