@@ -245,3 +245,13 @@ def test_limits_on_a_single_nozzle_are_refused(tmp_path):
     folder = write_synthetic_sequence(cfg, tmp_path / "one", progress=False)
     with pytest.raises(SequenceError, match="--angle-limit-mrad applies to a printhead row"):
         measure_sequence(folder, None, row_limits={"angle_limit_mrad": 5.0})
+
+
+def test_campaign_of_a_row_says_why_in_one_line(tmp_path, capsys):
+    # issue 32 item 4: a campaign's dataset has no place for a row: the reason, not a missing column
+    from dropvision.app.cli import main
+
+    write_row(RowConfig(delays_us=(60.0,), write_pitch=True, **ROW), tmp_path / "root" / "row")
+    assert main(["campaign", str(tmp_path / "root"), "--out", str(tmp_path / "camp"), "--workers", "1"]) != 0
+    err = capsys.readouterr().err
+    assert "a printhead row" in err and "dropvision measure FOLDER --out OUT" in err and "missing column" not in err
