@@ -417,6 +417,11 @@ def _grid(cols: np.ndarray, pitch_px: float | None) -> tuple[float, float, np.nd
         p0 = float(pitch_px)
     k = np.rint((c - c[0]) / p0).astype(int)
     p = p0
+    if pitch_px is None and np.unique(k).size >= 3:
+        # robust start (Siegel's repeated median of the pairwise spacings): one deviated nozzle among
+        # four cannot pull the pitch, as a fit through it and the nearest two would
+        p = float(np.median([np.median([(c[j] - c[i]) / (k[j] - k[i]) for j in range(c.size) if k[j] != k[i]])
+                             for i in range(c.size)]))
     c0 = float(np.median(c - p * k))  # robust start: a deviated nozzle does not pull it
     res = c - (c0 + p * k)
     inl = np.abs(res) <= max(3.0 * 1.4826 * float(np.median(np.abs(res))), 1.0)
@@ -490,7 +495,11 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
     # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
     k_in = kk[inl].astype(float)
-    s_grid = grid_rms if np.isfinite(grid_rms) else 0.5
+    # the residuals' rms has few degrees of freedom (one per nozzle less the fitted offset, and pitch):
+    # the standard deviation of the Student-t distribution it implies, sqrt(dof / (dof - 2)) x its
+    # value (dof at least 3), is the grid's standard uncertainty
+    dof = max(int(k_in.size) - (2 if given is None else 1), 3)
+    s_grid = (grid_rms if np.isfinite(grid_rms) else 0.5) * math.sqrt(dof / (dof - 2))
     sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
 
     def grid_se(i: int) -> float:
@@ -591,6 +600,17 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         seen, grid_col, grid_se, ids, pitch_um, pitch_src = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
                                                                          pitch_source, notes)
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
+    # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
+    # rolled) turns its normal by as much
+    tilt = math.atan(plate.slope)
+    if single and scan is None:
+        notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
+                     "a tilt common to the row" + ("" if "estimated" not in pitch_src else
+                                                   " (and, with the pitch estimated, a fan linear across it)")
+                     + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
+                     + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
+                     "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
+                     "measures each trajectory on its own")
     rows = []
     for i in ids:
         tr = seen.get(i)
@@ -614,11 +634,11 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
         if single or not np.isfinite(tr.angle_mrad):
             m = mains[0]
-            dz = m.row_px - plate.row_at(m.col_px)
-            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3
+            dz = m.row_px - plate.row_at(grid_col[i])
+            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3  # from the grid fitted to the drops: no tilt to add
             ang_u = math.hypot(grid_se(i), 0.05) / max(dz, 1.0) * 1e3
         else:
-            ang, ang_u = tr.angle_mrad, tr.angle_u_mrad
+            ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
         row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
                    velocity_m_s=float("nan") if single else tr.velocity_m_s,
                    velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
