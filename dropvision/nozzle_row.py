@@ -877,7 +877,7 @@ def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bo
     """`measure_row` and its files written atomically into ``out_dir`` (None: nothing written);
     ``extra_summary`` joins summary.json; ``limits``: the options of `row_limits` (pass/fail,
     `judge_row`).  Returns (nozzles, frames, bodies, summary)."""
-    from dvcore.atomic import atomic_dir, write_json
+    from dvcore.atomic import atomic_dir
     from dvcore.versions import software_versions
 
     lim = row_limits(seq.meta, limits)  # before any work: a bad limit or reference is refused at once
@@ -890,10 +890,24 @@ def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bo
     summary["software"] = software_versions()
     if out_dir is not None:
         with atomic_dir(out_dir, inputs=list(inputs), overwrite=overwrite, kind="measurement") as tmp:
-            nozzles.to_parquet(tmp / "nozzles.parquet", index=False)
-            ftab.to_parquet(tmp / "frames.parquet", index=False)
-            if csv:
-                ftab.to_csv(tmp / "frames.csv", index=False)
-            btab.to_parquet(tmp / "bodies.parquet", index=False)
-            write_json(tmp / "summary.json", summary)
+            write_row_files(tmp, nozzles, ftab, btab, summary, csv=csv)
     return nozzles, ftab, btab, summary
+
+
+def write_row_files(out, nozzles, ftab, btab, summary: dict, *, csv: bool = False) -> None:
+    """A row's files into the folder ``out`` (in place: wrap in `dvcore.atomic.atomic_dir`), the
+    tables checked against their schema first."""
+    from dvcore.atomic import write_json
+    from dvcore.schema import NOZZLES, ROW_BODIES, ROW_FRAMES, check_table
+
+    out = Path(out)
+    check_table(nozzles, NOZZLES, out / "nozzles.parquet")
+    check_table(ftab, ROW_FRAMES, out / "frames.parquet")
+    check_table(btab, ROW_BODIES, out / "bodies.parquet")
+    out.mkdir(parents=True, exist_ok=True)
+    nozzles.to_parquet(out / "nozzles.parquet", index=False)
+    ftab.to_parquet(out / "frames.parquet", index=False)
+    if csv:
+        ftab.to_csv(out / "frames.csv", index=False)
+    btab.to_parquet(out / "bodies.parquet", index=False)
+    write_json(out / "summary.json", summary)

@@ -295,3 +295,16 @@ def test_single_frame_pitch_estimated(tmp_path):
     live = truth.state != "missing"
     err = (nz.angle_mrad - truth.angle_mrad)[live].abs()
     assert err.notna().all() and (err <= 2.0 * nz.angle_uncertainty_mrad[live]).all()
+
+
+def test_watch_of_a_row_writes_its_nozzles(tmp_path, capsys):
+    # issue 32 item 4: the watch's final tables of a row are the row's (not a missing frames column)
+    from dropvision.app.cli import main
+
+    folder = write_row(RowConfig(delays_us=(60.0, 70.0), write_pitch=True, **ROW), tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    assert main(["watch", str(folder), "--out", str(tmp_path / "out"), "--idle-s", "2", "--settle-s", "0.1"]) == 0
+    assert "printhead row of 5 nozzles" in capsys.readouterr().out
+    nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
+    check_table(nz, NOZZLES, "nozzles.parquet")
+    assert list(nz.state) == list(truth.state)
