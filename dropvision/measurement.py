@@ -79,7 +79,8 @@ def source_keys(meta) -> dict:
 
 def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfig(), *, progress: bool = False,
                      logger=None, csv: bool = False, overwrite: bool = False, overrides: dict | None = None,
-                     labels: dict | None = None, nozzle_pitch_um: float | None = None) -> MeasureResult:
+                     labels: dict | None = None, nozzle_pitch_um: float | None = None,
+                     row_limits: dict | None = None) -> MeasureResult:
     """Measure a strobe sequence.
 
     Parameters
@@ -107,6 +108,9 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         keys.
     nozzle_pitch_um : float, optional
         A printhead row's nozzle pitch (overrides sequence.json's ``nozzle_pitch_um``).
+    row_limits : dict, optional
+        A printhead row's pass/fail limits and reference table (keys of
+        `dropvision.nozzle_row.LIMIT_KEYS` and ``reference_nozzles``; override sequence.json's).
 
     A frame of several nozzles under one flat plate (`dropvision.nozzle_row.row_layout`) is a
     printhead row: measured per nozzle by `dropvision.nozzle_row.measure_row_sequence`
@@ -129,7 +133,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     seq = seq_dir if isinstance(seq_dir, Sequence) else open_sequence(seq_dir, overrides=overrides, labels=labels)
     inputs = [] if isinstance(seq, ArraySequence) else [seq.meta.path]  # in memory: no folder
     if out_dir is None:
-        return _measure(seq, None, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um)
+        return _measure(seq, None, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um, row_limits)
     with contextlib.ExitStack() as held:
         try:  # before any work: the output may destroy nothing, and no other run writes it
             check_output_dir(out_dir, inputs=inputs, overwrite=overwrite)
@@ -137,7 +141,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         except BaseException:
             seq.close()
             raise
-        return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um)
+        return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um, row_limits)
 
 
 def _row_plate(seq: Sequence):
@@ -151,7 +155,7 @@ def _row_plate(seq: Sequence):
 
 
 def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progress: bool, logger, csv: bool,
-             overwrite: bool, nozzle_pitch_um: float | None = None) -> MeasureResult:
+             overwrite: bool, nozzle_pitch_um: float | None = None, row_limits: dict | None = None) -> MeasureResult:
     """`measure_sequence` after its checks (the output folder locked)."""
     meta, n = seq.meta, len(seq)
     if n:
@@ -164,10 +168,15 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
             try:
                 nozzles, frames, bodies, summary = measure_row_sequence(
                     seq, out_dir, row[0], inputs=inputs, overwrite=overwrite, nozzle_pitch_um=nozzle_pitch_um,
-                    extra_summary=source_keys(meta), scan=row[1], csv=csv)
+                    extra_summary=source_keys(meta), scan=row[1], csv=csv, limits=row_limits)
             finally:
                 seq.close()
             return MeasureResult(frames, summary, bodies, nozzles)
+    given = sorted(k for k, v in (row_limits or {}).items() if v is not None)
+    if given:
+        seq.close()
+        raise SequenceError(f"{meta.path}: --{given[0].replace('_', '-')} applies to a printhead row (several nozzles "
+                            "under one plate, or a scan of them); this sequence shows one nozzle")
     records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config, logger, progress)
     result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
     frames, summary = result.frames, result.summary

@@ -417,6 +417,11 @@ def _grid(cols: np.ndarray, pitch_px: float | None) -> tuple[float, float, np.nd
         p0 = float(pitch_px)
     k = np.rint((c - c[0]) / p0).astype(int)
     p = p0
+    if pitch_px is None and np.unique(k).size >= 3:
+        # robust start (Siegel's repeated median of the pairwise spacings): one deviated nozzle among
+        # four cannot pull the pitch, as a fit through it and the nearest two would
+        p = float(np.median([np.median([(c[j] - c[i]) / (k[j] - k[i]) for j in range(c.size) if k[j] != k[i]])
+                             for i in range(c.size)]))
     c0 = float(np.median(c - p * k))  # robust start: a deviated nozzle does not pull it
     res = c - (c0 + p * k)
     inl = np.abs(res) <= max(3.0 * 1.4826 * float(np.median(np.abs(res))), 1.0)
@@ -490,7 +495,11 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
     # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
     k_in = kk[inl].astype(float)
-    s_grid = grid_rms if np.isfinite(grid_rms) else 0.5
+    # the residuals' rms has few degrees of freedom (one per nozzle less the fitted offset, and pitch):
+    # the standard deviation of the Student-t distribution it implies, sqrt(dof / (dof - 2)) x its
+    # value (dof at least 3), is the grid's standard uncertainty
+    dof = max(int(k_in.size) - (2 if given is None else 1), 3)
+    s_grid = (grid_rms if np.isfinite(grid_rms) else 0.5) * math.sqrt(dof / (dof - 2))
     sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
 
     def grid_se(i: int) -> float:
@@ -591,6 +600,17 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         seen, grid_col, grid_se, ids, pitch_um, pitch_src = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
                                                                          pitch_source, notes)
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
+    # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
+    # rolled) turns its normal by as much
+    tilt = math.atan(plate.slope)
+    if single and scan is None:
+        notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
+                     "a tilt common to the row" + ("" if "estimated" not in pitch_src else
+                                                   " (and, with the pitch estimated, a fan linear across it)")
+                     + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
+                     + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
+                     "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
+                     "measures each trajectory on its own")
     rows = []
     for i in ids:
         tr = seen.get(i)
@@ -614,11 +634,11 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
         if single or not np.isfinite(tr.angle_mrad):
             m = mains[0]
-            dz = m.row_px - plate.row_at(m.col_px)
-            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3
+            dz = m.row_px - plate.row_at(grid_col[i])
+            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3  # from the grid fitted to the drops: no tilt to add
             ang_u = math.hypot(grid_se(i), 0.05) / max(dz, 1.0) * 1e3
         else:
-            ang, ang_u = tr.angle_mrad, tr.angle_u_mrad
+            ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
         row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
                    velocity_m_s=float("nan") if single else tr.velocity_m_s,
                    velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
@@ -628,6 +648,7 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         rows.append(row)
     _states(rows)
     nozzles = pd.DataFrame(rows)
+    nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
     live = nozzles[nozzles.state != "missing"]
     vcv, vcv_u = _cv(live.volume_nl.to_numpy(float), live.volume_uncertainty_nl.to_numpy(float))
     ucv, ucv_u = _cv(live.velocity_m_s.to_numpy(float), live.velocity_uncertainty_m_s.to_numpy(float))
@@ -692,25 +713,201 @@ def _states(rows: list[dict]) -> None:
         r["reason"] = "; ".join(w[1] for w in why)
 
 
+# ----------------------------------------------------------------------------- pass / fail
+#: Pass/fail limits of a head (issue 32 item 3): option and sequence.json key -> unit.
+LIMIT_KEYS = {"volume_tolerance_percent": "%", "velocity_tolerance_percent": "%", "angle_limit_mrad": "mrad"}
+#: sequence.json key (and option --reference-nozzles) of a reference head's nozzles.parquet.
+REFERENCE_KEY = "reference_nozzles"
+
+
+def row_limits(meta, given: dict | None = None) -> dict:
+    """The pass/fail limits and the reference table of a row: each key of `LIMIT_KEYS` and
+    `REFERENCE_KEY` from ``given`` (options; None values are not given), else sequence.json
+    (``meta.extra``; a relative reference path is taken from the sequence folder).  Returns
+    {key: value, "sources": {key: where}}; a value that is not a number > 0 is a SequenceError
+    naming the file."""
+    from dropvision.sequence import SequenceError
+
+    given = {k: v for k, v in (given or {}).items() if v is not None}
+    out, src = {}, {}
+    extra = getattr(meta, "extra", None) or {}
+    where = Path(meta.path) / "sequence.json"
+    for key in LIMIT_KEYS:
+        if key in given:
+            v, s = given[key], "command line --" + key.replace("_", "-")
+        elif key in extra:
+            v, s = extra[key], "sequence.json"
+        else:
+            continue
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v) or v <= 0:
+            raise SequenceError(f"{where if s == 'sequence.json' else s}: {key} must be a number > 0, got {v!r}")
+        out[key], src[key] = float(v), s
+    if REFERENCE_KEY in given:
+        out[REFERENCE_KEY], src[REFERENCE_KEY] = Path(given[REFERENCE_KEY]), "command line --reference-nozzles"
+    elif REFERENCE_KEY in extra:
+        v = extra[REFERENCE_KEY]
+        if not isinstance(v, str) or not v:
+            raise SequenceError(f"{where}: {REFERENCE_KEY} must be the path of a nozzles.parquet, got {v!r}")
+        p = Path(v)
+        out[REFERENCE_KEY], src[REFERENCE_KEY] = (p if p.is_absolute() else Path(meta.path) / p), "sequence.json"
+    if REFERENCE_KEY in out and not any(k in out for k in LIMIT_KEYS):
+        raise SequenceError(f"{src[REFERENCE_KEY]}: a reference head's table ({out[REFERENCE_KEY]}) needs limits to "
+                            "compare with: give --volume-tolerance-percent, --velocity-tolerance-percent or "
+                            "--angle-limit-mrad (or their sequence.json keys)")
+    out["sources"] = src
+    return out
+
+
+def read_reference(path) -> "pd.DataFrame":
+    """A reference head's nozzles.parquet (`dvcore.schema.NOZZLES`), checked; a one-line
+    SequenceError naming the file when it is not one."""
+    import pandas as pd
+
+    from dropvision.sequence import SequenceError
+    from dvcore.schema import NOZZLES, SchemaError, check_table
+
+    path = Path(path)
+    if path.is_dir():
+        path = path / "nozzles.parquet"
+    if not path.is_file():
+        raise SequenceError(f"{path}: no reference nozzles table there (--reference-nozzles wants a nozzles.parquet "
+                            "of `dropvision measure` on a reference head)")
+    try:
+        ref = pd.read_parquet(path)
+        check_table(ref, NOZZLES, path)
+    except SchemaError as e:
+        raise SequenceError(str(e)) from None
+    except Exception as e:  # not a parquet file
+        raise SequenceError(f"{path}: not a nozzles.parquet ({type(e).__name__}: {e})") from None
+    if ref.nozzle.duplicated().any():
+        raise SequenceError(f"{path}: nozzle numbers repeat in the reference table")
+    return ref
+
+
+def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dict | None:
+    """``pass`` and ``pass_reason`` of each nozzle (in place) against ``limits`` (`row_limits`), and
+    the head's verdict for summary.json (None where no limit is given: ``pass`` is null).
+
+    Rules: a missing nozzle fails; |volume - target| / target and |velocity - target| / target
+    within the tolerances (per cent), the target being the reference nozzle's value (``reference``,
+    matched by nozzle number) else the median of the row's live nozzles; |angle - reference angle|
+    (no reference: |angle|) within the angle limit.  A quantity not measured (velocity of a single
+    delay) is not judged, and the reason says so.  The head passes when every nozzle passes."""
+    from dropvision.sequence import SequenceError
+
+    checks = [k for k in LIMIT_KEYS if k in limits]
+    if not checks:
+        nozzles["pass"] = pd_na_bool(len(nozzles))
+        nozzles["pass_reason"] = "no limits given"
+        return None
+    if reference is not None:
+        mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
+        if mine != theirs:
+            raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this row's "
+                                f"{_span(mine)} (a row's nozzles are numbered from its first live one, a scan's by "
+                                "label): compare heads with the same nozzles")
+        ref = reference.set_index(reference.nozzle.astype(int))
+    live = nozzles.state != "missing"
+    med = {}
+    for c in ("volume_nl", "velocity_m_s"):
+        x = nozzles.loc[live, c].to_numpy(float)
+        med[c] = float(np.median(x[np.isfinite(x)])) if np.isfinite(x).any() else float("nan")
+    passes, reasons, not_judged = [], [], set()
+    for _, r in nozzles.iterrows():
+        i = int(r.nozzle)
+        fails, notes = [], []
+        if r.state == "missing":
+            fails.append("missing: no drop")
+        else:
+            for key, col, unit in (("volume_tolerance_percent", "volume_nl", "nl"),
+                                   ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
+                if key not in limits:
+                    continue
+                tgt = float(ref.at[i, col]) if reference is not None else med[col]
+                what = f"reference nozzle {i}" if reference is not None else "the row's median"
+                if not np.isfinite(r[col]):
+                    notes.append(f"{col} not measured: not judged")
+                    not_judged.add(col)
+                    continue
+                if not np.isfinite(tgt) or tgt == 0:
+                    fails.append(f"{col}: {what} has no value to compare with")
+                    continue
+                dev = 100.0 * (r[col] / tgt - 1.0)
+                if abs(dev) > limits[key]:
+                    fails.append(f"{col} {r[col]:.4g} {unit} is {dev:+.2f} % from {what} {tgt:.4g} "
+                                 f"(limit {limits[key]:g} %)")
+            if "angle_limit_mrad" in limits:
+                a = float(r.angle_mrad)
+                tgt = float(ref.at[i, "angle_mrad"]) if reference is not None else 0.0
+                lim = limits["angle_limit_mrad"]
+                if not np.isfinite(a):
+                    notes.append("angle_mrad not measured: not judged")
+                    not_judged.add("angle_mrad")
+                elif not np.isfinite(tgt):
+                    fails.append(f"angle_mrad: reference nozzle {i} has no value to compare with")
+                elif abs(a - tgt) > lim:
+                    fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
+                                 f"{'reference nozzle ' + str(i) if reference is not None else 'the plate normal'} "
+                                 f"(limit {lim:g} mrad)")
+        passes.append(not fails)
+        reasons.append("; ".join(fails + notes))
+    nozzles["pass"] = np.array(passes, bool)
+    nozzles["pass_reason"] = reasons
+    failed = [int(i) for i, p in zip(nozzles.nozzle, passes) if not p]
+    return {"pass": not failed, "failed_nozzles": failed,
+            "limits": {k: limits[k] for k in checks}, "limit_sources": {k: limits["sources"][k] for k in checks},
+            "reference": None if reference is None else str(reference_path),
+            "not_judged": sorted(not_judged)}
+
+
+def pd_na_bool(n: int):
+    import pandas as pd
+
+    return pd.array([pd.NA] * n, dtype="boolean")
+
+
+def _span(ids) -> str:
+    ids = sorted(ids)
+    return f"{ids[0]}..{ids[-1]} ({len(ids)})" if ids else "none"
+
+
 def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bool = False,
                          nozzle_pitch_um: float | None = None, extra_summary: dict | None = None,
-                         scan: dict | None = None, csv: bool = False):
+                         scan: dict | None = None, csv: bool = False, limits: dict | None = None):
     """`measure_row` and its files written atomically into ``out_dir`` (None: nothing written);
-    ``extra_summary`` joins summary.json.  Returns (nozzles, frames, bodies, summary)."""
-    from dvcore.atomic import atomic_dir, write_json
+    ``extra_summary`` joins summary.json; ``limits``: the options of `row_limits` (pass/fail,
+    `judge_row`).  Returns (nozzles, frames, bodies, summary)."""
+    from dvcore.atomic import atomic_dir
     from dvcore.versions import software_versions
 
+    lim = row_limits(seq.meta, limits)  # before any work: a bad limit or reference is refused at once
+    reference = read_reference(lim[REFERENCE_KEY]) if REFERENCE_KEY in lim else None
     nozzles, ftab, btab, summary = measure_row(seq, plate, nozzle_pitch_um=nozzle_pitch_um,
                                                pitch_source="command line --nozzle-pitch-um" if nozzle_pitch_um else None,
                                                scan=scan)
+    summary["head_pass"] = judge_row(nozzles, lim, reference, lim.get(REFERENCE_KEY))
     summary.update(extra_summary or {})
     summary["software"] = software_versions()
     if out_dir is not None:
         with atomic_dir(out_dir, inputs=list(inputs), overwrite=overwrite, kind="measurement") as tmp:
-            nozzles.to_parquet(tmp / "nozzles.parquet", index=False)
-            ftab.to_parquet(tmp / "frames.parquet", index=False)
-            if csv:
-                ftab.to_csv(tmp / "frames.csv", index=False)
-            btab.to_parquet(tmp / "bodies.parquet", index=False)
-            write_json(tmp / "summary.json", summary)
+            write_row_files(tmp, nozzles, ftab, btab, summary, csv=csv)
     return nozzles, ftab, btab, summary
+
+
+def write_row_files(out, nozzles, ftab, btab, summary: dict, *, csv: bool = False) -> None:
+    """A row's files into the folder ``out`` (in place: wrap in `dvcore.atomic.atomic_dir`), the
+    tables checked against their schema first."""
+    from dvcore.atomic import write_json
+    from dvcore.schema import NOZZLES, ROW_BODIES, ROW_FRAMES, check_table
+
+    out = Path(out)
+    check_table(nozzles, NOZZLES, out / "nozzles.parquet")
+    check_table(ftab, ROW_FRAMES, out / "frames.parquet")
+    check_table(btab, ROW_BODIES, out / "bodies.parquet")
+    out.mkdir(parents=True, exist_ok=True)
+    nozzles.to_parquet(out / "nozzles.parquet", index=False)
+    ftab.to_parquet(out / "frames.parquet", index=False)
+    if csv:
+        ftab.to_csv(out / "frames.csv", index=False)
+    btab.to_parquet(out / "bodies.parquet", index=False)
+    write_json(out / "summary.json", summary)

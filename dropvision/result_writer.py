@@ -38,6 +38,12 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
         The frames table does not follow its schema (nothing is written).
     """
     out = Path(out_dir)
+    if result.summary.get("kind") == "printhead-row":  # issue 32: its own tables
+        from dropvision.nozzle_row import write_row_files
+
+        write_row_files(out, result.nozzles, result.frames, result.bodies, {**result.summary, **(extra_summary or {})},
+                        csv=csv)
+        return
     check_frames_table(result.frames, out / "frames.parquet")
     out.mkdir(parents=True, exist_ok=True)
     result.frames.to_parquet(out / "frames.parquet", index=False)

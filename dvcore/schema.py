@@ -720,6 +720,10 @@ NOZZLES = Table("nozzles", "nozzles.parquet", "dropvision.nozzles/1", (
     F("satellites", "float", "", "median number of satellites per frame", nullable=False),
     F("satellite_volume_nl", "float", "nl", "mean volume of the satellites where there are some (0: none)"),
     F("n_frames", "int", "", "frames where the nozzle's main drop was measured", nullable=False),
+    F("pass", "bool", "", "within the given limits (--volume-tolerance-percent, --velocity-tolerance-percent, "
+      "--angle-limit-mrad; against --reference-nozzles where given); null: no limits given", required=False),
+    F("pass_reason", "str", "", "every limit the nozzle broke, with the figures compared, and what was not judged "
+      "(empty: passed on everything)", required=False),
 ), "One row per nozzle of a printhead row (`dropvision measure` on a frame of several nozzles under one plate).")
 
 ROW_FRAMES = Table("row_frames", "frames.parquet", "dropvision.row-frames/1", (
@@ -768,6 +772,9 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
     F("velocity_cv", "float", "", "CV of the live nozzles' velocities (null for a single delay)"),
     F("velocity_cv_uncertainty", "float", "", "its standard uncertainty"),
     F("limits", "object", "", "weak_k, weak_floor (fraction of the median), deviated_mrad"),
+    F("head_pass", "object", "", "pass/fail of the head (null: no limits given): pass (every nozzle within the "
+      "limits), failed_nozzles, limits, limit_sources, reference (the reference table's path or null), not_judged "
+      "(quantities not measured, e.g. velocity_m_s of a single delay)", required=False),
     F("edge_blur_px", "float", "px", "edge blur (Gaussian sigma) of the liquid's edges"),
     F("liquid_level", "float", "", "transmission inside the liquid"),
     F("edge_threshold", "float", "", "transmission level of the edges"),
@@ -777,12 +784,26 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
     F("software", "object", "", "versions of Python and of every package the result depends on"),
 ), "summary.json of a printhead row (`dropvision.nozzle_row`); the *_source keys of a sequence's summary.json too.")
 
+ROW_INPUTS = Document("row_inputs", "sequence.json (printhead row keys)", "dropvision.sequence-row-keys/1", (
+    F("nozzle_pitch_um", "float", "um", "nozzle pitch of a row (option --nozzle-pitch-um; default: estimated from "
+      "the nozzles found)", required=False),
+    F("volume_tolerance_percent", "float", "%", "pass/fail: a nozzle's volume within this of its reference nozzle's, "
+      "else of the row's median (option --volume-tolerance-percent)", required=False),
+    F("velocity_tolerance_percent", "float", "%", "pass/fail: likewise its velocity (option "
+      "--velocity-tolerance-percent)", required=False),
+    F("angle_limit_mrad", "float", "mrad", "pass/fail: |angle| (with a reference: |angle - reference angle|) within "
+      "this (option --angle-limit-mrad)", required=False),
+    F("reference_nozzles", "str", "", "a reference head's nozzles.parquet (relative: to the sequence folder; option "
+      "--reference-nozzles); needs a limit", required=False),
+), "Keys of sequence.json read for a printhead row (issue 32); an option overrides its key.")
+
 TABLES = {t.name: t for t in (FRAMES, BODIES, PER_DELAY, SHOTS, TIMESERIES, DATASET_SUMMARY, DATASET_SHOTS,
                                LIVE_FRAMES, TUNING, TABULAR_PREDICTION, TABULAR_TUNING, NOZZLES, ROW_FRAMES, ROW_BODIES)}
 DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODEL, OUTPUT_MARKER, WATCH, TUNING_RUN,
                                  PREDICTION, TABULAR_MODEL, TABULAR_TUNING_RUN, TABULAR_DESIGN)}
 DOCUMENTS.update({d.name: d for d in (WAVEFORM, TEMPLATE_MODEL)})  # issue 31: waveform templates
 DOCUMENTS[ROW_SUMMARY.name] = ROW_SUMMARY  # issue 32: printhead rows
+DOCUMENTS[ROW_INPUTS.name] = ROW_INPUTS
 
 
 class Quality:

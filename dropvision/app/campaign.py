@@ -303,6 +303,10 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
             finally:
                 if logger is not None:
                     logger.close()
+        if result.summary.get("kind") == "printhead-row":  # issue 32: no single-nozzle tables to join
+            raise SequenceError(f"{seq_dir}: a printhead row (several nozzles under one plate, or a scan of them): a "
+                                "campaign's dataset holds single-nozzle sequences; measure it with `dropvision "
+                                "measure FOLDER --out OUT` (nozzles.parquet)")
         # shards/ is ours as a whole: an older shard of the same sequence is merged over
         with atomic_dir(shard_dir, inputs=[seq_dir], overwrite=True, kind="campaign-shard") as tmp:
             write_result(result, tmp, extra_summary={"input_hash": digest})

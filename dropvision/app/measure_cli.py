@@ -41,6 +41,8 @@ def _run(args: argparse.Namespace) -> int:
     config = MeasureConfig(workers=args.workers)
     shots = find_shots(paths, overrides=overrides, label_pattern=args.label_pattern)
     if shots is not None:
+        if args.report is not None:
+            raise UsageError(f"--report: {paths[0]} is a folder of shots; the report page is a printhead row's")
         return _run_shots(args, shots, config, overrides, labels)
     if getattr(args, "strobe_interval_us", None) is not None:
         raise UsageError(f"--strobe-interval-us: {paths[0]} is a sequence (its frames tell their delays), not a "
@@ -60,12 +62,23 @@ def _run(args: argparse.Namespace) -> int:
     logger = logger_from_args(args, "dropvision", recording_name=paths[0].resolve().name)
     with captured_warnings() as caught:
         try:
+            given = (overrides, labels)  # a row's views open the sequence again
             if only is not None:
                 seq = open_sequence(seq, overrides=overrides, labels=labels, only_files=only)
                 overrides = labels = None  # applied when opened
+            if args.report is not None:  # before any work: the page's folder may destroy nothing
+                from dvcore.atomic import check_output_dir
+                if Path(args.report).resolve() == Path(args.out).resolve():
+                    raise UsageError(f"--report {args.report}: give a folder other than --out")
+                check_output_dir(args.report, inputs=[paths[0]], overwrite=args.overwrite)
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels,
-                                   nozzle_pitch_um=args.nozzle_pitch_um)
+                                   nozzle_pitch_um=args.nozzle_pitch_um, row_limits=_row_limits(args))
+            if res.summary.get("kind") == "printhead-row" and (logger is not None or args.report is not None):
+                _row_views(args, res, paths[0] if only is None else paths[0].parent, given[0], given[1], only, logger)
+            elif args.report is not None:
+                raise UsageError(f"--report: {paths[0]} shows one nozzle; the report page is a printhead row's "
+                                 "(identify report draws a model's)")
         finally:
             if logger is not None:
                 logger.close()
@@ -79,6 +92,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; printhead row of "
               f"{s['n_nozzles']} nozzles ({counts}), {pitch}, volume CV "
               f"{s['volume_cv']:.3g} +- {s['volume_cv_uncertainty']:.2g}")
+        hp = s.get("head_pass")
+        if hp is not None:
+            print("head PASSES the limits" if hp["pass"] else
+                  f"head FAILS the limits: nozzles {', '.join(map(str, hp['failed_nozzles']))} (nozzles.parquet pass_reason)")
         sys.stdout.flush()
         return 0
     if args.verbose:
@@ -163,10 +180,49 @@ def register(subparsers) -> None:
     p.add_argument("--nozzle-pitch-um", type=float, default=None, metavar="UM",
                    help="a printhead row's nozzle pitch (µm; default: sequence.json nozzle_pitch_um, else estimated "
                         "from the nozzles found)")
+    for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
+                      ("angle-limit-mrad", "mrad")):
+        p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
+                       help=f"a printhead row's pass/fail limit ({unit}; default: sequence.json "
+                       f"{key.replace('-', '_')}): nozzles.parquet pass, summary.json head_pass")
+    p.add_argument("--report", type=Path, default=None, metavar="DIR",
+                   help="a printhead row: write a report page there (index.html with the nozzle map, the first frame "
+                   "with each nozzle's axis and bodies, the nozzles table)")
+    p.add_argument("--reference-nozzles", default=None, metavar="PATH",
+                   help="a printhead row: a reference head's nozzles.parquet; the limits apply to each nozzle's "
+                   "difference from its reference nozzle (default: sequence.json reference_nozzles; without it "
+                   "volume and velocity are compared with the row's median, the angle with the plate normal)")
     add_output_args(p)
     add_metadata_args(p)
     add_rerun_args(p)
     p.set_defaults(func=_run)
+
+
+def _row_views(args, res, folder, overrides, labels, only, logger) -> None:
+    """A printhead row's views: its frames and nozzle map in the Rerun recording, its report page."""
+    from dropvision.app.row_views import log_row, write_row_report
+    from dropvision.sequence import open_sequence
+
+    seq = open_sequence(folder, overrides=overrides, labels=labels, only_files=only)
+    try:
+        frames = []
+        for k in range(len(seq) if logger is not None else 1):
+            fr = seq.read(k)
+            if fr.error is None:
+                frames.append((k, fr.ref.delay_us, fr.image))
+    finally:
+        seq.close()
+    if logger is not None:
+        log_row(logger, res.nozzles, res.bodies, res.summary, frames)
+    if args.report is not None:
+        write_row_report(args.report, res.nozzles, res.bodies, res.summary, frames[0][2] if frames else None,
+                         overwrite=args.overwrite)
+
+
+def _row_limits(args) -> dict:
+    """The row's pass/fail options (None: not given)."""
+    return {k: getattr(args, k, None) for k in ("volume_tolerance_percent", "velocity_tolerance_percent",
+                                                  "angle_limit_mrad", "reference_nozzles")}
 
 
 def _one_frame(row) -> str:

@@ -93,9 +93,13 @@ def _summary_line(res, out) -> str:
     lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
            f"after each of the {len(res.latency_ms)} frames written while watching was complete"
            if res.latency_ms else "no frame written while watching")
+    if s.get("kind") == "printhead-row":  # issue 32: nozzles.parquet, no single drop's pinch-off
+        counts = ", ".join(f"{v} {k}" for k, v in s["state_counts"].items() if v)
+        what = f"printhead row of {s['n_nozzles']} nozzles ({counts}), volume CV {s['volume_cv']:.3g}"
+    else:
+        what = f"pinch-off {s['pinchoff_us']} us, in-flight volume {s['inflight_volume_nl']:.4g} nl"
     return (f"watched {s['n_measured']} of {s['n_frames']} frames ({res.n_live} live, {res.n_resumed} from the "
-            f"journal; ended by {res.ended_by}) -> {out}; {lat}; pinch-off {s['pinchoff_us']} us, in-flight "
-            f"volume {s['inflight_volume_nl']:.4g} nl"
+            f"journal; ended by {res.ended_by}) -> {out}; {lat}; {what}"
             + (f"; still being written, left out: {', '.join(res.left_out)}" if res.left_out else ""))
 
 
