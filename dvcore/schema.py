@@ -632,6 +632,49 @@ TEMPLATE_MODEL = Document("template_model", "model.json", "identify.template-mod
     F("notes", "list", "", "what the fit left out or kept constant"),
 ), "Hybrid model on a waveform template (identify.template_fit.TemplateModel).")
 
+TEMPLATE_PREDICTION = Table("template_prediction", "predictions.csv", "identify.template-prediction/1", (
+    F("<input table's columns>", "object", "", "every column of the --table, as read, in order (a column per "
+      "varied parameter of the model; a fixed parameter's column may be left out)"),
+    F("pinchoff_us", "float", "us", "pinch-off instant after the trigger (the model's linear law)", nullable=False),
+    F("grown_volume_at_pinchoff_nl", "float", "nl", "ECM grown volume at that instant", nullable=False),
+    F("inflight_volume_nl", "float", "nl", "in-flight volume: grown volume + volume adjuster", nullable=False),
+    F("jetting_velocity_m_s", "float", "m/s", "jetting velocity: ECM flow velocity at the template's velocity "
+      "instant + velocity adjuster", nullable=False),
+    F("flow_velocity_at_velocity_instant_m_s", "float", "m/s", "the ECM flow velocity alone at that instant",
+      nullable=False),
+    F("outside_training_region", "bool", "", "a varied parameter outside its min..max seen in training: numbers "
+      "unchecked", nullable=False),
+    F("outside_training_region_why", "str", "", "why (\"V1=40 > 34 (max seen)\"; empty inside)", nullable=False),
+), "`identify predict model.json --table ROWS --out FILE` with a model on a waveform template: one row per row of "
+   "ROWS (CSV, or Parquet by the suffix); no intervals (the template model has none).")
+
+TEMPLATE_SETTING_PREDICTION = Document(
+    "template_setting_prediction", "identify predict --set ... --json (template model)",
+    "identify.template-setting-prediction/1", (
+        F("schema", "str", "", "document id"),
+        F("settings", "object", "", "every parameter of the template -> its value (the fixed ones at their "
+          "training values)"),
+        F("pinchoff_us", "float", "us", "as the predictions.csv column"),
+        F("grown_volume_at_pinchoff_nl", "float", "nl", "as the predictions.csv column"),
+        F("inflight_volume_nl", "float", "nl", "as the predictions.csv column"),
+        F("jetting_velocity_m_s", "float", "m/s", "as the predictions.csv column"),
+        F("flow_velocity_at_velocity_instant_m_s", "float", "m/s", "as the predictions.csv column"),
+        F("outside_training_region", "bool", "", "a varied parameter outside its range seen in training"),
+        F("outside_training_region_why", "str", "", "why (empty inside)"),
+    ), "`identify predict model.json --set NAME=VALUE ... --json` with a model on a waveform template: one JSON "
+       "object on stdout.")
+
+TABULAR_SETTING_PREDICTION = Document(
+    "tabular_setting_prediction", "identify predict --set ... --json (table model)",
+    "identify.tabular-setting-prediction/1", (
+        F("schema", "str", "", "document id"),
+        F("settings", "object", "", "input -> value"),
+        F("predicted", "object", "", "the columns of `identify predict --table` (tabular_prediction) other than "
+          "the two below: <o>_mean, intervals, <o>_p<k>"),
+        F("outside_training_region", "bool", "", "as the predictions.csv column"),
+        F("outside_training_region_why", "str", "", "why (empty inside)"),
+    ), "`identify predict model.json --set NAME=VALUE ... --json` with a table model: one JSON object on stdout.")
+
 TABULAR_TUNING = Table("tabular_tuning", "tuning.parquet", "identify.tabular-tuning/1", (
     F("shot", "int", "", "shot number, 1 = the open-loop `identify design` proposal", nullable=False),
     F("<input>", "float", "of <input>", "per input of the model, in its order and under its name: the setting "
@@ -804,6 +847,8 @@ DOCUMENTS = {d.name: d for d in (SUMMARY, SHOTS_SUMMARY, DATASET, MANIFEST, MODE
 DOCUMENTS.update({d.name: d for d in (WAVEFORM, TEMPLATE_MODEL)})  # issue 31: waveform templates
 DOCUMENTS[ROW_SUMMARY.name] = ROW_SUMMARY  # issue 32: printhead rows
 DOCUMENTS[ROW_INPUTS.name] = ROW_INPUTS
+TABLES[TEMPLATE_PREDICTION.name] = TEMPLATE_PREDICTION  # issue 31: predictions of a template model
+DOCUMENTS.update({d.name: d for d in (TEMPLATE_SETTING_PREDICTION, TABULAR_SETTING_PREDICTION)})
 
 
 class Quality:

@@ -44,6 +44,10 @@ from identify.waveform import Drive, WaveformTemplate, template_from_dict
 
 #: Outputs of :meth:`TemplateModel.predict` compared with the measured ones.
 OUTPUTS = ("pinchoff_us", "inflight_volume_nl", "jetting_velocity_m_s")
+#: Columns of :meth:`TemplateModel.predict_table` (`identify predict --table` of a template model;
+#: ``dvcore.schema.TEMPLATE_PREDICTION``).
+PREDICTION_COLUMNS = ("pinchoff_us", "grown_volume_at_pinchoff_nl", "inflight_volume_nl", "jetting_velocity_m_s",
+                      "flow_velocity_at_velocity_instant_m_s", "outside_training_region", "outside_training_region_why")
 #: The linear laws of the model, by the output they give.
 LAWS = ("pinchoff", "volume_adjuster", "velocity_adjuster")
 #: Fewest attached samples from delay 0 for a sequence to enter the ECM fit.
@@ -150,6 +154,70 @@ class TemplateModel:
             "flow_velocity_at_velocity_instant_m_s": float(vel[0]),
             "outside_training_region": self.outside(d.values),
         }
+
+    def outside_why(self, values: Mapping) -> str:
+        """Why ``values`` lie outside the training region (each varied parameter beyond its range seen,
+        in the form of :mod:`identify.tabular`: ``"V1=40 > 34 (max seen)"``); ``""`` inside."""
+        why = []
+        for k in self.inputs:
+            lo, hi = self.training_region[k]
+            v = float(values[k])
+            if v < lo - 1e-9:
+                why.append(f"{k}={v:g} < {lo:g} (min seen)")
+            elif v > hi + 1e-9:
+                why.append(f"{k}={v:g} > {hi:g} (max seen)")
+        return "; ".join(why)
+
+    def predict_table(self, table: pd.DataFrame, source: str = "the table") -> pd.DataFrame:
+        """:meth:`predict` at every row of ``table``: one row per input row, in order.
+
+        Parameters
+        ----------
+        table : DataFrame
+            A column per varied parameter (:attr:`inputs`, the template's units); a column of a fixed
+            parameter may be there (then at its training value in every row); other columns are ignored.
+        source : str
+            Named in errors.
+
+        Returns
+        -------
+        DataFrame
+            :data:`PREDICTION_COLUMNS`: the predicted outputs, ``outside_training_region`` (bool) and
+            ``outside_training_region_why`` (``""`` inside).
+
+        Raises
+        ------
+        ValueError
+            A parameter column missing or not numeric, a value missing, not finite or outside the
+            template's accepted range, a fixed parameter at another value (one line naming ``source``
+            and the row: the first row of data is row 1).
+        """
+        missing = [k for k in self.inputs if k not in table.columns]
+        if missing:
+            raise ValueError(f"{source}: no column {missing[0]!r} (the model's parameters: {', '.join(self.inputs)}"
+                             + (f"; fixed, may be left out: {', '.join(self.fixed)}" if self.fixed else "") + ")")
+        names = [k for k in self.template.parameter_names if k in table.columns]
+        cols = {}
+        for k in names:
+            col = table[k]
+            if col.dtype == bool or not pd.api.types.is_numeric_dtype(col):
+                raise ValueError(f"{source}: parameter column {k!r} is not numeric (dtype {col.dtype})")
+            cols[k] = col.to_numpy(dtype=float, na_value=np.nan)
+        rows = []
+        for i in range(len(table)):
+            values = {k: cols[k][i] for k in names}
+            bad = [k for k, v in values.items() if not np.isfinite(v)]
+            try:
+                if bad:
+                    raise ValueError(f"parameter {bad[0]} is missing or not finite")
+                p = self.predict(values)
+            except ValueError as exc:
+                raise ValueError(f"{source}: row {i + 1}: {exc}") from None
+            why = self.outside_why(values)
+            rows.append({**{k: p[k] for k in PREDICTION_COLUMNS[:-2]}, "outside_training_region": bool(why),
+                         "outside_training_region_why": why})
+        return pd.DataFrame(rows, columns=list(PREDICTION_COLUMNS), index=table.index).astype(
+            {"outside_training_region": bool, "outside_training_region_why": object})
 
     def to_dict(self) -> dict:
         c = self.ecm_coefficients
@@ -394,4 +462,5 @@ def holdout_errors(model: TemplateModel, table: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-__all__ = ["TemplateModel", "LinearFit", "fit_template_model", "sequence_tables", "holdout_errors", "OUTPUTS"]
+__all__ = ["TemplateModel", "LinearFit", "fit_template_model", "sequence_tables", "holdout_errors", "OUTPUTS",
+           "PREDICTION_COLUMNS"]

@@ -165,6 +165,18 @@ def test_fit_and_predict_command_lines_on_the_real_sweep(realdata_dir, tmp_path,
     assert np.allclose(probs.sum(axis=1), 1.0) and (probs.to_numpy() >= 0).all()
     assert p["outside_training_region"].tolist() == [False] * (len(rows) - 1) + [True]
     assert "w3=31 > " in p["outside_training_region_why"].iloc[-1]
+    # one setting by --set: the same numbers as its row of the table (--json: declared keys)
+    capsys.readouterr()
+    r = rows.iloc[-1]
+    sets = [x for k in ("V3", "w1", "w2", "w3", "d1", "d2") for x in ("--set", f"{k}={r[k]}")]
+    assert main(["predict", str(model), *sets, "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert set(doc) == {k.name for k in schema.TABULAR_SETTING_PREDICTION.keys}
+    assert doc["outside_training_region"] is True and doc["outside_training_region_why"].startswith("w3=31 > ")
+    for c, v in doc["predicted"].items():
+        assert v == pytest.approx(float(p[c].iloc[-1]), rel=1e-9), c
+    assert main(["predict", str(model), *sets[:-2]]) == 2
+    assert "--set d2=VALUE missing (its inputs: V3, w1, w2, w3, d1, d2)" in capsys.readouterr().err
     # our own prediction table may be replaced; a hybrid-model argument or a missing --out is refused
     assert main(["predict", str(model), "--table", str(tmp_path / "rows.csv"), "--out", str(out)]) == 0
     capsys.readouterr()

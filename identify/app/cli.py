@@ -4,7 +4,8 @@
     identify fit TABLE.csv --inputs A,B,... --outputs Y,N --out model.json   (a table: identify.tabular)
     identify fit DATASET --inputs V1,w1 --outputs drop_volume_nl --out model.json   (its shots.parquet)
     identify predict model.json --u1 U1 --u2 U2 [--samples 10000] [--seed S] [--json]
-    identify predict model.json --table ROWS.csv --out PREDICTIONS.csv       (a table model)
+    identify predict model.json --table ROWS.csv --out PREDICTIONS.csv       (a table or template model)
+    identify predict model.json --set V1=30 --set w1=20 [--json]               (one setting of a table or template model)
     identify design model.json --volume-nl V [--velocity-m-s W] [--json]
     identify design model.json --target head_volume_px3=V --target n_drops=1  (a table model)
     identify paper --u1 U1 --u2 U2 [--scheme-draw] [--samples N] [--seed S] [--json]
@@ -233,8 +234,8 @@ def _load_model(path):
         is_template = False  # HybridModel.from_json says what is wrong with it
     if is_template:
         raise UsageError(f"{path}: a model on a waveform template ({schema.TEMPLATE_MODEL.schema}): this command "
-                         "reads (u1, u2) models; predict it from Python: "
-                         "identify.TemplateModel.from_json(path).predict({'V1': ..., ...})")
+                         "reads (u1, u2) models; predict it with `identify predict MODEL --set NAME=VALUE ...` or "
+                         "`--table ROWS.csv --out FILE`")
     return HybridModel.from_json(path)
 
 
@@ -258,13 +259,24 @@ def _check_finite(summary: dict, path) -> None:
 
 
 def cmd_predict(args) -> int:
+    from identify.app.template_cli import cmd_predict_template, is_template_model
+
+    if is_template_model(args.model):  # a waveform template's parameters (issue 31)
+        return cmd_predict_template(args)
+    if args.set:
+        from identify.app.tabular_cli import cmd_predict_setting, is_table_model
+
+        if not is_table_model(args.model):
+            raise UsageError(f"{args.model}: --set is for a model on a waveform template or a table model; this "
+                             "one takes --u1 and --u2")
+        return cmd_predict_setting(args)
     if args.table is not None:
         from identify.app.tabular_cli import cmd_predict_table
 
         return cmd_predict_table(args)
     if args.u1 is None or args.u2 is None:
         raise UsageError("the following arguments are required: --u1, --u2 (or --table ROWS.csv --out FILE "
-                         "with a table model)")
+                         "with a table model, or --set NAME=VALUE ... with a template or table model)")
     _check_samples(args.samples)
     m = _load_model(args.model)
     want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
@@ -527,6 +539,9 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--u2", type=_positive("--u2"), default=None, help="stroke (um)")
     q.add_argument("--table", default=None, metavar="ROWS.csv",
                    help="a table model: predict every row of this table (its input columns)")
+    q.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
+                   help="a model on a waveform template or a table model: one setting, a parameter each time "
+                        "(repeatable), e.g. --set V1=30 --set w1=20 (a template's fixed parameters may be left out)")
     q.add_argument("--out", default=None, metavar="FILE", help="with --table: the predictions (.csv or .parquet)")
     q.add_argument("--overwrite", action="store_true", help="with --table: replace an --out that is not ours")
     q.add_argument("--samples", type=int, default=10_000)

@@ -8,6 +8,7 @@ dispatches here.
 from __future__ import annotations
 
 import io
+import math
 import sys
 from pathlib import Path
 
@@ -26,6 +27,26 @@ def _names(text: str | None, flag: str) -> list[str]:
     return names
 
 
+def parse_settings(items) -> dict:
+    """``["V1=30", "w1=20"]`` -> ``{"V1": 30.0, "w1": 20.0}`` (UsageError on a malformed or repeated one)."""
+    out = {}
+    for text in items:
+        name, sep, value = text.partition("=")
+        name = name.strip()
+        if not sep or not name:
+            raise UsageError(f"--set must be NAME=VALUE (a parameter and its value), got {text!r}")
+        try:
+            v = float(value)
+        except ValueError:
+            raise UsageError(f"--set {name}: the value must be a number, got {value.strip()!r}") from None
+        if not math.isfinite(v):
+            raise UsageError(f"--set {name}: the value must be finite, got {value.strip()!r}")
+        if name in out:
+            raise UsageError(f"--set {name} given twice")
+        out[name] = v
+    return out
+
+
 def is_table_model(path) -> bool:
     """True when ``path`` is a model file of :mod:`identify.tabular` (replacing it loses nothing)."""
     import json
@@ -40,7 +61,7 @@ def is_table_model(path) -> bool:
         return False
 
 
-def _is_prediction_table(path) -> bool:
+def is_prediction_table(path) -> bool:
     """True when ``path`` is a prediction table written by `identify predict --table`."""
     path = Path(path)
     try:
@@ -126,7 +147,7 @@ def cmd_predict_table(args) -> int:
     if args.u1 is not None or args.u2 is not None:
         raise UsageError("--u1/--u2 and --table exclude each other (a table model takes its inputs from the table)")
     check_outside_inputs([args.model, args.table], out)
-    check_output_file(out, inputs=[args.model, args.table], overwrite=args.overwrite, is_ours=_is_prediction_table)
+    check_output_file(out, inputs=[args.model, args.table], overwrite=args.overwrite, is_ours=is_prediction_table)
     table = read_table(args.table)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", RefitMismatchWarning)
@@ -154,6 +175,47 @@ def cmd_predict_table(args) -> int:
     if n_out:
         print(f"warning: {n_out} row(s) outside the training region (column outside_training_region_why): "
               "their numbers are unchecked there", file=sys.stderr)
+    return 0
+
+
+def cmd_predict_setting(args) -> int:
+    """`identify predict model.json --set NAME=VALUE ...` with a table model: one setting, printed
+    (``--json``: ``dvcore.schema.TABULAR_SETTING_PREDICTION``)."""
+    import json
+
+    import pandas as pd
+
+    from dvcore import schema
+
+    if args.table is not None or args.out is not None:
+        raise UsageError("--set and --table/--out exclude each other (one setting, or a table of them)")
+    if args.u1 is not None or args.u2 is not None:
+        raise UsageError("--u1/--u2 and --set exclude each other (a table model takes its inputs by name)")
+    settings = parse_settings(args.set)
+    m = _load(args.model)
+    if abs(args.level - m.level) > 1e-12:
+        raise UsageError(f"{args.model}: its intervals are at {100 * m.level:g} % (fixed when fitted), "
+                         f"not --level {args.level:g}")
+    unknown = sorted(set(settings) - set(m.inputs))
+    missing = [k for k in m.inputs if k not in settings]
+    if unknown or missing:
+        raise UsageError(f"{args.model}: " + (f"--set {unknown[0]}: not an input of the model" if unknown
+                                              else f"--set {missing[0]}=VALUE missing")
+                         + f" (its inputs: {', '.join(m.inputs)})")
+    pred = m.predict(pd.DataFrame([{k: settings[k] for k in m.inputs}]), source="--set").iloc[0]
+    flag, why = bool(pred["outside_training_region"]), str(pred["outside_training_region_why"])
+    values = {c: float(pred[c]) for c in pred.index if c not in _OURS}
+    if args.json:
+        print(json.dumps({"schema": schema.TABULAR_SETTING_PREDICTION.schema,
+                          "settings": {k: settings[k] for k in m.inputs}, "predicted": values,
+                          "outside_training_region": flag, "outside_training_region_why": why}))
+        return 0
+    print(", ".join(f"{k} = {settings[k]:g}" for k in m.inputs))
+    for c, v in values.items():
+        print(f"  {c:40s} {v:.5g}")
+    print(f"  {'outside_training_region':40s} {'yes: ' + why if flag else 'no'}")
+    if flag:
+        print(f"warning: outside the training region ({why}): the numbers are unchecked there", file=sys.stderr)
     return 0
 
 
