@@ -77,6 +77,28 @@ def make_shots(root: Path) -> tuple[Path, Path, list[str]]:
     return both, real, names
 
 
+def make_shifted(root: Path, real: Path) -> Path:
+    """A folder of 20 real-like shots of which nearly none shares a calibration: the 8 real frames and
+    12 copies of them shifted by -20..+19 px across and -12..+11 px down (the holder at other places,
+    re-encoded as JPEG q95): the worst case of a folder of real shots."""
+    import cv2
+    import numpy as np
+
+    out = root / "shifted20"
+    out.mkdir()
+    frames = sorted(real.glob("*.jpg"))
+    for f in frames:
+        shutil.copy(f, out / f.name)
+    for i in range(12):
+        f = frames[i % len(frames)]
+        img = cv2.imread(str(f))
+        dx, dy = 9 * (i + 1) % 40 - 20, 5 * (i + 2) % 24 - 12
+        moved = cv2.warpAffine(img, np.float32([[1, 0, dx], [0, 1, dy]]), (img.shape[1], img.shape[0]),
+                               borderMode=cv2.BORDER_REPLICATE)
+        cv2.imwrite(str(out / f"{f.stem}_copy{i}.jpg"), moved, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    return out
+
+
 def rules(row, truth: dict) -> bool:
     """score.py's rules of a drop-watcher frame on a shots.parquet row."""
     ns = row["n_satellites"]
@@ -148,6 +170,24 @@ def main() -> int:
         c_own4, c0 = CPU[0] - c0, CPU[0]
         t_own2 = run(["measure", str(own2), "--out", str(root / "oo2")] + PIXEL)
         c_own2 = CPU[0] - c0
+        # the worst case: 20 real-like shots, nearly each at its own holder place (calibrated alone)
+        shifted = make_shifted(root, real)
+        c0 = CPU[0]
+        t_shift_alone = 0.0
+        for i, image in enumerate(sorted(shifted.glob("*.jpg"))):
+            one = root / f"shifted_alone{i:02d}"
+            one.mkdir()
+            shutil.copy(image, one / image.name)
+            t_shift_alone += run(["measure", str(one), "--out", str(root / f"shifted_out{i:02d}")] + PIXEL)
+        c_shift_alone, c0 = CPU[0] - c0, CPU[0]
+        t_shift = run(["measure", str(shifted), "--out", str(root / "shifted_folder")] + PIXEL)
+        c_shift = CPU[0] - c0
+        n_shared = sum(bool(s.get("shared_calibration")) for s in
+                       json.loads((root / "shifted_folder" / "summary.json").read_text())["shots"])
+        print(f"20 real-like shots (8 real + 12 shifted copies; {n_shared} of 20 share a calibration, the others "
+              f"calibrated alone): 20 one-image runs {t_shift_alone:.1f} s wall ({c_shift_alone:.1f} s CPU); one "
+              f"folder run {t_shift:.1f} s wall ({c_shift:.1f} s CPU): {t_shift_alone / t_shift:.1f}x faster "
+              f"({c_shift_alone / c_shift:.1f}x less CPU)")
         print(f"20 shots (8 real watcher-dod + 12 synthetic watcher-blurred-holder, 2048x1536 JPEG), "
               f"{os.cpu_count()} CPUs, workers 2:")
         print(f"  20 one-image runs {t_alone:.1f} s wall ({c_alone:.1f} s CPU); one folder run {t_folder:.1f} s wall "
