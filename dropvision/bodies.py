@@ -36,7 +36,6 @@ from dropvision.segmentation import (
 from dropvision.edges import RowEdges, body_edges
 from dropvision.nozzle import Protrusion, protruding_columns
 from dropvision.volume import (
-    outline,
     equivalent_diameter_um,
     BodyVolume,
     clip_to_tip_plane,
@@ -110,7 +109,7 @@ class AttachedLiquid:
     common_uncertainty_nl, plane_uncertainty_nl : float
         Its parts from the edges' common error (blur correction included) and from the tip
         plane: a grown volume, a difference of two attached volumes, keeps only the difference
-        of the first (part by part, ``common_parts_nl``, `COMMON_PARTS`) and none of the second.
+        of the first and none of the second.
     """
 
     volume_nl: float
@@ -121,7 +120,6 @@ class AttachedLiquid:
     volume_uncertainty_nl: float = float("nan")
     common_uncertainty_nl: float = float("nan")
     plane_uncertainty_nl: float = float("nan")
-    common_parts_nl: tuple[float, ...] = ()  # ``common_uncertainty_nl``'s parts (`COMMON_PARTS`)
 
 
 def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
@@ -175,55 +173,16 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
         if not found.liquid:  # the face's blurred halo: no liquid, but as much could hide in it
             return nothing_hangs(ed, integrate(ed, ctx.tilt_rad, ctx.tip_roi, 0.0).volume_px3 * ctx.nl_per_px3)
     span = plane_span_chord_px(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
-    share = face_share(ed, ctx) if not np.isfinite(getattr(ctx, "face_a", float("nan"))) else 0.0
     clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
     bv = replace(integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px), plane_span_px=span)
-    if share > 0:  # the face's concave corner: the correction started between phi_0 and pi
-        bv = replace(bv, volume_px3=bv.volume_px3 - share * bv.junction_px3, blur_px3=bv.blur_px3 - share * bv.junction_px3)
     near = out_of_focus_nozzle_px3(bv, ctx.nozzle_blur_px) * ctx.nl_per_px3
     return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
                           common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * ctx.nl_per_px3,
-                          common_parts_nl=tuple(p * ctx.nl_per_px3 for p in common_parts_px3(bv, ctx, closed=False)),
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                                          ctx.tilt_rad) * ctx.nl_per_px3,
                                                               near)))
-
-
-def face_share(edges: RowEdges, ctx: FrameContext) -> float:
-    """How much of the nozzle's face runs beside the liquid at the tip plane, 0 to 1 (edges not yet
-    cut at the plane).
-
-    Where the liquid leaves the orifice inside a wider face, its outline and the face meet in a
-    concave corner that the blur fills: the blur correction then starts at the face's direction
-    (``pi``, `dropvision.volume.junction_bound_px3`), not at the liquid's first row's.  On drawn caps
-    hanging below a face 1.5-4 blur widths wide the measured volume was 0.74-1.17 bounds too large
-    with the correction started at the first row, and where the cap met the wall edge to edge
-    0.18 bound too small (tests/test_stage_units.py).  The face's width a side is half the nozzle's
-    chord (the median of its rows wholly above the plane) less the liquid's at the plane (its first
-    two rows wholly below the face's halo, 3 blur widths, extrapolated to the plane; else its last
-    row); the share is that width over the halo's reach, at most 1.  0 without a blur, a row above the plane or one below it."""
-    sig = float(ctx.sigma_px) if np.isfinite(ctx.sigma_px) else 0.0
-    tip = float(ctx.tip_roi)
-    if sig <= 0 or not np.isfinite(tip) or edges.row.size == 0:
-        return 0.0
-    rows, left, right = outline(edges)
-    chord = right - left
-    above = rows + 0.5 <= tip
-    below = rows - 0.5 >= tip
-    if not above.any() or not below.any():
-        return 0.0
-    reach = 3.0 * sig
-    nozzle = float(np.median(chord[above]))
-    clear = np.nonzero(below & (rows - 0.5 >= tip + reach))[0]
-    if clear.size >= 2:  # the liquid's chord at the plane: its first two clear rows extrapolated
-        k0, k1 = clear[0], clear[1]
-        liquid = chord[k0] - (chord[k1] - chord[k0]) * (rows[k0] - tip) / float(rows[k1] - rows[k0])
-    else:
-        liquid = float(chord[below][-1])
-    face = 0.5 * (nozzle - min(max(float(liquid), 0.0), nozzle))
-    return float(min(max(face / reach, 0.0), 1.0))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -289,7 +248,6 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
     face's halo below the face line (as much liquid could hide in it); ``edges`` kept for the viewer."""
     return AttachedLiquid(volume_nl=0.0, bottom_row=float("nan"), neck_px=float("nan"), leaves=False, edges=edges,
                           volume_uncertainty_nl=float(hidden_nl), common_uncertainty_nl=0.0,
-                          common_parts_nl=(0.0,) * len(COMMON_PARTS),
                           plane_uncertainty_nl=float(hidden_nl))
 
 
@@ -359,33 +317,14 @@ def sample_noise_t(ctx: FrameContext) -> float:
     return noise
 
 
-#: The common error's parts (`common_parts_px3`), in this order.
-COMMON_PARTS = ("edge", "blur model", "tilt model", "junction")
-
-
-def common_parts_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> tuple[float, ...]:
-    """The edges' common error's parts (px^3, `COMMON_PARTS`), each a systematic error of its own:
-    the sequence's measured edge-position error (`common_edge_sigma_px`) with the body's own edge
-    definition (`dropvision.volume.edge_definition_px`), the blur correction's model error
-    (`dropvision.volume.volume_uncertainty_px3`), the slices' tilt factor
-    (`dropvision.volume.tilt_model_uncertainty_px3`) and, for liquid cut at the tip plane, the
-    bound on its blur correction's junction with the nozzle face
-    (`dropvision.volume.junction_bound_px3`, ``D``): the measured correction stands at one end and,
-    where the face runs beside the liquid, the truth lies near the other (on drawn caps hanging
-    below a face the error is 0.74-1.17 ``D``, tests/test_stage_units.py): like the tilt factor's
-    spheroid, the whole width is the standard uncertainty.  A grown volume differences each
-    part separately (`dropvision.summary.grown_uncertainty`)."""
-    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), sample_noise_t(ctx))
-    edge = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), ctx.tilt_rad, blur_fraction=0.0,
-                                  definition_px=definition)
-    blur = volume_uncertainty_px3(volume, 0.0, ctx.tilt_rad)
-    junction = 0.0 if closed else float(volume.junction_px3)
-    return (float(edge), float(blur), float(tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)), junction)
-
-
 def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> float:
-    """The edges' common error (px^3): its parts (`common_parts_px3`) in quadrature."""
-    return float(math.sqrt(sum(p * p for p in common_parts_px3(volume, ctx, closed))))
+    """The edges' common error (px^3): the sequence's measured edge-position error
+    (`common_edge_sigma_px`) and the body's own edge definition
+    (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
+    slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
+    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), sample_noise_t(ctx))
+    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), ctx.tilt_rad, definition_px=definition)
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:

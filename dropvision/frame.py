@@ -61,7 +61,6 @@ class FrameRecord:
     attached_volume_uncertainty_nl: float = float("nan")
     attached_common_uncertainty_nl: float = float("nan")  # edges' common error: see AttachedLiquid
     attached_plane_uncertainty_nl: float = float("nan")
-    attached_common_parts_nl: tuple[float, ...] = ()  # its common error's parts (`dropvision.bodies.COMMON_PARTS`)
     attached_bottom_row: float = float("nan")
     neck_px: float = float("nan")
     bodies: list[DetachedBody] = field(default_factory=list)
@@ -121,7 +120,6 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             rec.attached_volume_uncertainty_nl = att.volume_uncertainty_nl
             rec.attached_common_uncertainty_nl = att.common_uncertainty_nl
             rec.attached_plane_uncertainty_nl = att.plane_uncertainty_nl
-            rec.attached_common_parts_nl = att.common_parts_nl
         rec.attached_bottom_row = att.bottom_row
         rec.neck_px = att.neck_px
         if np.isfinite(rec.attached_bottom_row):
@@ -139,9 +137,6 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
                 u = body_volume_uncertainty_nl(bv, ctx)  # the same edge error: added, not in quadrature
                 rec.attached_volume_uncertainty_nl += u
                 rec.attached_common_uncertainty_nl += u
-                if rec.attached_common_parts_nl:  # its edges' error grows with the liquid: the edge part
-                    rec.attached_common_parts_nl = (rec.attached_common_parts_nl[0] + u,
-                                                    *rec.attached_common_parts_nl[1:])
             rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
         app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain,

@@ -205,8 +205,7 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     model_rand = np.sqrt(np.maximum(att_u ** 2 - att_common ** 2 - att_plane ** 2, 0.0))
     ratio = frame_scatter_ratio(delay, vol_used, model_rand, attached)
     meniscus_u, grown_u, att_u = grown_uncertainty(delay, vol_used, att_u, att_common, att_plane, grown,
-                                                   floor_share, scatter_ratio=ratio,
-                                                   common_parts_nl=common_parts_matrix(records))
+                                                   floor_share, scatter_ratio=ratio)
     # a pixel size measured off the needle (none given): its uncertainty scales every volume by its cube
     rel3 = 3.0 * float(getattr(cal, "pixel_size_relative_uncertainty", 0.0))
     if rel3 > 0:
@@ -322,19 +321,6 @@ def frame_scatter_nl(delay, volume_nl, use) -> float:
     return float(1.4826 * np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))
 
 
-def common_parts_matrix(records) -> np.ndarray | None:
-    """The attached volumes' common-error parts (nl, frames x parts; NaN where a frame has none), or
-    None where no frame has them (`dropvision.frame.FrameRecord.attached_common_parts_nl`)."""
-    n = max((len(r.attached_common_parts_nl) for r in records), default=0)
-    if n == 0:
-        return None
-    out = np.full((len(records), n), np.nan)
-    for k, r in enumerate(records):
-        if len(r.attached_common_parts_nl) == n:
-            out[k] = r.attached_common_parts_nl
-    return out
-
-
 def volume_uncertainty_source(cal) -> str:
     """The largest measured part of the edge-position error a volume carries
     (`dropvision.bodies.common_edge_sigma_px`): the calibration's terms less its fixed "edge floor",
@@ -372,20 +358,14 @@ def frame_scatter_ratio(delay, volume_nl, random_nl, use) -> float:
 
 def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl,
                       grown_nl, floor_share: float = 0.0,
-                      scatter_nl: float = 0.0, scatter_ratio: float = 0.0,
-                      common_parts_nl=None) -> tuple[float, np.ndarray, np.ndarray]:
+                      scatter_nl: float = 0.0, scatter_ratio: float = 0.0) -> tuple[float, np.ndarray, np.ndarray]:
     """Standard uncertainties (nl) of the initial meniscus, of every frame's grown volume and of
     its attached volume.
 
     The meniscus is the mean attached volume at the first delay: its uncertainty is its frames'
     mean uncertainty and the standard error of their scatter in quadrature.  A grown volume is
     the difference of two volumes measured with the same edge error and tip plane: of the common
-    edge error only the difference ``|common - common_meniscus|`` is left, of the plane only the
-    difference ``|plane - plane_meniscus|`` (its slab across a tilted plane grows with the chord
-    there: on the synthetic 1.5 deg tilt the grown volumes' error followed it, -0.01 nl at 440 us);
-    with its parts given (``common_parts_nl``, frames x parts, `dropvision.bodies.COMMON_PARTS`)
-    each part is differenced on its own and the differences added in quadrature (a part the same
-    at rest and grown cancels; one that grows with the liquid does not, whatever the others do);
+    edge error only the difference ``|common - common_meniscus|`` is left, of the plane nothing;
     the edges' own noise of both and the meniscus' scatter add in quadrature.  The edge floor's
     share of the common error (``floor_share``: sub-pixel interpolation, which changes with the
     silhouette's shape) is taken as independent between the two frames.  A frame's random part is
@@ -405,16 +385,7 @@ def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl
     se = float(np.std(attached_nl[first], ddof=1) / np.sqrt(n0)) if n0 >= 2 else 0.0
     c0, r0 = float(np.mean(common_u_nl[first])), float(np.mean(rand[first]))
     f2 = floor_share ** 2
-    diff2 = (common_u_nl - c0) ** 2
-    if common_parts_nl is not None:
-        parts = np.asarray(common_parts_nl, float)
-        if parts.ndim == 2 and parts.shape[0] == delay.size and np.isfinite(parts[first]).all():
-            by_part = np.sum((parts - parts[first].mean(axis=0)) ** 2, axis=1)
-            diff2 = np.where(np.isfinite(by_part), by_part, diff2)
-    # the tip plane's cut: the same plane, but its slab grows with the liquid's chord there
-    plane = np.asarray(plane_u_nl, float)
-    diff2 = diff2 + np.where(np.isfinite(plane), plane - float(np.mean(plane[first])), 0.0) ** 2
-    u_grown = np.sqrt((1.0 - f2) * diff2 + f2 * (common_u_nl ** 2 + c0 ** 2)
+    u_grown = np.sqrt((1.0 - f2) * (common_u_nl - c0) ** 2 + f2 * (common_u_nl ** 2 + c0 ** 2)
                       + rand ** 2 + r0 ** 2 / n0 + se ** 2)
     return float(np.hypot(u0, se)), np.where(np.isfinite(grown_nl), u_grown, np.nan), attached_u_nl
 

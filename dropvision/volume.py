@@ -76,8 +76,6 @@ class BodyVolume:
     bright_noise_t: float = float("nan")  # those samples' own noise (`RowEdges.bright_noise_t`)
     # the chord across which a tilted tip plane runs (`plane_span_chord_px`; 0: the top chord)
     plane_span_px: float = 0.0
-    # liquid cut at a plane: the width of the bound on its blur correction's junction (`junction_bound_px3`)
-    junction_px3: float = 0.0
 
 
 def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = True) -> float:
@@ -100,30 +98,6 @@ def blur_correction_px3(edges: RowEdges, sigma_px: float, closed_top: bool = Tru
         at the tip plane).
     """
     return _blur_correction(edges, sigma_px, closed_top)[0]
-
-
-def junction_bound_px3(edges: RowEdges, sigma_px: float) -> float:
-    """Width (px^3) of the bound on the blur correction of liquid cut at a plane (the nozzle's tip),
-    where its silhouette meets the nozzle's face.
-
-    An open-top body's correction (`blur_correction_px3`, ``closed_top`` False) starts its tangent
-    angle at the first row's own angle ``phi_0``: no curvature is counted at the junction.  The
-    blurred 50 % contour there is bent by the dark nozzle face beside it as well, by as much as a
-    corner turning the outline from the face's direction (``pi``, inwards along the face) to
-    ``phi_0``.  The correction lies between the two starts; their difference, per side
-    ``pi sigma^2 (r_0 / 2) (pi - phi_0)`` (``r_0`` the first row's half chord), is the bound's width.
-    0 for fewer than two rows or no blur."""
-    if edges.row.size < 2 or not np.isfinite(sigma_px) or sigma_px <= 0:
-        return 0.0
-    uniq, left, right = outline(edges)
-    if uniq.size < 2:
-        return 0.0
-    dy = float(uniq[1] - uniq[0])
-    r0 = 0.5 * float(right[0] - left[0])
-    turn = 0.0
-    for x, sign in ((right, 1.0), (left, -1.0)):
-        turn += np.pi - float(np.arctan2(dy, sign * (x[1] - x[0])))
-    return float(np.pi * sigma_px ** 2 * 0.5 * max(r0, 0.0) * turn)
 
 
 def outline(edges: RowEdges) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -179,15 +153,13 @@ def integrate(
     area = float(np.sum(np.maximum(edges.chord_px, 0.0) * wts))
     chord2 = float(np.sum(np.maximum(edges.chord_px, 0.0) ** 2 * wts))
     vol = float(a.sum())
-    c_vol = junction = 0.0
+    c_vol = 0.0
     m_row = float((a * edges.row).sum())
     m_col = float((a * edges.centre_px).sum())
     if blur_sigma_px > 0 and vol > 0:
         sel = a > 0
         sub = RowEdges(edges.row[sel], edges.left_px[sel], edges.right_px[sel], edges.touches)
         c_vol, c_row, c_col = _blur_correction(sub, blur_sigma_px, top_px is None)
-        if top_px is not None:
-            junction = junction_bound_px3(sub, blur_sigma_px) * float(np.cos(tilt_rad))
         cos_t = float(np.cos(tilt_rad))
         vol += c_vol * cos_t
         m_row += c_row * cos_t
@@ -212,7 +184,6 @@ def integrate(
         edges.slope_t_per_px,
         edges.bright_t,
         edges.bright_noise_t,
-        junction_px3=junction,
     )
 
 

@@ -24,7 +24,7 @@ from dropvision.blur import esf_sigma_px
 from dropvision.calibration_pass import attached_half_width_px
 from dropvision.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
 from dropvision.summary import frame_scatter_nl, frame_scatter_ratio, grown_uncertainty
-from test_measure_draw import cap, cylinder, render, volume_px3
+from test_measure_draw import cylinder, render
 
 
 def _phi(x):
@@ -285,48 +285,6 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     assert att.common_uncertainty_nl == pytest.approx(math.pi * 31 * 60.2 * 0.05 * 2e-6, rel=1e-3)
 
 
-@pytest.mark.parametrize("base_px, height_px, r_out_px, blur_px", [
-    (12.0, 10.0, 20.0, 1.5), (12.0, 20.0, 20.0, 1.5), (16.0, 8.0, 20.0, 2.0), (10.0, 25.0, 20.0, 2.5),
-    (18.0, 10.0, 20.0, 1.5), (14.0, 30.0, 20.0, 1.5), (20.0, 12.0, 20.0, 1.5), (20.0, 30.0, 20.0, 2.0),
-    (15.0, 15.0, 16.0, 1.5)])
-def test_junction_bound_covers_a_hanging_caps_error(base_px, height_px, r_out_px, blur_px):
-    """A spherical cap hanging below a drawn nozzle (exact coverage, Gaussian blur), measured as
-    attached liquid with the blur correction, against the cap's analytic volume: within 0.8 of the
-    junction bound (`volume.junction_bound_px3`, its standard uncertainty), with the face beside
-    the liquid (base narrower than the nozzle) and where the cap meets the wall edge to edge.
-    With the correction always started at the first row's angle (no `bodies.face_share`) the
-    face cases' error was 0.74-1.47 bounds; started at pi everywhere, the edge-to-edge cap's -1.16."""
-    body = cap(base_px, height_px)
-    img = render(shape=(130, 160), bodies=[body], tip_row=40.3, axis_col=80.0, nozzle_r_out=r_out_px,
-                 spot=0.0, blur_px=blur_px, bits=16)
-    thr = edg.edge_threshold(0.12)
-    b_img = np.full(img.shape, 0.8 * 65535, np.float32)
-    seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
-    nozzle = sg.find_nozzle_body(seg.bodies, 80.0)
-    ctx = SimpleNamespace(inv_background=1 / b_img, threshold=thr, tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0,
-                          sigma_px=blur_px, nozzle_blur_px=0.0, nl_per_px3=1.0, edge_position_sigma_px=0.05,
-                          edge_noise_px=0.0)
-    att = measure_attached(img, ctx, seg, nozzle, 1.0)
-    bound = vo.integrate(att.edges, 0.0, 40.3, blur_px).junction_px3
-    err = att.volume_nl - volume_px3(body)
-    assert bound > 0
-    assert abs(err) <= 0.8 * bound
-    # the attached volume's common error states it as a part of its own (the whole width)
-    assert att.common_parts_nl[-1] == pytest.approx(bound, rel=1e-9)
-    assert att.common_uncertainty_nl == pytest.approx(math.sqrt(sum(p * p for p in att.common_parts_nl)), rel=1e-12)
-
-
-def test_junction_bound_hand_value():
-    """Rows 0, 1 of half chords 10 and 9 (1 px inwards per row each side): each side's first
-    segment points at 3 pi / 4, so each turns pi / 4 from pi: pi sigma^2 (10 / 2) (pi / 2)."""
-    ed = _edges([0, 1, 2], [20.0, 18.0, 16.0])
-    assert vo.junction_bound_px3(ed, 2.0) == pytest.approx(math.pi * 4.0 * 5.0 * math.pi / 2.0, rel=1e-12)
-    assert vo.junction_bound_px3(ed, 0.0) == 0.0
-    assert vo.junction_bound_px3(_edges([0], [20.0]), 2.0) == 0.0
-    # a closed body (no plane) carries none
-    assert vo.integrate(ed, 0.0, None, 2.0).junction_px3 == 0.0
-
-
 # --- bodies beside the path, edge spread, attached half-width -----------------------------------
 
 
@@ -454,34 +412,3 @@ def test_grown_uncertainty_hand_values():
     assert math.isnan(ug3[0]) and ug3[2] == pytest.approx(ug[2])
     u0n, ugn, _ = grown_uncertainty(delay, np.array([np.nan, np.nan, 2.0]), att_u, common, plane, grown)
     assert math.isnan(u0n) and np.isnan(ugn).all()
-
-
-def test_grown_uncertainty_differences_each_systematic_part():
-    """Two systematic parts, each one error shared by every frame (a Monte Carlo of the volumes'
-    errors: part p draws one e_p ~ N(0, 1), frame k's error is sum_p e_p P_kp): the grown volume's
-    error, frame k's less the resting frames' mean, has the spread of the parts' differences in
-    quadrature, not of the difference of their totals (here equal: 0 left)."""
-    delay = np.array([0.0, 0.0, 10.0])
-    parts = np.array([[0.03, 0.04], [0.03, 0.04], [0.04, 0.03]])
-    common = np.sqrt((parts ** 2).sum(axis=1))
-    att_u = np.array([0.06, 0.06, 0.06])
-    plane = np.zeros(3)
-    grown = np.array([0.0, 0.0, 1.0])
-    rng = np.random.default_rng(5)
-    e = rng.normal(size=(200000, 2))
-    err = e @ parts.T
-    mc = float(np.std(err[:, 2] - err[:, :2].mean(axis=1)))
-    rand2 = 0.06 ** 2 - 0.05 ** 2  # the random parts (the parts' total is 0.05 in every frame)
-    _, ug, _ = grown_uncertainty(delay, np.array([1.0, 1.0, 2.0]), att_u, common, plane, grown,
-                                 common_parts_nl=parts)
-    assert math.sqrt(ug[2] ** 2 - rand2 - rand2 / 2) == pytest.approx(mc, rel=0.01)
-    assert mc == pytest.approx(0.01 * math.sqrt(2.0), rel=0.01)
-    # the totals alone: nothing left of the systematic error
-    _, ug0, _ = grown_uncertainty(delay, np.array([1.0, 1.0, 2.0]), att_u, common, plane, grown)
-    assert ug0[2] == pytest.approx(math.sqrt(rand2 + rand2 / 2), rel=1e-9)
-    # a frame without parts (NaN) falls back to the totals' difference
-    nan_parts = parts.copy()
-    nan_parts[2] = np.nan
-    _, ugn, _ = grown_uncertainty(delay, np.array([1.0, 1.0, 2.0]), att_u, common, plane, grown,
-                                  common_parts_nl=nan_parts)
-    assert ugn[2] == pytest.approx(ug0[2], rel=1e-12)
