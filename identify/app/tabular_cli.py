@@ -133,7 +133,7 @@ def cmd_fit_table(args) -> int:
 
 def cmd_predict_table(args) -> int:
     """Predict every row of ``--table`` and write ``--out`` (CSV or Parquet)."""
-    from dvcore.atomic import check_output_file, write_bytes
+    from dvcore.atomic import check_output_file
     from dvcore.atomic import check_outside_inputs
     from identify.tabular import RefitMismatchWarning, TabularModel, read_table
 
@@ -154,15 +154,24 @@ def cmd_predict_table(args) -> int:
         m = TabularModel.from_json(args.model)
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
-    import pandas as pd
-
     if abs(args.level - m.level) > 1e-12:
         raise UsageError(f"{args.model}: its intervals are at {100 * m.level:g} % (fixed when fitted), "
                          f"not --level {args.level:g}")
     pred = m.predict(table, source=str(args.table))
+    return write_predictions(table, pred, out, args.table)
+
+
+def write_predictions(table, pred, out: Path, table_path) -> int:
+    """The rows of ``table`` with their predictions ``pred`` beside them, written to ``out`` (CSV or
+    Parquet by the suffix; refused where ``table`` already holds a prediction column); the count
+    outside the training region printed (a warning on stderr when any). Returns the exit status 0."""
+    import pandas as pd
+
+    from dvcore.atomic import write_bytes
+
     clash = [c for c in pred.columns if c in table.columns]
     if clash:
-        raise UsageError(f"{args.table}: already has a column {clash[0]!r} of the predictions (a prediction table?)")
+        raise UsageError(f"{table_path}: already has a column {clash[0]!r} of the predictions (a prediction table?)")
     result = pd.concat([table.reset_index(drop=True), pred.reset_index(drop=True)], axis=1)
     if out.suffix.lower() == ".csv":
         write_bytes(out, result.to_csv(index=False).encode("utf-8"))

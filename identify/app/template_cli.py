@@ -101,10 +101,8 @@ def cmd_predict_template(args) -> int:
 
 def _predict_table(args) -> int:
     """Predict every row of ``--table`` and write ``--out`` (CSV or Parquet)."""
-    import io
-
-    from dvcore.atomic import check_output_file, check_outside_inputs, write_bytes
-    from identify.app.tabular_cli import is_prediction_table
+    from dvcore.atomic import check_output_file, check_outside_inputs
+    from identify.app.tabular_cli import is_prediction_table, write_predictions
     from identify.tabular import TabularError, read_table
 
     if args.out is None:
@@ -123,21 +121,4 @@ def _predict_table(args) -> int:
         pred = m.predict_table(table, source=str(args.table))
     except ValueError as exc:
         raise UsageError(" ".join(str(exc).split())) from None
-    clash = [c for c in pred.columns if c in table.columns]
-    if clash:
-        raise UsageError(f"{args.table}: already has a column {clash[0]!r} of the predictions (a prediction table?)")
-    import pandas as pd
-
-    result = pd.concat([table.reset_index(drop=True), pred.reset_index(drop=True)], axis=1)
-    if out.suffix.lower() == ".csv":
-        write_bytes(out, result.to_csv(index=False).encode("utf-8"))
-    else:
-        buf = io.BytesIO()
-        result.to_parquet(buf, index=False)
-        write_bytes(out, buf.getvalue())
-    n_out = int(pred["outside_training_region"].sum())
-    print(f"wrote {out}: {len(pred)} rows, {n_out} outside the training region")
-    if n_out:
-        print(f"warning: {n_out} row(s) outside the training region (column outside_training_region_why): "
-              "their numbers are unchecked there", file=sys.stderr)
-    return 0
+    return write_predictions(table, pred, out, args.table)
