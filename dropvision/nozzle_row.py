@@ -57,6 +57,11 @@ PLATE_MIN_STRAIGHT = 0.6
 MIN_LINE_AREA_RATIO = 0.2
 #: Bodies smaller than this (px) are noise, mist or dust.
 MIN_BODY_AREA_PX = 12
+#: A nozzle's place from the liquid at the plate: the rows (px) below the plate's edge whose dark
+#: pixels give the column where the liquid leaves it.
+ROOT_ROWS_PX = 3.0
+#: ... its standard error at least this (px): a bulge's outline placed to a tenth of a pixel.
+ROOT_FLOOR_PX = 0.1
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
 WEAK_K = 3.0
 WEAK_FLOOR = 0.01
@@ -215,15 +220,20 @@ class Body:
     attached: bool
     body_class: str = "unassigned"
     nozzle: int | None = None
+    #: liquid hanging from the plate: the column where it leaves the plate (its dark pixels' weighted
+    #: centroid in the first rows below the plate's edge)
+    root_col_px: float = float("nan")
 
 
 @dataclass
 class Line:
-    """A drop line of one frame: its bodies (main drop first)."""
+    """A drop line of one frame: its flying bodies (main drop first) and the liquid still hanging
+    from the plate in its column (``roots``: a meniscus bulge or a ligament's root)."""
 
     frame: int
     bodies: list
     nozzle: int | None = None
+    roots: list = field(default_factory=list)
 
     @property
     def main(self) -> Body:
@@ -242,6 +252,8 @@ class Track:
     velocity_u_m_s: float = float("nan")
     nozzle: int | None = None
     notes: list = field(default_factory=list)
+    #: liquid at the plate in frames where its drop flew out of its column (a crosstalk drop)
+    extra_roots: list = field(default_factory=list)
 
 
 def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) -> list[Body]:
@@ -272,8 +284,17 @@ def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) ->
         u = math.hypot(volume_uncertainty_px3(vol, interpolation_error_px(sigma), definition_px=definition),
                        random_volume_uncertainty_px3(vol, noise_t / slope))
         scale = px ** 3 * NL_PER_UM3
+        root = float("nan")
+        if attached:  # where the liquid leaves the plate: the first rows below the edge, weighted by darkness
+            rr, cc = np.nonzero(lab[y0:y0 + bh, x0:x0 + bw] == j)
+            rr, cc = rr + y0, cc + x0
+            near = rr <= plate.row_at(cc) + ROOT_ROWS_PX
+            if near.sum() >= 2:
+                wgt = np.clip(1.0 - t[rr[near], cc[near]], 0.0, None)
+                root = float(np.sum(wgt * cc[near]) / np.sum(wgt)) if wgt.sum() > 0 else float(np.mean(cc[near]))
         out.append(Body(k, ref.file, float(ref.delay_us), float(vol.centroid_row), float(vol.centroid_col),
-                        vol.volume_px3 * scale, u * scale, int(area), float(max(bw, bh)), bool(attached)))
+                        vol.volume_px3 * scale, u * scale, int(area), float(max(bw, bh)), bool(attached),
+                        root_col_px=root))
     return out
 
 
@@ -285,10 +306,18 @@ def _lines(bodies: list[Body]) -> list[Line]:
     lines = []
     for g in _line_groups(cols, sizes):
         bs = sorted((bodies[i] for i in g), key=lambda b: -b.volume_nl)
+        flying = [b for b in bs if not b.attached]
+        # liquid hanging from the plate behind a larger flying drop is the nozzle's root, not a
+        # satellite; a line whose largest body is still attached (before break-off) keeps it as its main
+        roots = [b for b in bs if b.attached] if not bs[0].attached else []
+        if roots:
+            bs = flying
         bs[0].body_class = "attached" if bs[0].attached else "main_drop"
         for b in bs[1:]:
             b.body_class = "attached" if b.attached else "satellite"
-        lines.append(Line(bs[0].frame, bs))
+        for b in roots:
+            b.body_class = "attached"
+        lines.append(Line(bs[0].frame, bs, roots=roots))
     return lines
 
 
@@ -410,6 +439,8 @@ def _grid(cols: np.ndarray, pitch_px: float | None) -> tuple[float, float, np.nd
         return float(c[0]), float(pitch_px or float("nan")), np.zeros(1, int), np.ones(1, bool), float("nan")
     if pitch_px is None:
         d = np.diff(c)
+        # two columns closer than a fifth of the typical spacing are one nozzle's (two tracks of it)
+        d = d[d > 0.2 * float(np.median(d))] if np.any(d > 0.2 * float(np.median(d))) else d
         p0 = float(np.min(d))
         near = d < 1.5 * p0
         p0 = float(np.median(d[near]))
@@ -466,6 +497,23 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     tracks = _link(lines, _tracks(lines))
     for tr in tracks:
         _fit_trajectory(tr, plate, px)
+    # liquid at the plate alone in its column (its drop flew into a neighbour's column, or left the
+    # frame) is that nozzle's root when a drop's trajectory meets the plate there, not a nozzle of its own
+    flying = [tr for tr in tracks if any(not ln.main.attached for ln in tr.lines)]
+    kept = []
+    for tr in tracks:
+        if tr in flying or not flying:
+            kept.append(tr)
+            continue
+        col = float(np.median([ln.main.col_px for ln in tr.lines]))
+        near = min(flying, key=lambda f: abs(f.plate_col - col))
+        if abs(near.plate_col - col) <= max(1.5 * max(ln.main.size_px for ln in tr.lines), 10.0):
+            near.extra_roots.extend(ln.main for ln in tr.lines)
+            for ln in tr.lines:
+                ln.main.root_col_px = ln.main.col_px if not np.isfinite(ln.main.root_col_px) else ln.main.root_col_px
+        else:
+            kept.append(tr)
+    tracks = kept
     given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
     if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
         from dropvision.sequence import SequenceError
@@ -473,6 +521,13 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     pitch_src = (pitch_source or "sequence.json") if given is not None else \
         "estimated from the found nozzles (smallest spacing, least-squares grid)"
     cols = np.array([tr.plate_col for tr in tracks])
+    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
+    # grid is fitted to those places where two or more nozzles show them
+    roots = [_root_col(tr) for tr in tracks]
+    have = np.array([np.isfinite(r[0]) for r in roots], bool)
+    if have.sum() >= 2:
+        cols = np.where(have, [r[0] for r in roots], cols)
+        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
     c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
     kmin = int(kk.min()) if kk.size else 0
     n_noz = int(kk.max() - kmin + 1) if kk.size else 0
@@ -486,9 +541,15 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
             i, other = tr.nozzle, seen[tr.nozzle]
             if abs(tr.plate_col - g) < abs(other.plate_col - g):
                 other.nozzle, seen[i] = None, tr
+                loser = other
             else:
-                tr.nozzle = None
-            notes.append(f"two drop lines meet the plate at nozzle {i}: the farther left unassigned")
+                tr.nozzle, loser = None, tr
+            # the farther's bodies come from that nozzle too (a satellite whose main drop left the frame)
+            for ln in loser.lines:
+                for b in ln.bodies + ln.roots:
+                    b.nozzle = i
+            notes.append(f"two drop lines meet the plate at nozzle {i}: the farther one's bodies counted as that "
+                         "nozzle's, its drops not in its statistics")
         else:
             seen[tr.nozzle] = tr
     grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
@@ -508,7 +569,21 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
         return s_grid * math.sqrt(v)
 
-    return seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px), pitch_src
+    own = {tr.nozzle: r for tr, r in zip(tracks, roots) if tr.nozzle is not None and np.isfinite(r[0])}
+    return (seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px),
+            pitch_src, own)
+
+
+def _root_col(tr: Track) -> tuple[float, float]:
+    """Where a track's liquid leaves the plate (its frames' roots, the largest of each): (column px,
+    standard error px: their scatter over the frames, at least ROOT_FLOOR_PX); nan where none hangs."""
+    c = np.array([max(ln.roots, key=lambda b: b.volume_nl).root_col_px for ln in tr.lines if ln.roots]
+                 + [b.root_col_px for b in tr.extra_roots])
+    c = c[np.isfinite(c)]
+    if c.size == 0:
+        return float("nan"), float("nan")
+    sd = _robust_sd(c) if c.size >= 3 else float("nan")
+    return float(np.median(c)), max(sd / math.sqrt(c.size) if np.isfinite(sd) else 0.0, ROOT_FLOOR_PX)
 
 
 def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
@@ -533,7 +608,7 @@ def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
     se = sd / math.sqrt(cols.size) if np.isfinite(sd) else 0.5
 
     return (seen, {lab: ref for lab in labels}, lambda i: se, labels, float("nan"),
-            "a scan: one nozzle per frame, brought to one place by the stage")
+            "a scan: one nozzle per frame, brought to one place by the stage", {})
 
 
 def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
@@ -595,15 +670,18 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         lines.extend(_lines(bs))
     notes = []
     if scan is not None:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _scan_nozzles(lines, scan, plate, px)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own = _scan_nozzles(lines, scan, plate, px)
     else:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
-                                                                         pitch_source, notes)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
+                                                                              pitch_source, notes)
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
     # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
     # rolled) turns its normal by as much
     tilt = math.atan(plate.slope)
-    if single and scan is None:
+    if single and scan is None and own and len(own) == len(seen):
+        notes.append("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
+                     "or a ligament's root) to its drop, from the plate's normal")
+    elif single and scan is None:
         notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
                      "a tilt common to the row" + ("" if "estimated" not in pitch_src else
                                                    " (and, with the pitch estimated, a fan linear across it)")
@@ -623,8 +701,10 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
             rows.append(row)
             continue
         for ln in tr.lines:
-            for b in ln.bodies:
+            for b in ln.bodies + ln.roots:
                 b.nozzle = i
+        for b in tr.extra_roots:
+            b.nozzle = i
         mains = [ln.main for ln in tr.lines]
         vols = np.array([b.volume_nl for b in mains])
         us = np.array([b.volume_uncertainty_nl for b in mains])
@@ -634,9 +714,16 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
         if single or not np.isfinite(tr.angle_mrad):
             m = mains[0]
-            dz = m.row_px - plate.row_at(grid_col[i])
-            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3  # from the grid fitted to the drops: no tilt to add
-            ang_u = math.hypot(grid_se(i), 0.05) / max(dz, 1.0) * 1e3
+            if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
+                c_i, se_i = own[i]
+                dz = m.row_px - plate.row_at(c_i)
+                ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
+            else:
+                c_i, se_i = grid_col[i], grid_se(i)
+                dz = m.row_px - plate.row_at(c_i)
+                # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
+                ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
+            ang_u = math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
         else:
             ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
         row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
@@ -646,6 +733,13 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
                    satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
                    n_frames=len(tr.lines))
         rows.append(row)
+    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
+    # neighbour's meniscus): the nearest nozzle's column
+    if scan is None and grid_col:
+        gc = np.array([grid_col[i] for i in ids])
+        for b in bodies:
+            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
+                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
     _states(rows)
     nozzles = pd.DataFrame(rows)
     nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`

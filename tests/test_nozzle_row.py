@@ -308,3 +308,35 @@ def test_watch_of_a_row_writes_its_nozzles(tmp_path, capsys):
     nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
     check_table(nz, NOZZLES, "nozzles.parquet")
     assert list(nz.state) == list(truth.state)
+
+
+def test_single_frame_pitch_estimated_angles_from_the_liquid_at_the_plate(tmp_path):
+    # one frame, no pitch given: the meniscus hanging at each nozzle gives its place, so each angle is
+    # measured from the plate's normal (without it only relative to the row's mean direction)
+    cfg = RowConfig(delays_us=(60.0,), meniscus_nl=0.004, **{**ROW, "planted": {1: "missing", 3: "weak"},
+                                                              "angle_sd_mrad": 3.0})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    measure_sequence(folder, tmp_path / "out")
+    s = _check(tmp_path / "out", truth, single=True)
+    nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
+    live = truth.state != "missing"
+    err = (nz.angle_mrad - truth.angle_mrad)[live]
+    assert np.abs(err).max() < 1.0 and (np.abs(err) < 3 * nz.angle_uncertainty_mrad[live]).all()
+    assert (nz.satellites[live] == 0).all()  # the meniscus is no satellite
+    assert "liquid at the plate" in s["pitch_source"]
+    assert any("where its liquid leaves the plate" in n for n in s["notes"])
+
+
+def test_crosstalk_with_meniscus_sequence(tmp_path):
+    # nozzle 0's drop leans into nozzle 2's column (1 missing between them is not planted here: 0 -> 1)
+    cfg = RowConfig(delays_us=tuple(range(40, 151, 10)), meniscus_nl=0.004, crosstalk=(0,),
+                    **{**ROW, "planted": {2: "weak", 4: "satellites"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    assert truth.state[0] == "deviated"
+    tb = pd.read_csv(folder / "truth_bodies.csv")
+    last = tb[(tb.delay_us == 150.0) & (tb.nozzle == 0) & (tb["class"] == "main_drop")].iloc[0]
+    assert abs(last.col - truth.col_px[1]) < abs(last.col - truth.col_px[0])  # nearest column: the wrong nozzle
+    measure_sequence(folder, tmp_path / "out")
+    _check(tmp_path / "out", truth, single=False)
