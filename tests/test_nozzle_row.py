@@ -310,11 +310,13 @@ def test_watch_of_a_row_writes_its_nozzles(tmp_path, capsys):
     assert list(nz.state) == list(truth.state)
 
 
-def test_single_frame_pitch_estimated_angles_from_the_liquid_at_the_plate(tmp_path):
-    # one frame, no pitch given: the meniscus hanging at each nozzle gives its place, so each angle is
-    # measured from the plate's normal (without it only relative to the row's mean direction)
-    cfg = RowConfig(delays_us=(60.0,), meniscus_nl=0.004, **{**ROW, "planted": {1: "missing", 3: "weak"},
-                                                              "angle_sd_mrad": 3.0})
+@pytest.mark.parametrize("liquid", [{"meniscus_nl": 0.004}, {"ligament_um": 30.0}])
+def test_single_frame_pitch_estimated_angles_from_the_liquid_at_the_plate(tmp_path, liquid):
+    # one frame, no pitch given: the meniscus (or a ligament still attached) at each nozzle gives its
+    # place, so each angle is measured from the plate's normal (without it only relative to the row's
+    # mean direction)
+    cfg = RowConfig(delays_us=(60.0,), **liquid, **{**ROW, "planted": {1: "missing", 3: "weak", 4: "satellites"},
+                                                   "angle_sd_mrad": 3.0})
     folder = write_row(cfg, tmp_path / "row")
     truth = pd.read_csv(folder / "truth_nozzles.csv")
     measure_sequence(folder, tmp_path / "out")
@@ -322,8 +324,8 @@ def test_single_frame_pitch_estimated_angles_from_the_liquid_at_the_plate(tmp_pa
     nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
     live = truth.state != "missing"
     err = (nz.angle_mrad - truth.angle_mrad)[live]
-    assert np.abs(err).max() < 1.0 and (np.abs(err) < 3 * nz.angle_uncertainty_mrad[live]).all()
-    assert (nz.satellites[live] == 0).all()  # the meniscus is no satellite
+    assert np.abs(err).max() < 2.0 and (np.abs(err) < 3 * nz.angle_uncertainty_mrad[live]).all()
+    assert list(nz.satellites) == [0, 0, 0, 0, 1]  # the liquid at the plate is no satellite
     assert "liquid at the plate" in s["pitch_source"]
     assert any("where its liquid leaves the plate" in n for n in s["notes"])
 

@@ -15,7 +15,9 @@ volume, ``weak_velocity`` x the velocity), ``deviated`` (``deviated_mrad`` added
 ``satellites`` (a satellite of ``satellite_fraction`` x its volume trailing it).  Liquid at the
 plate: ``meniscus_nl`` > 0 hangs a bulge of that volume (a half sphere) below the plate at every
 live nozzle, centred on the nozzle's column (truth_bodies.csv class ``meniscus``): where a person
-sees each nozzle's place in one frame, independent of the drops' angles.  Crosstalk:
+sees each nozzle's place in one frame, independent of the drops' angles; ``ligament_um`` > 0 hangs
+a ligament still attached instead (a slender spheroid of that length below the plate and radius
+``ligament_radius_um``, along the nozzle's trajectory; class ``ligament``).  Crosstalk:
 ``crosstalk`` names nozzles whose drop leans towards its right-hand neighbour by ``crosstalk_mrad``
 (state ``deviated``), far enough to fly past the middle between the two columns.
 
@@ -79,6 +81,8 @@ class RowConfig:
     write_pitch: bool = False
     supersample: int = 8
     meniscus_nl: float = 0.0
+    ligament_um: float = 0.0
+    ligament_radius_um: float = 4.0
     crosstalk: tuple = ()
     crosstalk_mrad: float = 250.0
 
@@ -89,8 +93,13 @@ class RowConfig:
         object.__setattr__(self, "delays_us", tuple(float(d) for d in self.delays_us))
         object.__setattr__(self, "planted", {int(k): str(v) for k, v in dict(self.planted).items()})
         object.__setattr__(self, "crosstalk", tuple(int(k) for k in self.crosstalk))
-        if not (np.isfinite(self.meniscus_nl) and self.meniscus_nl >= 0):
-            bad("meniscus_nl", "must be >= 0")
+        for name in ("meniscus_nl", "ligament_um"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                bad(name, "must be >= 0")
+        if self.meniscus_nl > 0 and self.ligament_um > 0:
+            bad("ligament_um", "a meniscus or a ligament at the plate, not both")
+        if not (np.isfinite(self.ligament_radius_um) and self.ligament_radius_um > 0):
+            bad("ligament_radius_um", "must be > 0")
         for k in self.crosstalk:
             if not 0 <= k < self.n_nozzles - 1 or self.planted.get(k, "ok") != "ok":
                 bad("crosstalk", f"nozzle indices 0..{self.n_nozzles - 2} (a right-hand neighbour) not planted otherwise")
@@ -180,6 +189,12 @@ def _bodies(cfg: RowConfig, truth: list[dict], delay: float, centre_col: float, 
         x = (col - centre_col) * px
         if cfg.meniscus_nl > 0:  # a half sphere below the plate (the upper half lies inside it)
             out.append((_sphere(2.0 * cfg.meniscus_nl, 0.0, x, 0.0), t["nozzle"], "meniscus", cfg.meniscus_nl))
+        elif cfg.ligament_um > 0:  # a slender spheroid centred at the plate along the trajectory: its lower half
+            from dropvision.synth.profiles import LiquidBody, Profile, Spheroid
+
+            L, r = cfg.ligament_um, cfg.ligament_radius_um
+            out.append((LiquidBody("drop", Profile((Spheroid(0.0, L, r),)), 0.0, x, a), t["nozzle"], "ligament",
+                        2.0 / 3.0 * np.pi * r * r * L * 1e-6))
         s = cfg.break_um + t["velocity_m_s"] * (delay - cfg.break_us)
         out.append((_sphere(t["volume_nl"], s, x, a), t["nozzle"], "main_drop", t["volume_nl"]))
         if t["satellite_volume_nl"] > 0:
@@ -230,6 +245,10 @@ def synthesize_row(cfg: RowConfig):
             r, c = geom.to_pixel(*b.centroid_zx_um())
             if cls == "meniscus":  # the half below the plate: its centroid 3/8 of the radius below the edge
                 r += 3.0 / 8.0 * (3.0 * vol * 2e6 / (4.0 * np.pi)) ** (1.0 / 3.0) / cfg.pixel_size_um
+            elif cls == "ligament":  # ... 3/8 of its length along its axis
+                a = b.axis_angle_rad
+                r += 3.0 / 8.0 * cfg.ligament_um * np.cos(a) / cfg.pixel_size_um
+                c += 3.0 / 8.0 * cfg.ligament_um * np.sin(a) / cfg.pixel_size_um
             rows.append({"file": file, "delay_us": delay, "nozzle": i, "class": cls, "row": float(r),
                          "col": float(c), "volume_nl": vol})
         yield file, delay, noz, img, rows
