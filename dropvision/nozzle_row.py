@@ -491,7 +491,42 @@ def _cv(x: np.ndarray, u: np.ndarray) -> tuple[float, float]:
     return cv, float(np.sqrt(np.sum((grad * u) ** 2)))
 
 
-def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes):
+def _end_gaps(meta, nozzle_count, c0: float, pitch: float, kmin: int, n_noz: int, width_px: int, notes):
+    """Missing nozzles at the row's ends: with the row's nozzle count given (``nozzle_count`` in
+    sequence.json or ``--nozzle-count``) the found span short of it is made up at the end(s) where
+    the grid still lies inside the frame (the row is in view); where both ends could hold them, or
+    with no count, a note says the ends cannot be judged.  Returns (kmin, n_noz, end nozzle ids)."""
+    from dropvision.sequence import SequenceError
+
+    given = nozzle_count if nozzle_count is not None else meta.extra.get("nozzle_count")
+    src = "command line --nozzle-count" if nozzle_count is not None else f"{meta.path / 'sequence.json'}"
+    if given is None:
+        notes.append("no nozzle_count given: a missing nozzle at either end of the row cannot be judged (a gap in the "
+                     "pitch shows only between live nozzles)")
+        return kmin, n_noz, []
+    if isinstance(given, bool) or not isinstance(given, (int, float)) or given != int(given) or given < 1:
+        raise SequenceError(f"{src}: nozzle_count must be a whole number >= 1, got {given!r}")
+    count = int(given)
+    if n_noz > count:
+        raise SequenceError(f"{src}: nozzle_count is {count} but the drops lie on {n_noz} positions of the pitch grid")
+    m = count - n_noz
+    if m == 0:
+        return kmin, n_noz, []
+    kmax = kmin + n_noz - 1
+    fits = [a for a in range(m + 1) if c0 + pitch * (kmin - a) >= 0 and c0 + pitch * (kmax + m - a) <= width_px - 1]
+    if len(fits) != 1:
+        notes.append(f"nozzle_count {count}: {m} nozzle(s) missing at the row's ends, but "
+                     + ("either end could hold them in the frame" if fits else "the frame cannot hold the row")
+                     + ": which end cannot be told; nozzles numbered from the first live one")
+        return kmin, n_noz, []
+    a = fits[0]
+    notes.append(f"nozzle_count {count}: {a} missing at the left end, {m - a} at the right (the frame holds the row's "
+                 "grid on that side only)")
+    return kmin - a, count, list(range(a)) + list(range(count - (m - a), count))
+
+
+def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
+                 width_px: int = 10**9):
     """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
     its standard error (function), nozzle ids, pitch µm, pitch source)."""
     tracks = _link(lines, _tracks(lines))
@@ -531,6 +566,7 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
     kmin = int(kk.min()) if kk.size else 0
     n_noz = int(kk.max() - kmin + 1) if kk.size else 0
+    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
     for tr, k in zip(tracks, kk):
         tr.nozzle = int(k - kmin)
     # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
@@ -571,7 +607,7 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
 
     own = {tr.nozzle: r for tr, r in zip(tracks, roots) if tr.nozzle is not None and np.isfinite(r[0])}
     return (seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px),
-            pitch_src, own)
+            pitch_src, own, ends)
 
 
 def _root_col(tr: Track) -> tuple[float, float]:
@@ -608,11 +644,11 @@ def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
     se = sd / math.sqrt(cols.size) if np.isfinite(sd) else 0.5
 
     return (seen, {lab: ref for lab in labels}, lambda i: se, labels, float("nan"),
-            "a scan: one nozzle per frame, brought to one place by the stage", {})
+            "a scan: one nozzle per frame, brought to one place by the stage", {}, [])
 
 
 def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
-                scan: dict | None = None):
+                scan: dict | None = None, nozzle_count: int | None = None):
     """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
     ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
     import pandas as pd
@@ -670,10 +706,10 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         lines.extend(_lines(bs))
     notes = []
     if scan is not None:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own = _scan_nozzles(lines, scan, plate, px)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
     else:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
-                                                                              pitch_source, notes)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
+            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, t0.shape[1])
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
     # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
     # rolled) turns its normal by as much
@@ -694,7 +730,9 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         tr = seen.get(i)
         row = {"nozzle": i, "col_px": float(grid_col[i]), "plate_row_px": float(plate.row_at(grid_col[i]))}
         if tr is None:
-            row.update(state="missing", reason="no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)"),
+            why = ("no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)")
+                   if i not in ends else "no drop at the row's end (nozzle_count)")
+            row.update(state="missing", reason=why,
                        volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan,
                        velocity_uncertainty_m_s=np.nan, angle_mrad=np.nan, angle_uncertainty_mrad=np.nan,
                        satellites=0.0, satellite_volume_nl=np.nan, n_frames=0)
@@ -812,6 +850,8 @@ def _states(rows: list[dict]) -> None:
 LIMIT_KEYS = {"volume_tolerance_percent": "%", "velocity_tolerance_percent": "%", "angle_limit_mrad": "mrad"}
 #: sequence.json key (and option --reference-nozzles) of a reference head's nozzles.parquet.
 REFERENCE_KEY = "reference_nozzles"
+#: The row's nozzle count (sequence.json ``nozzle_count`` or ``--nozzle-count``): end gaps (`_end_gaps`).
+COUNT_KEY = "nozzle_count"
 
 
 def row_limits(meta, given: dict | None = None) -> dict:
@@ -974,11 +1014,13 @@ def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bo
     from dvcore.atomic import atomic_dir
     from dvcore.versions import software_versions
 
+    limits = dict(limits or {})
+    nozzle_count = limits.pop(COUNT_KEY, None)  # the row's nozzle count travels with its options
     lim = row_limits(seq.meta, limits)  # before any work: a bad limit or reference is refused at once
     reference = read_reference(lim[REFERENCE_KEY]) if REFERENCE_KEY in lim else None
     nozzles, ftab, btab, summary = measure_row(seq, plate, nozzle_pitch_um=nozzle_pitch_um,
                                                pitch_source="command line --nozzle-pitch-um" if nozzle_pitch_um else None,
-                                               scan=scan)
+                                               scan=scan, nozzle_count=nozzle_count)
     summary["head_pass"] = judge_row(nozzles, lim, reference, lim.get(REFERENCE_KEY))
     summary.update(extra_summary or {})
     summary["software"] = software_versions()

@@ -830,6 +830,9 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
 ROW_INPUTS = Document("row_inputs", "sequence.json (printhead row keys)", "dropvision.sequence-row-keys/1", (
     F("nozzle_pitch_um", "float", "um", "nozzle pitch of a row (option --nozzle-pitch-um; default: estimated from "
       "the nozzles found)", required=False),
+    F("nozzle_count", "int", "", "the row's number of nozzles (option --nozzle-count): a missing nozzle at an end "
+      "of the row is judged where the frame holds the grid on that side only; without it the ends are not judged",
+      required=False),
     F("volume_tolerance_percent", "float", "%", "pass/fail: a nozzle's volume within this of its reference nozzle's, "
       "else of the row's median (option --volume-tolerance-percent)", required=False),
     F("velocity_tolerance_percent", "float", "%", "pass/fail: likewise its velocity (option "

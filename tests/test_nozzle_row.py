@@ -342,3 +342,35 @@ def test_crosstalk_with_meniscus_sequence(tmp_path):
     assert abs(last.col - truth.col_px[1]) < abs(last.col - truth.col_px[0])  # nearest column: the wrong nozzle
     measure_sequence(folder, tmp_path / "out")
     _check(tmp_path / "out", truth, single=False)
+
+
+def test_missing_nozzle_at_the_row_end_with_the_count(tmp_path):
+    # nozzle 0 fires nothing; the frame holds one more grid position on the left, none on the right
+    cfg = RowConfig(delays_us=(60.0,), **{**ROW, "pitch_um": 280.0, "width_px": 660, "planted": {0: "missing", 2: "weak"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    assert truth.col_px[0] > 0 and truth.col_px[4] + 140 > 659
+    # without the count: the ends cannot be judged (four nozzles, numbered from the first live one)
+    res = measure_sequence(folder, None)
+    assert len(res.nozzles) == 4 and "missing" not in set(res.nozzles.state)
+    assert any("ends" in n or "either end" in n for n in res.summary["notes"])
+    # with it: nozzle 0 missing at the left end, the others numbered as in the truth
+    res = measure_sequence(folder, tmp_path / "out", row_limits={"nozzle_count": 5})
+    assert list(res.nozzles.state) == list(truth.state)
+    assert "row's end" in res.nozzles.reason[0]
+    assert res.nozzles.col_px[0] == pytest.approx(truth.col_px[0], abs=2.0)
+    # the same from sequence.json; a count below the nozzles seen is refused naming the file
+    doc = json.loads((folder / "sequence.json").read_text())
+    (folder / "sequence.json").write_text(json.dumps({**doc, "nozzle_count": 5}))
+    assert list(measure_sequence(folder, None).nozzles.state) == list(truth.state)
+    (folder / "sequence.json").write_text(json.dumps({**doc, "nozzle_count": 3}))
+    with pytest.raises(SequenceError, match="sequence.json: nozzle_count is 3 but the drops lie on 4"):
+        measure_sequence(folder, None)
+
+
+def test_end_gap_either_end_is_a_note(tmp_path):
+    cfg = RowConfig(delays_us=(60.0,), **{**ROW, "planted": {0: "missing"}})  # room on both sides
+    folder = write_row(cfg, tmp_path / "row")
+    res = measure_sequence(folder, None, row_limits={"nozzle_count": 5})
+    assert len(res.nozzles) == 4
+    assert any("which end cannot be told" in n for n in res.summary["notes"])

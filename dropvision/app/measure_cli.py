@@ -180,6 +180,10 @@ def register(subparsers) -> None:
     p.add_argument("--nozzle-pitch-um", type=float, default=None, metavar="UM",
                    help="a printhead row's nozzle pitch (µm; default: sequence.json nozzle_pitch_um, else estimated "
                         "from the nozzles found)")
+    p.add_argument("--nozzle-count", type=int, default=None, metavar="N",
+                   help="a printhead row's number of nozzles (default: sequence.json nozzle_count): a nozzle missing "
+                        "at either end of the row is found where the frame holds the grid on one side only; without "
+                        "it the ends cannot be judged")
     for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
                       ("angle-limit-mrad", "mrad")):
         p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
@@ -222,7 +226,7 @@ def _row_views(args, res, folder, overrides, labels, only, logger) -> None:
 def _row_limits(args) -> dict:
     """The row's pass/fail options (None: not given)."""
     return {k: getattr(args, k, None) for k in ("volume_tolerance_percent", "velocity_tolerance_percent",
-                                                  "angle_limit_mrad", "reference_nozzles")}
+                                                  "angle_limit_mrad", "reference_nozzles", "nozzle_count")}
 
 
 def _one_frame(row) -> str:
