@@ -86,3 +86,4 @@ def test_report_refused_for_a_single_nozzle(tmp_path):
     folder = write_synthetic_sequence(cfg, tmp_path / "one", progress=False)
     assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--report", str(tmp_path / "rep")]) != 0
     assert not (tmp_path / "rep").exists()
+    assert not (tmp_path / "out").exists()  # refused before measuring: --out not written either

@@ -71,6 +71,20 @@ def _run(args: argparse.Namespace) -> int:
                 if Path(args.report).resolve() == Path(args.out).resolve():
                     raise UsageError(f"--report {args.report}: give a folder other than --out")
                 check_output_dir(args.report, inputs=[paths[0]], overwrite=args.overwrite)
+                # the page is a printhead row's: a single nozzle is refused before anything is measured or written
+                from dropvision.measurement import _row_plate
+                if only is None:
+                    seq = open_sequence(seq, overrides=overrides, labels=labels)
+                    overrides = labels = None  # applied when opened
+                try:
+                    is_row = _row_plate(seq) is not None
+                except BaseException:
+                    seq.close()
+                    raise
+                if not is_row:
+                    seq.close()
+                    raise UsageError(f"--report: {paths[0]} shows one nozzle; the report page is a printhead row's "
+                                     "(identify report draws a model's); nothing measured")
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels,
                                    nozzle_pitch_um=args.nozzle_pitch_um, row_limits=_row_limits(args))
