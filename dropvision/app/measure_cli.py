@@ -72,12 +72,13 @@ def _run(args: argparse.Namespace) -> int:
                     raise UsageError(f"--report {args.report}: give a folder other than --out")
                 check_output_dir(args.report, inputs=[paths[0]], overwrite=args.overwrite)
                 # the page is a printhead row's: a single nozzle is refused before anything is measured or written
-                from dropvision.measurement import _row_plate
+                from dropvision.nozzle_row import row_layout, scan_layout
                 if only is None:
                     seq = open_sequence(seq, overrides=overrides, labels=labels)
                     overrides = labels = None  # applied when opened
                 try:
-                    is_row = _row_plate(seq) is not None
+                    fr = seq.read(0)  # the rule of measurement's row check: a row in the first frame, or a scan
+                    is_row = (fr.error is None and row_layout(fr.image) is not None) or scan_layout(seq) is not None
                 except BaseException:
                     seq.close()
                     raise
