@@ -934,13 +934,24 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
         nozzles["pass"] = pd_na_bool(len(nozzles))
         nozzles["pass_reason"] = "no limits given"
         return None
+    shift, aligned = 0, None
     if reference is not None:
         mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
         if mine != theirs:
-            raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this row's "
-                                f"{_span(mine)} (a row's nozzles are numbered from its first live one, a scan's by "
-                                "label): compare heads with the same nozzles")
-        ref = reference.set_index(reference.nozzle.astype(int))
+            # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
+            # numbered one less; its nozzles' columns on the pitch grid say which is which
+            shift = _align_by_position(nozzles, reference)
+            if shift is None:
+                raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
+                                    f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
+                                    "scan's by label) and their columns do not line up on one pitch grid: compare "
+                                    "heads with the same nozzles in the same place")
+            aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
+                       f"this row's j {shift:+d}")
+        ref = reference.set_index(reference.nozzle.astype(int) + shift)
+
+    def ref_value(i, col):
+        return float(ref.at[i, col]) if i in ref.index else float("nan")
     live = nozzles.state != "missing"
     med = {}
     for c in ("volume_nl", "velocity_m_s"):
@@ -957,8 +968,10 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
                                    ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
                 if key not in limits:
                     continue
-                tgt = float(ref.at[i, col]) if reference is not None else med[col]
-                what = f"reference nozzle {i}" if reference is not None else "the row's median"
+                tgt = ref_value(i, col) if reference is not None else med[col]
+                what = f"reference nozzle {i - shift}" if reference is not None else "the row's median"
+                if reference is not None and i not in ref.index:
+                    what = "the reference head, which has no nozzle at its place,"
                 if not np.isfinite(r[col]):
                     notes.append(f"{col} not measured: not judged")
                     not_judged.add(col)
@@ -972,16 +985,17 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
                                  f"(limit {limits[key]:g} %)")
             if "angle_limit_mrad" in limits:
                 a = float(r.angle_mrad)
-                tgt = float(ref.at[i, "angle_mrad"]) if reference is not None else 0.0
+                tgt = ref_value(i, "angle_mrad") if reference is not None else 0.0
                 lim = limits["angle_limit_mrad"]
                 if not np.isfinite(a):
                     notes.append("angle_mrad not measured: not judged")
                     not_judged.add("angle_mrad")
                 elif not np.isfinite(tgt):
-                    fails.append(f"angle_mrad: reference nozzle {i} has no value to compare with")
+                    fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
+                                 if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
                 elif abs(a - tgt) > lim:
                     fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
-                                 f"{'reference nozzle ' + str(i) if reference is not None else 'the plate normal'} "
+                                 f"{'reference nozzle ' + str(i - shift) if reference is not None else 'the plate normal'} "
                                  f"(limit {lim:g} mrad)")
         passes.append(not fails)
         reasons.append("; ".join(fails + notes))
@@ -991,7 +1005,29 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
     return {"pass": not failed, "failed_nozzles": failed,
             "limits": {k: limits[k] for k in checks}, "limit_sources": {k: limits["sources"][k] for k in checks},
             "reference": None if reference is None else str(reference_path),
-            "not_judged": sorted(not_judged)}
+            "not_judged": sorted(not_judged), **({"reference_alignment": aligned} if aligned else {})}
+
+
+def _align_by_position(nozzles, reference) -> int | None:
+    """The shift d (reference nozzle j is this row's j + d) that puts the two heads' nozzle columns
+    on one pitch grid: every matched pair within a quarter pitch, the most pairs; None where no shift
+    does (a scan's columns are all one place, or the heads do not sit alike in the frame)."""
+    a = nozzles.set_index(nozzles.nozzle.astype(int)).col_px.astype(float)
+    b = reference.set_index(reference.nozzle.astype(int)).col_px.astype(float)
+    if len(a) < 2 or len(b) < 2:
+        return None
+    pitch = float(np.median(np.diff(np.sort(a.to_numpy()))))
+    if not np.isfinite(pitch) or pitch <= 0:
+        return None
+    best = None
+    for d in range(-int(b.index.max()) - len(a), int(a.index.max()) + len(b) + 1):
+        common = [i for i in a.index if i - d in b.index]
+        if len(common) < 2:
+            continue
+        dev = np.abs(np.array([a[i] - b[i - d] for i in common]))
+        if np.all(dev < 0.25 * pitch) and (best is None or len(common) > best[0]):
+            best = (len(common), d)
+    return None if best is None else best[1]
 
 
 def pd_na_bool(n: int):

@@ -817,7 +817,8 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
     F("limits", "object", "", "weak_k, weak_floor (fraction of the median), deviated_mrad"),
     F("head_pass", "object", "", "pass/fail of the head (null: no limits given): pass (every nozzle within the "
       "limits), failed_nozzles, limits, limit_sources, reference (the reference table's path or null), not_judged "
-      "(quantities not measured, e.g. velocity_m_s of a single delay)", required=False),
+      "(quantities not measured, e.g. velocity_m_s of a single delay), reference_alignment (only where the reference's "
+      "nozzle numbers differ and were matched by place on the pitch grid)", required=False),
     F("edge_blur_px", "float", "px", "edge blur (Gaussian sigma) of the liquid's edges"),
     F("liquid_level", "float", "", "transmission inside the liquid"),
     F("edge_threshold", "float", "", "transmission level of the edges"),

@@ -219,12 +219,32 @@ def test_pass_fail_keys_of_sequence_json_and_bad_inputs(tmp_path):
         (folder / "sequence.json").write_text(json.dumps(d))
         with pytest.raises(SequenceError, match=msg):
             measure_sequence(folder, None)
-    # a reference of other nozzles
+    # a reference of other nozzles that do not sit on this row's pitch grid (half a pitch aside)
     (folder / "sequence.json").write_text(json.dumps(doc))
-    short = pd.read_parquet(tmp_path / "row" / "ref" / "nozzles.parquet").iloc[:3]
+    short = pd.read_parquet(tmp_path / "row" / "ref" / "nozzles.parquet").iloc[:3].reset_index(drop=True)
+    short["nozzle"] = [7, 8, 9]
+    short["col_px"] += 50.0
     short.to_parquet(tmp_path / "short.parquet")
-    with pytest.raises(SequenceError, match="are not this row's"):
+    with pytest.raises(SequenceError, match="are not this row's.*do not line up on one pitch grid"):
         measure_sequence(folder, None, row_limits={"reference_nozzles": str(tmp_path / "short.parquet")})
+
+
+def test_reference_head_with_its_first_nozzle_missing_aligned_by_position(tmp_path):
+    # the reference head's nozzle 0 fires nothing: its table numbers from its first live nozzle (one
+    # less); its nozzles' columns on the pitch grid match them to this row's
+    # (menisci at the plate: both heads' single-frame angles from the plate's normal)
+    full = {**ROW, "planted": {}, "meniscus_nl": 0.004}
+    ref_folder = write_row(RowConfig(delays_us=(60.0,), write_pitch=True, **{**full, "planted": {0: "missing"}}),
+                           tmp_path / "refrow")
+    measure_sequence(ref_folder, tmp_path / "ref")
+    ref = pd.read_parquet(tmp_path / "ref" / "nozzles.parquet")
+    assert list(ref.nozzle) == [0, 1, 2, 3]
+    folder = write_row(RowConfig(delays_us=(60.0,), write_pitch=True, **full), tmp_path / "row")
+    res = measure_sequence(folder, None, row_limits={"volume_tolerance_percent": 0.5, "angle_limit_mrad": 1.5,
+                                                     "reference_nozzles": str(tmp_path / "ref")})
+    assert res.nozzles["pass"].tolist() == [False, True, True, True, True]
+    assert "no nozzle at its place" in res.nozzles.pass_reason[0]
+    assert "j +1" in res.summary["head_pass"]["reference_alignment"]
 
 
 def test_pass_fail_options_on_the_command_line(tmp_path, capsys):
