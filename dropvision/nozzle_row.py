@@ -535,17 +535,37 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     # liquid at the plate alone in its column (its drop flew into a neighbour's column, or left the
     # frame) is that nozzle's root when a drop's trajectory meets the plate there, not a nozzle of its own
     flying = [tr for tr in tracks if any(not ln.main.attached for ln in tr.lines)]
-    kept = []
+    fly_ids = {id(tr) for tr in flying}
+
+    def adopt(f, tr):
+        f.extra_roots.extend(ln.main for ln in tr.lines)
+        for ln in tr.lines:
+            if not np.isfinite(ln.main.root_col_px):
+                ln.main.root_col_px = ln.main.col_px
+
+    kept, alone = [], []
     for tr in tracks:
-        if tr in flying or not flying:
+        if id(tr) in fly_ids or not flying:
             kept.append(tr)
             continue
         col = float(np.median([ln.main.col_px for ln in tr.lines]))
         near = min(flying, key=lambda f: abs(f.plate_col - col))
         if abs(near.plate_col - col) <= max(1.5 * max(ln.main.size_px for ln in tr.lines), 10.0):
-            near.extra_roots.extend(ln.main for ln in tr.lines)
-            for ln in tr.lines:
-                ln.main.root_col_px = ln.main.col_px if not np.isfinite(ln.main.root_col_px) else ln.main.root_col_px
+            adopt(near, tr)
+        else:
+            alone.append((col, tr))
+    # ... and in one frame a drop with no liquid at the plate above it came from the nearest liquid with
+    # no drop below it (crosstalk: the drop leaned past its column), when nearer to it than halfway to
+    # any other nozzle's place
+    orphans = [f for f in flying if not f.extra_roots and not any(ln.roots for ln in f.lines)]
+    for col, tr in sorted(alone, key=lambda ct: ct[0]):
+        others = [f.plate_col for f in kept if f not in orphans] + [c for c, t in alone if t is not tr]
+        f = min(orphans, key=lambda f: abs(f.plate_col - col)) if orphans else None
+        room = min((abs(c - col) for c in others), default=float("inf"))
+        if f is not None and abs(f.plate_col - col) < 0.5 * room:
+            adopt(f, tr)
+            f.plate_col = float(np.median([b.root_col_px for b in f.extra_roots]))
+            orphans = [o for o in orphans if o is not f]
         else:
             kept.append(tr)
     tracks = kept

@@ -394,3 +394,15 @@ def test_end_gap_either_end_is_a_note(tmp_path):
     res = measure_sequence(folder, None, row_limits={"nozzle_count": 5})
     assert len(res.nozzles) == 4
     assert any("which end cannot be told" in n for n in res.summary["notes"])
+
+
+def test_crosstalk_in_one_frame_from_the_meniscus_it_left(tmp_path):
+    # nozzle 0's drop leans 250 mrad into the gap towards nozzle 1: no liquid at the plate above it,
+    # a meniscus with no drop below it at nozzle 0: paired, its angle from the plate's normal
+    cfg = RowConfig(delays_us=(60.0,), meniscus_nl=0.004, crosstalk=(0,), **{**ROW, "planted": {2: "weak", 4: "satellites"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    measure_sequence(folder, tmp_path / "out")
+    _check(tmp_path / "out", truth, single=True)
+    nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
+    assert abs(nz.angle_mrad[0] - truth.angle_mrad[0]) < 2.0
