@@ -58,8 +58,11 @@ MIN_LINE_AREA_RATIO = 0.2
 #: Bodies smaller than this (px) are noise, mist or dust.
 MIN_BODY_AREA_PX = 12
 #: A nozzle's place from the liquid at the plate: the rows (px) below the plate's edge whose dark
-#: pixels give the column where the liquid leaves it.
+#: pixels give the column where the liquid leaves it, from ROOT_SKIP_PX below the edge (past the
+#: edge's own blur, which runs along the plate and would pull the place along a tilted edge).
+ROOT_SKIP_PX = 1.5
 ROOT_ROWS_PX = 3.0
+ROOT_MARGIN_PX = 3
 #: ... its standard error at least this (px): a bulge's outline placed to a tenth of a pixel.
 ROOT_FLOOR_PX = 0.1
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
@@ -286,12 +289,16 @@ def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) ->
         scale = px ** 3 * NL_PER_UM3
         root = float("nan")
         if attached:  # where the liquid leaves the plate: the first rows below the edge, weighted by darkness
-            rr, cc = np.nonzero(lab[y0:y0 + bh, x0:x0 + bw] == j)
-            rr, cc = rr + y0, cc + x0
-            near = rr <= plate.row_at(cc) + ROOT_ROWS_PX
-            if near.sum() >= 2:
-                wgt = np.clip(1.0 - t[rr[near], cc[near]], 0.0, None)
-                root = float(np.sum(wgt * cc[near]) / np.sum(wgt)) if wgt.sum() > 0 else float(np.mean(cc[near]))
+            # (every pixel of those rows across the body and a margin: a threshold would cut one side's
+            # blurred edge and not the other's)
+            ca, cb = max(x0 - ROOT_MARGIN_PX, 0), min(x0 + bw + ROOT_MARGIN_PX, w)
+            ra, rb = y0, min(y0 + int(math.ceil(ROOT_SKIP_PX + ROOT_ROWS_PX)) + 3, h)
+            rr, cc = np.mgrid[ra:rb, ca:cb]
+            below = rr - plate.row_at(cc)  # the plate edge's own blur left out: it runs along the plate
+            near = (below >= ROOT_SKIP_PX) & (below <= ROOT_SKIP_PX + ROOT_ROWS_PX)
+            wgt = np.where(near, np.clip(1.0 - t[ra:rb, ca:cb], 0.0, None), 0.0)
+            if wgt.sum() > 0:
+                root = float(np.sum(wgt * cc) / wgt.sum())
         out.append(Body(k, ref.file, float(ref.delay_us), float(vol.centroid_row), float(vol.centroid_col),
                         vol.volume_px3 * scale, u * scale, int(area), float(max(bw, bh)), bool(attached),
                         root_col_px=root))

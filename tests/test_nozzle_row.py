@@ -277,13 +277,15 @@ def test_campaign_of_a_row_says_why_in_one_line(tmp_path, capsys):
     assert "a printhead row" in err and "dropvision measure FOLDER --out OUT" in err and "missing column" not in err
 
 
-@pytest.mark.parametrize("delays", [(40.0, 50.0, 60.0, 70.0), (60.0,)])
-def test_angles_from_the_plate_normal_in_a_rotated_frame(tmp_path, delays):
+@pytest.mark.parametrize("delays, extra", [((40.0, 50.0, 60.0, 70.0), {}), ((60.0,), {}),
+                                           ((60.0,), {"meniscus_nl": 0.004, "write_pitch": False})])
+def test_angles_from_the_plate_normal_in_a_rotated_frame(tmp_path, delays, extra):
     # issue 32: the camera rolled by 8 mrad turns plate and trajectories alike: angles from the plate's
     # normal do not change (from the image's vertical they would be 8 mrad off)
     import cv2
 
-    folder = write_row(RowConfig(delays_us=delays, write_pitch=True, **ROW), tmp_path / "rot")
+    # (one frame with menisci, no pitch given: each angle from its own place at the plate plus the plate's tilt)
+    folder = write_row(RowConfig(delays_us=delays, **{"write_pitch": True, **ROW, **extra}), tmp_path / "rot")
     truth = pd.read_csv(folder / "truth_nozzles.csv")
     for f in folder.glob("*.png"):
         img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
