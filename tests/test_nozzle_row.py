@@ -254,6 +254,10 @@ def test_pass_fail_options_on_the_command_line(tmp_path, capsys):
     assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--volume-tolerance-percent", "5",
                  "--angle-limit-mrad", "5"]) == 0
     assert "head FAILS the limits: nozzles 1, 2, 3" in capsys.readouterr().out
+    # the row's nozzle count on the command line; a bad one is one line naming the option
+    assert main(["measure", str(folder), "--out", str(tmp_path / "out2"), "--nozzle-count", "5", "--quiet"]) == 0
+    assert main(["measure", str(folder), "--out", str(tmp_path / "out3"), "--nozzle-count", "0"]) != 0
+    assert "command line --nozzle-count: nozzle_count must be a whole number >= 1" in capsys.readouterr().err
 
 
 def test_limits_on_a_single_nozzle_are_refused(tmp_path):
@@ -265,6 +269,8 @@ def test_limits_on_a_single_nozzle_are_refused(tmp_path):
     folder = write_synthetic_sequence(cfg, tmp_path / "one", progress=False)
     with pytest.raises(SequenceError, match="--angle-limit-mrad applies to a printhead row"):
         measure_sequence(folder, None, row_limits={"angle_limit_mrad": 5.0})
+    with pytest.raises(SequenceError, match="--nozzle-count applies to a printhead row"):
+        measure_sequence(folder, None, row_limits={"nozzle_count": 8})
 
 
 def test_campaign_of_a_row_says_why_in_one_line(tmp_path, capsys):
