@@ -24,8 +24,12 @@ Measurement (`measure_row`):
    as ``nozzle_pitch_um`` in sequence.json or ``--nozzle-pitch-um``, else the smallest spacing of
    the found nozzles refined by a least-squares fit); each drop line goes to the grid position
    its trajectory meets (not to the nearest column); grid positions between the first and the
-   last found nozzle with no line are missing nozzles.  In a single frame the angle of a drop is
-   that of the line from its grid position to the drop;
+   last found nozzle with no line are missing nozzles (at the row's ends only with the nozzle count
+   given: `_end_gaps`).  Liquid hanging from the plate in a drop line's column (a meniscus or a
+   ligament's root, smaller than the flying drop) is the nozzle's root, not a satellite: where it
+   leaves the plate gives the nozzle's place directly, and the grid is fitted to those places.  In
+   a single frame the angle of a drop is that of the line from its nozzle's place at the plate
+   (else its grid position) to the drop;
 5. states: ``missing``; ``weak`` (volume or velocity beyond ``WEAK_K`` robust standard
    deviations of the row: 1.4826 x the median absolute deviation, at least ``WEAK_FLOOR`` of
    the median, with the nozzle's own uncertainty in quadrature); ``deviated`` (|angle| beyond
