@@ -24,8 +24,12 @@ Measurement (`measure_row`):
    as ``nozzle_pitch_um`` in sequence.json or ``--nozzle-pitch-um``, else the smallest spacing of
    the found nozzles refined by a least-squares fit); each drop line goes to the grid position
    its trajectory meets (not to the nearest column); grid positions between the first and the
-   last found nozzle with no line are missing nozzles.  In a single frame the angle of a drop is
-   that of the line from its grid position to the drop;
+   last found nozzle with no line are missing nozzles (at the row's ends only with the nozzle count
+   given: `_end_gaps`).  Liquid hanging from the plate in a drop line's column (a meniscus or a
+   ligament's root, smaller than the flying drop) is the nozzle's root, not a satellite: where it
+   leaves the plate gives the nozzle's place directly, and the grid is fitted to those places.  In
+   a single frame the angle of a drop is that of the line from its nozzle's place at the plate
+   (else its grid position) to the drop;
 5. states: ``missing``; ``weak`` (volume or velocity beyond ``WEAK_K`` robust standard
    deviations of the row: 1.4826 x the median absolute deviation, at least ``WEAK_FLOOR`` of
    the median, with the nozzle's own uncertainty in quadrature); ``deviated`` (|angle| beyond
@@ -57,6 +61,14 @@ PLATE_MIN_STRAIGHT = 0.6
 MIN_LINE_AREA_RATIO = 0.2
 #: Bodies smaller than this (px) are noise, mist or dust.
 MIN_BODY_AREA_PX = 12
+#: A nozzle's place from the liquid at the plate: the rows (px) below the plate's edge whose dark
+#: pixels give the column where the liquid leaves it, from ROOT_SKIP_PX below the edge (past the
+#: edge's own blur, which runs along the plate and would pull the place along a tilted edge).
+ROOT_SKIP_PX = 1.5
+ROOT_ROWS_PX = 3.0
+ROOT_MARGIN_PX = 3
+#: ... its standard error at least this (px): a bulge's outline placed to a tenth of a pixel.
+ROOT_FLOOR_PX = 0.1
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
 WEAK_K = 3.0
 WEAK_FLOOR = 0.01
@@ -215,15 +227,20 @@ class Body:
     attached: bool
     body_class: str = "unassigned"
     nozzle: int | None = None
+    #: liquid hanging from the plate: the column where it leaves the plate (its dark pixels' weighted
+    #: centroid in the first rows below the plate's edge)
+    root_col_px: float = float("nan")
 
 
 @dataclass
 class Line:
-    """A drop line of one frame: its bodies (main drop first)."""
+    """A drop line of one frame: its flying bodies (main drop first) and the liquid still hanging
+    from the plate in its column (``roots``: a meniscus bulge or a ligament's root)."""
 
     frame: int
     bodies: list
     nozzle: int | None = None
+    roots: list = field(default_factory=list)
 
     @property
     def main(self) -> Body:
@@ -242,6 +259,8 @@ class Track:
     velocity_u_m_s: float = float("nan")
     nozzle: int | None = None
     notes: list = field(default_factory=list)
+    #: liquid at the plate in frames where its drop flew out of its column (a crosstalk drop)
+    extra_roots: list = field(default_factory=list)
 
 
 def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) -> list[Body]:
@@ -272,8 +291,21 @@ def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) ->
         u = math.hypot(volume_uncertainty_px3(vol, interpolation_error_px(sigma), definition_px=definition),
                        random_volume_uncertainty_px3(vol, noise_t / slope))
         scale = px ** 3 * NL_PER_UM3
+        root = float("nan")
+        if attached:  # where the liquid leaves the plate: the first rows below the edge, weighted by darkness
+            # (every pixel of those rows across the body and a margin: a threshold would cut one side's
+            # blurred edge and not the other's)
+            ca, cb = max(x0 - ROOT_MARGIN_PX, 0), min(x0 + bw + ROOT_MARGIN_PX, w)
+            ra, rb = y0, min(y0 + int(math.ceil(ROOT_SKIP_PX + ROOT_ROWS_PX)) + 3, h)
+            rr, cc = np.mgrid[ra:rb, ca:cb]
+            below = rr - plate.row_at(cc)  # the plate edge's own blur left out: it runs along the plate
+            near = (below >= ROOT_SKIP_PX) & (below <= ROOT_SKIP_PX + ROOT_ROWS_PX)
+            wgt = np.where(near, np.clip(1.0 - t[ra:rb, ca:cb], 0.0, None), 0.0)
+            if wgt.sum() > 0:
+                root = float(np.sum(wgt * cc) / wgt.sum())
         out.append(Body(k, ref.file, float(ref.delay_us), float(vol.centroid_row), float(vol.centroid_col),
-                        vol.volume_px3 * scale, u * scale, int(area), float(max(bw, bh)), bool(attached)))
+                        vol.volume_px3 * scale, u * scale, int(area), float(max(bw, bh)), bool(attached),
+                        root_col_px=root))
     return out
 
 
@@ -285,10 +317,18 @@ def _lines(bodies: list[Body]) -> list[Line]:
     lines = []
     for g in _line_groups(cols, sizes):
         bs = sorted((bodies[i] for i in g), key=lambda b: -b.volume_nl)
+        flying = [b for b in bs if not b.attached]
+        # liquid hanging from the plate behind a larger flying drop is the nozzle's root, not a
+        # satellite; a line whose largest body is still attached (before break-off) keeps it as its main
+        roots = [b for b in bs if b.attached] if not bs[0].attached else []
+        if roots:
+            bs = flying
         bs[0].body_class = "attached" if bs[0].attached else "main_drop"
         for b in bs[1:]:
             b.body_class = "attached" if b.attached else "satellite"
-        lines.append(Line(bs[0].frame, bs))
+        for b in roots:
+            b.body_class = "attached"
+        lines.append(Line(bs[0].frame, bs, roots=roots))
     return lines
 
 
@@ -410,6 +450,8 @@ def _grid(cols: np.ndarray, pitch_px: float | None) -> tuple[float, float, np.nd
         return float(c[0]), float(pitch_px or float("nan")), np.zeros(1, int), np.ones(1, bool), float("nan")
     if pitch_px is None:
         d = np.diff(c)
+        # two columns closer than a fifth of the typical spacing are one nozzle's (two tracks of it)
+        d = d[d > 0.2 * float(np.median(d))] if np.any(d > 0.2 * float(np.median(d))) else d
         p0 = float(np.min(d))
         near = d < 1.5 * p0
         p0 = float(np.median(d[near]))
@@ -460,12 +502,84 @@ def _cv(x: np.ndarray, u: np.ndarray) -> tuple[float, float]:
     return cv, float(np.sqrt(np.sum((grad * u) ** 2)))
 
 
-def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes):
+def _end_gaps(meta, nozzle_count, c0: float, pitch: float, kmin: int, n_noz: int, width_px: int, notes):
+    """Missing nozzles at the row's ends: with the row's nozzle count given (``nozzle_count`` in
+    sequence.json or ``--nozzle-count``) the found span short of it is made up at the end(s) where
+    the grid still lies inside the frame (the row is in view); where both ends could hold them, or
+    with no count, a note says the ends cannot be judged.  Returns (kmin, n_noz, end nozzle ids)."""
+    from dropvision.sequence import SequenceError
+
+    given = nozzle_count if nozzle_count is not None else meta.extra.get("nozzle_count")
+    src = "command line --nozzle-count" if nozzle_count is not None else f"{meta.path / 'sequence.json'}"
+    if given is None:
+        notes.append("no nozzle_count given: a missing nozzle at either end of the row cannot be judged (a gap in the "
+                     "pitch shows only between live nozzles)")
+        return kmin, n_noz, []
+    if isinstance(given, bool) or not isinstance(given, (int, float)) or given != int(given) or given < 1:
+        raise SequenceError(f"{src}: nozzle_count must be a whole number >= 1, got {given!r}")
+    count = int(given)
+    if n_noz > count:
+        raise SequenceError(f"{src}: nozzle_count is {count} but the drops lie on {n_noz} positions of the pitch grid")
+    m = count - n_noz
+    if m == 0:
+        return kmin, n_noz, []
+    kmax = kmin + n_noz - 1
+    fits = [a for a in range(m + 1) if c0 + pitch * (kmin - a) >= 0 and c0 + pitch * (kmax + m - a) <= width_px - 1]
+    if len(fits) != 1:
+        notes.append(f"nozzle_count {count}: {m} nozzle(s) missing at the row's ends, but "
+                     + ("either end could hold them in the frame" if fits else "the frame cannot hold the row")
+                     + ": which end cannot be told; nozzles numbered from the first live one")
+        return kmin, n_noz, []
+    a = fits[0]
+    notes.append(f"nozzle_count {count}: {a} missing at the left end, {m - a} at the right (the frame holds the row's "
+                 "grid on that side only)")
+    return kmin - a, count, list(range(a)) + list(range(count - (m - a), count))
+
+
+def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
+                 width_px: int = 10**9):
     """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
     its standard error (function), nozzle ids, pitch µm, pitch source)."""
     tracks = _link(lines, _tracks(lines))
     for tr in tracks:
         _fit_trajectory(tr, plate, px)
+    # liquid at the plate alone in its column (its drop flew into a neighbour's column, or left the
+    # frame) is that nozzle's root when a drop's trajectory meets the plate there, not a nozzle of its own
+    flying = [tr for tr in tracks if any(not ln.main.attached for ln in tr.lines)]
+    fly_ids = {id(tr) for tr in flying}
+
+    def adopt(f, tr):
+        f.extra_roots.extend(ln.main for ln in tr.lines)
+        for ln in tr.lines:
+            if not np.isfinite(ln.main.root_col_px):
+                ln.main.root_col_px = ln.main.col_px
+
+    kept, alone = [], []
+    for tr in tracks:
+        if id(tr) in fly_ids or not flying:
+            kept.append(tr)
+            continue
+        col = float(np.median([ln.main.col_px for ln in tr.lines]))
+        near = min(flying, key=lambda f: abs(f.plate_col - col))
+        if abs(near.plate_col - col) <= max(1.5 * max(ln.main.size_px for ln in tr.lines), 10.0):
+            adopt(near, tr)
+        else:
+            alone.append((col, tr))
+    # ... and in one frame a drop with no liquid at the plate above it came from the nearest liquid with
+    # no drop below it (crosstalk: the drop leaned past its column), when nearer to it than halfway to
+    # any other nozzle's place
+    orphans = [f for f in flying if not f.extra_roots and not any(ln.roots for ln in f.lines)]
+    for col, tr in sorted(alone, key=lambda ct: ct[0]):
+        others = [f.plate_col for f in kept if f not in orphans] + [c for c, t in alone if t is not tr]
+        f = min(orphans, key=lambda f: abs(f.plate_col - col)) if orphans else None
+        room = min((abs(c - col) for c in others), default=float("inf"))
+        if f is not None and abs(f.plate_col - col) < 0.5 * room:
+            adopt(f, tr)
+            f.plate_col = float(np.median([b.root_col_px for b in f.extra_roots]))
+            orphans = [o for o in orphans if o is not f]
+        else:
+            kept.append(tr)
+    tracks = kept
     given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
     if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
         from dropvision.sequence import SequenceError
@@ -473,9 +587,17 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
     pitch_src = (pitch_source or "sequence.json") if given is not None else \
         "estimated from the found nozzles (smallest spacing, least-squares grid)"
     cols = np.array([tr.plate_col for tr in tracks])
+    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
+    # grid is fitted to those places where two or more nozzles show them
+    roots = [_root_col(tr) for tr in tracks]
+    have = np.array([np.isfinite(r[0]) for r in roots], bool)
+    if have.sum() >= 2:
+        cols = np.where(have, [r[0] for r in roots], cols)
+        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
     c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
     kmin = int(kk.min()) if kk.size else 0
     n_noz = int(kk.max() - kmin + 1) if kk.size else 0
+    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
     for tr, k in zip(tracks, kk):
         tr.nozzle = int(k - kmin)
     # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
@@ -486,9 +608,15 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
             i, other = tr.nozzle, seen[tr.nozzle]
             if abs(tr.plate_col - g) < abs(other.plate_col - g):
                 other.nozzle, seen[i] = None, tr
+                loser = other
             else:
-                tr.nozzle = None
-            notes.append(f"two drop lines meet the plate at nozzle {i}: the farther left unassigned")
+                tr.nozzle, loser = None, tr
+            # the farther's bodies come from that nozzle too (a satellite whose main drop left the frame)
+            for ln in loser.lines:
+                for b in ln.bodies + ln.roots:
+                    b.nozzle = i
+            notes.append(f"two drop lines meet the plate at nozzle {i}: the farther one's bodies counted as that "
+                         "nozzle's, its drops not in its statistics")
         else:
             seen[tr.nozzle] = tr
     grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
@@ -508,7 +636,21 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
         return s_grid * math.sqrt(v)
 
-    return seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px), pitch_src
+    own = {tr.nozzle: r for tr, r in zip(tracks, roots) if tr.nozzle is not None and np.isfinite(r[0])}
+    return (seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px),
+            pitch_src, own, ends)
+
+
+def _root_col(tr: Track) -> tuple[float, float]:
+    """Where a track's liquid leaves the plate (its frames' roots, the largest of each): (column px,
+    standard error px: their scatter over the frames, at least ROOT_FLOOR_PX); nan where none hangs."""
+    c = np.array([max(ln.roots, key=lambda b: b.volume_nl).root_col_px for ln in tr.lines if ln.roots]
+                 + [b.root_col_px for b in tr.extra_roots])
+    c = c[np.isfinite(c)]
+    if c.size == 0:
+        return float("nan"), float("nan")
+    sd = _robust_sd(c) if c.size >= 3 else float("nan")
+    return float(np.median(c)), max(sd / math.sqrt(c.size) if np.isfinite(sd) else 0.0, ROOT_FLOOR_PX)
 
 
 def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
@@ -533,11 +675,11 @@ def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
     se = sd / math.sqrt(cols.size) if np.isfinite(sd) else 0.5
 
     return (seen, {lab: ref for lab in labels}, lambda i: se, labels, float("nan"),
-            "a scan: one nozzle per frame, brought to one place by the stage")
+            "a scan: one nozzle per frame, brought to one place by the stage", {}, [])
 
 
 def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
-                scan: dict | None = None):
+                scan: dict | None = None, nozzle_count: int | None = None):
     """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
     ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
     import pandas as pd
@@ -595,15 +737,18 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         lines.extend(_lines(bs))
     notes = []
     if scan is not None:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _scan_nozzles(lines, scan, plate, px)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
     else:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src = _row_nozzles(lines, plate, px, meta, nozzle_pitch_um,
-                                                                         pitch_source, notes)
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
+            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, t0.shape[1])
     single = len({ref.delay_us for _, ref, _ in frames}) < 2
     # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
     # rolled) turns its normal by as much
     tilt = math.atan(plate.slope)
-    if single and scan is None:
+    if single and scan is None and own and len(own) == len(seen):
+        notes.append("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
+                     "or a ligament's root) to its drop, from the plate's normal")
+    elif single and scan is None:
         notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
                      "a tilt common to the row" + ("" if "estimated" not in pitch_src else
                                                    " (and, with the pitch estimated, a fan linear across it)")
@@ -616,15 +761,19 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         tr = seen.get(i)
         row = {"nozzle": i, "col_px": float(grid_col[i]), "plate_row_px": float(plate.row_at(grid_col[i]))}
         if tr is None:
-            row.update(state="missing", reason="no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)"),
+            why = ("no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)")
+                   if i not in ends else "no drop at the row's end (nozzle_count)")
+            row.update(state="missing", reason=why,
                        volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan,
                        velocity_uncertainty_m_s=np.nan, angle_mrad=np.nan, angle_uncertainty_mrad=np.nan,
                        satellites=0.0, satellite_volume_nl=np.nan, n_frames=0)
             rows.append(row)
             continue
         for ln in tr.lines:
-            for b in ln.bodies:
+            for b in ln.bodies + ln.roots:
                 b.nozzle = i
+        for b in tr.extra_roots:
+            b.nozzle = i
         mains = [ln.main for ln in tr.lines]
         vols = np.array([b.volume_nl for b in mains])
         us = np.array([b.volume_uncertainty_nl for b in mains])
@@ -634,9 +783,16 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
         if single or not np.isfinite(tr.angle_mrad):
             m = mains[0]
-            dz = m.row_px - plate.row_at(grid_col[i])
-            ang = math.atan2(m.col_px - grid_col[i], dz) * 1e3  # from the grid fitted to the drops: no tilt to add
-            ang_u = math.hypot(grid_se(i), 0.05) / max(dz, 1.0) * 1e3
+            if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
+                c_i, se_i = own[i]
+                dz = m.row_px - plate.row_at(c_i)
+                ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
+            else:
+                c_i, se_i = grid_col[i], grid_se(i)
+                dz = m.row_px - plate.row_at(c_i)
+                # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
+                ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
+            ang_u = math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
         else:
             ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
         row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
@@ -646,6 +802,13 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
                    satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
                    n_frames=len(tr.lines))
         rows.append(row)
+    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
+    # neighbour's meniscus): the nearest nozzle's column
+    if scan is None and grid_col:
+        gc = np.array([grid_col[i] for i in ids])
+        for b in bodies:
+            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
+                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
     _states(rows)
     nozzles = pd.DataFrame(rows)
     nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
@@ -718,6 +881,8 @@ def _states(rows: list[dict]) -> None:
 LIMIT_KEYS = {"volume_tolerance_percent": "%", "velocity_tolerance_percent": "%", "angle_limit_mrad": "mrad"}
 #: sequence.json key (and option --reference-nozzles) of a reference head's nozzles.parquet.
 REFERENCE_KEY = "reference_nozzles"
+#: The row's nozzle count (sequence.json ``nozzle_count`` or ``--nozzle-count``): end gaps (`_end_gaps`).
+COUNT_KEY = "nozzle_count"
 
 
 def row_limits(meta, given: dict | None = None) -> dict:
@@ -800,13 +965,24 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
         nozzles["pass"] = pd_na_bool(len(nozzles))
         nozzles["pass_reason"] = "no limits given"
         return None
+    shift, aligned = 0, None
     if reference is not None:
         mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
         if mine != theirs:
-            raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this row's "
-                                f"{_span(mine)} (a row's nozzles are numbered from its first live one, a scan's by "
-                                "label): compare heads with the same nozzles")
-        ref = reference.set_index(reference.nozzle.astype(int))
+            # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
+            # numbered one less; its nozzles' columns on the pitch grid say which is which
+            shift = _align_by_position(nozzles, reference)
+            if shift is None:
+                raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
+                                    f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
+                                    "scan's by label) and their columns do not line up on one pitch grid: compare "
+                                    "heads with the same nozzles in the same place")
+            aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
+                       f"this row's j {shift:+d}")
+        ref = reference.set_index(reference.nozzle.astype(int) + shift)
+
+    def ref_value(i, col):
+        return float(ref.at[i, col]) if i in ref.index else float("nan")
     live = nozzles.state != "missing"
     med = {}
     for c in ("volume_nl", "velocity_m_s"):
@@ -823,8 +999,10 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
                                    ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
                 if key not in limits:
                     continue
-                tgt = float(ref.at[i, col]) if reference is not None else med[col]
-                what = f"reference nozzle {i}" if reference is not None else "the row's median"
+                tgt = ref_value(i, col) if reference is not None else med[col]
+                what = f"reference nozzle {i - shift}" if reference is not None else "the row's median"
+                if reference is not None and i not in ref.index:
+                    what = "the reference head, which has no nozzle at its place,"
                 if not np.isfinite(r[col]):
                     notes.append(f"{col} not measured: not judged")
                     not_judged.add(col)
@@ -838,16 +1016,17 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
                                  f"(limit {limits[key]:g} %)")
             if "angle_limit_mrad" in limits:
                 a = float(r.angle_mrad)
-                tgt = float(ref.at[i, "angle_mrad"]) if reference is not None else 0.0
+                tgt = ref_value(i, "angle_mrad") if reference is not None else 0.0
                 lim = limits["angle_limit_mrad"]
                 if not np.isfinite(a):
                     notes.append("angle_mrad not measured: not judged")
                     not_judged.add("angle_mrad")
                 elif not np.isfinite(tgt):
-                    fails.append(f"angle_mrad: reference nozzle {i} has no value to compare with")
+                    fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
+                                 if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
                 elif abs(a - tgt) > lim:
                     fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
-                                 f"{'reference nozzle ' + str(i) if reference is not None else 'the plate normal'} "
+                                 f"{'reference nozzle ' + str(i - shift) if reference is not None else 'the plate normal'} "
                                  f"(limit {lim:g} mrad)")
         passes.append(not fails)
         reasons.append("; ".join(fails + notes))
@@ -857,7 +1036,29 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
     return {"pass": not failed, "failed_nozzles": failed,
             "limits": {k: limits[k] for k in checks}, "limit_sources": {k: limits["sources"][k] for k in checks},
             "reference": None if reference is None else str(reference_path),
-            "not_judged": sorted(not_judged)}
+            "not_judged": sorted(not_judged), **({"reference_alignment": aligned} if aligned else {})}
+
+
+def _align_by_position(nozzles, reference) -> int | None:
+    """The shift d (reference nozzle j is this row's j + d) that puts the two heads' nozzle columns
+    on one pitch grid: every matched pair within a quarter pitch, the most pairs; None where no shift
+    does (a scan's columns are all one place, or the heads do not sit alike in the frame)."""
+    a = nozzles.set_index(nozzles.nozzle.astype(int)).col_px.astype(float)
+    b = reference.set_index(reference.nozzle.astype(int)).col_px.astype(float)
+    if len(a) < 2 or len(b) < 2:
+        return None
+    pitch = float(np.median(np.diff(np.sort(a.to_numpy()))))
+    if not np.isfinite(pitch) or pitch <= 0:
+        return None
+    best = None
+    for d in range(-int(b.index.max()) - len(a), int(a.index.max()) + len(b) + 1):
+        common = [i for i in a.index if i - d in b.index]
+        if len(common) < 2:
+            continue
+        dev = np.abs(np.array([a[i] - b[i - d] for i in common]))
+        if np.all(dev < 0.25 * pitch) and (best is None or len(common) > best[0]):
+            best = (len(common), d)
+    return None if best is None else best[1]
 
 
 def pd_na_bool(n: int):
@@ -880,11 +1081,13 @@ def measure_row_sequence(seq, out_dir, plate: Plate, *, inputs=(), overwrite: bo
     from dvcore.atomic import atomic_dir
     from dvcore.versions import software_versions
 
+    limits = dict(limits or {})
+    nozzle_count = limits.pop(COUNT_KEY, None)  # the row's nozzle count travels with its options
     lim = row_limits(seq.meta, limits)  # before any work: a bad limit or reference is refused at once
     reference = read_reference(lim[REFERENCE_KEY]) if REFERENCE_KEY in lim else None
     nozzles, ftab, btab, summary = measure_row(seq, plate, nozzle_pitch_um=nozzle_pitch_um,
                                                pitch_source="command line --nozzle-pitch-um" if nozzle_pitch_um else None,
-                                               scan=scan)
+                                               scan=scan, nozzle_count=nozzle_count)
     summary["head_pass"] = judge_row(nozzles, lim, reference, lim.get(REFERENCE_KEY))
     summary.update(extra_summary or {})
     summary["software"] = software_versions()

@@ -817,7 +817,8 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
     F("limits", "object", "", "weak_k, weak_floor (fraction of the median), deviated_mrad"),
     F("head_pass", "object", "", "pass/fail of the head (null: no limits given): pass (every nozzle within the "
       "limits), failed_nozzles, limits, limit_sources, reference (the reference table's path or null), not_judged "
-      "(quantities not measured, e.g. velocity_m_s of a single delay)", required=False),
+      "(quantities not measured, e.g. velocity_m_s of a single delay), reference_alignment (only where the reference's "
+      "nozzle numbers differ and were matched by place on the pitch grid)", required=False),
     F("edge_blur_px", "float", "px", "edge blur (Gaussian sigma) of the liquid's edges"),
     F("liquid_level", "float", "", "transmission inside the liquid"),
     F("edge_threshold", "float", "", "transmission level of the edges"),
@@ -830,6 +831,9 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
 ROW_INPUTS = Document("row_inputs", "sequence.json (printhead row keys)", "dropvision.sequence-row-keys/1", (
     F("nozzle_pitch_um", "float", "um", "nozzle pitch of a row (option --nozzle-pitch-um; default: estimated from "
       "the nozzles found)", required=False),
+    F("nozzle_count", "int", "", "the row's number of nozzles (option --nozzle-count): a missing nozzle at an end "
+      "of the row is judged where the frame holds the grid on that side only; without it the ends are not judged",
+      required=False),
     F("volume_tolerance_percent", "float", "%", "pass/fail: a nozzle's volume within this of its reference nozzle's, "
       "else of the row's median (option --volume-tolerance-percent)", required=False),
     F("velocity_tolerance_percent", "float", "%", "pass/fail: likewise its velocity (option "

@@ -381,6 +381,9 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
     if not path.is_dir():
         raise DatasetError(f"{path}: dataset folder not found")
     files = {n: path / n for n in ("timeseries.parquet", "summary.parquet", "dataset.json")}
+    if (path / "nozzles.parquet").is_file() and not files["timeseries.parquet"].is_file():  # issue 32
+        raise DatasetError(f"{path}: a printhead row's output (nozzles.parquet, one row per nozzle), not a dataset: a "
+                           "model is fitted to a campaign of single-nozzle sequences (dropvision campaign)")
     for n, f in files.items():
         if not f.is_file():
             raise DatasetError(f"{f}: missing file")

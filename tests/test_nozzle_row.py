@@ -219,12 +219,32 @@ def test_pass_fail_keys_of_sequence_json_and_bad_inputs(tmp_path):
         (folder / "sequence.json").write_text(json.dumps(d))
         with pytest.raises(SequenceError, match=msg):
             measure_sequence(folder, None)
-    # a reference of other nozzles
+    # a reference of other nozzles that do not sit on this row's pitch grid (half a pitch aside)
     (folder / "sequence.json").write_text(json.dumps(doc))
-    short = pd.read_parquet(tmp_path / "row" / "ref" / "nozzles.parquet").iloc[:3]
+    short = pd.read_parquet(tmp_path / "row" / "ref" / "nozzles.parquet").iloc[:3].reset_index(drop=True)
+    short["nozzle"] = [7, 8, 9]
+    short["col_px"] += 50.0
     short.to_parquet(tmp_path / "short.parquet")
-    with pytest.raises(SequenceError, match="are not this row's"):
+    with pytest.raises(SequenceError, match="are not this row's.*do not line up on one pitch grid"):
         measure_sequence(folder, None, row_limits={"reference_nozzles": str(tmp_path / "short.parquet")})
+
+
+def test_reference_head_with_its_first_nozzle_missing_aligned_by_position(tmp_path):
+    # the reference head's nozzle 0 fires nothing: its table numbers from its first live nozzle (one
+    # less); its nozzles' columns on the pitch grid match them to this row's
+    # (menisci at the plate: both heads' single-frame angles from the plate's normal)
+    full = {**ROW, "planted": {}, "meniscus_nl": 0.004}
+    ref_folder = write_row(RowConfig(delays_us=(60.0,), write_pitch=True, **{**full, "planted": {0: "missing"}}),
+                           tmp_path / "refrow")
+    measure_sequence(ref_folder, tmp_path / "ref")
+    ref = pd.read_parquet(tmp_path / "ref" / "nozzles.parquet")
+    assert list(ref.nozzle) == [0, 1, 2, 3]
+    folder = write_row(RowConfig(delays_us=(60.0,), write_pitch=True, **full), tmp_path / "row")
+    res = measure_sequence(folder, None, row_limits={"volume_tolerance_percent": 0.5, "angle_limit_mrad": 1.5,
+                                                     "reference_nozzles": str(tmp_path / "ref")})
+    assert res.nozzles["pass"].tolist() == [False, True, True, True, True]
+    assert "no nozzle at its place" in res.nozzles.pass_reason[0]
+    assert "j +1" in res.summary["head_pass"]["reference_alignment"]
 
 
 def test_pass_fail_options_on_the_command_line(tmp_path, capsys):
@@ -234,6 +254,10 @@ def test_pass_fail_options_on_the_command_line(tmp_path, capsys):
     assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--volume-tolerance-percent", "5",
                  "--angle-limit-mrad", "5"]) == 0
     assert "head FAILS the limits: nozzles 1, 2, 3" in capsys.readouterr().out
+    # the row's nozzle count on the command line; a bad one is one line naming the option
+    assert main(["measure", str(folder), "--out", str(tmp_path / "out2"), "--nozzle-count", "5", "--quiet"]) == 0
+    assert main(["measure", str(folder), "--out", str(tmp_path / "out3"), "--nozzle-count", "0"]) != 0
+    assert "command line --nozzle-count: nozzle_count must be a whole number >= 1" in capsys.readouterr().err
 
 
 def test_limits_on_a_single_nozzle_are_refused(tmp_path):
@@ -245,6 +269,8 @@ def test_limits_on_a_single_nozzle_are_refused(tmp_path):
     folder = write_synthetic_sequence(cfg, tmp_path / "one", progress=False)
     with pytest.raises(SequenceError, match="--angle-limit-mrad applies to a printhead row"):
         measure_sequence(folder, None, row_limits={"angle_limit_mrad": 5.0})
+    with pytest.raises(SequenceError, match="--nozzle-count applies to a printhead row"):
+        measure_sequence(folder, None, row_limits={"nozzle_count": 8})
 
 
 def test_campaign_of_a_row_says_why_in_one_line(tmp_path, capsys):
@@ -257,13 +283,15 @@ def test_campaign_of_a_row_says_why_in_one_line(tmp_path, capsys):
     assert "a printhead row" in err and "dropvision measure FOLDER --out OUT" in err and "missing column" not in err
 
 
-@pytest.mark.parametrize("delays", [(40.0, 50.0, 60.0, 70.0), (60.0,)])
-def test_angles_from_the_plate_normal_in_a_rotated_frame(tmp_path, delays):
+@pytest.mark.parametrize("delays, extra", [((40.0, 50.0, 60.0, 70.0), {}), ((60.0,), {}),
+                                           ((60.0,), {"meniscus_nl": 0.004, "write_pitch": False})])
+def test_angles_from_the_plate_normal_in_a_rotated_frame(tmp_path, delays, extra):
     # issue 32: the camera rolled by 8 mrad turns plate and trajectories alike: angles from the plate's
     # normal do not change (from the image's vertical they would be 8 mrad off)
     import cv2
 
-    folder = write_row(RowConfig(delays_us=delays, write_pitch=True, **ROW), tmp_path / "rot")
+    # (one frame with menisci, no pitch given: each angle from its own place at the plate plus the plate's tilt)
+    folder = write_row(RowConfig(delays_us=delays, **{"write_pitch": True, **ROW, **extra}), tmp_path / "rot")
     truth = pd.read_csv(folder / "truth_nozzles.csv")
     for f in folder.glob("*.png"):
         img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
@@ -308,3 +336,81 @@ def test_watch_of_a_row_writes_its_nozzles(tmp_path, capsys):
     nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
     check_table(nz, NOZZLES, "nozzles.parquet")
     assert list(nz.state) == list(truth.state)
+
+
+@pytest.mark.parametrize("liquid", [{"meniscus_nl": 0.004}, {"ligament_um": 30.0}])
+def test_single_frame_pitch_estimated_angles_from_the_liquid_at_the_plate(tmp_path, liquid):
+    # one frame, no pitch given: the meniscus (or a ligament still attached) at each nozzle gives its
+    # place, so each angle is measured from the plate's normal (without it only relative to the row's
+    # mean direction)
+    cfg = RowConfig(delays_us=(60.0,), **liquid, **{**ROW, "planted": {1: "missing", 3: "weak", 4: "satellites"},
+                                                   "angle_sd_mrad": 3.0})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    measure_sequence(folder, tmp_path / "out")
+    s = _check(tmp_path / "out", truth, single=True)
+    nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
+    live = truth.state != "missing"
+    err = (nz.angle_mrad - truth.angle_mrad)[live]
+    assert np.abs(err).max() < 2.0 and (np.abs(err) < 3 * nz.angle_uncertainty_mrad[live]).all()
+    assert list(nz.satellites) == [0, 0, 0, 0, 1]  # the liquid at the plate is no satellite
+    assert "liquid at the plate" in s["pitch_source"]
+    assert any("where its liquid leaves the plate" in n for n in s["notes"])
+
+
+def test_crosstalk_with_meniscus_sequence(tmp_path):
+    # nozzle 0's drop leans into nozzle 2's column (1 missing between them is not planted here: 0 -> 1)
+    cfg = RowConfig(delays_us=tuple(range(40, 151, 10)), meniscus_nl=0.004, crosstalk=(0,),
+                    **{**ROW, "planted": {2: "weak", 4: "satellites"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    assert truth.state[0] == "deviated"
+    tb = pd.read_csv(folder / "truth_bodies.csv")
+    last = tb[(tb.delay_us == 150.0) & (tb.nozzle == 0) & (tb["class"] == "main_drop")].iloc[0]
+    assert abs(last.col - truth.col_px[1]) < abs(last.col - truth.col_px[0])  # nearest column: the wrong nozzle
+    measure_sequence(folder, tmp_path / "out")
+    _check(tmp_path / "out", truth, single=False)
+
+
+def test_missing_nozzle_at_the_row_end_with_the_count(tmp_path):
+    # nozzle 0 fires nothing; the frame holds one more grid position on the left, none on the right
+    cfg = RowConfig(delays_us=(60.0,), **{**ROW, "pitch_um": 280.0, "width_px": 660, "planted": {0: "missing", 2: "weak"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    assert truth.col_px[0] > 0 and truth.col_px[4] + 140 > 659
+    # without the count: the ends cannot be judged (four nozzles, numbered from the first live one)
+    res = measure_sequence(folder, None)
+    assert len(res.nozzles) == 4 and "missing" not in set(res.nozzles.state)
+    assert any("ends" in n or "either end" in n for n in res.summary["notes"])
+    # with it: nozzle 0 missing at the left end, the others numbered as in the truth
+    res = measure_sequence(folder, tmp_path / "out", row_limits={"nozzle_count": 5})
+    assert list(res.nozzles.state) == list(truth.state)
+    assert "row's end" in res.nozzles.reason[0]
+    assert res.nozzles.col_px[0] == pytest.approx(truth.col_px[0], abs=2.0)
+    # the same from sequence.json; a count below the nozzles seen is refused naming the file
+    doc = json.loads((folder / "sequence.json").read_text())
+    (folder / "sequence.json").write_text(json.dumps({**doc, "nozzle_count": 5}))
+    assert list(measure_sequence(folder, None).nozzles.state) == list(truth.state)
+    (folder / "sequence.json").write_text(json.dumps({**doc, "nozzle_count": 3}))
+    with pytest.raises(SequenceError, match="sequence.json: nozzle_count is 3 but the drops lie on 4"):
+        measure_sequence(folder, None)
+
+
+def test_end_gap_either_end_is_a_note(tmp_path):
+    cfg = RowConfig(delays_us=(60.0,), **{**ROW, "planted": {0: "missing"}})  # room on both sides
+    folder = write_row(cfg, tmp_path / "row")
+    res = measure_sequence(folder, None, row_limits={"nozzle_count": 5})
+    assert len(res.nozzles) == 4
+    assert any("which end cannot be told" in n for n in res.summary["notes"])
+
+
+def test_crosstalk_in_one_frame_from_the_meniscus_it_left(tmp_path):
+    # nozzle 0's drop leans 250 mrad into the gap towards nozzle 1: no liquid at the plate above it,
+    # a meniscus with no drop below it at nozzle 0: paired, its angle from the plate's normal
+    cfg = RowConfig(delays_us=(60.0,), meniscus_nl=0.004, crosstalk=(0,), **{**ROW, "planted": {2: "weak", 4: "satellites"}})
+    folder = write_row(cfg, tmp_path / "row")
+    truth = pd.read_csv(folder / "truth_nozzles.csv")
+    measure_sequence(folder, tmp_path / "out")
+    _check(tmp_path / "out", truth, single=True)
+    nz = pd.read_parquet(tmp_path / "out" / "nozzles.parquet")
+    assert abs(nz.angle_mrad[0] - truth.angle_mrad[0]) < 2.0

@@ -50,3 +50,26 @@ def test_bad_row_config():
         RowConfig(planted={9: "missing"})
     with pytest.raises(ValueError, match="RowConfig.pitch_um"):
         RowConfig(pitch_um=5000.0)
+    with pytest.raises(ValueError, match="RowConfig.crosstalk"):
+        RowConfig(crosstalk=(7,))  # no right-hand neighbour
+    with pytest.raises(ValueError, match="RowConfig.ligament_um"):
+        RowConfig(meniscus_nl=0.01, ligament_um=30.0)
+
+
+def test_liquid_at_the_plate_and_crosstalk_truth(tmp_path):
+    cfg = RowConfig(delays_us=(60.0,), meniscus_nl=0.004, crosstalk=(0,), **{**SMALL, "planted": {1: "missing"}})
+    out = write_row(cfg, tmp_path / "row")
+    nz = pd.read_csv(out / "truth_nozzles.csv")
+    assert nz.state[0] == "deviated" and nz.angle_mrad[0] > 200
+    bodies = pd.read_csv(out / "truth_bodies.csv")
+    men = bodies[bodies["class"] == "meniscus"]
+    assert list(men.nozzle) == [0, 2, 3]  # every live nozzle, at its column, just below the plate
+    np.testing.assert_allclose(men.col, nz.col_px[[0, 2, 3]], atol=1e-6)
+    assert ((men.row > cfg.plate_row) & (men.row < cfg.plate_row + 5)).all()
+    img = cv2.imread(str(out / bodies.file[0]), cv2.IMREAD_UNCHANGED).astype(float)
+    for _, b in men.iterrows():
+        assert img[int(round(cfg.plate_row + 2)), int(round(b.col))] < 0.5 * np.median(img)
+        assert img[int(round(cfg.plate_row + 2)), int(round(b.col)) + 20] > 0.8 * np.median(img)
+    lig = write_row(RowConfig(delays_us=(60.0,), ligament_um=30.0, **SMALL), tmp_path / "lig")
+    lb = pd.read_csv(lig / "truth_bodies.csv")
+    assert (lb["class"] == "ligament").sum() == 3

@@ -86,3 +86,14 @@ def test_report_refused_for_a_single_nozzle(tmp_path):
     folder = write_synthetic_sequence(cfg, tmp_path / "one", progress=False)
     assert main(["measure", str(folder), "--out", str(tmp_path / "out"), "--report", str(tmp_path / "rep")]) != 0
     assert not (tmp_path / "rep").exists()
+    assert not (tmp_path / "out").exists()  # refused before measuring: --out not written either
+
+
+def test_identify_fit_of_a_row_output_is_one_line(measured, capsys):
+    from identify.app.cli import main
+
+    tmp, _, _ = measured
+    assert main(["fit", str(tmp / "out"), "--out", str(tmp / "model")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "printhead row's output" in err[0] and str(tmp / "out") in err[0]
+    assert not (tmp / "model").exists()

@@ -71,6 +71,21 @@ def _run(args: argparse.Namespace) -> int:
                 if Path(args.report).resolve() == Path(args.out).resolve():
                     raise UsageError(f"--report {args.report}: give a folder other than --out")
                 check_output_dir(args.report, inputs=[paths[0]], overwrite=args.overwrite)
+                # the page is a printhead row's: a single nozzle is refused before anything is measured or written
+                from dropvision.nozzle_row import row_layout, scan_layout
+                if only is None:
+                    seq = open_sequence(seq, overrides=overrides, labels=labels)
+                    overrides = labels = None  # applied when opened
+                try:
+                    fr = seq.read(0)  # the rule of measurement's row check: a row in the first frame, or a scan
+                    is_row = (fr.error is None and row_layout(fr.image) is not None) or scan_layout(seq) is not None
+                except BaseException:
+                    seq.close()
+                    raise
+                if not is_row:
+                    seq.close()
+                    raise UsageError(f"--report: {paths[0]} shows one nozzle; the report page is a printhead row's "
+                                     "(identify report draws a model's); nothing measured")
             res = measure_sequence(seq, args.out, config, progress=progress_wanted(args), csv=args.csv,
                                    logger=logger, overwrite=args.overwrite, overrides=overrides, labels=labels,
                                    nozzle_pitch_um=args.nozzle_pitch_um, row_limits=_row_limits(args))
@@ -180,6 +195,10 @@ def register(subparsers) -> None:
     p.add_argument("--nozzle-pitch-um", type=float, default=None, metavar="UM",
                    help="a printhead row's nozzle pitch (µm; default: sequence.json nozzle_pitch_um, else estimated "
                         "from the nozzles found)")
+    p.add_argument("--nozzle-count", type=int, default=None, metavar="N",
+                   help="a printhead row's number of nozzles (default: sequence.json nozzle_count): a nozzle missing "
+                        "at either end of the row is found where the frame holds the grid on one side only; without "
+                        "it the ends cannot be judged")
     for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
                       ("angle-limit-mrad", "mrad")):
         p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
@@ -222,7 +241,7 @@ def _row_views(args, res, folder, overrides, labels, only, logger) -> None:
 def _row_limits(args) -> dict:
     """The row's pass/fail options (None: not given)."""
     return {k: getattr(args, k, None) for k in ("volume_tolerance_percent", "velocity_tolerance_percent",
-                                                  "angle_limit_mrad", "reference_nozzles")}
+                                                  "angle_limit_mrad", "reference_nozzles", "nozzle_count")}
 
 
 def _one_frame(row) -> str:

@@ -99,6 +99,13 @@ def register(subparsers) -> argparse.ArgumentParser:
                    help="printhead rigs: nozzle pitch (µm, default 423.3 = 60 per inch)")
     r.add_argument("--write-pitch", action="store_true", default=False,
                    help="printhead rigs: write nozzle_pitch_um into sequence.json")
+    r.add_argument("--meniscus-nl", type=float, default=None,
+                   help="printhead rigs: a meniscus bulge of this volume (nl) hanging from the plate at every live nozzle")
+    r.add_argument("--ligament-um", type=float, default=None,
+                   help="printhead rigs: a ligament of this length (µm) still attached below the plate at every live nozzle")
+    r.add_argument("--crosstalk", default=None,
+                   help="printhead rigs: nozzles (comma-separated) whose drop leans into its right-hand neighbour's "
+                        "column (state deviated)")
     r.add_argument("--orientation", choices=("down", "up", "left", "right"), default=None,
                    help="direction the drops travel in the stored frames (default down)")
     r.add_argument("--jpeg-quality", type=int, default=None,
@@ -156,7 +163,16 @@ def _run_row(args) -> int:
         kw["pitch_um"] = args.nozzle_pitch_um
     if args.write_pitch:
         kw["write_pitch"] = True
+    if args.meniscus_nl is not None:
+        kw["meniscus_nl"] = args.meniscus_nl
+    if args.ligament_um is not None:
+        kw["ligament_um"] = args.ligament_um
     try:
+        if args.crosstalk is not None:
+            try:
+                kw["crosstalk"] = tuple(int(x) for x in args.crosstalk.split(",") if x.strip())
+            except ValueError:
+                raise ValueError(f"--crosstalk: nozzle numbers separated by commas, got {args.crosstalk!r}") from None
         cfg = for_rig(args.rig, **kw)
         t0 = time.perf_counter()
         out = write_row(cfg, args.out, overwrite=args.overwrite)

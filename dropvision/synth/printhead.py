@@ -12,7 +12,14 @@ flies in a straight line from the plate at the nozzle's own velocity and angle:
 volume and velocity normal with ``volume_cv`` / ``velocity_cv``, angle normal with
 ``angle_sd_mrad``; planted states: ``missing`` (fires nothing), ``weak`` (``weak_volume`` x the
 volume, ``weak_velocity`` x the velocity), ``deviated`` (``deviated_mrad`` added to its angle),
-``satellites`` (a satellite of ``satellite_fraction`` x its volume trailing it).
+``satellites`` (a satellite of ``satellite_fraction`` x its volume trailing it).  Liquid at the
+plate: ``meniscus_nl`` > 0 hangs a bulge of that volume (a half sphere) below the plate at every
+live nozzle, centred on the nozzle's column (truth_bodies.csv class ``meniscus``): where a person
+sees each nozzle's place in one frame, independent of the drops' angles; ``ligament_um`` > 0 hangs
+a ligament still attached instead (a slender spheroid of that length below the plate and radius
+``ligament_radius_um``, along the nozzle's trajectory; class ``ligament``).  Crosstalk:
+``crosstalk`` names nozzles whose drop leans towards its right-hand neighbour by ``crosstalk_mrad``
+(state ``deviated``), far enough to fly past the middle between the two columns.
 
 Frames are rendered by `dropvision.synth.render.Renderer` (the plate as a "block" structure, its
 optics and sensor noise).  ``scan=True`` writes the scanning variant: one frame per nozzle (the
@@ -73,6 +80,11 @@ class RowConfig:
     scan: bool = False
     write_pitch: bool = False
     supersample: int = 8
+    meniscus_nl: float = 0.0
+    ligament_um: float = 0.0
+    ligament_radius_um: float = 4.0
+    crosstalk: tuple = ()
+    crosstalk_mrad: float = 250.0
 
     def __post_init__(self) -> None:
         def bad(name, why):
@@ -80,6 +92,17 @@ class RowConfig:
 
         object.__setattr__(self, "delays_us", tuple(float(d) for d in self.delays_us))
         object.__setattr__(self, "planted", {int(k): str(v) for k, v in dict(self.planted).items()})
+        object.__setattr__(self, "crosstalk", tuple(int(k) for k in self.crosstalk))
+        for name in ("meniscus_nl", "ligament_um"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                bad(name, "must be >= 0")
+        if self.meniscus_nl > 0 and self.ligament_um > 0:
+            bad("ligament_um", "a meniscus or a ligament at the plate, not both")
+        if not (np.isfinite(self.ligament_radius_um) and self.ligament_radius_um > 0):
+            bad("ligament_radius_um", "must be > 0")
+        for k in self.crosstalk:
+            if not 0 <= k < self.n_nozzles - 1 or self.planted.get(k, "ok") != "ok":
+                bad("crosstalk", f"nozzle indices 0..{self.n_nozzles - 2} (a right-hand neighbour) not planted otherwise")
         if int(self.n_nozzles) != self.n_nozzles or self.n_nozzles < 1:
             bad("n_nozzles", "must be an integer >= 1")
         for k, v in self.planted.items():
@@ -119,6 +142,8 @@ class RowConfig:
                 a += self.deviated_mrad * (1.0 if i % 2 == 0 else -1.0)
             elif st == "satellites":
                 sat = v * self.satellite_fraction
+            if i in self.crosstalk:
+                st, a = "deviated", a + self.crosstalk_mrad
             nan = float("nan")
             out.append({"nozzle": i, "state": st, "volume_nl": nan if st == "missing" else v,
                         "velocity_m_s": nan if st == "missing" else u, "angle_mrad": nan if st == "missing" else a,
@@ -129,6 +154,7 @@ class RowConfig:
         d = asdict(self)
         d["delays_us"] = list(self.delays_us)
         d["planted"] = {str(k): v for k, v in self.planted.items()}
+        d["crosstalk"] = list(self.crosstalk)
         return d
 
 
@@ -161,6 +187,14 @@ def _bodies(cfg: RowConfig, truth: list[dict], delay: float, centre_col: float, 
             continue
         a = t["angle_mrad"] * 1e-3
         x = (col - centre_col) * px
+        if cfg.meniscus_nl > 0:  # a half sphere below the plate (the upper half lies inside it)
+            out.append((_sphere(2.0 * cfg.meniscus_nl, 0.0, x, 0.0), t["nozzle"], "meniscus", cfg.meniscus_nl))
+        elif cfg.ligament_um > 0:  # a slender spheroid centred at the plate along the trajectory: its lower half
+            from dropvision.synth.profiles import LiquidBody, Profile, Spheroid
+
+            L, r = cfg.ligament_um, cfg.ligament_radius_um
+            out.append((LiquidBody("drop", Profile((Spheroid(0.0, L, r),)), 0.0, x, a), t["nozzle"], "ligament",
+                        2.0 / 3.0 * np.pi * r * r * L * 1e-6))
         s = cfg.break_um + t["velocity_m_s"] * (delay - cfg.break_us)
         out.append((_sphere(t["volume_nl"], s, x, a), t["nozzle"], "main_drop", t["volume_nl"]))
         if t["satellite_volume_nl"] > 0:
@@ -209,6 +243,12 @@ def synthesize_row(cfg: RowConfig):
         rows = []
         for b, i, cls, vol in bodies:
             r, c = geom.to_pixel(*b.centroid_zx_um())
+            if cls == "meniscus":  # the half below the plate: its centroid 3/8 of the radius below the edge
+                r += 3.0 / 8.0 * (3.0 * vol * 2e6 / (4.0 * np.pi)) ** (1.0 / 3.0) / cfg.pixel_size_um
+            elif cls == "ligament":  # ... 3/8 of its length along its axis
+                a = b.axis_angle_rad
+                r += 3.0 / 8.0 * cfg.ligament_um * np.cos(a) / cfg.pixel_size_um
+                c += 3.0 / 8.0 * cfg.ligament_um * np.sin(a) / cfg.pixel_size_um
             rows.append({"file": file, "delay_us": delay, "nozzle": i, "class": cls, "row": float(r),
                          "col": float(c), "volume_nl": vol})
         yield file, delay, noz, img, rows
