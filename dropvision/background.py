@@ -17,6 +17,7 @@ here, the first of them; `dropvision.calibration` exports them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -117,6 +118,36 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
     out = cv2.warpAffine(coarse.astype(np.float32), m, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                          borderMode=cv2.BORDER_REPLICATE)
     return out
+
+
+def median_by_selection(values: np.ndarray):
+    """``np.median`` of a large 1-d array, the same value, by selection within a bracket.
+
+    The two middle order statistics are bracketed by those of a strided sample (some 20 000
+    values, widened by 4 of its standard errors), the values below and within the bracket are
+    counted, and only those within are partitioned: a few passes over the data instead of a
+    partition of all of it (some 5 times faster on 2 million values). Where the bracket does not
+    hold them (or a value is NaN, or fewer than 100 000) ``np.median`` itself (its dtype too).
+    ``values`` is not changed."""
+    x = np.asarray(values).ravel()
+    n = x.size
+    if n < 100_000:
+        return np.median(x)
+    sample = np.sort(x[:: max(1, n // 20_000)])
+    m = sample.size
+    k_lo, k_hi = (n - 1) // 2, n // 2  # the middle order statistics (one for odd n)
+    half = int(math.ceil(4.0 * math.sqrt(m) * 0.5)) + 2  # 4 standard errors of the sample's median rank
+    lo = sample[max(0, m // 2 - half)]
+    hi = sample[min(m - 1, m // 2 + half)]
+    below = int(np.count_nonzero(x < lo))
+    inside = x[(x >= lo) & (x <= hi)]
+    above = int(np.count_nonzero(x > hi))
+    if below + inside.size + above != n or not below <= k_lo <= k_hi < below + inside.size:
+        return np.median(x)  # NaN among them (counted nowhere), or the bracket missed the middle
+    part = np.partition(inside, [k_lo - below, k_hi - below])
+    # np.median's own mean of its middle values (their dtype, their order)
+    return np.median(np.array([part[k_lo - below], part[k_hi - below]], dtype=x.dtype) if k_lo != k_hi
+                     else part[k_lo - below:k_lo - below + 1])
 
 
 def darkest_level(image: np.ndarray) -> float:
