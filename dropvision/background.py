@@ -240,6 +240,23 @@ def estimate_background(
                            background_residual(mean, valid, background))
 
 
+def _block_means(image: np.ndarray, hb: int, wb: int, block: int) -> np.ndarray:
+    """``image.reshape(hb, block, wb, block).mean(axis=(1, 3))`` of a float32 image, the same values (numpy's
+    order of the sums: each block row's ``block`` values one after the other, then the rows one after the
+    other; checked to the bit in tests/test_calibration_fast.py), by ``block**2`` whole-array sums instead of
+    numpy's strided reduction (some 3 times faster on a 2048 x 1536 frame). Other types or blocks: numpy."""
+    v = image.reshape(hb, block, wb, block)
+    if image.dtype != np.float32 or not 2 <= block <= 7 or min(hb, wb) < 16:  # (numpy orders small ones otherwise)
+        return v.mean(axis=(1, 3))
+    total = None
+    for i in range(block):
+        row = v[:, i, :, 0] + v[:, i, :, 1]
+        for j in range(2, block):
+            row += v[:, i, :, j]
+        total = row if total is None else total + row
+    return np.true_divide(total, block * block, out=total, casting="unsafe")
+
+
 def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndarray, block: int = 4) -> float:
     """Robust spread of ``mean / background - 1`` over blocks of ``block`` x ``block`` background pixels.
 
@@ -251,7 +268,7 @@ def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndar
         return 0.0
     sl = (slice(0, hb * block), slice(0, wb * block))
     rel = np.where(valid[sl], mean[sl] / np.maximum(background[sl], 1e-6) - 1.0, 0.0)
-    rel = rel.reshape(hb, block, wb, block).mean(axis=(1, 3))
+    rel = _block_means(rel, hb, wb, block)
     ok = valid[sl].reshape(hb, block, wb * block).all(axis=1).reshape(hb, wb, block).all(axis=2)
     r = rel[ok]
     if r.size < 20:

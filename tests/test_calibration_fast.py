@@ -6,12 +6,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from dropvision.background import estimate_background, median_by_selection
+from dropvision.background import _block_means, background_residual, estimate_background, median_by_selection
 from dropvision.calibration_pass import transmission_noise
 from dropvision.nozzle import (_ransac_draws, _sorted_median, _straight_stretch, _straight_walls, components_with_stats,
                                largest_top_body)
 from dropvision.orientation import from_canonical, to_canonical
-from dropvision.segmentation import fill_holes
+from dropvision.segmentation import fill_holes, threshold_image
 
 
 def _frame(seed: int = 0) -> np.ndarray:
@@ -177,3 +177,34 @@ def test_the_straight_walls_running_median_is_numpy_s():
     cand = np.ones(width.size, bool)
     assert _straight_walls(width, cand) == (30, 70)
     assert _straight_walls(width, cand, 60.0) == (0, 30)
+
+
+def test_the_block_means_are_numpy_s_to_the_bit():
+    rng = np.random.default_rng(8)
+    shapes = [(384, 512, 4), (512, 384, 4), (120, 160, 4), (16, 16, 2), (33, 250, 7), (17, 99, 3)]
+    shapes += [(int(rng.integers(1, 200)), int(rng.integers(1, 200)), int(rng.integers(2, 9))) for _ in range(40)]
+    for hb, wb, block in shapes:
+        img = rng.normal(0.0, 0.05, (hb * block, wb * block)).astype(np.float32)
+        img[rng.random(img.shape) < 0.2] = 0.0
+        plain = img.reshape(hb, block, wb, block).mean(axis=(1, 3))
+        fast = _block_means(img, hb, wb, block)
+        assert fast.dtype == plain.dtype == np.float32
+        np.testing.assert_array_equal(fast, plain)
+        np.testing.assert_array_equal(np.signbit(fast), np.signbit(plain))
+    img = _frame(2).astype(np.float32)
+    valid = img > 100
+    assert background_residual(img, valid, np.full_like(img, 200.0)) > 0
+
+
+def test_the_threshold_image_is_the_plain_one():
+    rng = np.random.default_rng(9)
+    bg = (150.0 + 120.0 * rng.random((90, 70))).astype(np.float32)
+    for dtype, thr in ((np.uint8, 0.5123), (np.uint16, 0.43), (np.uint8, 1.3), (np.float32, 0.5)):
+        plain = np.ceil(np.asarray(bg, dtype=np.float64) * thr)
+        if np.issubdtype(dtype, np.integer):
+            plain = np.clip(plain, 0, np.iinfo(dtype).max)
+        before = bg.copy()
+        got = threshold_image(bg, thr, dtype)
+        assert got.dtype == dtype
+        np.testing.assert_array_equal(got, plain.astype(dtype))
+        np.testing.assert_array_equal(bg, before)  # not changed
