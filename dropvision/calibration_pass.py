@@ -30,7 +30,8 @@ from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_
 from dropvision.config import MeasureConfig
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
-from dropvision.nozzle import bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px
+from dropvision.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
+                               top_bodies)
 from dropvision.segmentation import dark_mask, find_nozzle_body, segment
 from dropvision.sequence import SequenceError, pixel_size_from_nozzle
 from dropvision.volume import outline
@@ -750,9 +751,13 @@ def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
         Largest horizontal distance (px) of its pixels from the axis.
     """
     mask = (transmission < cal.threshold).astype(np.uint8)
-    _, lab = cv2.connectedComponents(mask, connectivity=8)
+    filled = top_bodies(mask)  # the bodies touching the top edge only (speed: the same bodies as labelling all)
+    if filled is None:
+        _, lab = cv2.connectedComponents(mask, connectivity=8)
+        top = np.unique(lab[0][lab[0] > 0])
+    else:
+        lab, top = filled[0], [b[1] for b in filled[1]]
     axis = int(round(min(max(cal.axis_col, 0), transmission.shape[1] - 1)))
-    top = np.unique(lab[0][lab[0] > 0])
     r = int(math.ceil(cal.tip_row)) + 2
     below = lab[r:]
     best = 0.0

@@ -91,18 +91,10 @@ def largest_top_body(mask: np.ndarray, col: int | None = None) -> tuple[np.ndarr
     frame's), the same pixels and areas as `components_with_stats` gives; where two such bodies tie for
     the largest, or there are more than 250 of them, by `components_with_stats` itself (its label order).
     ``mask`` is not changed."""
-    h, w = mask.shape
-    row0 = np.flatnonzero(np.diff(np.r_[0, mask[0] != 0]) > 0)  # the starts of the top row's dark runs
-    if row0.size > 250:
+    filled = top_bodies(mask)
+    if filled is None:
         return _largest_top_body_ccl(mask, col)
-    img = mask.copy()
-    bodies = []  # (area, value, left, width, height), in the order of their leftmost top-row pixel
-    for x in row0:
-        if img[0, x] != 1:
-            continue  # filled from a run to its left (the same body)
-        value = 2 + len(bodies)
-        area, _, _, (left, _, width, height) = cv2.floodFill(img, None, (int(x), 0), value, 0, 0, 8)
-        bodies.append((int(area), value, int(left), int(width), int(height)))
+    img, bodies = filled
     if col is not None:
         bodies = [b for b in bodies if b[2] <= col < b[2] + b[3]]
     if not bodies:
@@ -113,6 +105,25 @@ def largest_top_body(mask: np.ndarray, col: int | None = None) -> tuple[np.ndarr
         return _largest_top_body_ccl(mask, col)
     _, value, _, _, height = top[0]
     return fill_holes(cv2.compare(img[:height], value, cv2.CMP_EQ)), int(height)
+
+
+def top_bodies(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int, int, int, int]]] | None:
+    """The 8-connected bodies of ``mask`` (uint8, 0 / 1) touching the top row, flood-filled from it:
+    (a copy of ``mask`` with each such body's pixels set to its own value 2, 3, ..., and per body
+    (pixel count, value, left column, width, height from the top row), in the order of their leftmost
+    top-row pixel), or None with more than 250 of them (label them all instead)."""
+    row0 = np.flatnonzero(np.diff(np.r_[0, mask[0] != 0].astype(np.int8)) > 0)  # the top row's dark runs' starts
+    if row0.size > 250:
+        return None
+    img = mask.copy()
+    bodies = []
+    for x in row0:
+        if img[0, x] != 1:
+            continue  # filled from a run to its left (the same body)
+        value = 2 + len(bodies)
+        area, _, _, (left, _, width, height) = cv2.floodFill(img, None, (int(x), 0), value, 0, 0, 8)
+        bodies.append((int(area), value, int(left), int(width), int(height)))
+    return img, bodies
 
 
 def _largest_top_body_ccl(mask: np.ndarray, col: int | None) -> tuple[np.ndarray, int] | None:

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 
 from dropvision.background import _block_means, background_residual, estimate_background, median_by_selection
-from dropvision.calibration_pass import transmission_noise
+from dropvision.calibration_pass import attached_half_width_px, transmission_noise
 from dropvision.nozzle import (_ransac_draws, _sorted_median, _straight_stretch, _straight_walls, components_with_stats,
                                largest_top_body)
 from dropvision.orientation import from_canonical, to_canonical
@@ -208,3 +208,43 @@ def test_the_threshold_image_is_the_plain_one():
         assert got.dtype == dtype
         np.testing.assert_array_equal(got, plain.astype(dtype))
         np.testing.assert_array_equal(bg, before)  # not changed
+
+
+def _attached_half_width_plain(transmission, cal) -> float:
+    """`attached_half_width_px` as it was: every body labelled."""
+    mask = (transmission < cal.threshold).astype(np.uint8)
+    _, lab = cv2.connectedComponents(mask, connectivity=8)
+    axis = int(round(min(max(cal.axis_col, 0), transmission.shape[1] - 1)))
+    top = np.unique(lab[0][lab[0] > 0])
+    r = int(np.ceil(cal.tip_row)) + 2
+    best = 0.0
+    for k in top:
+        _, cols = np.nonzero(lab[r:] == k)
+        if cols.size and (np.any(np.abs(cols - cal.axis_col) < 2.0) or (lab[:r, axis] == k).any()):
+            best = max(best, float(np.max(np.abs(cols - cal.axis_col))))
+    return best
+
+
+def test_the_attached_half_width_from_the_top_bodies_is_the_plain_one():
+    from types import SimpleNamespace
+
+    rng = np.random.default_rng(12)
+    frames = [_frame(k).astype(np.float32) / 200.0 for k in range(3)]
+    hanging = np.ones((120, 90), np.float32)
+    hanging[:30, 30:60] = 0.1  # a nozzle, liquid hanging from it to one side, a second body at the top
+    hanging[30:50, 35:70] = 0.2
+    hanging[:8, 5:10] = 0.1
+    hanging[60:70, 40:50] = 0.1  # a detached drop
+    frames += [hanging, (rng.random((80, 260)) < 0.5).astype(np.float32)]
+    many = np.ones((40, 800), np.float32)
+    many[:3, ::3] = 0.0  # more than 250 bodies at the top: labelled
+    many[:30, 400:420] = 0.0
+    frames.append(many)
+    checked = 0
+    for t in frames:
+        for axis, tip in ((45.0, 28.0), (110.0, 55.0), (410.0, 10.0), (3.0, 0.0)):
+            cal = SimpleNamespace(threshold=0.5, axis_col=axis, tip_row=tip)
+            plain = _attached_half_width_plain(t, cal)
+            assert attached_half_width_px(t, cal) == plain
+            checked += plain > 0
+    assert checked >= 5
