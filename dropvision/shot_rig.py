@@ -26,7 +26,8 @@ shots agreeing: no shared calibration, every shot alone (as before).
 
 Costs (tools/bench_shots.py): a forked worker sends back what a shot's tables are made of
 (`dropvision.measurement.MeasuredParts`), and the tables are made in the calling process, so pandas
-(some 0.5 s of CPU to import) loads once, not once more in every worker; a calibration shot that
+(some 0.5 s of CPU to import) loads once, not once more in every worker -- each shot's as it comes
+back, while the workers measure the next ones (they are all forked before); a calibration shot that
 agrees with no group is not decoded and compared again.
 
 What differs from a shot measured alone (all but the references): the background, the liquid's level,
