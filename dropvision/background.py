@@ -17,6 +17,7 @@ here, the first of them; `dropvision.calibration` exports them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -119,6 +120,36 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
     return out
 
 
+def median_by_selection(values: np.ndarray):
+    """``np.median`` of a large 1-d array, the same value, by selection within a bracket.
+
+    The two middle order statistics are bracketed by those of a strided sample (some 20 000
+    values, widened by 4 of its standard errors), the values below and within the bracket are
+    counted, and only those within are partitioned: a few passes over the data instead of a
+    partition of all of it (some 5 times faster on 2 million values). Where the bracket does not
+    hold them (or a value is NaN, or fewer than 100 000) ``np.median`` itself (its dtype too).
+    ``values`` is not changed."""
+    x = np.asarray(values).ravel()
+    n = x.size
+    if n < 100_000:
+        return np.median(x)
+    sample = np.sort(x[:: max(1, n // 20_000)])
+    m = sample.size
+    k_lo, k_hi = (n - 1) // 2, n // 2  # the middle order statistics (one for odd n)
+    half = int(math.ceil(4.0 * math.sqrt(m) * 0.5)) + 2  # 4 standard errors of the sample's median rank
+    lo = sample[max(0, m // 2 - half)]
+    hi = sample[min(m - 1, m // 2 + half)]
+    below = int(np.count_nonzero(x < lo))
+    inside = x[(x >= lo) & (x <= hi)]
+    above = int(np.count_nonzero(x > hi))
+    if below + inside.size + above != n or not below <= k_lo <= k_hi < below + inside.size:
+        return np.median(x)  # NaN among them (counted nowhere), or the bracket missed the middle
+    part = np.partition(inside, [k_lo - below, k_hi - below])
+    # np.median's own mean of its middle values (their dtype, their order)
+    return np.median(np.array([part[k_lo - below], part[k_hi - below]], dtype=x.dtype) if k_lo != k_hi
+                     else part[k_lo - below:k_lo - below + 1])
+
+
 def darkest_level(image: np.ndarray) -> float:
     """The darkest grey level of a frame's bodies, however few pixels they cover: the minimum
     of the frame smoothed over 2 px (against noise), sampled every 2nd pixel."""
@@ -209,6 +240,23 @@ def estimate_background(
                            background_residual(mean, valid, background))
 
 
+def _block_means(image: np.ndarray, hb: int, wb: int, block: int) -> np.ndarray:
+    """``image.reshape(hb, block, wb, block).mean(axis=(1, 3))`` of a float32 image, the same values (numpy's
+    order of the sums: each block row's ``block`` values one after the other, then the rows one after the
+    other; checked to the bit in tests/test_calibration_fast.py), by ``block**2`` whole-array sums instead of
+    numpy's strided reduction (some 3 times faster on a 2048 x 1536 frame). Other types or blocks: numpy."""
+    v = image.reshape(hb, block, wb, block)
+    if image.dtype != np.float32 or not 2 <= block <= 7 or min(hb, wb) < 16:  # (numpy orders small ones otherwise)
+        return v.mean(axis=(1, 3))
+    total = None
+    for i in range(block):
+        row = v[:, i, :, 0] + v[:, i, :, 1]
+        for j in range(2, block):
+            row += v[:, i, :, j]
+        total = row if total is None else total + row
+    return np.true_divide(total, block * block, out=total, casting="unsafe")
+
+
 def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndarray, block: int = 4) -> float:
     """Robust spread of ``mean / background - 1`` over blocks of ``block`` x ``block`` background pixels.
 
@@ -220,7 +268,7 @@ def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndar
         return 0.0
     sl = (slice(0, hb * block), slice(0, wb * block))
     rel = np.where(valid[sl], mean[sl] / np.maximum(background[sl], 1e-6) - 1.0, 0.0)
-    rel = rel.reshape(hb, block, wb, block).mean(axis=(1, 3))
+    rel = _block_means(rel, hb, wb, block)
     ok = valid[sl].reshape(hb, block, wb * block).all(axis=1).reshape(hb, wb, block).all(axis=2)
     r = rel[ok]
     if r.size < 20:

@@ -17,6 +17,8 @@
 
 from __future__ import annotations
 
+import bisect
+import functools
 import math
 from dataclasses import dataclass
 
@@ -80,6 +82,68 @@ def components_with_stats(mask: np.ndarray):
     return cv2.connectedComponentsWithStatsWithAlgorithm(mask, 8, cv2.CV_32S, cv2.CCL_BBDT)
 
 
+def largest_top_body(mask: np.ndarray, col: int | None = None) -> tuple[np.ndarray, int] | None:
+    """The largest 8-connected body of ``mask`` (uint8, 0 / 1) touching the top row (the first in
+    `components_with_stats`' label order on a tie), holding column ``col`` within its bounding box
+    where given: (its rows down to its lowest, 255 where it is, holes filled; that row count) or None.
+
+    The bodies touching the top row are flood-filled from it (a cost of their own area, not the whole
+    frame's), the same pixels and areas as `components_with_stats` gives; where two such bodies tie for
+    the largest, or there are more than 250 of them, by `components_with_stats` itself (its label order).
+    ``mask`` is not changed."""
+    filled = top_bodies(mask)
+    if filled is None:
+        return _largest_top_body_ccl(mask, col)
+    img, bodies = filled
+    if col is not None:
+        bodies = [b for b in bodies if b[2] <= col < b[2] + b[3]]
+    if not bodies:
+        return None
+    best = max(b[0] for b in bodies)
+    top = [b for b in bodies if b[0] == best]
+    if len(top) > 1:  # a tie: the first in the label order decides
+        return _largest_top_body_ccl(mask, col)
+    _, value, _, _, height = top[0]
+    return fill_holes(cv2.compare(img[:height], value, cv2.CMP_EQ)), int(height)
+
+
+def top_bodies(mask: np.ndarray) -> tuple[np.ndarray, list[tuple[int, int, int, int, int]]] | None:
+    """The 8-connected bodies of ``mask`` (uint8, 0 / 1) touching the top row, flood-filled from it:
+    (a copy of ``mask`` with each such body's pixels set to its own value 2, 3, ..., and per body
+    (pixel count, value, left column, width, height from the top row), in the order of their leftmost
+    top-row pixel), or None with more than 250 of them (label them all instead)."""
+    row0 = np.flatnonzero(np.diff(np.r_[0, mask[0] != 0].astype(np.int8)) > 0)  # the top row's dark runs' starts
+    if row0.size > 250:
+        return None
+    img = mask.copy()
+    bodies = []
+    for x in row0:
+        if img[0, x] != 1:
+            continue  # filled from a run to its left (the same body)
+        value = 2 + len(bodies)
+        area, _, _, (left, _, width, height) = cv2.floodFill(img, None, (int(x), 0), value, 0, 0, 8)
+        bodies.append((int(area), value, int(left), int(width), int(height)))
+    return img, bodies
+
+
+def _largest_top_body_ccl(mask: np.ndarray, col: int | None) -> tuple[np.ndarray, int] | None:
+    """`largest_top_body` by `components_with_stats` (every body labelled)."""
+    n, lab, stats, _ = components_with_stats(mask)
+    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0
+           and (col is None or stats[k, cv2.CC_STAT_LEFT] <= col < stats[k, cv2.CC_STAT_LEFT] + stats[k, cv2.CC_STAT_WIDTH])]
+    if not top:
+        return None
+    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
+    height = int(stats[k, cv2.CC_STAT_TOP] + stats[k, cv2.CC_STAT_HEIGHT])
+    return fill_holes(cv2.compare(lab[:height], int(k), cv2.CMP_EQ)), height
+
+
+def _sorted_median(values: list[float]) -> float:
+    """``np.median`` of a sorted list of finite floats (the middle one, or the mean of the middle two)."""
+    m = len(values)
+    return values[m // 2] if m % 2 else (values[m // 2 - 1] + values[m // 2]) / 2.0
+
+
 def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | None = None) -> tuple[int, int]:
     """(start, stop) of the nozzle's straight part: a run of rows of constant width.
 
@@ -97,12 +161,15 @@ def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | No
         width = np.median(np.lib.stride_tricks.sliding_window_view(pad, 5), axis=1)
     runs_ = []
     i, n = 0, width.size
+    values = width.tolist()
     while i < n:
         if not cand[i]:
             i += 1
             continue
         j = i + 1
-        while j < n and cand[j] and abs(width[j] - np.median(width[i:j])) <= 1.5:
+        grown = [values[i]]  # width[i:j] sorted: its median as np.median gives it (the middle one, or the
+        while j < n and cand[j] and abs(width[j] - _sorted_median(grown)) <= 1.5:  # mean of the middle two)
+            bisect.insort(grown, values[j])
             j += 1
         if width[i] >= 4 and j - i >= 3:
             runs_.append((i, j))
@@ -118,13 +185,22 @@ def _straight_walls(width: np.ndarray, cand: np.ndarray, expected_px: float | No
     return min(runs_, key=lambda r: (med[r], -(r[1] - r[0])))
 
 
+@functools.lru_cache(maxsize=64)
+def _ransac_draws(n: int) -> np.ndarray:
+    """`_straight_stretch`'s 300 pairs of indices into ``n`` points: seeded draws, the same every time
+    (drawn once per ``n``: a face is fitted several times in a calibration), in order; read only."""
+    rng = np.random.default_rng(0)
+    out = np.array([rng.choice(n, 2, replace=False) for _ in range(300)], dtype=np.intp).reshape(-1, 2)
+    out.flags.writeable = False
+    return out
+
+
 def _straight_stretch(x: np.ndarray, y: np.ndarray, band_px: float, min_points: int = 10) -> np.ndarray | None:
     """The points of the longest straight stretch of ``y(x)``: RANSAC over 300 pairs of points
     (seeded: the same answer every time), inliers within ``band_px`` of the line through the pair.
     A boolean mask, or None when no line holds ``min_points``."""
-    rng = np.random.default_rng(0)
-    pairs = [rng.choice(x.size, 2, replace=False) for _ in range(300)]  # the same draws, in the same order
-    pairs = np.array([(i, j) for i, j in pairs if x[i] != x[j]], dtype=np.intp).reshape(-1, 2)
+    pairs = _ransac_draws(int(x.size))
+    pairs = pairs[x[pairs[:, 0]] != x[pairs[:, 1]]]
     if not len(pairs):
         return None
     best, best_count = None, -1
@@ -148,10 +224,9 @@ def _face_nozzle(t: np.ndarray, body: np.ndarray, threshold: float) -> tuple[int
     from the face down to the bottom of that group and the axis slope (col per row,
     perpendicular to the face), or None when nothing protrudes.
     """
-    cols = np.nonzero(body.any(axis=0))[0]
+    cols, bottom = bottom_profile(body)  # the lowest dark row of each column
     if cols.size < 20:
         return None
-    bottom = np.array([np.nonzero(body[:, c])[0].max() for c in cols], float)
     # the face is the longest straight stretch of the bottom profile (a wedge or a rounded corner
     # beside it is not): RANSAC over pairs of columns, inliers within 1 px, refitted
     x = cols.astype(float)
@@ -227,13 +302,10 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     t = np.asarray(transmission, np.float32)
     h, w = t.shape
     mask = (t < threshold).astype(np.uint8)
-    n, lab, stats, _ = components_with_stats(mask)
-    top = [k for k in range(1, n) if stats[k, cv2.CC_STAT_TOP] == 0]
-    if not top:
+    top = largest_top_body(mask)
+    if top is None:
         raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
-    k = max(top, key=lambda k: stats[k, cv2.CC_STAT_AREA])
-    body = fill_holes(cv2.compare(lab, int(k), cv2.CMP_EQ)) > 0  # 255 where lab == k
-    y1 = stats[k, cv2.CC_STAT_TOP] + stats[k, cv2.CC_STAT_HEIGHT]
+    body, y1 = top[0] > 0, top[1]  # the body's rows 0 .. y1 - 1 (its lowest row y1 - 1)
     rr, s, e = runs(body[:y1])
     # outer silhouette per row: first start .. last stop
     first = np.full(y1, -1)

@@ -91,9 +91,11 @@ def threshold_image(background: np.ndarray, threshold: float, dtype) -> np.ndarr
         Grey-level threshold per pixel.
     """
     info = np.iinfo(dtype) if np.issubdtype(dtype, np.integer) else None
-    t = np.ceil(np.asarray(background, dtype=np.float64) * threshold)
+    t = np.array(background, dtype=np.float64)  # a copy of ours: the steps in place (the same values)
+    np.multiply(t, threshold, out=t)
+    np.ceil(t, out=t)
     if info is not None:
-        t = np.clip(t, 0, info.max)
+        np.clip(t, 0, info.max, out=t)
     return t.astype(dtype)
 
 

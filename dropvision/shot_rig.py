@@ -26,7 +26,8 @@ shots agreeing: no shared calibration, every shot alone (as before).
 
 Costs (tools/bench_shots.py): a forked worker sends back what a shot's tables are made of
 (`dropvision.measurement.MeasuredParts`), and the tables are made in the calling process, so pandas
-(some 0.5 s of CPU to import) loads once, not once more in every worker; a calibration shot that
+(some 0.5 s of CPU to import) loads once, not once more in every worker -- each shot's as it comes
+back, while the workers measure the next ones (they are all forked before); a calibration shot that
 agrees with no group is not decoded and compared again.
 
 What differs from a shot measured alone (all but the references): the background, the liquid's level,
@@ -670,23 +671,37 @@ def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: d
         state = (shots, rigs, known_alone, config, overrides, option_labels)
         indices = list(range(n))
         if forked and processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES):
-            outcomes = list(_each_forked(state, indices, workers))
+            # each shot's tables made here as it comes back, while the workers measure the next ones (the
+            # workers are forked before: `_each_forked` forks them all at once, and never again)
+            outcomes = []
+            each = _each_forked(state, indices, workers)
+            try:
+                for out in each:
+                    outcomes.append(_tables(out, config))
+            finally:
+                each.close()
         else:
-            outcomes = [_measure_one(i, state) for i in indices]
+            outcomes = [_tables(_measure_one(i, state), config) for i in indices]
     from dropvision.frame import give_warnings
 
     class _Names:  # the colour note of every shot is its own (each shot is a sequence of one frame)
         first_colour_note = None
 
     for out in outcomes:
-        if out.parts is not None:
-            with warnings.catch_warnings(record=True) as caught:
-                warnings.simplefilter("always")
-                try:
-                    out.result = out.parts.result(config)
-                except SequenceError as exc:
-                    out.result, out.error = None, str(exc)
-            out.parts = None
-            out.warnings += [(w.category, str(w.message)) for w in caught]
         give_warnings(_Names, out.warnings)
     return outcomes, rigs, why
+
+
+def _tables(out: ShotOutcome, config: MeasureConfig) -> ShotOutcome:
+    """A shot's result (its tables) made from its parts, their warnings recorded (given in order by
+    `measure_each`)."""
+    if out.parts is not None:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                out.result = out.parts.result(config)
+            except SequenceError as exc:
+                out.result, out.error = None, str(exc)
+        out.parts = None
+        out.warnings += [(w.category, str(w.message)) for w in caught]
+    return out

@@ -86,8 +86,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "return 0.5 * (1.0 + interior_level)", "return 0.5 * (1.0 + interior_level) + 0.01",
            STAGE + ("tests/test_edges.py",), "edge threshold +0.01 (the one rule of the edge level)"),
     Mutant("mask_threshold_plus_001", "dropvision/segmentation.py",
-           "t = np.ceil(np.asarray(background, dtype=np.float64) * threshold)",
-           "t = np.ceil(np.asarray(background, dtype=np.float64) * (threshold + 0.01))",
+           "np.multiply(t, threshold, out=t)",
+           "np.multiply(t, threshold + 0.01, out=t)",
            STAGE + ("tests/test_measure_frame.py", "tests/test_segmentation.py"),
            "dark mask's grey-level threshold +0.01 (survived STAGE + test_measure_frame.py: "
            "tests/test_segmentation.py added)"),
