@@ -414,13 +414,8 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
             for row, file_stat in state.measure(ready, done, pending):
                 done[row["file"]] = file_stat  # first: a frame in the journal is in the final tables
                 measured.add((row["file"], row["page"]))
-                row["size"], row["mtime_ns"] = file_stat
-                row["row_unix_s"] = time.time()
-                row["latency_ms"] = (row["row_unix_s"] - file_stat[1] / 1e9) * 1e3
-                journal.append(row)
+                _journal_row(journal, row, file_stat, started_ns, latency)
                 n_live += 1
-                if file_stat[1] >= started_ns:  # written while watching (not there before)
-                    latency.append(row["latency_ms"])
                 last_frame_at = time.monotonic()
                 if report is not None:
                     report(row)
@@ -437,6 +432,18 @@ def _watch_locked(folder: Path, out: Path, opts: WatchOptions, logger, report, s
                       "latency_ms_median": statistics.median(latency) if latency else None,
                       "latency_ms_max": max(latency) if latency else None})
     return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out)
+
+
+def _journal_row(journal, row: dict, file_stat: tuple[int, int], started_ns: int, latency: list) -> None:
+    """Stamp ``row`` with its file's (size, mtime_ns), the time and the latency from the file's last
+    write, append it to the journal; the latency counts (``latency``) only for a file written while
+    watching (not there before the watch started at ``started_ns``)."""
+    row["size"], row["mtime_ns"] = file_stat
+    row["row_unix_s"] = time.time()
+    row["latency_ms"] = (row["row_unix_s"] - file_stat[1] / 1e9) * 1e3
+    journal.append(row)
+    if file_stat[1] >= started_ns:
+        latency.append(row["latency_ms"])
 
 
 def _why_ended(opts, n_done: int, expected, pending: dict, last_frame_at: float, stop) -> str | None:
@@ -786,13 +793,8 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
                 write_bytes(table_path, _parquet_bytes(_live_shots_table(table_rows)))
                 done[name] = file_stat
                 pending.pop(name, None)
-                live["size"], live["mtime_ns"] = file_stat
-                live["row_unix_s"] = time.time()
-                live["latency_ms"] = (live["row_unix_s"] - file_stat[1] / 1e9) * 1e3
-                journal.append(live)
+                _journal_row(journal, live, file_stat, started_ns, latency)
                 n_live += 1
-                if file_stat[1] >= started_ns:
-                    latency.append(live["latency_ms"])
                 last_frame_at = time.monotonic()
                 if report is not None:
                     report(live)
