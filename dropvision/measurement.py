@@ -144,7 +144,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         return _measure(seq, out_dir, inputs, config, progress, logger, csv, overwrite, nozzle_pitch_um, row_limits)
 
 
-def _row_plate(seq: Sequence):
+def row_plate(seq: Sequence):
     """(plate, scan labels or None) of a printhead row when the first frame shows one, or of a
     scan (frames named by nozzle under a plate); else None."""
     from dropvision.nozzle_row import row_layout, scan_layout
@@ -161,7 +161,7 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
     if n:
         forking = processes_usable(n, max(1, config.workers))
         with serial_native_pools(forking):  # the row check before a fork starts no native pool either
-            row = _row_plate(seq)
+            row = row_plate(seq)
         if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
             from dropvision.nozzle_row import measure_row_sequence
 

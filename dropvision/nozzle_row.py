@@ -713,9 +713,11 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
     inner = cv2.erode((lab > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
     level = float(np.median(t0[inner])) if inner.any() else 0.1
     thr = edge_threshold(level)
-    # noise of the transmission: the background's pixel-to-pixel scatter in a bright band
-    band = t0[int(plate.row_at(0)) + 20:int(plate.row_at(0)) + 60, :]
-    noise_t = float(1.4826 * np.median(np.abs(np.diff(band, axis=1)))) / math.sqrt(2) if band.size else 0.0
+    # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
+    # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
+    from dropvision.calibration_pass import transmission_noise
+
+    noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
     # edge blur: the edge-spread functions of the first frame's large bodies
     sig = []
     for j in np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1:

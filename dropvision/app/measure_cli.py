@@ -72,13 +72,12 @@ def _run(args: argparse.Namespace) -> int:
                     raise UsageError(f"--report {args.report}: give a folder other than --out")
                 check_output_dir(args.report, inputs=[paths[0]], overwrite=args.overwrite)
                 # the page is a printhead row's: a single nozzle is refused before anything is measured or written
-                from dropvision.nozzle_row import row_layout, scan_layout
+                from dropvision.measurement import row_plate
                 if only is None:
                     seq = open_sequence(seq, overrides=overrides, labels=labels)
                     overrides = labels = None  # applied when opened
                 try:
-                    fr = seq.read(0)  # the rule of measurement's row check: a row in the first frame, or a scan
-                    is_row = (fr.error is None and row_layout(fr.image) is not None) or scan_layout(seq) is not None
+                    is_row = row_plate(seq) is not None  # measurement's own row check
                 except BaseException:
                     seq.close()
                     raise

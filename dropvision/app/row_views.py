@@ -32,13 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
+from dropvision.app.rerun_log import PIXEL_CENTRE_OFFSET
+
 #: State -> RGB colour of the nozzle map.
 STATE_COLOURS = {"ok": (46, 160, 67), "missing": (128, 128, 128), "weak": (230, 140, 0),
                  "deviated": (214, 39, 40), "satellites": (31, 119, 180)}
 #: Quantities of the nozzle map: column -> label.
 MAP_QUANTITIES = {"volume_nl": "volume (nl)", "velocity_m_s": "velocity (m/s)", "angle_mrad": "angle (mrad)"}
 _UNASSIGNED = (160, 160, 160)
-_OFFSET = 0.5
 
 
 def nozzle_colour(i) -> tuple[int, int, int]:
@@ -61,7 +62,7 @@ def _axis_segments(nozzles, length_px: float) -> list[tuple[int, np.ndarray]]:
         a = r.angle_mrad * 1e-3
         x0, y0 = float(r.col_px), float(r.plate_row_px)
         out.append((int(r.nozzle), np.array([[x0, y0], [x0 + length_px * math.sin(a), y0 + length_px * math.cos(a)]])
-                    + _OFFSET))
+                    + PIXEL_CENTRE_OFFSET))
     return out
 
 
@@ -116,7 +117,7 @@ def log_row(logger, nozzles, bodies, summary: dict, frames=()) -> None:
         b = bodies[np.isclose(bodies.delay_us.to_numpy(float), float(delay_us))]
         if len(b):
             rec.log("/row/bodies", rr.Points2D(
-                np.c_[b.col_px.to_numpy(float), b.row_px.to_numpy(float)] + _OFFSET,
+                np.c_[b.col_px.to_numpy(float), b.row_px.to_numpy(float)] + PIXEL_CENTRE_OFFSET,
                 radii=np.sqrt(b.area_px.to_numpy(float) / math.pi),
                 colors=[nozzle_colour(n) for n in b.nozzle], show_labels=False,
                 labels=[f"nozzle {n} {c} {v:.4g} nl" for n, c, v in zip(b.nozzle, b.body_class, b.volume_nl)]))
@@ -125,7 +126,7 @@ def log_row(logger, nozzles, bodies, summary: dict, frames=()) -> None:
         x = np.array([0.0, shape[1] - 1.0])
         row0, slope = summary["plate_row_px"], math.tan(summary["plate_slope_mrad"] * 1e-3)
         y = row0 + slope * (x - (shape[1] - 1) / 2.0)
-        rec.log("/row/plate", rr.LineStrips2D([np.c_[x, y] + _OFFSET], colors=(0, 255, 255), show_labels=False),
+        rec.log("/row/plate", rr.LineStrips2D([np.c_[x, y] + PIXEL_CENTRE_OFFSET], colors=(0, 255, 255), show_labels=False),
                 static=True)
     segs = _axis_segments(nozzles, length)
     if segs:
@@ -182,7 +183,7 @@ def write_row_report(out_dir, nozzles, bodies, summary: dict, image=None, *, ove
             fig, ax = plt.subplots(figsize=(10, 10 * img.shape[0] / img.shape[1] + 0.5))
             ax.imshow(img, cmap="gray", interpolation="nearest")
             for i, seg in _axis_segments(nozzles, 0.8 * img.shape[0]):
-                ax.plot(seg[:, 0] - _OFFSET, seg[:, 1] - _OFFSET, "-", lw=1, color=np.array(nozzle_colour(i)) / 255)
+                ax.plot(seg[:, 0] - PIXEL_CENTRE_OFFSET, seg[:, 1] - PIXEL_CENTRE_OFFSET, "-", lw=1, color=np.array(nozzle_colour(i)) / 255)
             b = bodies[bodies.delay_us == bodies.delay_us.min()] if len(bodies) else bodies
             for _, r in b.iterrows():
                 ax.add_patch(plt.Circle((r.col_px, r.row_px), math.sqrt(r.area_px / math.pi), fill=False, lw=1.5,
