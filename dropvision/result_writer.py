@@ -56,3 +56,37 @@ def write_result(result: "MeasureResult", out_dir, *, csv: bool = False, extra_s
     if extra_summary:
         summary.update(extra_summary)
     write_json(out / "summary.json", summary)
+
+
+def check_shots_result(result, out_dir, *, extra_summary: dict | None = None) -> dict:
+    """Check a shot folder's tables and summary.json (``summary`` and ``extra_summary``) against
+    their schemas, naming the files as they will lie in ``out_dir``; returns the summary to write.
+
+    Raises
+    ------
+    dvcore.schema.SchemaError
+        A table or summary.json does not follow its declaration.
+    """
+    from dvcore import schema
+
+    out = Path(out_dir)
+    summary = {**result.summary, **(extra_summary or {})}
+    check_frames_table(result.frames, out / "frames.parquet")
+    schema.check_table(result.shots, schema.SHOTS, out / "shots.parquet")
+    schema.check_document(summary, schema.SHOTS_SUMMARY, out / "summary.json")
+    return summary
+
+
+def write_shots_result(result, out_dir, summary: dict, *, csv: bool = False) -> None:
+    """Write a shot folder's files (`dropvision.shots.ShotsResult`) into ``out_dir`` (in place: wrap
+    in `dvcore.atomic.atomic_dir`): shots.parquet, frames.parquet (+ frames.csv), bodies.parquet
+    when there are bodies, and ``summary`` (from `check_shots_result`) as summary.json."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    result.shots.to_parquet(out / "shots.parquet", index=False)
+    result.frames.to_parquet(out / "frames.parquet", index=False)
+    if csv:
+        result.frames.to_csv(out / "frames.csv", index=False)
+    if result.bodies is not None:
+        result.bodies.to_parquet(out / "bodies.parquet", index=False)
+    write_json(out / "summary.json", summary)

@@ -46,7 +46,7 @@ from dropvision.shot_rig import SHOT_METADATA_LABELS, shot_metadata
 from dropvision.sequence import SEQUENCE_JSON
 from dropvision.sequence_meta import SequenceError
 from dvcore import schema
-from dvcore.atomic import atomic_dir, check_output_dir, write_json
+from dvcore.atomic import atomic_dir, check_output_dir
 from dvcore.jsonio import load_json_hardened
 from dvcore.versions import software_versions
 
@@ -553,7 +553,6 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         ``out_dir`` overlaps an input or holds files we did not write.
     """
     from dropvision.shot_rig import measure_each
-    from dropvision.summary import check_frames_table
 
     shots = paths if isinstance(paths, ShotInput) else find_shots(paths, overrides=overrides,
                                                                      label_pattern=label_pattern)
@@ -636,17 +635,11 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     }
     result = ShotsResult(table, frames, summary, bodies)
     if out_dir is not None:
-        check_frames_table(frames, Path(out_dir) / "frames.parquet")
-        schema.check_table(table, schema.SHOTS, Path(out_dir) / "shots.parquet")
-        schema.check_document(summary, schema.SHOTS_SUMMARY, Path(out_dir) / "summary.json")
+        from dropvision.result_writer import check_shots_result, write_shots_result
+
+        checked = check_shots_result(result, out_dir)
         with atomic_dir(out_dir, inputs=shots.inputs, overwrite=overwrite, kind="measurement") as tmp:
-            table.to_parquet(tmp / "shots.parquet", index=False)
-            frames.to_parquet(tmp / "frames.parquet", index=False)
-            if csv:
-                frames.to_csv(tmp / "frames.csv", index=False)
-            if bodies is not None:
-                bodies.to_parquet(tmp / "bodies.parquet", index=False)
-            write_json(tmp / "summary.json", summary)
+            write_shots_result(result, tmp, checked, csv=csv)
     return result
 
 

@@ -63,7 +63,7 @@ from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
 from dropvision.readers import IMAGE_SUFFIXES
-from dropvision.result_writer import write_result
+from dropvision.result_writer import check_shots_result, write_result, write_shots_result
 from dropvision.sequence import check_overrides, open_sequence
 from dropvision.sequence_meta import SequenceError
 from dropvision.shots import find_shots, is_shot_folder, measure_shots
@@ -71,7 +71,7 @@ from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
 from dvcore.atomic import (
-    atomic_dir, check_outside_inputs, claim_dir, output_lock, remove_leftovers, to_json, write_bytes, write_json,
+    atomic_dir, check_outside_inputs, claim_dir, output_lock, remove_leftovers, to_json, write_bytes,
 )
 from dvcore.jsonio import load_json_hardened
 from dvcore.versions import software_versions
@@ -352,17 +352,11 @@ def measure_shots_to_shard(folder: str, shard_dir: str, digest: str | None, conf
             if shots is None:
                 raise SequenceError(f"{folder}: no longer a folder of shots (images with no delay to tell)")
             result = measure_shots(shots, None, config or MeasureConfig(), overrides=overrides, option_labels=labels)
-        summary = {**result.summary, "input_hash": digest}
         shard = Path(shard_dir)
-        schema.check_table(result.shots, schema.SHOTS, shard / "shots.parquet")
-        schema.check_document(summary, schema.SHOTS_SUMMARY, shard / "summary.json")
+        summary = check_shots_result(result, shard, extra_summary={"input_hash": digest})
         # shards/ is ours as a whole: an older shard of the same folder is merged over
         with atomic_dir(shard, inputs=[folder], overwrite=True, kind="campaign-shard") as tmp:
-            result.shots.to_parquet(tmp / "shots.parquet", index=False)
-            result.frames.to_parquet(tmp / "frames.parquet", index=False)
-            if result.bodies is not None:
-                result.bodies.to_parquet(tmp / "bodies.parquet", index=False)
-            write_json(tmp / "summary.json", summary)
+            write_shots_result(result, tmp, summary)
         info = {"kind": "shots", "n_shots": summary["n_shots"], "n_measured": summary["n_measured"]}
         part = None
         if seq_id is not None:

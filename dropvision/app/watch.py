@@ -826,7 +826,6 @@ def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_
     as ``dropvision measure`` writes them, with the journal kept."""
     from dropvision.discovery import images_without_delay, natural_key
     from dropvision.shots import find_shots, measure_shots, shots_of
-    from dropvision.summary import check_frames_table
 
     if not done:
         raise SequenceError(f"{folder}: no complete image arrived (the watch ended by {stats['ended_by']})")
@@ -837,18 +836,12 @@ def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_
     if shots is None or set(shots.names) != set(done):
         shots = shots_of(folder, sorted(done, key=natural_key), label_pattern=opts.label_pattern)
     result = measure_shots(shots, None, opts.config, overrides=opts.overrides, option_labels=opts.labels)
-    check_frames_table(result.frames, out / "frames.parquet")
-    schema.check_table(result.shots, schema.SHOTS, out / "shots.parquet")
-    schema.check_document(result.summary, schema.SHOTS_SUMMARY, out / "summary.json")
+    from dropvision.result_writer import check_shots_result, write_shots_result
+
+    checked = check_shots_result(result, out)
     journal = out / JOURNAL
     with atomic_dir(out, inputs=[folder], overwrite=opts.overwrite, kind="measurement") as tmp:
-        result.shots.to_parquet(tmp / "shots.parquet", index=False)
-        result.frames.to_parquet(tmp / "frames.parquet", index=False)
-        if opts.csv:
-            result.frames.to_csv(tmp / "frames.csv", index=False)
-        if result.bodies is not None:
-            result.bodies.to_parquet(tmp / "bodies.parquet", index=False)
-        write_json(tmp / "summary.json", result.summary)
+        write_shots_result(result, tmp, checked, csv=opts.csv)
         (tmp / JOURNAL).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(journal, tmp / JOURNAL)
         write_json(tmp / WATCH_JSON, {"schema": schema.WATCH.schema, "sequence": str(folder), "kind": "shots",
