@@ -281,9 +281,9 @@ def assemble_dataset(dataset_dir, entries: dict[str, dict], parts: dict[str, Sha
             dataset["shot_folders"] = list(shot_tables)
             dataset["n_shots"] = len(shots)
         schema.check_table(shots, schema.DATASET_SHOTS, dataset_dir / schema.DATASET_SHOTS.file)
-        write_bytes(dataset_dir / schema.DATASET_SHOTS.file, _parquet_bytes(shots))
-    write_bytes(dataset_dir / "timeseries.parquet", _parquet_bytes(timeseries))
-    write_bytes(dataset_dir / "summary.parquet", _parquet_bytes(summary_df))
+        write_bytes(dataset_dir / schema.DATASET_SHOTS.file, parquet_bytes(shots))
+    write_bytes(dataset_dir / "timeseries.parquet", parquet_bytes(timeseries))
+    write_bytes(dataset_dir / "summary.parquet", parquet_bytes(summary_df))
     write_json(dataset_dir / "dataset.json", dataset)
 
 
@@ -307,7 +307,8 @@ def _shots_table(tables: list[pd.DataFrame]) -> pd.DataFrame:
     return out
 
 
-def _parquet_bytes(df: pd.DataFrame) -> bytes:
+def parquet_bytes(df: pd.DataFrame) -> bytes:
+    """A table as Parquet bytes (no index), for an atomic `dvcore.atomic.write_bytes`."""
     buf = io.BytesIO()
     df.to_parquet(buf, index=False)
     return buf.getvalue()

@@ -749,6 +749,7 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
     then `_finish_shots` writes the tables of ``dropvision measure``."""
     import pandas as pd
 
+    from dropvision.app.campaign_dataset import parquet_bytes
     from dvcore.atomic import write_bytes
 
     n_resumed = len(rows)
@@ -790,7 +791,7 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
                     continue
                 row, live = _shot_rows(folder, name, opts)  # an image that stays unreadable: not_measured
                 table_rows = [r for r in table_rows if r["file"] != name] + [row]
-                write_bytes(table_path, _parquet_bytes(_live_shots_table(table_rows)))
+                write_bytes(table_path, parquet_bytes(_live_shots_table(table_rows)))
                 done[name] = file_stat
                 pending.pop(name, None)
                 _journal_row(journal, live, file_stat, started_ns, latency)
@@ -810,14 +811,6 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
                             "latency_ms_median": statistics.median(latency) if latency else None,
                             "latency_ms_max": max(latency) if latency else None})
     return WatchResult(result, ended_by, n_live, n_resumed, latency, left_out, kind="shots")
-
-
-def _parquet_bytes(table) -> bytes:
-    import io
-
-    buf = io.BytesIO()
-    table.to_parquet(buf, index=False)
-    return buf.getvalue()
 
 
 def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_out: list[str], stats: dict):
