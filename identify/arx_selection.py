@@ -495,87 +495,20 @@ def select_structure(
         raise ValueError(f"tolerance must be a finite number >= 0, got {tolerance!r}")
     if not (np.isfinite(absolute_tolerance_nl) and absolute_tolerance_nl >= 0):
         raise ValueError(f"absolute_tolerance_nl must be a finite number >= 0, got {absolute_tolerance_nl!r}")
-    na_max, nb_max = na_list[-1], nb_list[-1]
-    check_lengths(seqs, na_max, nb_max, nk_list[-1])
+    check_lengths(seqs, na_list[-1], nb_list[-1], nk_list[-1])
     fold_of, n_folds, scheme = _sequence_folds(len(seqs), folds, seed)
     member = np.zeros((n_folds, len(seqs)))  # training membership
     for f in range(n_folds):
         member[f, fold_of != f] = 1.0
-    structures = list(itertools.product(na_list, nb_list, nk_list))
-
-    def select(table):
-        finite = table[np.isfinite(table.val_rmse_nl)]
-        if finite.empty:
-            raise ValueError("no ARX structure of the grid could be fitted (all rank-deficient or divergent)")
-        b = finite.iloc[0]
-        best_rmse = float(b.val_rmse_nl)
-        threshold = best_rmse + max(tolerance * best_rmse, absolute_tolerance_nl)
-        ok = finite[finite.val_rmse_nl <= threshold].copy()
-        ok["n_params"] = ok.na + ok.nb
-        s = ok.sort_values(["n_params", "val_rmse_nl", "na"], kind="stable").iloc[0]
-        return (int(b.na), int(b.nb), int(b.nk)), (int(s.na), int(s.nb), int(s.nk)), threshold
-
+    grid = _Grid(seqs, na_list, nb_list, nk_list, member, initial)
     if focus == "prediction":
-        res = _grid_sse(seqs, seqs, structures, nk_list, na_max, nb_max, initial, member)
-        table = _table(res, structures, member, seqs)
-        prefilter = None
-    else:
-        # stage 0: delay scan at the largest orders (plain LS) -> reference -> prefilter
-        scan = [s for s in structures if s[0] == na_max and s[1] == nb_max]
-        res = _grid_sse(seqs, seqs, scan, nk_list, na_max, nb_max, initial, member)
-        ref_structure = select(_table(res, scan, member, seqs))[0]
-        prefilter = fit_arx(seqs, *ref_structure, initial=initial, focus="simulation").a
-        # stage 1: full grid, LS on data prefiltered by the common 1/A_ref (screening)
-        res = _grid_sse(prefiltered(seqs, prefilter), seqs, structures, nk_list, na_max, nb_max, initial, member)
-        table = _table(res, structures, member, seqs)
-        # stage 2: per-structure, per-fold Steiglitz-McBride re-scoring, simplest first
-        finite = table[np.isfinite(table.val_rmse_nl)]
-        if finite.empty:
-            raise ValueError("no ARX structure of the grid could be fitted (all rank-deficient or divergent)")
-        loose = float(finite.val_rmse_nl.iloc[0]) * (1.0 + 3.0 * tolerance) + absolute_tolerance_nl
-        nk_set = set(nk_list)
-
-        def candidates_of(na, nb):
-            rows = finite[(finite.na == na) & (finite.nb == nb)]
-            if rows.empty or float(rows.val_rmse_nl.iloc[0]) > loose:
-                return []
-            top = [int(k) for k in rows.nk.iloc[:2]]
-            extra = [top[0] + d for d in (-2, -1, 1, 2)]
-            return [(na, nb, k) for k in dict.fromkeys(top + extra) if k in nk_set]
-
-        refined_res = {}
-
-        def refine(structs):
-            todo = [s for s in structs if s not in refined_res]
-            if todo:
-                refined_res.update(_sm_cv_sse(seqs, todo, member, initial, prefilter))
-
-        refine([(int(r.na), int(r.nb), int(r.nk)) for r in finite.iloc[:3].itertuples()])
-        pairs = sorted(itertools.product(na_list, nb_list), key=lambda p: (p[0] + p[1], p[0]))
-        level_found = None
-        for na, nb in pairs:
-            if level_found is not None and na + nb > level_found:
-                break
-            refine(candidates_of(na, nb))
-            cur = _table(refined_res, list(refined_res), member, seqs)
-            cur["refined"] = True
-            _, sel, _ = select(cur)
-            if sel[0] + sel[1] <= na + nb:
-                level_found = na + nb
-            if len(refined_res) >= max_refine:
-                break
-        refined = _table(refined_res, list(refined_res), member, seqs)
-        refined["refined"] = True
-        rest = table.merge(refined[["na", "nb", "nk"]], on=["na", "nb", "nk"], how="left", indicator=True)
-        rest = rest[rest["_merge"] == "left_only"].drop(columns="_merge")
-        rest["refined"] = False
-        # the decision uses refined rows only (stage-1 rows are screening scores)
-        table = pd.concat([refined, rest], ignore_index=True)
-        table = table.sort_values(["refined", "val_rmse_nl", "na", "nb", "nk"], ascending=[False, True, True, True, True], kind="stable").reset_index(drop=True)
-        best, selected, threshold = select(refined.sort_values(["val_rmse_nl", "na", "nb", "nk"], kind="stable"))
-    if focus == "prediction":
+        table = grid.table(grid.least_squares(seqs, grid.structures))
         table["refined"] = False
-        best, selected, threshold = select(table)
+        prefilter = None
+        decided = table
+    else:
+        table, decided, prefilter = _simulation_focus_search(grid, tolerance, absolute_tolerance_nl, max_refine)
+    best, selected, threshold = _decide(decided, tolerance, absolute_tolerance_nl)
     model = fit_arx(seqs, *selected, initial=initial, focus=focus)
     return StructureSelection(
         table=table,
@@ -592,3 +525,106 @@ def select_structure(
         prefilter_a=None if prefilter is None else np.asarray(prefilter),
         model=model,
     )
+
+
+_NO_STRUCTURE = "no ARX structure of the grid could be fitted (all rank-deficient or divergent)"
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The candidate structures of one search and the fold membership they are scored with."""
+
+    seqs: list
+    na_list: list
+    nb_list: list
+    nk_list: list
+    member: np.ndarray
+    initial: str
+
+    @property
+    def structures(self):
+        return list(itertools.product(self.na_list, self.nb_list, self.nk_list))
+
+    def least_squares(self, fit_seqs, structures):
+        """Cross-validated SSE of plain LS fits on ``fit_seqs``, scored by simulation on the raw data."""
+        return _grid_sse(fit_seqs, self.seqs, structures, self.nk_list, self.na_list[-1], self.nb_list[-1],
+                         self.initial, self.member)
+
+    def table(self, res, structures=None):
+        return _table(res, self.structures if structures is None else structures, self.member, self.seqs)
+
+
+def _decide(table, tolerance, absolute_tolerance_nl):
+    """(best, selected, threshold RMSE) of a table sorted by ``val_rmse_nl`` (the selection rule above)."""
+    finite = table[np.isfinite(table.val_rmse_nl)]
+    if finite.empty:
+        raise ValueError(_NO_STRUCTURE)
+    b = finite.iloc[0]
+    best_rmse = float(b.val_rmse_nl)
+    threshold = best_rmse + max(tolerance * best_rmse, absolute_tolerance_nl)
+    ok = finite[finite.val_rmse_nl <= threshold].copy()
+    ok["n_params"] = ok.na + ok.nb
+    s = ok.sort_values(["n_params", "val_rmse_nl", "na"], kind="stable").iloc[0]
+    return (int(b.na), int(b.nb), int(b.nk)), (int(s.na), int(s.nb), int(s.nk)), threshold
+
+
+def _simulation_focus_search(grid: _Grid, tolerance, absolute_tolerance_nl, max_refine):
+    """Stages 0-2 of ``focus="simulation"``: (whole table, refined rows the decision uses, prefilter A)."""
+    seqs, initial = grid.seqs, grid.initial
+    # stage 0: delay scan at the largest orders (plain LS) -> reference -> prefilter
+    scan = [s for s in grid.structures if s[0] == grid.na_list[-1] and s[1] == grid.nb_list[-1]]
+    ref_structure = _decide(grid.table(grid.least_squares(seqs, scan), scan), tolerance, absolute_tolerance_nl)[0]
+    prefilter = fit_arx(seqs, *ref_structure, initial=initial, focus="simulation").a
+    # stage 1: full grid, LS on data prefiltered by the common 1/A_ref (screening)
+    table = grid.table(grid.least_squares(prefiltered(seqs, prefilter), grid.structures))
+    # stage 2: per-structure, per-fold Steiglitz-McBride re-scoring, simplest first
+    finite = table[np.isfinite(table.val_rmse_nl)]
+    if finite.empty:
+        raise ValueError(_NO_STRUCTURE)
+    refined_res = _refine_simplest_first(grid, finite, prefilter, tolerance, absolute_tolerance_nl, max_refine)
+    refined = grid.table(refined_res, list(refined_res))
+    refined["refined"] = True
+    rest = table.merge(refined[["na", "nb", "nk"]], on=["na", "nb", "nk"], how="left", indicator=True)
+    rest = rest[rest["_merge"] == "left_only"].drop(columns="_merge")
+    rest["refined"] = False
+    # the decision uses refined rows only (stage-1 rows are screening scores)
+    table = pd.concat([refined, rest], ignore_index=True)
+    table = table.sort_values(["refined", "val_rmse_nl", "na", "nb", "nk"], ascending=[False, True, True, True, True],
+                              kind="stable").reset_index(drop=True)
+    return table, refined.sort_values(["val_rmse_nl", "na", "nb", "nk"], kind="stable"), prefilter
+
+
+def _refine_simplest_first(grid: _Grid, finite, prefilter, tolerance, absolute_tolerance_nl, max_refine):
+    """Stage 2: Steiglitz-McBride CV scores of the screening's candidates, by complexity level."""
+    loose = float(finite.val_rmse_nl.iloc[0]) * (1.0 + 3.0 * tolerance) + absolute_tolerance_nl
+    nk_set = set(grid.nk_list)
+
+    def candidates_of(na, nb):
+        rows = finite[(finite.na == na) & (finite.nb == nb)]
+        if rows.empty or float(rows.val_rmse_nl.iloc[0]) > loose:
+            return []
+        top = [int(k) for k in rows.nk.iloc[:2]]
+        extra = [top[0] + d for d in (-2, -1, 1, 2)]
+        return [(na, nb, k) for k in dict.fromkeys(top + extra) if k in nk_set]
+
+    refined_res = {}
+
+    def refine(structs):
+        todo = [s for s in structs if s not in refined_res]
+        if todo:
+            refined_res.update(_sm_cv_sse(grid.seqs, todo, grid.member, grid.initial, prefilter))
+
+    refine([(int(r.na), int(r.nb), int(r.nk)) for r in finite.iloc[:3].itertuples()])
+    pairs = sorted(itertools.product(grid.na_list, grid.nb_list), key=lambda p: (p[0] + p[1], p[0]))
+    level_found = None
+    for na, nb in pairs:
+        if level_found is not None and na + nb > level_found:
+            break
+        refine(candidates_of(na, nb))
+        cur = grid.table(refined_res, list(refined_res))
+        _, sel, _ = _decide(cur, tolerance, absolute_tolerance_nl)
+        if sel[0] + sel[1] <= na + nb:
+            level_found = na + nb
+        if len(refined_res) >= max_refine:
+            break
+    return refined_res

@@ -503,9 +503,8 @@ def run_campaign(
         # one process per core already: no threads inside a worker (no oversubscription)
         config = dataclasses.replace(config, workers=1)
     root, dataset_dir = Path(root), Path(dataset_dir)
-    found = find_inputs(root, overrides)
-    folders = [f for f, _ in found]
-    kinds = dict(found)
+    kinds = dict(find_inputs(root, overrides))
+    folders = list(kinds)
     if not folders:
         raise FileNotFoundError(f"{root}: no sequence (folder with sequence.json) nor shot folder (images with no "
                                 "delay to tell) found")
@@ -521,68 +520,137 @@ def run_campaign(
         for folder in (dataset_dir, dataset_dir / "shards"):
             remove_leftovers(folder)
         manifest_path = dataset_dir / "manifest.json"
-        manifest = _load_manifest(manifest_path)
-        old = manifest.get("sequences", {})
+        old = _load_manifest(manifest_path).get("sequences", {})
         # threads do not change results; options do
         config_repr = repr(dataclasses.replace(config, workers=0)) + (f" {sorted(given.items())!r}" if given else "")
         # the previous run's entries of the current sequences stay until each is looked at again, so
         # that a run stopped part-way never loses a finished sequence from the manifest
         current = [sequence_id(root, f) for f in folders]
         entries: dict[str, dict] = {sid: old[sid] for sid in current if sid in old}
-        result = CampaignResult(dataset_dir=dataset_dir)
-        manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(), "sequences": entries}
-        manifest_writer = ManifestWriter(manifest_path)
-        _write_manifest(manifest_writer, manifest)
+        manifest = {"schema": MANIFEST_SCHEMA, "root": str(root.resolve()), "versions": software_versions(),
+                    "sequences": entries}
         if rerun_options is not None:
             rerun_options = rerun_options.start_viewer()  # a viewer that cannot start: warned, work goes on
             if not rerun_options.enabled:
                 rerun_options = None
-        bar = tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress)
-        parts: dict[str, ShardPart] = {}
+        run = _CampaignRun(dataset_dir, entries, manifest, ManifestWriter(manifest_path),
+                           tqdm(total=len(folders), desc="measuring sequences", unit="seq", disable=not progress))
+        run.save()
 
-        def read_part(sid: str) -> None:
-            """Read an ok shard's share of the dataset now, while the workers measure the others
-            (the final assembly then only concatenates). A shard that cannot be read is left to
-            the final assembly, which reports it as before."""
-            try:
-                part = shard_part(dataset_dir, sid, entries[sid])
-            except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
-                return
-            if part is not None:
-                parts[sid] = part
-            elif entries[sid].get("status") == "failed":  # measured, but no row of the dataset (it says why)
-                for done in (result.measured, result.skipped):
-                    if sid in done:
-                        done.remove(sid)
-                result.failed[sid] = entries[sid].get("error")
+        def tasks():
+            """The sequences to measure, found lazily: a previous run's sequences are hashed (to
+            know whether to skip them) while the workers measure those before them."""
+            for sid, folder in zip(current, folders):
+                shots = kinds[folder] == "shots"
+                # a shot folder: its own files (not its sub-folders'), its kind part of the hash
+                repr_ = config_repr + " shots" if shots else config_repr
+                if not run.unchanged(sid, folder, old.get(sid, {}), kinds[folder], repr_):
+                    yield sid, (measure_shots_to_shard if shots else measure_to_shard, str(folder),
+                                str(dataset_dir / "shards" / shard_name(sid)), config,
+                                None if rerun_options is None or shots else rerun_options.for_sequence(sid),
+                                given or None, labels, repr_, sid)
 
-        def record(future, sid: str) -> None:
-            """One finished sequence into the manifest's entries (the caller then rewrites the
-            manifest: a kill loses nothing)."""
-            try:
-                out = future.result()
-            except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
-                out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
-            if out.get("warnings"):
-                result.warnings[sid] = out["warnings"]
-            part = out.get("part")
-            entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
-            if out["status"] == "ok":
-                result.measured.append(sid)
-                if part is not None and part.input_hash == entries[sid].get("input_hash"):
-                    parts[sid] = part  # read by the worker
-                else:
-                    read_part(sid)
+        run.measure(tasks(), lambda: make_executor(workers, dask_local=dask_local, scheduler=scheduler))
+        run.bar.close()
+        if not run.result.measured and not run.result.skipped:
+            # nothing measured: no empty dataset passed off as a result (the manifest keeps the errors)
+            run.save()
+            raise CampaignFailed(run.result, root)
+        assemble_dataset(dataset_dir, entries, run.parts)
+        run.save()
+        return run.result
+
+
+@dataclass
+class _CampaignRun:
+    """One campaign run's state while its sequences are measured: the manifest's entries (rewritten
+    after every batch of finished sequences: a kill loses nothing), the result, the dataset parts
+    read so far, the progress bar."""
+
+    dataset_dir: Path
+    entries: dict
+    manifest: dict
+    writer: ManifestWriter
+    bar: tqdm
+    result: CampaignResult = None
+    parts: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.result is None:
+            self.result = CampaignResult(dataset_dir=self.dataset_dir)
+
+    def save(self) -> None:
+        _write_manifest(self.writer, self.manifest)
+
+    def unchanged(self, sid: str, folder: Path, prev: dict, kind: str, repr_: str) -> bool:
+        """A sequence measured before with the same inputs and options: kept, its part read. Else
+        its entry becomes pending (its worker computes the input hash) and False is returned."""
+        digest = None
+        if prev.get("status") == "ok" and prev.get("kind", "sequence") == kind:
+            digest = input_hash(folder, repr_, recursive=False) if kind == "shots" else input_hash(folder, repr_)
+        shard = shard_name(sid)
+        if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
+            self.dataset_dir / "shards" / shard, digest, kind
+        ):
+            self.entries[sid] = prev
+            self.result.skipped.append(sid)
+            self.read_part(sid)
+            self.bar.update(1)
+            return True
+        self.entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard,
+                             "status": "pending", "error": None}
+        if kind == "shots":
+            self.entries[sid]["kind"] = "shots"
+        return False
+
+    def read_part(self, sid: str) -> None:
+        """Read an ok shard's share of the dataset now, while the workers measure the others
+        (the final assembly then only concatenates). A shard that cannot be read is left to
+        the final assembly, which reports it as before."""
+        try:
+            part = shard_part(self.dataset_dir, sid, self.entries[sid])
+        except Exception:  # noqa: BLE001 - raised again, with its message, by assemble_dataset
+            return
+        if part is not None:
+            self.parts[sid] = part
+        elif self.entries[sid].get("status") == "failed":  # measured, but no row of the dataset (it says why)
+            for done in (self.result.measured, self.result.skipped):
+                if sid in done:
+                    done.remove(sid)
+            self.result.failed[sid] = self.entries[sid].get("error")
+
+    def record(self, future, sid: str) -> None:
+        """One finished sequence into the manifest's entries (the caller then rewrites the
+        manifest)."""
+        try:
+            out = future.result()
+        except Exception as exc:  # noqa: BLE001 - worker crash: record, go on
+            out = {"status": "failed", "error": f"{type(exc).__name__}: {exc}", "meta": None}
+        if out.get("warnings"):
+            self.result.warnings[sid] = out["warnings"]
+        part = out.get("part")
+        self.entries[sid].update({k: v for k, v in out.items() if k not in ("warnings", "part")})
+        if out["status"] == "ok":
+            self.result.measured.append(sid)
+            if part is not None and part.input_hash == self.entries[sid].get("input_hash"):
+                self.parts[sid] = part  # read by the worker
             else:
-                result.failed[sid] = out["error"]
-            bar.update(1)
+                self.read_part(sid)
+        else:
+            self.result.failed[sid] = out["error"]
+        self.bar.update(1)
 
-        # The client's serial work per sequence is kept far below a task's time, so that many
-        # workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
-        # submitted at once and its worker computes the input hash (the client only hashes sequences
-        # measured before, to know whether to skip them); finished sequences are recorded in
-        # batches, all that finished since the last manifest rewrite, with one rewrite per batch;
-        # each finished shard is read into its dataset part at once (`shard_part`).
+    def measure(self, tasks, new_executor) -> None:
+        """Submit every task ``(sid, (fn, folder, shard_dir, *args))`` and record each result (the
+        worker gets the entry's input hash, None where it must compute it, after ``shard_dir``).
+
+        The client's serial work per sequence is kept far below a task's time, so that many
+        workers are not held up by it (tools/bench_campaign.py --overheads): a new sequence is
+        submitted at once and its worker computes the input hash (the client only hashes sequences
+        measured before, to know whether to skip them); finished sequences are recorded in
+        batches, all that finished since the last manifest rewrite, with one rewrite per batch;
+        each finished shard is read into its dataset part at once (`shard_part`). The executor
+        starts only when a sequence needs measuring."""
         with contextlib.ExitStack() as stack:
             executor = None
             pending = {}
@@ -591,65 +659,25 @@ def run_campaign(
                 while pending:
                     done = _wait_bounded(executor, pending)
                     for future in sorted(done, key=pending.get):
-                        record(future, pending.pop(future))
-                    _write_manifest(manifest_writer, manifest)
+                        self.record(future, pending.pop(future))
+                    self.save()
 
-            for sid, folder in zip(current, folders):
-                shard = shard_name(sid)
-                prev = old.get(sid, {})
-                shots = kinds[folder] == "shots"
-                # a shot folder: its own files (not its sub-folders'), its kind part of the hash
-                repr_ = config_repr + " shots" if shots else config_repr
-                digest = None
-                if prev.get("status") == "ok" and prev.get("kind", "sequence") == kinds[folder]:
-                    digest = input_hash(folder, repr_, recursive=False) if shots else input_hash(folder, repr_)
-                if digest is not None and prev.get("input_hash") == digest and _shard_is_current(
-                    dataset_dir / "shards" / shard, digest, kinds[folder]
-                ):
-                    entries[sid] = prev
-                    result.skipped.append(sid)
-                    read_part(sid)
-                    bar.update(1)
-                    continue
-                entries[sid] = {"path": str(folder.resolve()), "input_hash": digest, "shard": shard, "status": "pending",
-                                "error": None}
-                if shots:
-                    entries[sid]["kind"] = "shots"
+            for sid, (fn, folder, shard_dir, *rest) in tasks:
                 if executor is None:
-                    executor = stack.enter_context(make_executor(workers, dask_local=dask_local, scheduler=scheduler))
+                    executor = stack.enter_context(new_executor())
                     stack.callback(drain)  # on an error below too, before the executor closes
                 if isinstance(executor, SerialExecutor):
-                    _write_manifest(manifest_writer, manifest)  # the sequence being measured, as pending
-                future = executor.submit(
-                    measure_shots_to_shard if shots else measure_to_shard,
-                    str(folder),
-                    str(dataset_dir / "shards" / shard),
-                    digest,
-                    config,
-                    None if rerun_options is None or shots else rerun_options.for_sequence(sid),
-                    given or None,
-                    labels,
-                    repr_,
-                    sid,
-                )
+                    self.save()  # the sequence being measured, as pending
+                future = executor.submit(fn, folder, shard_dir, self.entries[sid]["input_hash"], *rest)
                 if future.done():  # the serial executor finishes inside submit
-                    record(future, sid)
-                    _write_manifest(manifest_writer, manifest)
+                    self.record(future, sid)
+                    self.save()
                 else:
                     pending[future] = sid
-            _write_manifest(manifest_writer, manifest)  # every sequence submitted, as pending or done
+            self.save()  # every sequence submitted, as pending or done
             drain()
-        bar.close()
-        if not result.measured and not result.skipped:
-            # nothing measured: no empty dataset passed off as a result (the manifest keeps the errors)
-            _write_manifest(manifest_writer, manifest)
-            raise CampaignFailed(result, root)
-        assemble_dataset(dataset_dir, entries, parts)
-        _write_manifest(manifest_writer, manifest)
-        return result
 
 
-# ----------------------------------------------------------------------------- synthetic campaign
 def parse_range(text: str, name: str) -> list[float]:
     """Parse ``start:stop:step`` (inclusive stop) or a comma list into values."""
     try:
