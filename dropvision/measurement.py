@@ -112,10 +112,6 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         A printhead row's pass/fail limits and reference table (keys of
         `dropvision.nozzle_row.LIMIT_KEYS` and ``reference_nozzles``; override sequence.json's).
 
-    A frame of several nozzles under one flat plate (`dropvision.nozzle_row.row_layout`) is a
-    printhead row: measured per nozzle by `dropvision.nozzle_row.measure_row_sequence`
-    (nozzles.parquet; the result carries ``nozzles``).
-
     Returns
     -------
     MeasureResult
@@ -127,6 +123,12 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Unusable sequence (missing metadata, other frame size, no readable frame, no nozzle).
     dvcore.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
+
+    Notes
+    -----
+    A frame of several nozzles under one flat plate (`dropvision.nozzle_row.row_layout`) is a
+    printhead row: measured per nozzle by `dropvision.nozzle_row.measure_row_sequence`
+    (nozzles.parquet; the result carries ``nozzles``).
     """
     if isinstance(seq_dir, Sequence) and overrides:
         raise TypeError("measure_sequence: overrides apply to a sequence folder, not to an open Sequence")

@@ -1,4 +1,5 @@
-"""The public API: the README's Python example runs as written; in-memory frames equal a folder."""
+"""The public API: the guide's Python example (docs/reference/api.md) runs as written; in-memory frames equal
+a folder. (The README's short example runs in tests/test_docs.py.)"""
 
 import re
 import subprocess
@@ -15,16 +16,16 @@ import identify
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def readme_example() -> str:
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    section = text.split("## Python API", 1)[1]
+def api_example() -> str:
+    text = (ROOT / "docs" / "reference" / "api.md").read_text(encoding="utf-8")
+    section = text.split("## Overview", 1)[1]
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
-def test_readme_python_example_runs(tmp_path):
+def test_api_page_python_example_runs(tmp_path):
     (tmp_path / "sample_frames").symlink_to(ROOT / "sample_frames", target_is_directory=True)
     script = tmp_path / "example.py"
-    script.write_text(readme_example())
+    script.write_text(api_example())
     run = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stderr[-3000:]
     assert "pinch-off" in run.stdout and (tmp_path / "model.json").is_file()

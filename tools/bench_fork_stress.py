@@ -13,7 +13,7 @@ stalled or died and its frames were measured again with threads (`WorkerProcessS
 
 Prints one line per 25 runs and a summary: runs, forked, threads, hung, stalled-and-recovered,
 died-and-recovered, failed (exit code other than 0), wall time per run (median, max). Exit 0
-only when no run hung or failed. The figures go in README.md ("Speed").
+only when no run hung or failed. The figures go in docs/explanation/speed.md.
 """
 
 from __future__ import annotations

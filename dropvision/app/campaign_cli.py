@@ -1,7 +1,7 @@
 """`dropvision campaign` and `dropvision synth-campaign`: the commands over `dropvision.app.campaign`.
 
 The library is imported when a command runs, not when the parser is built, so that
-``dropvision --help`` stays fast (measured: see README, start-up).
+``dropvision --help`` stays fast (measured: docs/explanation/speed.md, start-up).
 """
 
 from __future__ import annotations
