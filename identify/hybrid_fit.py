@@ -496,8 +496,7 @@ def fit_hybrid(
     """
     import pandas as pd
 
-    from identify.dataset import DatasetError, check_measurement_block
-    from identify.measurement_uncertainty import measurement_uncertainty, sequence_standard_errors
+    from identify.measurement_uncertainty import sequence_standard_errors
     from identify.dataset_checks import summary_usable
     from tqdm import tqdm
 
@@ -519,32 +518,9 @@ def fit_hybrid(
     tp = su["pinchoff_us"].to_numpy(float)
     inflight = su["inflight_volume_nl"].to_numpy(float)
     jet = su["jetting_velocity_m_s"].to_numpy(float)
-    v_ecm = np.full(len(su), np.nan)
-    q_ecm = np.empty(len(su))
-    for i in range(len(su)):
-        w = ds.waveform(u1[i], u2[i])
-        if np.isfinite(tp[i]):
-            v_ecm[i] = ecm_response_at(modal, w, np.array([tp[i] - ds.dead_time_us]))[0][0]
-        q_ecm[i] = ecm_response_at(modal, w, np.array([w.max_stroke_us]))[1][0]
-    vel_ecm = flow_velocity_m_s(q_ecm, ds.nozzle_inner_diameter_um)
-    if adjuster_reference == "ecm":
-        vol_target = inflight - v_ecm
-        vel_target = jet - vel_ecm
-    else:
-        meas_vel = su["flow_velocity_at_max_stroke_m_s"].to_numpy(float)
-        if not np.any(np.isfinite(meas_vel)):
-            raise DatasetError(
-                f"{ds.path or '.'}/summary.parquet: column flow_velocity_at_max_stroke_m_s has only NaN; "
-                "it is needed with adjuster_reference='measured'"
-            )
-        vol_target = inflight - su["grown_volume_at_pinchoff_nl"].to_numpy(float)
-        vel_target = jet - meas_vel
+    v_ecm, vel_ecm, vol_target, vel_target = _adjuster_targets(ds, modal, adjuster_reference)
+    _check_usable_pairs(ds, masks, u1, u2)
     kw = dict(orders=orders, folds=folds, seed=seed)
-    for name, m in masks.items():
-        n_ctrl = len(np.unique(np.column_stack([u1[m], u2[m]]), axis=0)) if m.any() else 0
-        if n_ctrl < 3:
-            raise DatasetError(f"{ds.path or '.'}/summary.parquet: only {n_ctrl} distinct (u1_um_per_ms, u2_um) "
-                               f"pair(s) usable for the {name} polynomial; it needs at least 3")
     mp, mv, mq = masks["pinchoff"], masks["volume_adjuster"], masks["velocity_adjuster"]
     sel_p = select_order(u1[mp], u2[mp], tp[mp], name="pinchoff", unit="us", **kw)
     bar.update(1)
@@ -562,10 +538,7 @@ def fit_hybrid(
     bar.close()
     versions = software_versions()
     versions["identify"] = __version__
-    arx_struct = None
-    if arx_sel is not None and getattr(arx_sel, "selected", None) is not None:
-        na, nb, nk = arx_sel.selected
-        arx_struct = {"na": int(na), "nb": int(nb), "nk": int(nk)}
+    arx_struct = _arx_structure(arx_sel)
     cov = getattr(efit, "coeff_cov", None)
     model = HybridModel(
         dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
@@ -583,17 +556,7 @@ def fit_hybrid(
         notes.append(f"intervals: drop scatter and cross-validation from the {int(mall.sum())} of {len(mall)} "
                      "sequences with every summary value")
     ses = {k: v[mall] for k, v in sequence_standard_errors(ds).items()}
-    if measurement is None:
-        meas = measurement_uncertainty(ds)
-    else:
-        meas = check_measurement_block(measurement, "fit_hybrid(measurement=...)")
-        if "volume_rel" not in meas or "velocity_rel" not in meas:
-            raise ValueError("fit_hybrid(measurement=...): needs volume_rel and velocity_rel")
-        meas.setdefault("pinchoff_std_us", 0.0)
-        meas["source"] = "given to fit_hybrid" + (f": {meas['source']}" if meas.get("source") else "")
-    notes.append(f"intervals: systematic measurement uncertainty volume {100 * meas['volume_rel']:.3g} %, velocity "
-                 f"{100 * meas['velocity_rel']:.3g} %, pinch-off {meas.get('pinchoff_std_us') or 0:.3g} us "
-                 f"({meas['source']})")
+    meas = _measurement_block(ds, measurement, notes)
     model.intervals = _fit_intervals(model, u1[mall], u2[mall],
                                      {"pinchoff_us": tp[mall], "inflight_volume_nl": inflight[mall],
                                       "jetting_velocity_m_s": jet[mall]}, vol_target[mall], vel_target[mall],
@@ -607,6 +570,74 @@ def fit_hybrid(
     })
     return FitReport(model=model, arx_selection=arx_sel, ecm_fit=efit, pinchoff_selection=sel_p,
                      volume_selection=sel_v, velocity_selection=sel_q, training=training, notes=notes)
+
+
+def _adjuster_targets(ds: Dataset, modal, adjuster_reference: str):
+    """The ECM's grown volume at pinch-off and flow velocity at the maximum stroke of every sequence,
+    and the adjusters' targets (Eq. 7): what the ECM (or the measured flow) leaves to explain."""
+    from identify.dataset import DatasetError
+
+    su = ds.summary
+    u1 = su["u1_um_per_ms"].to_numpy(float)
+    u2 = su["u2_um"].to_numpy(float)
+    tp = su["pinchoff_us"].to_numpy(float)
+    v_ecm = np.full(len(su), np.nan)
+    q_ecm = np.empty(len(su))
+    for i in range(len(su)):
+        w = ds.waveform(u1[i], u2[i])
+        if np.isfinite(tp[i]):
+            v_ecm[i] = ecm_response_at(modal, w, np.array([tp[i] - ds.dead_time_us]))[0][0]
+        q_ecm[i] = ecm_response_at(modal, w, np.array([w.max_stroke_us]))[1][0]
+    vel_ecm = flow_velocity_m_s(q_ecm, ds.nozzle_inner_diameter_um)
+    inflight = su["inflight_volume_nl"].to_numpy(float)
+    jet = su["jetting_velocity_m_s"].to_numpy(float)
+    if adjuster_reference == "ecm":
+        return v_ecm, vel_ecm, inflight - v_ecm, jet - vel_ecm
+    meas_vel = su["flow_velocity_at_max_stroke_m_s"].to_numpy(float)
+    if not np.any(np.isfinite(meas_vel)):
+        raise DatasetError(
+            f"{ds.path or '.'}/summary.parquet: column flow_velocity_at_max_stroke_m_s has only NaN; "
+            "it is needed with adjuster_reference='measured'"
+        )
+    return v_ecm, vel_ecm, inflight - su["grown_volume_at_pinchoff_nl"].to_numpy(float), jet - meas_vel
+
+
+def _check_usable_pairs(ds: Dataset, masks: dict, u1, u2) -> None:
+    """Each polynomial needs at least 3 distinct usable (u1, u2) settings."""
+    from identify.dataset import DatasetError
+
+    for name, m in masks.items():
+        n_ctrl = len(np.unique(np.column_stack([u1[m], u2[m]]), axis=0)) if m.any() else 0
+        if n_ctrl < 3:
+            raise DatasetError(f"{ds.path or '.'}/summary.parquet: only {n_ctrl} distinct (u1_um_per_ms, u2_um) "
+                               f"pair(s) usable for the {name} polynomial; it needs at least 3")
+
+
+def _arx_structure(arx_sel) -> dict | None:
+    """The selected ARX orders as model.json stores them (None without a selection)."""
+    if arx_sel is None or getattr(arx_sel, "selected", None) is None:
+        return None
+    na, nb, nk = arx_sel.selected
+    return {"na": int(na), "nb": int(nb), "nk": int(nk)}
+
+
+def _measurement_block(ds: Dataset, measurement: dict | None, notes: list) -> dict:
+    """The systematic measurement uncertainty of the intervals: the dataset's, or the one given."""
+    from identify.dataset import check_measurement_block
+    from identify.measurement_uncertainty import measurement_uncertainty
+
+    if measurement is None:
+        meas = measurement_uncertainty(ds)
+    else:
+        meas = check_measurement_block(measurement, "fit_hybrid(measurement=...)")
+        if "volume_rel" not in meas or "velocity_rel" not in meas:
+            raise ValueError("fit_hybrid(measurement=...): needs volume_rel and velocity_rel")
+        meas.setdefault("pinchoff_std_us", 0.0)
+        meas["source"] = "given to fit_hybrid" + (f": {meas['source']}" if meas.get("source") else "")
+    notes.append(f"intervals: systematic measurement uncertainty volume {100 * meas['volume_rel']:.3g} %, velocity "
+                 f"{100 * meas['velocity_rel']:.3g} %, pinch-off {meas.get('pinchoff_std_us') or 0:.3g} us "
+                 f"({meas['source']})")
+    return meas
 
 
 __all__ = ["FitReport", "fit_hybrid", "arx_sequences", "ecm_sequences"]
