@@ -104,7 +104,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "dark = ndtr((e_top - rows) / sigma_top_px)", "dark = ndtr((rows - e_top) / sigma_top_px)",
            STAGE, "upper end's tail in the wrong direction"),
     Mutant("frame_scatter_sqrt15", "dropvision/summary.py",
-           "np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))", "np.median(np.abs(d2 - np.median(d2))))",
+           "z = d2 / np.sqrt(r[1:-1] ** 2 + 0.25 * (r[:-2] ** 2 + r[2:] ** 2))", "z = d2 / r[1:-1]",
            STAGE, "frame scatter without the sqrt(3/2) of second differences"),
     Mutant("grown_r0_n0", "dropvision/summary.py",
            "+ rand ** 2 + r0 ** 2 / n0 + se ** 2)", "+ rand ** 2 + r0 ** 2 + se ** 2)",
