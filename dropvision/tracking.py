@@ -150,15 +150,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             reasons[k].append(q.NO_DROP)
             det_vol[k] = det_u[k] = 0.0
             continue
-        bad = []
-        if b.leaves:
-            bad.append(q.DROP_LEAVES)
-        if b.out_of_band:
-            bad.append(q.OUT_OF_BAND)
-        if b.on_dust:
-            bad.append(q.DUST_OVERLAP)
-        if np.isfinite(r.attached_bottom_row) and b.top_row - r.attached_bottom_row < config.ambiguous_gap_px + 1:
-            bad.append(q.AMBIGUOUS)
+        bad = main_drop_doubts(r, config)
         reasons[k].extend(bad)
         others = r.bodies[1:]
         sat_bad = any(o.leaves or o.out_of_band or o.on_dust for o in others)
@@ -191,6 +183,23 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     found = [Finding(code, frames_of([code in own for own in reasons])) for code in TRACK_FLAGS
              if any(code in own for own in reasons)]
     return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u), found
+
+
+def main_drop_doubts(record: FrameRecord, config: MeasureConfig) -> list[str]:
+    """Why a frame's main drop (its largest detached body) is not trusted, in `TRACK_FLAGS` order:
+    it leaves the field of view, leaves the measured band, overlaps dust, or its top lies within
+    ``config.ambiguous_gap_px`` + 1 px of the attached liquid's bottom (empty: trusted)."""
+    b = record.bodies[0]
+    bad = []
+    if b.leaves:
+        bad.append(q.DROP_LEAVES)
+    if b.out_of_band:
+        bad.append(q.OUT_OF_BAND)
+    if b.on_dust:
+        bad.append(q.DUST_OVERLAP)
+    if np.isfinite(record.attached_bottom_row) and b.top_row - record.attached_bottom_row < config.ambiguous_gap_px + 1:
+        bad.append(q.AMBIGUOUS)
+    return bad
 
 
 def neighbour_outliers(x, y, sigmas: float, floor: float) -> np.ndarray:
