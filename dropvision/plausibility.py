@@ -89,8 +89,9 @@ def check_pixel_size(cal: Calibration, meta, config: MeasureConfig, n_frames: in
                                       "the given one"))
     elif np.isfinite(ratio) and abs(ratio - 1.0) > config.pixel_size_tolerance_fraction:
         found.append(Finding(q.PIXEL_SIZE_MISMATCH, every,
-                             f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one (beyond "
-                             f"{100 * config.pixel_size_tolerance_fraction:g} %): volumes and velocities not given",
+                             f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one "
+                             f"(beyond {100 * config.pixel_size_tolerance_fraction:g} %): volumes and velocities not "
+                             "given",
                              wrong))
     elif np.isfinite(ratio) and np.isfinite(u) and abs(ratio - 1.0) > config.pixel_size_note_sigmas * u:
         found.append(Finding(note=f"pixel size implied by the nozzle's outer diameter is {ratio:.4f} x the given one "
@@ -98,10 +99,10 @@ def check_pixel_size(cal: Calibration, meta, config: MeasureConfig, n_frames: in
                                   "scale with its cube"))
     if np.isfinite(inner) and abs(inner - 1.0) > INNER_DIAMETER_TOLERANCE:
         found.append(Finding(q.PIXEL_SIZE_MISMATCH, every,
-                             f"pixel size implied by the nozzle's inner diameter ({meta.nozzle_inner_diameter_um:g} um "
-                             f"over the resting meniscus's width, {cal.rest_meniscus_width_px:.1f} px) is {inner:.3f} x "
-                             f"the given one (beyond {100 * INNER_DIAMETER_TOLERANCE:g} %): the pixel size or the inner "
-                             "diameter is wrong; volumes and velocities not given", wrong))
+                             f"pixel size implied by the nozzle's inner diameter ({meta.nozzle_inner_diameter_um:g} "
+                             f"um over the resting meniscus's width, {cal.rest_meniscus_width_px:.1f} px) is "
+                             f"{inner:.3f} x the given one (beyond {100 * INNER_DIAMETER_TOLERANCE:g} %): the pixel "
+                             "size or the inner diameter is wrong; volumes and velocities not given", wrong))
     return found
 
 
@@ -146,8 +147,8 @@ def check_track(delay, drop, config: MeasureConfig) -> list[Finding]:
                              "at the neighbouring delays (drop going back up: delays mislabelled): left out", out))
     if other.any():
         found.append(Finding(q.NEIGHBOURS, frames_of(other),
-                             f"the main drop at {delays_text(delay[other])} us differs in volume from its neighbours far "
-                             "beyond the sequence's scatter (another body or sequence): left out", out))
+                             f"the main drop at {delays_text(delay[other])} us differs in volume from its neighbours "
+                             "far beyond the sequence's scatter (another body or sequence): left out", out))
     return found
 
 

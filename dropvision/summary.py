@@ -77,7 +77,7 @@ class SequenceValues:
     The steps compute them; the checks' findings change them only through `apply_findings`.
     """
 
-    delay: np.ndarray  # µs
+    delay_us: np.ndarray
     flags: list[list[str]]
     notes: list[str]
     attached_nl: np.ndarray  # attached volume per frame (NaN where its numbers are withheld)
@@ -104,7 +104,7 @@ class SequenceValues:
         """The values read off the records, nothing decided yet."""
         att = np.array([r.attached_volume_nl for r in records], float)
         m = len(records)
-        return cls(delay=np.array([r.delay_us for r in records], float), flags=[list(r.flags) for r in records],
+        return cls(delay_us=np.array([r.delay_us for r in records], float), flags=[list(r.flags) for r in records],
                    notes=[], attached_nl=att,
                    attached_u_nl=np.array([r.attached_volume_uncertainty_nl for r in records], float),
                    attached_common_u_nl=np.array([r.attached_common_uncertainty_nl for r in records], float),
@@ -203,21 +203,21 @@ def assemble(records: list[FrameRecord], cal: Calibration, sigma_px: float, meta
     apply_findings(s, not_drop_images(records))
     apply_findings(s, check_pixel_size(cal, meta, config, m, dead_time if has_waveform else None))
     find_pinchoff(s, has_waveform, dead_time, config)
-    s.attached = ~s.detached & ((s.delay < s.pinch_us) if np.isfinite(s.pinch_us) else True)
+    s.attached = ~s.detached & ((s.delay_us < s.pinch_us) if np.isfinite(s.pinch_us) else True)
     if cal.nozzle_out_of_focus:
         apply_findings(s, [Finding(q.NOZZLE_OUT_OF_FOCUS, frames_of(s.attached))])
-    apply_findings(s, attached_volume_outliers(s.delay, s.attached_nl, s.attached, config))
+    apply_findings(s, attached_volume_outliers(s.delay_us, s.attached_nl, s.attached, config))
     grow_from_rest(s, meta.nozzle_inner_diameter_um, has_waveform, dead_time)
     s.drop, found = track_main_drop(records, s.attached, config, s.flags)
     apply_findings(s, found)
     apply_findings(s, untrusted_frames(s.flags))
-    apply_findings(s, check_track(s.delay, s.drop, config))
+    apply_findings(s, check_track(s.delay_us, s.drop, config))
     max_stroke_us = max_stroke_instant_us(meta, config)
     apply_findings(s, pinchoff_before_stroke_end(s.pinch_us, max_stroke_us, m))
-    apply_findings(s, growth_short_at_max_stroke(s.grown_nl, s.delay, s.attached, s.grown_by_delay, s.pinch_us,
+    apply_findings(s, growth_short_at_max_stroke(s.grown_nl, s.delay_us, s.attached, s.grown_by_delay, s.pinch_us,
                                                  max_stroke_us, config))
     apply_findings(s, check_nozzle(meta, s.drop, s.attached, config))
-    velocity = fit_line(s.delay[s.drop.inflight], s.drop.z_um[s.drop.inflight])
+    velocity = fit_line(s.delay_us[s.drop.inflight], s.drop.z_um[s.drop.inflight])
     apply_findings(s, implausible_velocity(velocity.slope, s.drop.inflight, config))
     unc = volume_uncertainties(s, cal)
     frames = frames_table(records, s, unc, volume_uncertainty_source(cal))
@@ -243,7 +243,7 @@ def find_pinchoff(s: SequenceValues, has_waveform: bool, dead_time: float, confi
     """The pinch-off delay (``s.pinch_us``): a detached delay between attached ones is a foreign
     frame, left out (and out of flight); a pinch-off before the dead time is a delay lie; one not
     bracketed by consecutive delays is undefined (`dropvision.pinchoff`)."""
-    delay, m = s.delay, s.delay.size
+    delay, m = s.delay_us, s.delay_us.size
     isolated = isolated_detached(delay, s.detached)
     if isolated.any():
         apply_findings(s, [Finding(q.NEIGHBOURS, frames_of(isolated),
@@ -252,8 +252,9 @@ def find_pinchoff(s: SequenceValues, has_waveform: bool, dead_time: float, confi
                                    frozenset({Withheld.INFLIGHT}))])
     s.pinch_us = pinchoff_delay(delay[~isolated], s.detached[~isolated]) if (~isolated).any() else float("nan")
     if not has_waveform:
-        apply_findings(s, [Finding(note="no waveform in sequence.json: no waveform-based check (dead time, end of the "
-                                        "stroke) is run and the first delay's frames are taken as the meniscus at rest")])
+        apply_findings(s, [Finding(note="no waveform in sequence.json: no waveform-based check (dead time, end of "
+                                        "the stroke) is run and the first delay's frames are taken as the meniscus "
+                                        "at rest")])
     else:
         apply_findings(s, pinchoff_before_dead_time(s.pinch_us, dead_time, m))
     problem = pinchoff_bracket_problem(delay[~isolated], s.pinch_us, config.min_pinchoff_frames)
@@ -277,17 +278,18 @@ def grow_from_rest(s: SequenceValues, inner_diameter_um, has_waveform: bool, dea
     The grown volume is relative to the initial meniscus (Section 4.1.1): that needs a frame
     taken before the piston moves (delay <= dead time; without a waveform, the first delay's
     frames all attached).  Without one, no grown volume or flow (``no_rest_meniscus``)."""
-    s.grown_nl, s.flow_m_s, s.meniscus_nl, s.grown_by_delay = grown_and_flow(s.delay, s.used_nl, s.attached,
+    s.grown_nl, s.flow_m_s, s.meniscus_nl, s.grown_by_delay = grown_and_flow(s.delay_us, s.used_nl, s.attached,
                                                                            inner_diameter_um)
-    first = float(np.min(s.delay)) if s.delay.size else float("nan")
-    s.meniscus_at_rest = bool(s.delay.size) and (first <= dead_time if has_waveform
-                                                 else bool(s.attached[s.delay == first].all()))
+    first = float(np.min(s.delay_us)) if s.delay_us.size else float("nan")
+    s.meniscus_at_rest = bool(s.delay_us.size) and (first <= dead_time if has_waveform
+                                                 else bool(s.attached[s.delay_us == first].all()))
     apply_findings(s, [] if s.meniscus_at_rest else
                    [Finding(q.NO_REST_MENISCUS, frames_of(s.attached), withheld=frozenset({Withheld.GROWN}))])
 
 
 def untrusted_frames(flags: list[list[str]]) -> list[Finding]:
-    """Frames whose intensities are not trusted (`dropvision.quality.UNTRUSTED_INTENSITY_FLAGS`): no number from them."""
+    """Frames whose intensities are not trusted (`dropvision.quality.UNTRUSTED_INTENSITY_FLAGS`): no number
+    from them."""
     bad = [any(f in UNTRUSTED_INTENSITY_FLAGS for f in fl) for fl in flags]
     return [Finding(frames=frames_of(bad), withheld=frozenset({Withheld.FRAME_NUMBERS}))] if any(bad) else []
 
@@ -296,7 +298,7 @@ def meniscus_source(s: SequenceValues, has_waveform: bool, dead_time: float) -> 
     """Where the initial meniscus volume comes from (the summary's ``initial_meniscus_source``)."""
     if not s.meniscus_at_rest:
         return schema.QUALITY_CODES[q.NO_REST_MENISCUS]
-    first = float(np.min(s.delay))
+    first = float(np.min(s.delay_us))
     if has_waveform:
         return f"attached volume of the first frame(s), delay {first:g} us <= dead time {dead_time:g} us"
     return f"attached volume of the first delay's frame(s), {first:g} us (no waveform: assumed at rest)"
@@ -317,7 +319,7 @@ def volume_uncertainties(s: SequenceValues, cal: Calibration) -> VolumeUncertain
     """The volumes' uncertainties: each frame's own (random part widened to the sequence's own
     scatter, `frame_scatter_ratio`; grown volumes `grown_uncertainty`), and a pixel size measured
     off the needle, which scales every volume by its cube."""
-    delay, attached = s.delay, s.attached
+    delay, attached = s.delay_us, s.attached
     att_vol, att_u = s.attached_nl, s.attached_u_nl
     att_common, att_plane = s.attached_common_u_nl, s.attached_plane_u_nl
     grown, meniscus = s.grown_nl, s.meniscus_nl
@@ -353,7 +355,7 @@ def frames_table(records: list[FrameRecord], s: SequenceValues, unc: VolumeUncer
     frames = pd.DataFrame({
         "file": [r.file for r in records],
         "page": pd.array([r.page for r in records], dtype="Int64"),
-        "delay_us": s.delay,
+        "delay_us": s.delay_us,
         "repeat": np.array([r.repeat for r in records], int),
         "attached": s.attached.astype(bool),
         "attached_volume_nl": s.attached_nl,
@@ -386,7 +388,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
                  errors: list[dict], meniscus_from: str) -> dict:
     """The summary (``schema_version`` `SCHEMA_VERSION`) of the worked-out values, before `withhold`."""
     drop, inflight, pinch = s.drop, s.drop.inflight, s.pinch_us
-    g_pinch = mean_at_last_attached_delay(s.grown_nl, s.delay, s.attached, pinch, skip_unmeasured=False)
+    g_pinch = mean_at_last_attached_delay(s.grown_nl, s.delay_us, s.attached, pinch, skip_unmeasured=False)
     inf_vol = drop.drop_volume_nl[inflight]
     traj = fit_line(drop.z_um[inflight], drop.x_um[inflight])
     sats = drop.n_satellites[inflight & np.isfinite(drop.n_satellites)]
@@ -400,7 +402,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
         "schema_version": SCHEMA_VERSION,
         "sequence": str(meta.path),
         "n_frames": int(len(meta.frames)),
-        "n_measured": int(s.delay.size),
+        "n_measured": int(s.delay_us.size),
         "pinchoff_us": pinch,
         "grown_volume_at_pinchoff_nl": g_pinch,
         "initial_meniscus_volume_nl": s.meniscus_nl,
@@ -409,7 +411,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
         "inflight_volume_std_nl": float(np.std(inf_vol, ddof=1)) if inf_vol.size >= 2 else float("nan"),
         "inflight_frames": int(inf_vol.size),
         "inflight_volume_uncertainty_nl": inflight_uncertainty(inf_vol, unc.drop_u_nl[inflight]),
-        "grown_volume_at_pinchoff_uncertainty_nl": (mean_at_last_attached_delay(unc.grown_u_nl, s.delay, s.attached,
+        "grown_volume_at_pinchoff_uncertainty_nl": (mean_at_last_attached_delay(unc.grown_u_nl, s.delay_us, s.attached,
                                                                                 pinch)
                                                     if np.isfinite(g_pinch) else float("nan")),
         "initial_meniscus_volume_uncertainty_nl": unc.meniscus_u_nl if s.meniscus_at_rest else float("nan"),
