@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
+from dropvision.robust import robust_sigma
 from dropvision.segmentation import fill_holes
 
 if TYPE_CHECKING:
@@ -273,7 +274,7 @@ def background_residual(mean: np.ndarray, valid: np.ndarray, background: np.ndar
     r = rel[ok]
     if r.size < 20:
         return 0.0
-    return float(1.4826 * np.median(np.abs(r - np.median(r))))
+    return robust_sigma(r)
 
 
 def clipped_fraction(background: np.ndarray, max_value: int | None) -> float:

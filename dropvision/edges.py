@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from dropvision.robust import robust_sigma
+
 #: Edge level used when nothing is known of the interior (an opaque interior, level 0).
 DEFAULT_EDGE_THRESHOLD = 0.5
 
@@ -277,8 +279,7 @@ def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: t
     # neighbouring samples along each side (the runs come in row order), both of them background
     d = np.concatenate([np.diff(t[:n])[bright[:n][1:] & bright[:n][:-1]],
                         np.diff(t[n:])[bright[n:][1:] & bright[n:][:-1]]])
-    noise = (float(1.4826 * np.median(np.abs(d - np.median(d))) / math.sqrt(2.0)) if d.size >= 10
-             else float("nan"))
+    noise = robust_sigma(d) / math.sqrt(2.0) if d.size >= 10 else float("nan")
     t = t[bright]
     if t.size == 0:
         return float("nan"), noise

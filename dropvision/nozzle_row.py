@@ -52,6 +52,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from dropvision.robust import robust_sigma
+
 #: A plate spans at least this fraction of the frame's top row.
 PLATE_MIN_WIDTH = 0.9
 #: ... and its lower edge is a straight line for at least this fraction of the columns (within 3 px).
@@ -486,7 +488,7 @@ def _robust_sd(x: np.ndarray) -> float:
     x = x[np.isfinite(x)]
     if x.size < 3:
         return float("nan")
-    return 1.4826 * float(np.median(np.abs(x - np.median(x))))
+    return robust_sigma(x)
 
 
 def _cv(x: np.ndarray, u: np.ndarray) -> tuple[float, float]:

@@ -22,6 +22,7 @@ import numpy as np
 
 import dropvision.quality as q
 from dropvision.config import MeasureConfig
+from dropvision.findings import Finding, frames_of
 from dropvision.frame import FrameRecord
 
 
@@ -99,9 +100,15 @@ class DropTrack:
     detached_volume_uncertainty_nl: np.ndarray | None = None
 
 
+#: The quality codes `track_main_drop` gives, in the order a frame gets them.
+TRACK_FLAGS = (q.DROP_LEAVES, q.OUT_OF_BAND, q.DUST_OVERLAP, q.AMBIGUOUS, q.NO_DROP, q.TAIL)
+#: A frame with one of these does not hold earlier frames out of flight by its tail.
+TAIL_IGNORED_FLAGS = q.UNTRUSTED_INTENSITY_FLAGS + (q.NEIGHBOURS,)
+
+
 def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: MeasureConfig,
-                    flags: list[list[str]]) -> DropTrack:
-    """The main drop of every frame, in flight or not; appends each frame's reasons to ``flags``.
+                    flags: list[list[str]]) -> tuple[DropTrack, list[Finding]]:
+    """The main drop of every frame, in flight or not, and each frame's reasons (as findings).
 
     Parameters
     ----------
@@ -111,11 +118,13 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     config : MeasureConfig
         ``ambiguous_gap_px``, ``compact_ratio``, ``tail_chord_ratio``.
     flags : list of list of str
-        Per-frame quality flags, extended in place.
+        Per-frame quality flags so far (read, not changed).
 
     Returns
     -------
     DropTrack
+    list of Finding
+        One per quality code of `TRACK_FLAGS` given (``tail`` only keeps a frame out of flight).
     """
     m = len(records)
     drop_vol = np.full(m, np.nan)
@@ -128,28 +137,21 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     inflight = np.zeros(m, bool)
     drop_u = np.full(m, np.nan)
     det_u = np.full(m, np.nan)
+    reasons: list[list[str]] = [[] for _ in range(m)]
     for k, r in enumerate(records):
         b = r.bodies[0] if r.bodies else None
         if attached[k]:
             det_vol[k] = det_u[k] = 0.0
             nsat[k] = 0
             if np.isfinite(r.neck_px) and r.neck_px < config.ambiguous_gap_px:
-                flags[k].append(q.AMBIGUOUS)
+                reasons[k].append(q.AMBIGUOUS)
             continue
         if b is None:
-            flags[k].append(q.NO_DROP)
+            reasons[k].append(q.NO_DROP)
             det_vol[k] = det_u[k] = 0.0
             continue
-        bad = []
-        if b.leaves:
-            bad.append(q.DROP_LEAVES)
-        if b.out_of_band:
-            bad.append(q.OUT_OF_BAND)
-        if b.on_dust:
-            bad.append(q.DUST_OVERLAP)
-        if np.isfinite(r.attached_bottom_row) and b.top_row - r.attached_bottom_row < config.ambiguous_gap_px + 1:
-            bad.append(q.AMBIGUOUS)
-        flags[k].extend(bad)
+        bad = main_drop_doubts(r, config)
+        reasons[k].extend(bad)
         others = r.bodies[1:]
         sat_bad = any(o.leaves or o.out_of_band or o.on_dust for o in others)
         if not bad:
@@ -167,18 +169,37 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             inflight[k] = (not b.elongated(config.compact_ratio)
                            and not (b.top_chord_ratio < config.tail_chord_ratio))
             if not inflight[k]:
-                flags[k].append(q.TAIL)
+                reasons[k].append(q.TAIL)
     # a tail merges once: a compact-looking drop before a later delay whose tail is still joined
     # (a bulb on the tail can pass for a round top) is not yet in flight
     delays = np.array([r.delay_us for r in records], float)
-    untrusted = (q.BLURRED, q.LOW_CONTRAST, q.SATURATED, q.ILLUMINATION, q.NEIGHBOURS, q.NOT_DROP_IMAGE)
-    tail = np.array([q.TAIL in fl and not any(f in fl for f in untrusted) for fl in flags], bool)
+    tail = np.array([q.TAIL in own and not any(f in fl for f in TAIL_IGNORED_FLAGS) for own, fl in zip(reasons, flags)],
+                    bool)
     if tail.any():
         early = inflight & (delays < delays[tail].max())
         for k in np.nonzero(early)[0]:
             inflight[k] = False
-            flags[k].append(q.TAIL)
-    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u)
+            reasons[k].append(q.TAIL)
+    found = [Finding(code, frames_of([code in own for own in reasons])) for code in TRACK_FLAGS
+             if any(code in own for own in reasons)]
+    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u), found
+
+
+def main_drop_doubts(record: FrameRecord, config: MeasureConfig) -> list[str]:
+    """Why a frame's main drop (its largest detached body) is not trusted, in `TRACK_FLAGS` order:
+    it leaves the field of view, leaves the measured band, overlaps dust, or its top lies within
+    ``config.ambiguous_gap_px`` + 1 px of the attached liquid's bottom (empty: trusted)."""
+    b = record.bodies[0]
+    bad = []
+    if b.leaves:
+        bad.append(q.DROP_LEAVES)
+    if b.out_of_band:
+        bad.append(q.OUT_OF_BAND)
+    if b.on_dust:
+        bad.append(q.DUST_OVERLAP)
+    if np.isfinite(record.attached_bottom_row) and b.top_row - record.attached_bottom_row < config.ambiguous_gap_px + 1:
+        bad.append(q.AMBIGUOUS)
+    return bad
 
 
 def neighbour_outliers(x, y, sigmas: float, floor: float) -> np.ndarray:

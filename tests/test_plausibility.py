@@ -201,13 +201,15 @@ def test_inner_diameter_not_smaller_than_outer_is_noted():
     from types import SimpleNamespace
 
     from dropvision.config import MeasureConfig
+    from dropvision.findings import Withheld
     from dropvision.plausibility import check_nozzle
 
-    notes, flags = [], [[]]
-    drop = SimpleNamespace(drop_volume_nl=np.array([1.0]))
+    drop = SimpleNamespace(drop_volume_nl=np.array([1.0, np.nan]))
     meta = SimpleNamespace(nozzle_inner_diameter_um=400.0, nozzle_outer_diameter_um=360.0)
-    assert check_nozzle(meta, drop, MeasureConfig(), flags, notes)
-    assert "inner diameter 400 um >= outer 360 um" in notes[0]
+    (found,) = check_nozzle(meta, drop, np.array([False, True]), MeasureConfig())
+    assert "inner diameter 400 um >= outer 360 um" in found.note
+    # the flow is withheld and the attached frame (whose flow it is) flagged, the 1 nl drop's frame not
+    assert found.withheld == {Withheld.FLOW} and found.frames == (1,) and found.flag == "implausible_physics"
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert MeasureConfig().max_jetting_velocity_m_s == 20.0

@@ -23,7 +23,8 @@ from dropvision.bodies import DetachedBody, measure_attached, off_path_reason
 from dropvision.blur import esf_sigma_px
 from dropvision.calibration_pass import attached_half_width_px
 from dropvision.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
-from dropvision.summary import frame_scatter_nl, frame_scatter_ratio, grown_uncertainty
+from dropvision.robust import robust_sigma
+from dropvision.summary import frame_scatter_ratio, grown_uncertainty
 from test_measure_draw import cylinder, render
 
 
@@ -343,22 +344,38 @@ def test_attached_half_width_hand_case():
 
 
 def test_frame_scatter_of_gaussian_noise_and_of_a_smooth_trend():
+    """With a modelled random part of 1 nl in every frame the ratio is the frames' own scatter in nl:
+    the robust spread of the second differences over sqrt(3/2)."""
     rng = np.random.default_rng(7)
     delay = np.repeat(np.arange(400.0), 5)
     noise = 0.02
     v = 1.0 + 0.003 * delay + rng.normal(0, noise, delay.size)
     perm = rng.permutation(delay.size)
     use = np.ones(delay.size, bool)
-    assert frame_scatter_nl(delay[perm], v[perm], use) == pytest.approx(noise, rel=0.06)
+    unit = np.ones(delay.size)
+    assert frame_scatter_ratio(delay[perm], v[perm], unit, use) == pytest.approx(noise, rel=0.06)
     smooth = 1.0 + 0.003 * np.arange(10.0)
-    assert frame_scatter_nl(np.arange(10.0), smooth, np.ones(10, bool)) == pytest.approx(0.0, abs=1e-12)
+    assert frame_scatter_ratio(np.arange(10.0), smooth, unit[:10], np.ones(10, bool)) == pytest.approx(0.0, abs=1e-12)
     # frames not used (an outlier, a NaN) are left out; fewer than 5 left: 0
     spoilt = smooth.copy()
     spoilt[4], spoilt[6] = 50.0, np.nan
     use = np.ones(10, bool)
     use[4] = False
-    assert frame_scatter_nl(np.arange(10.0), spoilt, use) == pytest.approx(0.0, abs=1e-12)
-    assert frame_scatter_nl(np.arange(4.0), np.array([0.0, 1.0, 0.0, 1.0]), np.ones(4, bool)) == 0.0
+    assert frame_scatter_ratio(np.arange(10.0), spoilt, unit[:10], use) == pytest.approx(0.0, abs=1e-12)
+    assert frame_scatter_ratio(np.arange(4.0), np.array([0.0, 1.0, 0.0, 1.0]), unit[:4], np.ones(4, bool)) == 0.0
+    # five frames, by hand: second differences v_k - (v_(k-1) + v_(k+1)) / 2 = 0, -0.75, 1.5 (each over
+    # sqrt(1 + 2/4) = sqrt(1.5)); median 0, absolute deviations 0, 0.75, 1.5: MAD 0.75
+    v5 = np.array([0.0, 0.0, 0.0, 1.5, 0.0])
+    assert frame_scatter_ratio(np.arange(5.0), v5, unit[:5], np.ones(5, bool)) == pytest.approx(
+        1.4826 * 0.75 / np.sqrt(1.5), rel=1e-12)
+
+
+def test_robust_sigma_by_hand():
+    """1.4826 x the median absolute deviation: [1, 2, 3, 4, 100] has median 3, deviations 2, 1, 0, 1, 97
+    (median 1), whatever the outlier's size."""
+    assert robust_sigma([1.0, 2.0, 3.0, 4.0, 100.0]) == pytest.approx(1.4826, rel=1e-15)
+    assert robust_sigma([1.0, 2.0, 3.0, 4.0, 1e9]) == pytest.approx(1.4826, rel=1e-15)
+    assert robust_sigma([5.0, 5.0, 5.0]) == 0.0
 
 
 def test_frame_scatter_ratio_is_the_noise_over_its_model():

@@ -104,7 +104,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "dark = ndtr((e_top - rows) / sigma_top_px)", "dark = ndtr((rows - e_top) / sigma_top_px)",
            STAGE, "upper end's tail in the wrong direction"),
     Mutant("frame_scatter_sqrt15", "dropvision/summary.py",
-           "np.median(np.abs(d2 - np.median(d2))) / np.sqrt(1.5))", "np.median(np.abs(d2 - np.median(d2))))",
+           "z = d2 / np.sqrt(r[1:-1] ** 2 + 0.25 * (r[:-2] ** 2 + r[2:] ** 2))", "z = d2 / r[1:-1]",
            STAGE, "frame scatter without the sqrt(3/2) of second differences"),
     Mutant("grown_r0_n0", "dropvision/summary.py",
            "+ rand ** 2 + r0 ** 2 / n0 + se ** 2)", "+ rand ** 2 + r0 ** 2 + se ** 2)",
@@ -269,6 +269,19 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("tabular_region_low_unchecked", "identify/tabular.py",
            "for i in np.flatnonzero(X[:, j] < self.low[j]):", "for i in np.flatnonzero(X[:, j] < -np.inf):",
            ("tests/test_tabular.py",), "an input below its training range is not flagged"),
+    # --- the sequence-level seams of issue 34 (findings applied in one place, the main-drop track) ---
+    Mutant("withheld_not_blanked", "dropvision/summary.py",
+           "            summary[key] = float(\"nan\")", "            pass",
+           ("tests/test_plausibility.py",), "a withheld summary value (pixel size lie, delay lie) still given"),
+    Mutant("finding_flag_dropped", "dropvision/summary.py",
+           "                    s.flags[k].append(f.flag)", "                    pass",
+           ("tests/test_plausibility.py",), "a check's quality code never reaches its frames"),
+    Mutant("tail_rule_trusts_all", "dropvision/tracking.py",
+           "TAIL_IGNORED_FLAGS = q.UNTRUSTED_INTENSITY_FLAGS + (q.NEIGHBOURS,)", "TAIL_IGNORED_FLAGS = ()",
+           ("tests/test_tracking.py",), "a tail in an untrusted frame holds the earlier drops out of flight"),
+    Mutant("line_se_dof", "dropvision/tracking.py",
+           "np.sqrt(np.sum(res**2) / (n - 2) / sxx)", "np.sqrt(np.sum(res**2) / n / sxx)",
+           ("tests/test_tracking.py",), "jetting velocity standard error with n instead of n - 2 degrees of freedom"),
 )
 
 
