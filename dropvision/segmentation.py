@@ -12,8 +12,8 @@ Static specks (opaque dust found during calibration) are removed from the dark m
 labelling, so they can never become liquid.
 
 `CLASS_*` are the class ids of the segmentation image shown by the Rerun viewer
-(`dropvision.bodies.class_image` assigns them per frame, `dropvision.app.rerun_log` colours and
-names them).  They follow the body classes of bodies.parquet (`dropvision.classify`) as far as
+(`dropvision.app.rerun_log.class_image` assigns them per frame, `dropvision.app.rerun_log` colours and
+names them).  They follow the body classes of bodies.parquet (`dropvision.bodies_table`) as far as
 one frame can tell: ``mist`` and ``dust`` are both `CLASS_OUT_OF_FOCUS` (dust is decided over
 the sequence: an out-of-focus body at the same place in half the frames), and ``noise`` (a
 detached body before the pinch-off, also a sequence-level decision) is drawn as the detached
