@@ -150,7 +150,7 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     """
     # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
     halo_px = 3.0 * max(ctx.sigma_px if np.isfinite(ctx.sigma_px) else 0.0, 0.5)
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
+    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
                     ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1),
                     bright_row_min=int(math.ceil(ctx.tip_roi + halo_px)) if np.isfinite(ctx.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
@@ -349,7 +349,7 @@ def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Da
     edges : RowEdges
     volume : BodyVolume
     """
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
+    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
                     ctx.threshold, gain)
     return ed, integrate(ed, ctx.tilt_rad, None, ctx.sigma_px)
 
@@ -416,7 +416,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         length_um=(volume.bottom_row - volume.top_row + 1) * px * cos_t,
         diameter_um=volume.max_chord_px * px * cos_t,
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
-        on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
+        on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
         row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
     )

@@ -93,7 +93,7 @@ def appearance(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, 
 def nozzle_edge_spread_px(roi: np.ndarray, inv_background: np.ndarray, labels: np.ndarray, body,
                           floor: float = 0.0) -> float:
     """Edge spread of the in-focus nozzle body (its walls and meniscus), the reference for mist."""
-    return appearance(roi, inv_background, labels, body.label, (body.x0, body.y0, body.x1, body.y1), 1.0,
+    return appearance(roi, inv_background, labels, body.label, body.bbox, 1.0,
                       floor=floor, skip_top_rows=2).edge_blur_px
 
 

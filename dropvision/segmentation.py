@@ -64,6 +64,11 @@ class DarkBody:
     area_px: int
     nozzle: bool
 
+    @property
+    def bbox(self) -> tuple[int, int, int, int]:
+        """``(x0, y0, x1, y1)``: the bounding box as the stages take it (half-open, region px)."""
+        return (self.x0, self.y0, self.x1, self.y1)
+
 
 @dataclass
 class Segmentation:

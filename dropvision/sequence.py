@@ -108,6 +108,25 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
 # Sequence
 # ----------------------------------------------------------------------------------------
 
+#: The frame the last opening of a sequence decoded (its probe), as its reader gave it, with the
+#: file's identity (path, page, device, inode, size, modification and change times): the next
+#: decode of that unchanged file takes a copy instead of decoding again. One frame per process.
+_PROBED: list = [None]
+_PROBED_LOCK = threading.Lock()
+
+
+def _probed_frame(key: tuple) -> np.ndarray | None:
+    """A copy of the kept probe frame when ``key`` is its file's identity, else None."""
+    with _PROBED_LOCK:
+        kept = _PROBED[0]
+    return kept[1].copy() if kept is not None and kept[0] == key else None
+
+
+def _keep_probed_frame(key: tuple, image: np.ndarray) -> None:
+    with _PROBED_LOCK:
+        _PROBED[0] = (key, image.copy())
+
+
 class Sequence:
     """An open strobe sequence: metadata in :attr:`meta`, frames decoded lazily.
 
@@ -222,7 +241,12 @@ class Sequence:
                                 f"{img.dtype} differs from the first frame's {self._dtype}")
         return Frame(ref, img, None)
 
-    def _decode(self, ref: FrameRef, *, warn: bool) -> np.ndarray:
+    def _decode(self, ref: FrameRef, *, warn: bool, keep: bool = False) -> np.ndarray:
+        """Frame ``ref`` decoded, grey, canonical. ``keep``: the opening's probe (`open_sequence`
+        decodes the first readable frame): the decoded frame is kept for the next decode of the
+        same unchanged file (`_probed_frame`), so that opening a sequence and reading its first
+        frame, or opening a folder again (the shot watch's check, then its measurement), decode
+        that image once."""
         path = self.meta.path / ref.file
         if ref.file in self._refused:
             raise UnreadableImage(self._refused[ref.file])
@@ -240,8 +264,13 @@ class Sequence:
             raise UnreadableImage("zero-byte file")
         reader = reader_for(path)
         self._check_header_size(reader, path, ref)
+        key = (str(path), ref.page, st.st_dev, st.st_ino, size, st.st_mtime_ns, st.st_ctime_ns)
         try:
-            img = self._decode_native(reader, path, ref)
+            img = _probed_frame(key)
+            if img is None:
+                img = self._decode_native(reader, path, ref)
+                if keep:
+                    _keep_probed_frame(key, img)
         except InvalidImage as exc:
             raise SequenceError(str(exc)) from None
         as_grey = isinstance(img, ColourLuma)  # the reader applied the grey rule itself
@@ -498,7 +527,7 @@ def _first_readable(probe: Sequence, refs: list[FrameRef]) -> tuple[np.ndarray, 
     try:
         for ref in refs:
             try:
-                return probe._decode(ref, warn=False), ref
+                return probe._decode(ref, warn=False, keep=True), ref
             except UnreadableImage as exc:
                 first_error = first_error or f"{probe.meta.path / ref.file}{_page_txt(ref)}: {exc}"
     finally:

@@ -517,3 +517,30 @@ def test_writer_rejects_bad_input(tmp_path):
         write_image(tmp_path / "a.png", _img(), page_description="{}")
     with pytest.raises(ValueError, match="one finite delay per page"):
         write_multipage_tiff(tmp_path / "s.tif", [_img(), _img()], [0.0])
+
+
+def test_opening_and_reading_the_first_frame_decode_it_once(tmp_path, monkeypatch):
+    """The opening's probe decodes the first frame; reading it, or opening the unchanged folder
+    again (the shot watch's check, then its measurement), takes that decode; a rewritten file
+    is decoded again (its identity changed)."""
+    import dropvision.sequence as S
+
+    images = _seq(tmp_path, ["a.png", "b.png"], [0.0, 10.0])
+    calls = []
+    native = S.Sequence._decode_native
+    monkeypatch.setattr(S.Sequence, "_decode_native", lambda self, r, p, ref: calls.append(ref.file) or native(self, r, p, ref))
+    with open_sequence(tmp_path) as seq:
+        first = seq.read(0).image
+        second = seq.read(1).image
+    with open_sequence(tmp_path) as seq:
+        again = seq.read(0).image
+    assert calls == ["a.png", "b.png"]
+    np.testing.assert_array_equal(first, images[0])
+    np.testing.assert_array_equal(again, images[0])
+    np.testing.assert_array_equal(second, images[1])
+    first[:] = 0  # a caller's copy: the kept frame is not changed through it
+    other = _img()
+    write_image(tmp_path / "a.png", other)
+    with open_sequence(tmp_path) as seq:
+        np.testing.assert_array_equal(seq.read(0).image, other)
+    assert calls == ["a.png", "b.png", "a.png"]

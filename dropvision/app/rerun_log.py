@@ -446,7 +446,7 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
     classes = np.zeros(len(seg.bodies) + 1, np.uint8)
     for b in seg.bodies:
-        found = parts.get((b.x0, b.y0, b.x1, b.y1))
+        found = parts.get(b.bbox)
         if b.nozzle:
             classes[b.label] = CLASS_ATTACHED if b is nozzle_body else CLASS_NOZZLE
         elif found:
@@ -457,7 +457,7 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
     labels = classes[seg.labels]
     boxes = []
     for b in seg.bodies:
-        bbox = (b.x0, b.y0, b.x1, b.y1)
+        bbox = b.bbox
         found = parts.get(bbox) if not b.nozzle else None
         if not found:
             boxes.append({"bbox": bbox, "class_id": int(classes[b.label])})
