@@ -88,9 +88,9 @@ def test_frames_list_pages_use_cached_tiff_and_close(tmp_path):
         {"file": "stack.tif", "page": 2, "delay_us": 5.0},
         {"file": "stack.tif", "page": 0, "delay_us": 7.0}]})
     seq = open_sequence(tmp_path)
-    np.testing.assert_array_equal(seq.read(0).image, pages[2])
-    assert "stack.tif" in seq.open_files
+    np.testing.assert_array_equal(seq.read(0).image, pages[2])  # the opening's probe decoded it
     np.testing.assert_array_equal(seq.read(1).image, pages[0])
+    assert "stack.tif" in seq.open_files
     seq.close()
     assert not seq.open_files
     np.testing.assert_array_equal(seq.read(1).image, pages[0])  # reopens after close
@@ -216,8 +216,10 @@ def test_open_decodes_only_first_frame(tmp_path, monkeypatch):
     seq = open_sequence(tmp_path)
     assert len(calls) == 1 and calls[0].endswith("f0.png")
     it = iter(seq)
+    next(it)  # the first frame: the opening's decode
+    assert len(calls) == 1
     next(it)
-    assert len(calls) == 2
+    assert len(calls) == 2 and calls[1].endswith("f1.png")
     it.close()
 
 
