@@ -5,14 +5,15 @@
 - `measure_attached`: its run edges cut at the tip plane, its volume below the tip plane, its
   bottom and its neck;
 - `measure_body` / `describe_detached`: a detached body's volume, position on the axis, size,
-  and whether it can be trusted (leaves the field of view or the measured band, overlaps dust);
-- `class_image`: the per-pixel segmentation classes (`dropvision.segmentation.CLASS_*`).
+  and whether it can be trusted (leaves the field of view or the measured band, overlaps dust).
+
+The per-pixel class image the viewer shows is drawn from these bodies by
+`dropvision.app.rerun_log.class_image`.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import cv2
@@ -20,15 +21,6 @@ import numpy as np
 
 from dropvision.context import FrameContext
 from dropvision.segmentation import (
-    CLASS_ATTACHED,
-    CLASS_BORDER,
-    CLASS_DROP,
-    CLASS_NOZZLE,
-    CLASS_OUT_OF_FOCUS,
-    CLASS_SATELLITE,
-    CLASS_SPECK,
-    CLASS_TAIL,
-    CLASS_TOUCHING,
     DarkBody,
     Segmentation,
     find_nozzle_body,
@@ -158,7 +150,7 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     """
     # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
     halo_px = 3.0 * max(ctx.sigma_px if np.isfinite(ctx.sigma_px) else 0.0, 0.5)
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
+    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
                     ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1),
                     bright_row_min=int(math.ceil(ctx.tip_roi + halo_px)) if np.isfinite(ctx.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
@@ -357,7 +349,7 @@ def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Da
     edges : RowEdges
     volume : BodyVolume
     """
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
+    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
                     ctx.threshold, gain)
     return ed, integrate(ed, ctx.tilt_rad, None, ctx.sigma_px)
 
@@ -424,102 +416,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         length_um=(volume.bottom_row - volume.top_row + 1) * px * cos_t,
         diameter_um=volume.max_chord_px * px * cos_t,
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
-        on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
+        on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
         row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
     )
-
-
-def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody] = (),
-                rejected: Sequence[DetachedBody] = (), opaque: np.ndarray | None = None, *,
-                compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
-    """Per-pixel segmentation classes and per-body boxes of one frame (for the Rerun viewer).
-
-    The classes follow the rules of bodies.parquet (`dropvision.classify`) as far as one frame
-    can tell (`dropvision.segmentation` says what each ``CLASS_*`` is).
-
-    Parameters
-    ----------
-    seg : Segmentation
-    nozzle_body : DarkBody or None
-        The body holding the attached liquid (`CLASS_ATTACHED`; other top bodies `CLASS_NOZZLE`).
-    bodies : sequence of DetachedBody
-        The frame's in-focus detached bodies, largest first (`FrameRecord.bodies`), matched to
-        the segmentation by their ``bbox``: cut by the frame or band (``leaves`` /
-        ``out_of_band``) `CLASS_BORDER`; the first `CLASS_DROP`; one with ``touching`` (split
-        off the main drop at a waist, same silhouette) `CLASS_TOUCHING` on its side of the
-        main drop's rows; longer than ``compact_ratio`` equivalent-sphere diameters `CLASS_TAIL`;
-        the others `CLASS_SATELLITE`.
-    rejected : sequence of DetachedBody
-        The out-of-focus bodies (`FrameRecord.rejected`): `CLASS_OUT_OF_FOCUS`.
-    opaque : ndarray of bool, optional
-        Static specks (`CLASS_SPECK` where no body is).
-    compact_ratio : float
-        ``MeasureConfig.compact_ratio``.
-
-    Returns
-    -------
-    labels : ndarray of uint8
-        Class id per region pixel.  A detached body in neither list (joined to the attached
-        liquid by a thread thinner than the blur) is `CLASS_ATTACHED`.
-    boxes : list of dict
-        ``{"bbox": (x0, y0, x1, y1), "class_id": int}`` per body (region coordinates, px,
-        half-open), with ``"volume_nl"`` for detached bodies; a split silhouette gives one box
-        per part, each around its own pixels.
-    """
-    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
-    for j, d in enumerate(bodies):
-        if d.leaves or d.out_of_band:
-            cls = CLASS_BORDER
-        elif j == 0:
-            cls = CLASS_DROP
-        elif d.touching:
-            cls = CLASS_TOUCHING
-        elif d.elongated(compact_ratio):
-            cls = CLASS_TAIL
-        else:
-            cls = CLASS_SATELLITE
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
-    for d in rejected:
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
-    classes = np.zeros(len(seg.bodies) + 1, np.uint8)
-    for b in seg.bodies:
-        found = parts.get((b.x0, b.y0, b.x1, b.y1))
-        if b.nozzle:
-            classes[b.label] = CLASS_ATTACHED if b is nozzle_body else CLASS_NOZZLE
-        elif found:
-            whole = [cls for d, cls in found if not d.touching]
-            classes[b.label] = whole[0] if whole else found[0][1]
-        else:
-            classes[b.label] = CLASS_ATTACHED
-    labels = classes[seg.labels]
-    boxes = []
-    for b in seg.bodies:
-        bbox = (b.x0, b.y0, b.x1, b.y1)
-        found = parts.get(bbox) if not b.nozzle else None
-        if not found:
-            boxes.append({"bbox": bbox, "class_id": int(classes[b.label])})
-            continue
-        if len(found) == 1:
-            d, cls = found[0]
-            boxes.append({"bbox": bbox, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
-            continue
-        # one silhouette, several parts (a satellite touching the main drop, split at the waist)
-        mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
-        sub = labels[b.y0:b.y1, b.x0:b.x1]
-        rows = np.arange(b.y0, b.y1)[:, None]
-        whole = next((d for d, _ in found if not d.touching), None)
-        for d, cls in found:
-            if d is whole or whole is None:
-                continue
-            side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
-            sub[mine & side] = cls
-        for d, cls in found:
-            rr, cc = np.nonzero(mine & (sub == cls))
-            box = bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
-                                              b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
-            boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
-    if opaque is not None:
-        labels[opaque & (labels == 0)] = CLASS_SPECK
-    return labels, boxes
-

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from identify.waveform import DEAD_TIME_US
+from dvcore.waveform import DEAD_TIME_US
 
 
 @dataclass(frozen=True)
@@ -68,7 +68,7 @@ class MeasureConfig:
         ``DROPVISION_NO_FORK=1`` keeps threads), threads otherwise. Same results either way.
     dead_time_us : float
         Default firing-trigger-to-piston delay (µs) when the waveform does not give one
-        (`identify.waveform.DEAD_TIME_US`).
+        (`dvcore.waveform.DEAD_TIME_US`).
 
     Plausibility of the input (a lie in the metadata is flagged and noted, never silent):
 

@@ -3,7 +3,7 @@
 - grown volume: attached volume minus the initial meniscus (mean attached volume of the frames
   at the first delay, which must show the meniscus at rest: see `dropvision.summary`);
 - flow velocity: central differences of the per-delay mean grown volume divided by the
-  nozzle's inner cross-section (`identify.ecm.flow_velocity_m_s`), NaN from the pinch-off on;
+  nozzle's inner cross-section (`dvcore.waveform.flow_velocity_m_s`), NaN from the pinch-off on;
   at one instant (maximum stroke) from a local quadratic fit (`flow_velocity_at`).
 """
 
@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from identify.ecm import flow_velocity_m_s
+from dvcore.waveform import flow_velocity_m_s
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
     import pandas as pd

@@ -28,7 +28,6 @@ import dvcore.process as _process
 from dropvision.bodies import (
     DetachedBody,
     body_volume_uncertainty_nl,
-    class_image,
     describe_detached,
     find_nozzle_body,
     measure_attached,
@@ -300,12 +299,10 @@ def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentat
     """Hand the frame's stages to a Rerun logger (only called when logging is on).
 
     The class image and body boxes follow bodies.parquet's rules as far as one frame can tell
-    (`dropvision.bodies.class_image`): mist and dust both as out of focus (``rec.rejected``).
+    (`dropvision.app.rerun_log.class_image`): mist and dust both as out of focus (``rec.rejected``).
     """
     from dropvision.config import MeasureConfig  # the default when the context has no compact_ratio
 
-    labels, boxes = class_image(seg, nozzle_body, rec.bodies, rec.rejected, ctx.opaque,
-                                compact_ratio=getattr(ctx, "compact_ratio", MeasureConfig.compact_ratio))
     t_full = image.astype(np.float32)
     t_full[ctx.r0:, ctx.c0:ctx.c1] *= ctx.inv_background
     pts = []
@@ -316,7 +313,9 @@ def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentat
     t_roi = t_full[ctx.r0:, ctx.c0:ctx.c1]
     t_full = np.ones_like(t_full)
     t_full[ctx.r0:, ctx.c0:ctx.c1] = t_roi
-    logger.log_frame(ref, image, t_full, labels, edges, boxes, None, roi_origin_xy=(ctx.c0, ctx.r0))
+    logger.log_measured_frame(ref, image, t_full, seg, nozzle_body, rec.bodies, rec.rejected, ctx.opaque, edges,
+                              compact_ratio=getattr(ctx, "compact_ratio", MeasureConfig.compact_ratio),
+                              roi_origin_xy=(ctx.c0, ctx.r0))
 
 
 #: Fewest frames for which `stream_frames` forks worker processes (below, threads: forking two

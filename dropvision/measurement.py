@@ -29,7 +29,7 @@ import numpy as np
 
 import dropvision.quality as q
 from dropvision.config import MeasureConfig
-from dropvision.classify import bodies_table
+from dropvision.bodies_table import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
@@ -44,7 +44,7 @@ if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
 @dataclass
 class MeasureResult:
     """Frame table, body table and summary of one sequence (see `dropvision.summary`,
-    `dropvision.classify`)."""
+    `dropvision.bodies_table`)."""
 
     frames: pd.DataFrame
     summary: dict

@@ -15,7 +15,7 @@ from dvcore.schema import RANGES
 from dropvision.orientation import ORIENTATIONS
 from dropvision.readers.base import is_number
 from dropvision.sequence_meta import SequenceError
-from identify.waveform import (
+from dvcore.waveform import (
     DEAD_TIME_US, HOLD_PRESET_US, U3_PRESET_UM_PER_MS, Waveform, drive_from_document, template_from_dict,
 )
 
@@ -123,7 +123,7 @@ def validate_waveform(value, where: str) -> dict | None:
 
 def _validate_template_waveform(value: dict, where: str) -> dict:
     """The template form of sequence.json's ``waveform`` (`dvcore.schema.WAVEFORM`): checked by
-    `identify.waveform.drive_from_document` and returned complete (constants and dead time filled
+    `dvcore.waveform.drive_from_document` and returned complete (constants and dead time filled
     in); a paper-form key beside ``template`` is refused rather than ignored. The trapezoid template
     comes back in the paper's flat form (``u1_um_per_ms``, ``u2_um``, ``u3_um_per_ms``, ``hold_us``,
     ``dead_time_us``), the one form the campaign and the summary read (u1, u2) from.

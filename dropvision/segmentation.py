@@ -12,8 +12,8 @@ Static specks (opaque dust found during calibration) are removed from the dark m
 labelling, so they can never become liquid.
 
 `CLASS_*` are the class ids of the segmentation image shown by the Rerun viewer
-(`dropvision.bodies.class_image` assigns them per frame, `dropvision.app.rerun_log` colours and
-names them).  They follow the body classes of bodies.parquet (`dropvision.classify`) as far as
+(`dropvision.app.rerun_log.class_image` assigns them per frame, `dropvision.app.rerun_log` colours and
+names them).  They follow the body classes of bodies.parquet (`dropvision.bodies_table`) as far as
 one frame can tell: ``mist`` and ``dust`` are both `CLASS_OUT_OF_FOCUS` (dust is decided over
 the sequence: an out-of-focus body at the same place in half the frames), and ``noise`` (a
 detached body before the pinch-off, also a sequence-level decision) is drawn as the detached
@@ -63,6 +63,11 @@ class DarkBody:
     y1: int
     area_px: int
     nozzle: bool
+
+    @property
+    def bbox(self) -> tuple[int, int, int, int]:
+        """``(x0, y0, x1, y1)``: the bounding box as the stages take it (half-open, region px)."""
+        return (self.x0, self.y0, self.x1, self.y1)
 
 
 @dataclass

@@ -40,14 +40,16 @@ from dropvision.discovery import (is_regular_file, list_from_folder, list_from_f
                                   outside_folder,
                                   parse_delay_from_name, read_frame_rate, refusal_reason)
 from dropvision.labels import check_one_series
-from dropvision.orientation import ORIENTATIONS, original_to_canonical, swaps_axes, to_canonical
+from dropvision.orientation import (ORIENTATIONS, orientation_of_stored_frame, original_to_canonical, swaps_axes,
+                                    to_canonical)
 from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none,
                                   merge_overrides, ranged_value, validate_diameters, validate_ink, validate_waveform)
 import dropvision.readers.base as readers_base
 from dropvision.readers.base import ColourLuma, is_number
 from dvcore.jsonio import load_json_hardened
 from dvcore.schema import RANGES
-from dropvision.sequence_meta import Frame, FrameRef, RGBConvertedWarning, SequenceError, SequenceMeta
+from dropvision.sequence_meta import (NOZZLE_PIXEL_SIZE_SOURCE, Frame, FrameRef, RGBConvertedWarning, SequenceError,
+                                      SequenceMeta)
 
 __all__ = [
     "SCHEMA", "SEQUENCE_JSON", "ORIENTATIONS", "SequenceError", "RGBConvertedWarning",
@@ -105,6 +107,25 @@ def _to_grey(img: np.ndarray, name: str, bgr: bool, warn: bool) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 # Sequence
 # ----------------------------------------------------------------------------------------
+
+#: The frame the last opening of a sequence decoded (its probe), as its reader gave it, with the
+#: file's identity (path, page, device, inode, size, modification and change times): the next
+#: decode of that unchanged file takes a copy instead of decoding again. One frame per process.
+_PROBED: list = [None]
+_PROBED_LOCK = threading.Lock()
+
+
+def _probed_frame(key: tuple) -> np.ndarray | None:
+    """A copy of the kept probe frame when ``key`` is its file's identity, else None."""
+    with _PROBED_LOCK:
+        kept = _PROBED[0]
+    return kept[1].copy() if kept is not None and kept[0] == key else None
+
+
+def _keep_probed_frame(key: tuple, image: np.ndarray) -> None:
+    with _PROBED_LOCK:
+        _PROBED[0] = (key, image.copy())
+
 
 class Sequence:
     """An open strobe sequence: metadata in :attr:`meta`, frames decoded lazily.
@@ -220,7 +241,12 @@ class Sequence:
                                 f"{img.dtype} differs from the first frame's {self._dtype}")
         return Frame(ref, img, None)
 
-    def _decode(self, ref: FrameRef, *, warn: bool) -> np.ndarray:
+    def _decode(self, ref: FrameRef, *, warn: bool, keep: bool = False) -> np.ndarray:
+        """Frame ``ref`` decoded, grey, canonical. ``keep``: the opening's probe (`open_sequence`
+        decodes the first readable frame): the decoded frame is kept for the next decode of the
+        same unchanged file (`_probed_frame`), so that opening a sequence and reading its first
+        frame, or opening a folder again (the shot watch's check, then its measurement), decode
+        that image once."""
         path = self.meta.path / ref.file
         if ref.file in self._refused:
             raise UnreadableImage(self._refused[ref.file])
@@ -238,8 +264,13 @@ class Sequence:
             raise UnreadableImage("zero-byte file")
         reader = reader_for(path)
         self._check_header_size(reader, path, ref)
+        key = (str(path), ref.page, st.st_dev, st.st_ino, size, st.st_mtime_ns, st.st_ctime_ns)
         try:
-            img = self._decode_native(reader, path, ref)
+            img = _probed_frame(key)
+            if img is None:
+                img = self._decode_native(reader, path, ref)
+                if keep:
+                    _keep_probed_frame(key, img)
         except InvalidImage as exc:
             raise SequenceError(str(exc)) from None
         as_grey = isinstance(img, ColourLuma)  # the reader applied the grey rule itself
@@ -298,6 +329,232 @@ def _where(ref: FrameRef) -> str:
 
 
 # ----------------------------------------------------------------------------------------
+# open_sequence, step by step: the folder, its document (sequence.json merged with the
+# overrides), the document's keys validated, the frames listed and ordered, the pixel size
+# given, the first readable frame probed, its bit depth.
+# ----------------------------------------------------------------------------------------
+
+
+def _sequence_folder(path) -> Path:
+    """The sequence folder of ``path`` (a folder or its sequence.json), absolute; SequenceError
+    when it is missing or no folder."""
+    folder = Path(path)
+    if folder.name == SEQUENCE_JSON and folder.is_file():
+        folder = folder.parent
+    folder = folder.absolute()
+    if not folder.exists():
+        raise SequenceError(f"{folder}: sequence folder does not exist")
+    if not folder.is_dir():
+        raise SequenceError(f"{folder}: not a folder (a sequence is a folder with sequence.json "
+                            "and images)")
+    return folder
+
+
+@dataclasses.dataclass(frozen=True)
+class _Document:
+    """A sequence folder's document: sequence.json as read (``file_doc``, None without one) and
+    merged with the overrides (``doc``, None when neither gives anything), and where each
+    overridden key came from (``wheres``)."""
+
+    folder: Path
+    folder_real: str
+    json_path: Path
+    file_doc: dict | None
+    doc: dict | None
+    wheres: dict
+
+    def where_of(self, *keys: str) -> str:
+        """Where the first of ``keys`` that was overridden came from, else sequence.json's path."""
+        return next((self.wheres[k] for k in keys if k in self.wheres), str(self.json_path))
+
+    def source_of(self, key: str) -> str | None:
+        """``SequenceMeta.sources`` of a key: the override's label, sequence.json, or None."""
+        if key in self.wheres:
+            return self.wheres[key]
+        return SEQUENCE_JSON if self.file_doc is not None and self.file_doc.get(key) is not None else None
+
+
+def _read_document(folder: Path, given: dict, labels: dict, ignore_sequence_json: bool,
+                   allow_outside_links: bool) -> _Document:
+    """Read sequence.json (refused when linked outside the folder) and merge the overrides."""
+    json_path = folder / SEQUENCE_JSON
+    folder_real = os.path.realpath(folder)
+    json_exists = not ignore_sequence_json and is_regular_file(json_path)
+    if json_exists and not allow_outside_links:
+        target = outside_folder(folder_real, json_path)
+        if target is not None:
+            raise SequenceError(f"{json_path}: {refusal_reason(target)}")
+    file_doc = load_json_hardened(json_path, SequenceError) if json_exists else None
+    doc, wheres = merge_overrides(file_doc, given, labels, json_path)
+    return _Document(folder, folder_real, json_path, file_doc, doc, wheres)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Keys:
+    """The validated keys of a sequence's document (defaults without one)."""
+
+    orientation: str = "down"
+    orientation_given: bool = False
+    bit_depth: int | None = None
+    d_in: float | None = None
+    d_out: float | None = None
+    tip_row: float | None = None
+    axis_col: float | None = None
+    waveform: dict | None = None
+    ink: dict | None = None
+    extra: dict = dataclasses.field(default_factory=dict)
+
+
+def _document_keys(d: _Document) -> _Keys:
+    """Validate the document's schema, orientation, bit depth, diameters, nozzle position,
+    waveform and ink (SequenceError naming where each came from)."""
+    doc = d.doc
+    if doc is None:
+        return _Keys()
+    schema = doc.get("schema")
+    schema = SCHEMA if schema is None else schema  # null means absent
+    if schema != SCHEMA:
+        raise SequenceError(f"{d.json_path}: unsupported schema {schema!r} (expected {SCHEMA!r})")
+    orientation = doc.get("orientation")
+    orientation = "down" if orientation is None else orientation  # null means absent
+    orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
+    if orientation not in ORIENTATIONS:
+        raise SequenceError(f"{d.where_of('orientation')}: orientation must be one of {ORIENTATIONS}, "
+                            f"got {doc.get('orientation')!r}")
+    bit_depth_key = doc.get("bit_depth")
+    if bit_depth_key is not None and (not is_number(bit_depth_key)
+                                      or bit_depth_key not in (8, 12, 16)):
+        raise SequenceError(f"{d.json_path}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
+    d_in, d_out = validate_diameters(doc.get("nozzle_inner_diameter_um"), doc.get("nozzle_outer_diameter_um"),
+                                     d.where_of("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"))
+    tip_row = finite_or_none(doc.get("nozzle_tip_row"), "nozzle_tip_row", d.where_of("nozzle_tip_row"))
+    axis_col = finite_or_none(doc.get("axis_col"), "axis_col", d.where_of("axis_col"))
+    waveform = validate_waveform(doc.get("waveform"), d.where_of("waveform"))
+    ink = validate_ink(doc.get("ink"), d.where_of("ink"))
+    extra = {k: v for k, v in doc.items() if k not in _KNOWN_KEYS}
+    return _Keys(orientation, doc.get("orientation") is not None, bit_depth_key, d_in, d_out, tip_row, axis_col,
+                 waveform, ink, extra)
+
+
+def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: bool, only_files
+                 ) -> tuple[list, str]:
+    """The listed frames (a recording at frame_rate_hz, sequence.json's frames, or the folder's
+    images) with their delays, and where the delays come from (``sources["delay"]``)."""
+    doc, folder = d.doc, d.folder
+    only = None if only_files is None else frozenset(str(f) for f in only_files)
+    rate = read_frame_rate(doc, d.where_of("frame_rate_hz")) if doc is not None else None
+    if rate is not None:
+        listed = list_from_rate(folder, doc.get("video"), rate, d.json_path, d.folder_real,
+                                refused, allow_outside_links, only)
+        if doc.get("video") is None:  # images of other settings (labels in their names) are no recording
+            check_one_series([item.file for item in listed], folder)
+        delay_source = f"frame_rate_hz ({d.source_of('frame_rate_hz')})"
+    elif doc is not None and doc.get("frames") is not None:
+        listed = list_from_frames(folder, doc["frames"], d.json_path, d.folder_real, refused,
+                                  allow_outside_links, only)
+        delay_source = "sequence.json frames (or the file names they list)"
+    else:
+        listed = list_from_folder(folder, d.folder_real, refused, allow_outside_links,
+                                  lone_ok=True, only=only)
+        delay_source = "file names or image metadata"
+    if "delay_us" in given:
+        if len(listed) != 1:
+            raise SequenceError(f"{d.wheres['delay_us']}: the delay of a single frame, but {folder} has "
+                                f"{len(listed)} frames (their delays come from the file names, a "
+                                "frames list or frame_rate_hz)")
+        listed[0].delay_us = given["delay_us"]
+        delay_source = d.wheres["delay_us"]
+    elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
+        listed[0].delay_us = 0.0
+        delay_source = ("assumed 0 us: one frame without a delay in its name or metadata "
+                        "(give it with --delay-us or sequence.json frames)")
+    return listed, delay_source
+
+
+def _given_pixel_size(d: _Document, listed: list, refused: dict, d_out: float | None, require_pixel_size: bool
+                      ) -> tuple[float | None, str | None]:
+    """The pixel size and its source: option, sequence.json, else the metadata of the first
+    listed file of a type that may store it (scientific TIFF); None when it is to come from the
+    nozzle's outer diameter (after the probe), NaN when not required; else SequenceError."""
+    doc, folder = d.doc, d.folder
+    if doc is not None and doc.get("pixel_size_um") is not None:
+        pixel_size_um = ranged_value(doc["pixel_size_um"], "pixel_size_um", "pixel_size_um",
+                                     d.where_of("pixel_size_um"))
+        return pixel_size_um, d.wheres.get("pixel_size_um", "sequence.json")
+    pixel_size_um, source = None, "sequence.json"
+    first_sized = next((item.file for item in listed if item.file not in refused
+                        and reader_for(item.file).stores_pixel_size), None)
+    if first_sized is not None:
+        try:
+            pixel_size_um, source = reader_for(first_sized).pixel_size(folder / first_sized)
+        except InvalidImage as exc:
+            raise SequenceError(str(exc)) from None
+    if pixel_size_um is not None:
+        pixel_size_um = ranged_value(pixel_size_um, "pixel_size_um",
+                                     f"pixel size from the {source} metadata",
+                                     str(folder / first_sized))
+    elif not require_pixel_size:
+        pixel_size_um, source = math.nan, None
+    elif d_out is None:
+        hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
+                "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")
+        if d.file_doc is None:
+            raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
+                                f"the images carry no pixel size{hint}")
+        raise SequenceError(f"{d.json_path}: pixel_size_um is missing (required: pixel size in "
+                            f"µm, a number > 0){hint}")
+    return pixel_size_um, source
+
+
+def _frame_refs(listed: list) -> tuple[list[FrameRef], bool]:
+    """The frames in processing order (ascending delay, stable: listed order, then page), each
+    with its repeat number at its delay, and whether that order differs from the listed one."""
+    order = sorted(range(len(listed)), key=lambda i: listed[i].delay_us)
+    repeats: Counter = Counter()
+    refs = []
+    for index, i in enumerate(order):
+        item = listed[i]
+        key = round(item.delay_us, 6)
+        refs.append(FrameRef(index, item.file, item.page, item.delay_us, repeats[key], i))
+        repeats[key] += 1
+    return refs, order != list(range(len(listed)))
+
+
+def _first_readable(probe: Sequence, refs: list[FrameRef]) -> tuple[np.ndarray, FrameRef]:
+    """The first frame (processing order) that decodes, as stored, and its reference (the probe
+    is closed); SequenceError naming the first problem when none does."""
+    first_error = None
+    try:
+        for ref in refs:
+            try:
+                return probe._decode(ref, warn=False, keep=True), ref
+            except UnreadableImage as exc:
+                first_error = first_error or f"{probe.meta.path / ref.file}{_page_txt(ref)}: {exc}"
+    finally:
+        probe.close()
+    raise SequenceError(f"{probe.meta.path}: no readable image among {len(refs)} frame(s) "
+                        f"(first problem: {first_error})")
+
+
+def _bit_depth(d: _Document, bit_depth_key: int | None, first_img: np.ndarray, first_ref: FrameRef
+               ) -> tuple[int, str | None]:
+    """The bit depth (8, 12 or 16) and, when the images tell it, what told it (None: the
+    document's)."""
+    first_path = d.folder / first_ref.file
+    if first_img.dtype == np.uint8:
+        if bit_depth_key not in (None, 8):
+            raise SequenceError(f"{d.where_of('bit_depth')}: bit_depth {bit_depth_key} but {first_path} is 8-bit")
+        return 8, "8-bit images"
+    if bit_depth_key is not None:
+        return int(bit_depth_key), None
+    hint = reader_for(first_path).significant_bits(first_path, first_ref.page)
+    bit_depth = hint if hint is not None and 8 < hint <= 16 else 16
+    bit_depth = 12 if 8 < bit_depth <= 12 else 16  # report 8, 12 or 16
+    return bit_depth, ("significant bits in the image header" if hint is not None and 8 < hint <= 16
+                       else "16-bit images")
+
+
+# ----------------------------------------------------------------------------------------
 # open_sequence
 # ----------------------------------------------------------------------------------------
 
@@ -353,213 +610,55 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     Notes
     -----
     Without an ``orientation`` (file or option) the orientation is detected from the first
-    frame (`dropvision.inspection.detect_orientation`); a frame that does not tell keeps
+    frame (`dropvision.orientation.detect_orientation`); a frame that does not tell keeps
     ``"down"``, and ``sources["orientation"]`` says what was seen at each edge. A folder of
     ONE image without a delay in its name or metadata gets ``delay_us`` (option) or 0 µs,
     stated in ``sources["delay"]``.
     """
     labels = dict(labels or {})
     given = check_overrides(overrides, labels)
-    folder = Path(path)
-    if folder.name == SEQUENCE_JSON and folder.is_file():
-        folder = folder.parent
-    folder = folder.absolute()
-    if not folder.exists():
-        raise SequenceError(f"{folder}: sequence folder does not exist")
-    if not folder.is_dir():
-        raise SequenceError(f"{folder}: not a folder (a sequence is a folder with sequence.json "
-                            "and images)")
-    json_path = folder / SEQUENCE_JSON
-    folder_real = os.path.realpath(folder)
+    d = _read_document(_sequence_folder(path), given, labels, ignore_sequence_json, allow_outside_links)
+    keys = _document_keys(d)
+    sources = {"pixel_size": None, "orientation": d.source_of("orientation"),
+               "nozzle_outer_diameter": d.source_of("nozzle_outer_diameter_um"),
+               "nozzle_inner_diameter": d.source_of("nozzle_inner_diameter_um"), "delay": None,
+               "waveform": d.source_of("waveform"), "bit_depth": d.source_of("bit_depth")}
     refused: dict[str, str] = {}
-    json_exists = not ignore_sequence_json and is_regular_file(json_path)
-    if json_exists and not allow_outside_links:
-        target = outside_folder(folder_real, json_path)
-        if target is not None:
-            raise SequenceError(f"{json_path}: {refusal_reason(target)}")
-    file_doc = load_json_hardened(json_path, SequenceError) if json_exists else None
-    doc, wheres = merge_overrides(file_doc, given, labels, json_path)
-    sources = {"pixel_size": None, "orientation": None, "nozzle_outer_diameter": None,
-               "nozzle_inner_diameter": None, "delay": None, "waveform": None, "bit_depth": None}
-
-    def where_of(*keys: str) -> str:
-        return next((wheres[k] for k in keys if k in wheres), str(json_path))
-
-    def source_of(key: str) -> str | None:
-        if key in wheres:
-            return wheres[key]
-        return SEQUENCE_JSON if file_doc is not None and file_doc.get(key) is not None else None
-
-    orientation_given = doc is not None and doc.get("orientation") is not None
-    if doc is not None:
-        schema = doc.get("schema")
-        schema = SCHEMA if schema is None else schema  # null means absent
-        if schema != SCHEMA:
-            raise SequenceError(f"{json_path}: unsupported schema {schema!r} (expected {SCHEMA!r})")
-        orientation = doc.get("orientation")
-        orientation = "down" if orientation is None else orientation  # null means absent
-        orientation = orientation.strip().lower() if isinstance(orientation, str) else orientation
-        if orientation not in ORIENTATIONS:
-            raise SequenceError(f"{where_of('orientation')}: orientation must be one of {ORIENTATIONS}, "
-                                f"got {doc.get('orientation')!r}")
-        bit_depth_key = doc.get("bit_depth")
-        if bit_depth_key is not None and (not is_number(bit_depth_key)
-                                          or bit_depth_key not in (8, 12, 16)):
-            raise SequenceError(f"{json_path}: bit_depth must be 8, 12 or 16, got {bit_depth_key!r}")
-        d_in, d_out = validate_diameters(doc.get("nozzle_inner_diameter_um"), doc.get("nozzle_outer_diameter_um"),
-                                 where_of("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"))
-        tip_row = finite_or_none(doc.get("nozzle_tip_row"), "nozzle_tip_row", where_of("nozzle_tip_row"))
-        axis_col = finite_or_none(doc.get("axis_col"), "axis_col", where_of("axis_col"))
-        waveform = validate_waveform(doc.get("waveform"), where_of("waveform"))
-        ink = validate_ink(doc.get("ink"), where_of("ink"))
-        extra = {k: v for k, v in doc.items() if k not in _KNOWN_KEYS}
-    else:
-        orientation, bit_depth_key, d_in, d_out = "down", None, None, None
-        tip_row = axis_col = waveform = ink = None
-        extra = {}
-    sources.update(orientation=source_of("orientation"),
-                   nozzle_outer_diameter=source_of("nozzle_outer_diameter_um"),
-                   nozzle_inner_diameter=source_of("nozzle_inner_diameter_um"),
-                   waveform=source_of("waveform"), bit_depth=source_of("bit_depth"))
-
-    only = None if only_files is None else frozenset(str(f) for f in only_files)
-    rate = read_frame_rate(doc, where_of("frame_rate_hz")) if doc is not None else None
-    if rate is not None:
-        listed = list_from_rate(folder, doc.get("video"), rate, json_path, folder_real,
-                                   refused, allow_outside_links, only)
-        if doc.get("video") is None:  # images of other settings (labels in their names) are no recording
-            check_one_series([item.file for item in listed], folder)
-        sources["delay"] = f"frame_rate_hz ({source_of('frame_rate_hz')})"
-    elif doc is not None and doc.get("frames") is not None:
-        listed = list_from_frames(folder, doc["frames"], json_path, folder_real, refused,
-                                     allow_outside_links, only)
-        sources["delay"] = "sequence.json frames (or the file names they list)"
-    else:
-        listed = list_from_folder(folder, folder_real, refused, allow_outside_links,
-                                     lone_ok=True, only=only)
-        sources["delay"] = "file names or image metadata"
-    if "delay_us" in given:
-        if len(listed) != 1:
-            raise SequenceError(f"{wheres['delay_us']}: the delay of a single frame, but {folder} has "
-                                f"{len(listed)} frames (their delays come from the file names, a "
-                                "frames list or frame_rate_hz)")
-        listed[0].delay_us = given["delay_us"]
-        sources["delay"] = wheres["delay_us"]
-    elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
-        listed[0].delay_us = 0.0
-        sources["delay"] = ("assumed 0 us: one frame without a delay in its name or metadata "
-                            "(give it with --delay-us or sequence.json frames)")
-
-    # pixel size: option, sequence.json, else the metadata of the first listed file of a type
-    # that may store it (scientific TIFF), else the nozzle's outer diameter (after the probe)
-    pixel_size_um, source = None, "sequence.json"
-    if doc is not None and doc.get("pixel_size_um") is not None:
-        pixel_size_um = ranged_value(doc["pixel_size_um"], "pixel_size_um", "pixel_size_um",
-                                where_of("pixel_size_um"))
-        source = wheres.get("pixel_size_um", "sequence.json")
-    else:
-        first_sized = next((item.file for item in listed if item.file not in refused
-                            and reader_for(item.file).stores_pixel_size), None)
-        if first_sized is not None:
-            try:
-                pixel_size_um, source = reader_for(first_sized).pixel_size(folder / first_sized)
-            except InvalidImage as exc:
-                raise SequenceError(str(exc)) from None
-        if pixel_size_um is not None:
-            pixel_size_um = ranged_value(pixel_size_um, "pixel_size_um",
-                                    f"pixel size from the {source} metadata",
-                                    str(folder / first_sized))
-        elif not require_pixel_size:
-            pixel_size_um, source = math.nan, None
-        elif d_out is None:
-            hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
-                    "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")
-            if file_doc is None:
-                raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
-                                    f"the images carry no pixel size{hint}")
-            raise SequenceError(f"{json_path}: pixel_size_um is missing (required: pixel size in "
-                                f"µm, a number > 0){hint}")
-
-    # processing order: ascending delay, stable (listed order, then page)
-    order = sorted(range(len(listed)), key=lambda i: listed[i].delay_us)
-    reordered = order != list(range(len(listed)))
-    repeats: Counter = Counter()
-    refs = []
-    for index, i in enumerate(order):
-        item = listed[i]
-        key = round(item.delay_us, 6)
-        refs.append(FrameRef(index, item.file, item.page, item.delay_us, repeats[key], i))
-        repeats[key] += 1
+    listed, sources["delay"] = _list_frames(d, given, refused, allow_outside_links, only_files)
+    pixel_size_um, source = _given_pixel_size(d, listed, refused, keys.d_out, require_pixel_size)
+    refs, reordered = _frame_refs(listed)
 
     # probe: first readable frame (processing order) gives shape, type, bit depth; without a
     # given orientation it is probed as stored and the orientation is detected from it
-    probe_meta = SequenceMeta(folder, pixel_size_um or 1.0, d_in, d_out, None, None,
-                              orientation if orientation_given else "down",
-                              waveform, ink, tuple(refs), (0, 0), 0, reordered, extra, source)
-    probe = Sequence(probe_meta, np.uint8, refused)
-    first_img, first_ref, first_error = None, None, None
-    try:
-        for ref in refs:
-            try:
-                first_img = probe._decode(ref, warn=False)
-                first_ref = ref
-                break
-            except UnreadableImage as exc:
-                first_error = first_error or f"{folder / ref.file}{_page_txt(ref)}: {exc}"
-    finally:
-        probe.close()
-    if first_img is None:
-        raise SequenceError(f"{folder}: no readable image among {len(refs)} frame(s) "
-                            f"(first problem: {first_error})")
-    if not orientation_given:
-        from dropvision.inspection import detect_orientation  # cv2 work only when needed
-
-        guess = detect_orientation(first_img)
-        if guess.orientation is not None:
-            orientation = guess.orientation
-            sources["orientation"] = f"detected in {first_ref.file}: {guess.reason}"
-        else:
-            sources["orientation"] = (f"default (down): not detected in {first_ref.file}, {guess.reason}"
-                                      + (f" ({guess.edges_text()})" if guess.edges else ""))
+    probe_meta = SequenceMeta(d.folder, pixel_size_um or 1.0, keys.d_in, keys.d_out, None, None,
+                              keys.orientation if keys.orientation_given else "down",
+                              keys.waveform, keys.ink, tuple(refs), (0, 0), 0, reordered, keys.extra, source)
+    first_img, first_ref = _first_readable(Sequence(probe_meta, np.uint8, refused), refs)
+    orientation = keys.orientation
+    if not keys.orientation_given:
+        orientation, sources["orientation"] = orientation_of_stored_frame(first_img, first_ref.file, orientation)
         first_img = to_canonical(first_img, orientation)
     canonical_shape = tuple(int(n) for n in first_img.shape)
     original_shape = (canonical_shape if not swaps_axes(orientation)
                       else canonical_shape[::-1])
-
-    first_path = folder / first_ref.file
-    if first_img.dtype == np.uint8:
-        if bit_depth_key not in (None, 8):
-            raise SequenceError(f"{where_of('bit_depth')}: bit_depth {bit_depth_key} but {first_path} is 8-bit")
-        bit_depth = 8
-        sources["bit_depth"] = sources["bit_depth"] or "8-bit images"
-    elif bit_depth_key is not None:
-        bit_depth = int(bit_depth_key)
-    else:
-        hint = reader_for(first_path).significant_bits(first_path, first_ref.page)
-        bit_depth = hint if hint is not None and 8 < hint <= 16 else 16
-        bit_depth = 12 if 8 < bit_depth <= 12 else 16  # report 8, 12 or 16
-        sources["bit_depth"] = ("significant bits in the image header" if hint is not None and 8 < hint <= 16
-                                else "16-bit images")
-
+    bit_depth, bit_depth_source = _bit_depth(d, keys.bit_depth, first_img, first_ref)
+    sources["bit_depth"] = sources["bit_depth"] or bit_depth_source
     sources["pixel_size"] = source
 
-    check_in_image(tip_row, axis_col, original_shape, where_of("nozzle_tip_row", "axis_col"))
-    tip_c, axis_c = original_to_canonical(tip_row, axis_col, orientation, original_shape)
-    meta = SequenceMeta(folder, pixel_size_um, d_in, d_out,
+    check_in_image(keys.tip_row, keys.axis_col, original_shape, d.where_of("nozzle_tip_row", "axis_col"))
+    tip_c, axis_c = original_to_canonical(keys.tip_row, keys.axis_col, orientation, original_shape)
+    meta = SequenceMeta(d.folder, pixel_size_um, keys.d_in, keys.d_out,
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
-                        orientation, waveform, ink, tuple(refs), canonical_shape, bit_depth,
-                        reordered, extra, source, sources)
+                        orientation, keys.waveform, keys.ink, tuple(refs), canonical_shape, bit_depth,
+                        reordered, keys.extra, source, sources)
     seq = Sequence(meta, first_img.dtype, refused)
     if pixel_size_um is None:
-        seq.meta = _pixel_size_from_nozzle(seq, first_img, first_ref, where_of("nozzle_outer_diameter_um"))
+        from dropvision.inspection import pixel_size_from_nozzle_width  # the calibration's rule, loaded when needed
+
+        seq.meta = pixel_size_from_nozzle_width(seq.meta, _nozzle_frames(seq, first_img, first_ref), first_ref.file,
+                                                d.where_of("nozzle_outer_diameter_um"))
     return seq
-
-
-#: Frames spread over a sequence in which the nozzle's outer width is measured.
-_NOZZLE_FRAMES = 7
-#: How ``SequenceMeta.pixel_size_source`` begins when the pixel size is the nozzle's outer diameter over its width.
-NOZZLE_PIXEL_SIZE_SOURCE = "nozzle outer diameter"
 
 
 def pixel_size_from_nozzle(meta) -> bool:
@@ -569,36 +668,20 @@ def pixel_size_from_nozzle(meta) -> bool:
     return str(getattr(meta, "pixel_size_source", "") or "").startswith(NOZZLE_PIXEL_SIZE_SOURCE)
 
 
-def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef, where: str
-                            ) -> SequenceMeta:
-    """The metadata with the pixel size = nozzle_outer_diameter_um over the nozzle's outer width
-    in px (median over up to 7 frames spread over the sequence)."""
-    from dropvision.calibration import CalibrationError
-    from dropvision.inspection import nozzle_outer_width_px
+def _nozzle_frames(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef) -> list[np.ndarray]:
+    """The first frame and up to `dropvision.inspection.NOZZLE_FRAMES` - 1 more spread over the
+    sequence (decoded here, then the sequence's readers are closed), to measure the nozzle in."""
+    from dropvision.inspection import NOZZLE_FRAMES
 
-    meta = seq.meta
-    n = len(meta.frames)
+    n = len(seq.meta.frames)
     images = [first_img]
-    for i in np.unique(np.round(np.linspace(0, n - 1, min(n, _NOZZLE_FRAMES))).astype(int)):
+    for i in np.unique(np.round(np.linspace(0, n - 1, min(n, NOZZLE_FRAMES))).astype(int)):
         if int(i) != first_ref.index:
             fr = seq.read(int(i))
             if fr.image is not None:
                 images.append(fr.image)
     seq.close()
-    d_out = meta.nozzle_outer_diameter_um
-    try:
-        width_px, used = nozzle_outer_width_px(images, max_value=2 ** meta.bit_depth - 1)
-    except CalibrationError as exc:
-        raise SequenceError(f"{meta.path / first_ref.file}: no pixel size given, and the nozzle's outer width "
-                            f"cannot be measured to take it from nozzle_outer_diameter_um ({exc})") from None
-    pixel_size_um = ranged_value(d_out / width_px, "pixel_size_um",
-                            f"pixel size from nozzle_outer_diameter_um {d_out:g} µm over {width_px:.2f} px", where)
-    source = (f"{NOZZLE_PIXEL_SIZE_SOURCE} {d_out:g} um / {width_px:.2f} px (median over {used} frame"
-              f"{'s' if used != 1 else ''} from {first_ref.file}; diameter from "
-              f"{meta.sources.get('nozzle_outer_diameter')})")
-    return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,
-                               sources={**meta.sources, "pixel_size": source})
-
+    return images
 
 
 class ArraySequence(Sequence):
@@ -639,7 +722,7 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
         Pixel size in µm (> 0).
     orientation : str, optional
         As in sequence.json; None: detected from the first frame in delay order
-        (`dropvision.inspection.detect_orientation`), ``"down"`` when it does not tell.
+        (`dropvision.orientation.detect_orientation`), ``"down"`` when it does not tell.
     nozzle_inner_diameter_um, nozzle_outer_diameter_um, nozzle_tip_row, axis_col, waveform, ink
         As the keys of sequence.json (docs/FORMAT.md); row/column in the frames as given.
     bit_depth : int, optional
@@ -696,13 +779,7 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                "delay": "argument delays_us", "waveform": None if waveform is None else "argument waveform",
                "bit_depth": "argument bit_depth" if bit_depth_given else f"{grey[0].dtype} frames"}
     if orientation is None:
-        from dropvision.inspection import detect_orientation  # cv2 work only when needed
-
-        guess = detect_orientation(grey[order[0]])
-        orientation = guess.orientation or "down"
-        sources["orientation"] = (f"detected in frame {order[0]}: {guess.reason}" if guess.orientation else
-                                  f"default (down): not detected in frame {order[0]}, {guess.reason}"
-                                  + (f" ({guess.edges_text()})" if guess.edges else ""))
+        orientation, sources["orientation"] = orientation_of_stored_frame(grey[order[0]], f"frame {order[0]}")
     repeats: Counter = Counter()
     refs, canonical = [], []
     for index, i in enumerate(order):

@@ -13,6 +13,11 @@ from pathlib import Path
 import numpy as np
 
 
+#: How ``SequenceMeta.pixel_size_source`` begins when the pixel size is the nozzle's outer diameter over its width
+#: (`dropvision.inspection.pixel_size_from_nozzle_width`).
+NOZZLE_PIXEL_SIZE_SOURCE = "nozzle outer diameter"
+
+
 class SequenceError(Exception):
     """Invalid sequence: the one-line message names the file and the problem."""
 

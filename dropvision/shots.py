@@ -450,7 +450,7 @@ def label_waveform(shots: ShotInput, overrides: dict | None = None, option_label
         sequence.json: an unknown template, folders of different templates.
     """
     from dropvision.overrides import merged_waveform, validate_waveform
-    from identify.waveform import template_from_dict
+    from dvcore.waveform import template_from_dict
 
     given = (overrides or {}).get("waveform")
     where_given = (option_labels or {}).get("waveform", "argument waveform")

@@ -41,7 +41,7 @@ from dropvision.robust import robust_sigma
 from dropvision.tracking import DropTrack, LineFit, fit_line, track_main_drop
 from dvcore import schema
 from dvcore.versions import software_versions
-from identify.waveform import Waveform
+from dvcore.waveform import Waveform
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
     import pandas as pd
@@ -62,7 +62,7 @@ def dead_time_us(meta, config: MeasureConfig) -> float:
 def max_stroke_instant_us(meta, config: MeasureConfig) -> float:
     """Instant of maximum stroke after the firing trigger (µs), NaN without ``u1``/``u2``.
 
-    Dead time plus the stroke ramp ``u2 / u1`` (`identify.waveform.Waveform.max_stroke_us`).
+    Dead time plus the stroke ramp ``u2 / u1`` (`dvcore.waveform.Waveform.max_stroke_us`).
     """
     wf = meta.waveform or {}
     if "u1_um_per_ms" not in wf or "u2_um" not in wf:

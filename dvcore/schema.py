@@ -124,7 +124,7 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
       "volumes: background level, clipped background", nullable=False),
 ), "One row per frame, in delay order (repeats kept).")
 
-#: Classes of the bodies table (`dropvision.classify`), in the order the rules are tried.
+#: Classes of the bodies table (`dropvision.bodies_table`), in the order the rules are tried.
 BODY_CLASSES = ("nozzle", "attached", "mist", "dust", "border", "noise", "main_drop", "satellite", "tail")
 
 BODIES = Table("bodies", "bodies.parquet", "dropvision.bodies/1", (

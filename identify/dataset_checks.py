@@ -367,20 +367,19 @@ def _check_ranges(ds: Dataset, f_ts: str, f_su: str) -> None:
             f"jet){why}")
 
 
-def load_dataset(path, *, min_controls: int = 3) -> Dataset:
-    """Read and validate a dataset folder.
+#: The files of a dataset folder (`dvcore.schema.DATASET`; `dropvision campaign` writes them).
+DATASET_FILES = ("timeseries.parquet", "summary.parquet", "dataset.json")
 
-    Raises
-    ------
-    DatasetError
-        Missing folder/file, bad JSON, missing columns, wrong dtypes, inf, out-of-range
-        values, delays off the sampling grid, a single sequence, too few distinct (u1, u2)
-        pairs usable for a polynomial, no sequence usable for the ECM, implausible data.
-    """
+
+def open_dataset_folder(path) -> tuple[dict, dict]:
+    """The files of a dataset folder (name -> path, :data:`DATASET_FILES`) and its dataset.json
+    checked against `dvcore.schema.DATASET`: the start of reading either kind of dataset
+    (:func:`load_dataset`, `identify.template_dataset.load_template_dataset`). DatasetError
+    naming the folder or the file: no folder, a printhead row's output, a missing file, bad JSON."""
     path = Path(path)
     if not path.is_dir():
         raise DatasetError(f"{path}: dataset folder not found")
-    files = {n: path / n for n in ("timeseries.parquet", "summary.parquet", "dataset.json")}
+    files = {n: path / n for n in DATASET_FILES}
     if (path / "nozzles.parquet").is_file() and not files["timeseries.parquet"].is_file():  # issue 32
         raise DatasetError(f"{path}: a printhead row's output (nozzles.parquet, one row per nozzle), not a dataset: a "
                            "model is fitted to a campaign of single-nozzle sequences (dropvision campaign)")
@@ -392,18 +391,40 @@ def load_dataset(path, *, min_controls: int = 3) -> Dataset:
         schema.check_document(meta, schema.DATASET, files["dataset.json"])
     except schema.SchemaError as exc:
         raise DatasetError(str(exc)) from None
-    if meta.get("waveform") is not None:  # issue 31: its parameters, not (u1, u2), are the columns
-        wf = meta["waveform"]
-        name = wf.get("template") if isinstance(wf, dict) else wf
-        raise DatasetError(f"{files['dataset.json']}: a dataset of the waveform template {name!r}, not of the paper's "
-                           "(u1, u2): the hybrid model on a template reads it (identify.template_dataset; "
-                           "`identify fit` of this folder)")
+    return files, meta
+
+
+def read_dataset_tables(files: dict) -> dict:
+    """timeseries.parquet and summary.parquet of :func:`open_dataset_folder`'s ``files`` (name ->
+    DataFrame); DatasetError naming the file that cannot be read."""
     frames = {}
     for n in ("timeseries.parquet", "summary.parquet"):
         try:
             frames[n] = pd.read_parquet(files[n])
         except Exception as exc:  # noqa: BLE001 - pyarrow raises many types
             raise DatasetError(f"{files[n]}: cannot read parquet ({type(exc).__name__}: {exc})") from None
+    return frames
+
+
+def load_dataset(path, *, min_controls: int = 3) -> Dataset:
+    """Read and validate a dataset folder.
+
+    Raises
+    ------
+    DatasetError
+        Missing folder/file, bad JSON, missing columns, wrong dtypes, inf, out-of-range
+        values, delays off the sampling grid, a single sequence, too few distinct (u1, u2)
+        pairs usable for a polynomial, no sequence usable for the ECM, implausible data.
+    """
+    path = Path(path)
+    files, meta = open_dataset_folder(path)
+    if meta.get("waveform") is not None:  # issue 31: its parameters, not (u1, u2), are the columns
+        wf = meta["waveform"]
+        name = wf.get("template") if isinstance(wf, dict) else wf
+        raise DatasetError(f"{files['dataset.json']}: a dataset of the waveform template {name!r}, not of the paper's "
+                           "(u1, u2): the hybrid model on a template reads it (identify.template_dataset; "
+                           "`identify fit` of this folder)")
+    frames = read_dataset_tables(files)
 
     def num(key, default=None, required=False):
         if key not in meta or meta[key] is None:

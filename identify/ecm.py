@@ -32,30 +32,17 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from identify.waveform import DEAD_TIME_US, Waveform
+from dvcore.waveform import DEAD_TIME_US, UM, Waveform, flow_velocity_m_s, nozzle_area_m2
+
+__all__ = [  # the flow formulas live in dvcore.waveform (shared with the measurement layer)
+    "COEFF_NAMES", "NL", "UM", "EcmCoefficients", "EcmParameters", "companion_form", "flow_velocity_m_s",
+    "foh_step", "nozzle_area_m2", "pwl_response", "simulate", "simulate_sampled", "waveform_knots",
+]
 
 #: 1 nl in m^3.
 NL = 1e-12
-#: 1 µm in m.
-UM = 1e-6
 #: Order of the coefficients of Eq. (6) wherever they form a vector (covariances, files).
 COEFF_NAMES = ("A3", "A2", "A1", "A0", "B1", "B0")
-
-
-def nozzle_area_m2(nozzle_inner_diameter_um: float) -> float:
-    """Inner cross-section of the nozzle, π d^2 / 4.
-
-    Parameters
-    ----------
-    nozzle_inner_diameter_um : float
-        Nozzle inner diameter d (µm).
-
-    Returns
-    -------
-    float
-        Cross-section area (m^2).
-    """
-    return float(np.pi * (nozzle_inner_diameter_um * UM) ** 2 / 4.0)
 
 
 @dataclass(frozen=True)
@@ -354,21 +341,3 @@ def waveform_knots(waveform: Waveform, dead_time_us: float = DEAD_TIME_US) -> tu
     u1, u3 = w.u1_um_per_ms * 1e-3, w.u3_um_per_ms * 1e-3
     knots = dead_time_us + np.array([0.0, w.rise_us, w.retract_start_us, w.end_us])
     return knots, np.array([u1, -u1, -u3, u3])
-
-
-def flow_velocity_m_s(flow_nl_per_us, nozzle_inner_diameter_um: float) -> np.ndarray:
-    """Average flow velocity in the nozzle, flow / (π d^2 / 4).
-
-    Parameters
-    ----------
-    flow_nl_per_us : array_like
-        Volume flow (nl/µs; 1 nl/µs = 1e-6 m^3/s).
-    nozzle_inner_diameter_um : float
-        Nozzle inner diameter d (µm), see :func:`nozzle_area_m2`.
-
-    Returns
-    -------
-    ndarray
-        Average flow velocity (m/s), same shape as ``flow_nl_per_us``.
-    """
-    return np.asarray(flow_nl_per_us, dtype=float) * 1e-6 / nozzle_area_m2(nozzle_inner_diameter_um)

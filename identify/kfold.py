@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FOLD_LAYOUTS", "assign_folds", "grouped_kfold"]
+__all__ = ["FOLD_LAYOUTS", "assign_folds", "grouped_kfold", "group_ids"]
 
 #: Ways of dealing the shuffled groups to the folds (see the module docstring).
 FOLD_LAYOUTS = ("round_robin", "contiguous")
@@ -83,3 +83,28 @@ def grouped_kfold(groups, folds: int, seed: int, *, layout: str = "round_robin")
     inv = np.asarray(inv).ravel()
     fold_of_group, k = assign_folds(len(uniq), folds, seed, layout=layout)
     return [np.flatnonzero(fold_of_group[inv] == f) for f in range(k)]
+
+
+def group_ids(groups) -> tuple[np.ndarray, int]:
+    """Group of each sample, numbered in order of first appearance, and the number of groups.
+
+    Parameters
+    ----------
+    groups : array_like, shape (n,) or (n, m)
+        Group label of each sample (rows are compared whole, e.g. a table's settings).
+
+    Returns
+    -------
+    ids : ndarray of int, shape (n,)
+        ``0`` for the first sample's group, ``1`` for the next new one, ...: where no label
+        repeats, ``ids`` is ``arange(n)`` (a split of the groups is then the same split of the
+        samples; `identify.tabular` relies on it).
+    n_groups : int
+    """
+    g = np.asarray(groups)
+    if g.shape[0] == 0:
+        return np.zeros(0, dtype=int), 0
+    _, first, inv = np.unique(g, return_index=True, return_inverse=True, axis=0)
+    rank = np.empty(first.size, dtype=int)
+    rank[np.argsort(first, kind="stable")] = np.arange(first.size)
+    return rank[np.asarray(inv).ravel()], int(first.size)

@@ -1,13 +1,44 @@
 """Validation of model.json (:meth:`identify.hybrid.HybridModel.from_dict`): every key's type,
 shape and range, the ECM's stability and the intervals' blocks, with an error naming the file and
-the key (:class:`ModelFileError`)."""
+the key (:class:`ModelFileError`); and :func:`model_schema`, the one test of which kind of model a
+file holds."""
 
 from __future__ import annotations
+
+import json
 
 import numpy as np
 
 from dvcore import schema
 from identify.ecm import COEFF_NAMES, nozzle_area_m2
+
+
+#: The model files identify writes, by schema id: a (u1, u2) hybrid model, a model on a waveform
+#: template, a table model.
+MODEL_SCHEMAS = (schema.MODEL.schema, schema.TEMPLATE_MODEL.schema, schema.TABULAR_MODEL.schema)
+#: Bytes of a file read to tell its kind: parsed whole when the file is no larger, else its first
+#: 4096 bytes are searched for the ``"schema": "<id>"`` pair (identify writes ``schema`` first).
+_SNIFF_BYTES, _HEAD_BYTES = 1 << 20, 4096
+
+
+def model_schema(path) -> str | None:
+    """The schema id (one of :data:`MODEL_SCHEMAS`) of the model file at ``path``, or None when
+    it is no model file of identify (missing, unreadable, not JSON, another document): the one
+    place that tells a hybrid model, a template model and a table model apart (the command line
+    dispatches on it, and replaces a file only when it is ours)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(_SNIFF_BYTES)
+    except OSError:
+        return None
+    try:
+        found = json.loads(head).get("schema")
+    except (ValueError, AttributeError, RecursionError):
+        found = None
+    if found in MODEL_SCHEMAS:
+        return found
+    text = head[:_HEAD_BYTES].decode("utf-8", "replace")
+    return next((s for s in MODEL_SCHEMAS if f'"schema": "{s}"' in text), None)
 
 
 class ModelFileError(ValueError):
@@ -139,6 +170,33 @@ def _check_polynomial(p, source, key: str) -> None:
             raise _model_error(source, f"{key}.{k}", f"must be a string, got {type(p[k]).__name__}")
 
 
+def check_nozzle_and_dead_time(d, source) -> float:
+    """The nozzle's inner diameter (µm, returned) and the dead time of a model file within the
+    ranges sequence.json is read with (:data:`MODEL_RANGES`); :class:`ModelFileError` naming
+    ``source`` and the key. Every model file of identify gets it (a (u1, u2) model,
+    :func:`check_model_dict`; a template model, `identify.template_fit.TemplateModel.from_dict`)."""
+    d_um = _number(d["nozzle_inner_diameter_um"], source, "nozzle_inner_diameter_um", positive=True,
+                   at_most=MODEL_RANGES["nozzle_inner_diameter_um"])
+    _number(d["dead_time_us"], source, "dead_time_us", nonnegative=True, at_most=MODEL_RANGES["dead_time_us"])
+    return d_um
+
+
+def check_ecm_coefficients(e, source) -> None:
+    """A model file's ``ecm`` object: its six coefficients numbers describing a stable system
+    (Routh-Hurwitz); :class:`ModelFileError` naming ``source`` and the key (as
+    :func:`check_nozzle_and_dead_time`, for every model file)."""
+    if not isinstance(e, dict):
+        raise _model_error(source, "ecm", f"must be an object, got {type(e).__name__}")
+    c = e.get("coefficients")
+    if not isinstance(c, dict):
+        raise _model_error(source, "ecm.coefficients", f"must be an object, got {type(c).__name__}")
+    for k in COEFF_NAMES:
+        if k not in c:
+            raise _model_error(source, "ecm.coefficients", f"misses {k}")
+        _number(c[k], source, f"ecm.coefficients.{k}")
+    _check_ecm_stable(c, source)
+
+
 def check_model_dict(d: dict, source) -> None:
     """Types, shapes and finiteness of every value of a model document (see
     `dvcore.schema.MODEL` for its required keys)."""
@@ -153,9 +211,7 @@ def check_model_dict(d: dict, source) -> None:
         if f.name in d and f.dtype == "object" and not (d[f.name] is None and not f.required) \
                 and not isinstance(d[f.name], dict):
             raise _model_error(source, f.name, f"must be an object, got {type(d[f.name]).__name__}")
-    d_um = _number(d["nozzle_inner_diameter_um"], source, "nozzle_inner_diameter_um", positive=True,
-                   at_most=MODEL_RANGES["nozzle_inner_diameter_um"])
-    _number(d["dead_time_us"], source, "dead_time_us", nonnegative=True, at_most=MODEL_RANGES["dead_time_us"])
+    d_um = check_nozzle_and_dead_time(d, source)
     _number(d["sample_interval_us"], source, "sample_interval_us", positive=True,
             at_most=MODEL_RANGES["sample_interval_us"])
     if d.get("nozzle_area_m2") is not None:  # derived: must agree with the diameter
@@ -170,14 +226,7 @@ def check_model_dict(d: dict, source) -> None:
             at_most=MODEL_RANGES["waveform.u3_um_per_ms"])
     _number(w["hold_us"], source, "waveform.hold_us", nonnegative=True, at_most=MODEL_RANGES["waveform.hold_us"])
     e = d["ecm"]
-    c = e.get("coefficients")
-    if not isinstance(c, dict):
-        raise _model_error(source, "ecm.coefficients", f"must be an object, got {type(c).__name__}")
-    for k in COEFF_NAMES:
-        if k not in c:
-            raise _model_error(source, "ecm.coefficients", f"misses {k}")
-        _number(c[k], source, f"ecm.coefficients.{k}")
-    _check_ecm_stable(c, source)
+    check_ecm_coefficients(e, source)
     _optional_numbers(e.get("coefficients_ci95"), source, "ecm.coefficients_ci95")
     if e.get("coefficient_covariance") is not None:
         _array(e["coefficient_covariance"], source, "ecm.coefficient_covariance", (6, 6))

@@ -245,32 +245,42 @@ def drop_history(physics: SynthPhysics, u1_um_per_ms: float, u2_um: float, *,
         raise ValueError(f"dt_us must be > 0, got {dt_us!r}")
     wf = physics.waveform(u1_um_per_ms, u2_um)
     tp = physics.pinchoff_instant_us(u1_um_per_ms, u2_um)
+    return _history(
+        physics, lambda t: wf.displacement_um(t - physics.dead_time_us), physics.dead_time_us, tp,
+        lambda: (physics.volume_adjuster_nl_at(u1_um_per_ms, u2_um), physics.velocity_adjuster_m_s_at(u1_um_per_ms, u2_um)),
+        physics.dead_time_us + wf.max_stroke_us, f"(u1, u2) = ({u1_um_per_ms}, {u2_um})", "the piston moves",
+        t_end_us, dt_us, u1_um_per_ms=float(u1_um_per_ms), u2_um=float(u2_um))
+
+
+def _history(physics: SynthPhysics, drive_at, dead_time_us: float, tp: float, adjusters, t_max: float, what: str,
+             starts: str, t_end_us: float, dt_us: float, **fields) -> DropHistory:
+    """The one simulation of :func:`drop_history` and :func:`drive_history`: the ECM of ``physics``
+    driven by ``drive_at(t)`` on a ``dt_us`` grid up to after the pinch-off instant ``tp``, the grown
+    volume at ``tp``, the adjusters (``adjusters()`` -> (nl, m/s)) and the flow velocity at
+    ``t_max``. ``what`` names the drive and ``starts`` its start in the errors; ``fields`` are the
+    further fields of the :class:`DropHistory`."""
     t_end = max(float(t_end_us), tp + 50.0)
     t = np.arange(0.0, t_end + 0.5 * dt_us, dt_us)
-    u = wf.displacement_um(t - physics.dead_time_us)
+    u = drive_at(t)
     coeffs = physics.ecm_parameters().coefficients()
     volume, flow = simulate(coeffs, t, u)
-    if not physics.dead_time_us < tp:
-        raise ValueError(f"pinch-off law gives t_p = {tp:.1f} µs for (u1, u2) = "
-                         f"({u1_um_per_ms}, {u2_um}): before the piston moves")
+    if not dead_time_us < tp:
+        raise ValueError(f"pinch-off law gives t_p = {tp:.1f} µs for {what}: before {starts}")
     spline = CubicHermiteSpline(t, volume, flow)
     v_tp = float(spline(tp))
-    adj_v = physics.volume_adjuster_nl_at(u1_um_per_ms, u2_um)
-    adj_u = physics.velocity_adjuster_m_s_at(u1_um_per_ms, u2_um)
-    t_max = physics.dead_time_us + wf.max_stroke_us
+    adj_v, adj_u = adjusters()
     fv_max = float(flow_velocity_m_s(np.interp(t_max, t, flow), physics.nozzle_inner_diameter_um))
     inflight = v_tp + adj_v
     v_jet = fv_max + adj_u
     if not inflight > 0 or not v_jet > 0:
-        raise ValueError(f"(u1, u2) = ({u1_um_per_ms}, {u2_um}) gives a non-physical drop: "
-                         f"in-flight volume {inflight:.3g} nl, jetting velocity {v_jet:.3g} m/s")
+        raise ValueError(f"{what} gives a non-physical drop: in-flight volume {inflight:.3g} nl, "
+                         f"jetting velocity {v_jet:.3g} m/s")
     return DropHistory(
-        u1_um_per_ms=float(u1_um_per_ms), u2_um=float(u2_um), t_us=t, volume_nl=volume,
-        flow_nl_per_us=flow, pinchoff_instant_us=tp, grown_volume_at_pinchoff_instant_nl=v_tp,
-        volume_adjuster_nl=adj_v, velocity_adjuster_m_s=adj_u, inflight_volume_nl=inflight,
-        max_stroke_instant_us=t_max, flow_velocity_at_max_stroke_m_s=fv_max,
+        t_us=t, volume_nl=volume, flow_nl_per_us=flow, pinchoff_instant_us=tp,
+        grown_volume_at_pinchoff_instant_nl=v_tp, volume_adjuster_nl=adj_v, velocity_adjuster_m_s=adj_u,
+        inflight_volume_nl=inflight, max_stroke_instant_us=t_max, flow_velocity_at_max_stroke_m_s=fv_max,
         jetting_velocity_m_s=v_jet, nozzle_inner_diameter_um=physics.nozzle_inner_diameter_um,
-        volume_spline=spline,
+        volume_spline=spline, **fields,
     )
 
 
@@ -360,35 +370,13 @@ def drive_history(physics: SynthPhysics, drive: Drive, laws: TemplateLaws, *, t_
     if not dt_us > 0:
         raise ValueError(f"dt_us must be > 0, got {dt_us!r}")
     values = drive.values
-    tp = laws.pinchoff_us.at(values)
-    t_end = max(float(t_end_us), tp + 50.0)
-    t = np.arange(0.0, t_end + 0.5 * dt_us, dt_us)
-    u = drive.at(t)
-    coeffs = physics.ecm_parameters().coefficients()
-    volume, flow = simulate(coeffs, t, u)
-    label = ", ".join(f"{k} {v:g}" for k, v in values.items())
-    if not drive.dead_time_us < tp:
-        raise ValueError(f"pinch-off law gives t_p = {tp:.1f} µs for ({label}): before the drive starts")
-    spline = CubicHermiteSpline(t, volume, flow)
-    v_tp = float(spline(tp))
-    adj_v = laws.volume_adjuster_nl.at(values)
-    adj_u = laws.velocity_adjuster_m_s.at(values)
-    t_max = drive.velocity_instant_us
-    fv_max = float(flow_velocity_m_s(np.interp(t_max, t, flow), physics.nozzle_inner_diameter_um))
-    inflight = v_tp + adj_v
-    v_jet = fv_max + adj_u
-    if not inflight > 0 or not v_jet > 0:
-        raise ValueError(f"({label}) gives a non-physical drop: in-flight volume {inflight:.3g} nl, "
-                         f"jetting velocity {v_jet:.3g} m/s")
     nan = float("nan")
-    return DropHistory(
-        u1_um_per_ms=float(values.get("u1_um_per_ms", nan)), u2_um=float(values.get("u2_um", nan)), t_us=t,
-        volume_nl=volume, flow_nl_per_us=flow, pinchoff_instant_us=tp, grown_volume_at_pinchoff_instant_nl=v_tp,
-        volume_adjuster_nl=adj_v, velocity_adjuster_m_s=adj_u, inflight_volume_nl=inflight,
-        max_stroke_instant_us=t_max, flow_velocity_at_max_stroke_m_s=fv_max,
-        jetting_velocity_m_s=v_jet, nozzle_inner_diameter_um=physics.nozzle_inner_diameter_um,
-        volume_spline=spline, drive=drive.to_dict(),
-    )
+    return _history(
+        physics, drive.at, drive.dead_time_us, laws.pinchoff_us.at(values),
+        lambda: (laws.volume_adjuster_nl.at(values), laws.velocity_adjuster_m_s.at(values)),
+        drive.velocity_instant_us, "(" + ", ".join(f"{k} {v:g}" for k, v in values.items()) + ")",
+        "the drive starts", t_end_us, dt_us, u1_um_per_ms=float(values.get("u1_um_per_ms", nan)),
+        u2_um=float(values.get("u2_um", nan)), drive=drive.to_dict())
 
 
 #: Default laws of a template without its own (`dropvision.synth`'s ``waveform`` without ``laws``).

@@ -58,6 +58,7 @@ import numpy as np
 import pandas as pd
 
 from dvcore import schema
+from identify.kfold import group_ids
 
 __all__ = [
     "SCHEMA", "TabularError", "RefitMismatchWarning", "TabularModel", "fit_table", "read_table",
@@ -342,10 +343,22 @@ def _conformal_quantiles(scores: np.ndarray, level: float) -> tuple[float, float
     return lo, hi
 
 
-def _folds(n: int, folds: int, seed: int):
+def _folds(X: np.ndarray, folds: int, seed: int, name: str):
+    """K-fold splits of the rows of ``X`` that never split a setting: the settings (rows of
+    ``X``, :func:`identify.kfold.group_ids`) are shuffled into folds by scikit-learn's ``KFold``,
+    and each row goes where its setting went. Where no setting repeats this is ``KFold`` over
+    the rows itself (the same splits, so a saved model refits as before); where one does, its
+    rows are all held out together (a repeat in the training folds would make the out-of-fold
+    errors, and the intervals calibrated on them, optimistic)."""
     from sklearn.model_selection import KFold
 
-    return list(KFold(folds, shuffle=True, random_state=seed).split(np.zeros(n)))
+    ids, n_settings = group_ids(X)
+    if n_settings < folds:
+        raise TabularError(f"{name}: only {n_settings} distinct setting(s) of the inputs (at least {folds} for "
+                           f"{folds}-fold cross-validation)")
+    rows = np.arange(ids.size)
+    return [(rows[np.isin(ids, tr)], rows[np.isin(ids, te)])
+            for tr, te in KFold(folds, shuffle=True, random_state=seed).split(np.zeros(n_settings))]
 
 
 @dataclass
@@ -378,7 +391,7 @@ def _fit_continuous(name, X, y_raw, *, candidates, folds, seed, level, notes, q=
         raise TabularError(f"{name}: only {rows.size} row(s) with a measured value (at least "
                            f"{max(MIN_ROWS, 2 * folds)} for {folds}-fold cross-validation)")
     Xo, yo = X[rows], (np.log(y_raw[rows]) if log else y_raw[rows])
-    splits = _folds(rows.size, folds, seed)
+    splits = _folds(Xo, folds, seed, name)
     cv = {}
     best = oof_best = fold_best = None
     for cand in ([q["candidate"]] if q is not None else candidates):
@@ -456,9 +469,19 @@ class _Count:
     steps: list
 
 
-def _fit_count(name, X, y_raw, *, folds, seed, notes, chosen=None, classifiers=None) -> _Count:
-    from sklearn.model_selection import StratifiedKFold
+def _stratified_folds(X: np.ndarray, hit: np.ndarray, folds: int, seed: int):
+    """Stratified K-fold splits of the rows of ``X`` (classes ``hit``) that never split a setting:
+    scikit-learn's ``StratifiedKFold`` where no setting repeats (the splits saved models were fitted
+    with), ``StratifiedGroupKFold`` over the settings where one does (see :func:`_folds`)."""
+    from sklearn.model_selection import StratifiedGroupKFold, StratifiedKFold
 
+    ids, n_settings = group_ids(X)
+    if n_settings == ids.size:
+        return list(StratifiedKFold(folds, shuffle=True, random_state=seed).split(X, hit))
+    return list(StratifiedGroupKFold(folds, shuffle=True, random_state=seed).split(X, hit, groups=ids))
+
+
+def _fit_count(name, X, y_raw, *, folds, seed, notes, chosen=None, classifiers=None) -> _Count:
     ok = np.isfinite(y_raw)
     X, y = X[ok], y_raw[ok].astype(int)
     if y.size < max(MIN_ROWS, 2 * folds):
@@ -478,7 +501,7 @@ def _fit_count(name, X, y_raw, *, folds, seed, notes, chosen=None, classifiers=N
         cv = {}
         pick = chosen[j] if chosen is not None and j < len(chosen) else None
         if pick is None:
-            splits = list(StratifiedKFold(folds, shuffle=True, random_state=seed).split(Xs, hit))
+            splits = _stratified_folds(Xs, hit, folds, seed)
             for cand in classifiers or CLASSIFIERS:
                 make = CLASSIFIERS[cand]
                 p = np.empty(hit.size)

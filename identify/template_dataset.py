@@ -22,15 +22,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from dvcore import schema
 from dvcore.jsonio import load_json_hardened
 from identify.dataset import Dataset, DatasetError
+from identify.dataset_checks import open_dataset_folder, read_dataset_tables
 from identify.template_fit import OUTPUTS, TemplateModel, fit_template_model
 from identify.waveform import DEAD_TIME_US, WaveformTemplate, template_from_dict
 
 __all__ = ["TemplateDataset", "is_template_dataset", "load_template_dataset", "fit_template_dataset"]
 
-_FILES = ("timeseries.parquet", "summary.parquet", "dataset.json")
 _TS_COLUMNS = ("sequence_id", "delay_us", "grown_volume_nl", "attached")
 
 
@@ -104,18 +103,8 @@ def load_template_dataset(path) -> TemplateDataset:
         interval (the message names the file and the column).
     """
     path = Path(path)
-    if not path.is_dir():
-        raise DatasetError(f"{path}: dataset folder not found")
-    files = {n: path / n for n in _FILES}
-    for f in files.values():
-        if not f.is_file():
-            raise DatasetError(f"{f}: missing file")
+    files, meta = open_dataset_folder(path)
     fjs = str(files["dataset.json"])
-    meta = load_json_hardened(files["dataset.json"], DatasetError)
-    try:
-        schema.check_document(meta, schema.DATASET, fjs)
-    except schema.SchemaError as exc:
-        raise DatasetError(str(exc)) from None
     try:
         template = template_from_dict(meta.get("waveform"))
     except ValueError as exc:
@@ -131,12 +120,7 @@ def load_template_dataset(path) -> TemplateDataset:
     if nozzle_d <= 0 or h <= 0 or dead < 0:
         raise DatasetError(f"{fjs}: nozzle_inner_diameter_um and sample_interval_us must be > 0, dead_time_us >= 0 "
                            f"(got {nozzle_d:g}, {h:g}, {dead:g})")
-    frames = {}
-    for n in ("timeseries.parquet", "summary.parquet"):
-        try:
-            frames[n] = pd.read_parquet(files[n])
-        except Exception as exc:  # noqa: BLE001 - pyarrow raises many types
-            raise DatasetError(f"{files[n]}: cannot read parquet ({type(exc).__name__}: {exc})") from None
+    frames = read_dataset_tables(files)
     su, ts = frames["summary.parquet"], frames["timeseries.parquet"]
     for fname, df, need in ((files["summary.parquet"], su, ("sequence_id", *names, *OUTPUTS)),
                             (files["timeseries.parquet"], ts, _TS_COLUMNS)):

@@ -40,6 +40,7 @@ from dvcore import schema
 from identify.ecm import COEFF_NAMES, EcmCoefficients, flow_velocity_m_s, pwl_response
 from identify.ecm_fit import EcmData, EcmFit, fit_ecm
 from identify.hydraulics import Hydraulics
+from identify.model_file import ModelFileError, check_ecm_coefficients, check_nozzle_and_dead_time
 from identify.waveform import Drive, WaveformTemplate, template_from_dict
 
 #: Outputs of :meth:`TemplateModel.predict` compared with the measured ones.
@@ -144,14 +145,16 @@ class TemplateModel:
         the varied parameters outside their training range (empty inside)."""
         d = self.drive(values)
         t_p = self.pinchoff.predict(d.values)
-        vol, _ = self.ecm_response(d, [t_p])
-        _, vel = self.ecm_response(d, [d.velocity_instant_us])
+        # one ECM evaluation at both instants, each its own column: the sums over the knots are
+        # then those of one instant at a time (a flat vector of instants may round differently)
+        vol, vel = self.ecm_response(d, np.array([[t_p], [d.velocity_instant_us]]))
+        vol, vel = vol[0, 0], vel[1, 0]
         return {
             "pinchoff_us": t_p,
-            "grown_volume_at_pinchoff_nl": float(vol[0]),
-            "inflight_volume_nl": float(vol[0] + self.volume_adjuster.predict(d.values)),
-            "jetting_velocity_m_s": float(vel[0] + self.velocity_adjuster.predict(d.values)),
-            "flow_velocity_at_velocity_instant_m_s": float(vel[0]),
+            "grown_volume_at_pinchoff_nl": float(vol),
+            "inflight_volume_nl": float(vol + self.volume_adjuster.predict(d.values)),
+            "jetting_velocity_m_s": float(vel + self.velocity_adjuster.predict(d.values)),
+            "flow_velocity_at_velocity_instant_m_s": float(vel),
             "outside_training_region": self.outside(d.values),
         }
 
@@ -263,6 +266,8 @@ class TemplateModel:
             raise ValueError(f"{source}: not a template model (schema {schema.TEMPLATE_MODEL.schema!r} expected)")
         try:
             schema.check_document(dict(d), schema.TEMPLATE_MODEL, source)
+            check_nozzle_and_dead_time(d, source)  # the checks of a (u1, u2) model.json: ranges,
+            check_ecm_coefficients(d["ecm"], source)  # a stable ECM
             inputs = list(d["inputs"])
             for name in LAWS:
                 law = d[name]
@@ -276,9 +281,6 @@ class TemplateModel:
                 vals = np.asarray(law["centre"] + law["scale"] + law["coefficients"], float)
                 if not np.all(np.isfinite(vals)) or not np.all(np.asarray(law["scale"], float) > 0):
                     raise ValueError(f"{name}: numbers must be finite, scales > 0")
-            coeffs = np.array([float(d["ecm"]["coefficients"][k]) for k in COEFF_NAMES])
-            if not np.all(np.isfinite(coeffs)) or coeffs[0] == 0:
-                raise ValueError("ecm.coefficients must be finite, A3 non-zero")
             return cls(
                 template=template_from_dict(d["waveform"]), dead_time_us=float(d["dead_time_us"]),
                 nozzle_inner_diameter_um=float(d["nozzle_inner_diameter_um"]),
@@ -288,7 +290,7 @@ class TemplateModel:
                 training_region={k: (float(a), float(b)) for k, (a, b) in d["training_region"].items()},
                 ecm={k: v for k, v in d["ecm"].items() if k != "coefficients"}, notes=list(d.get("notes") or []),
             )
-        except schema.SchemaError:
+        except (schema.SchemaError, ModelFileError):
             raise
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise ValueError(f"{source}: invalid template model ({type(exc).__name__}: {exc})") from None

@@ -1,5 +1,5 @@
 """bodies.parquet: every dark body classified with its reason; out-of-focus mist and static dust
-never counted as satellites (`dropvision.classify`)."""
+never counted as satellites (`dropvision.bodies_table`)."""
 
 from __future__ import annotations
 

@@ -22,7 +22,7 @@ import dropvision
 from dropvision.app.campaign import run_campaign
 from dropvision.app.cli import main
 from dropvision.app.options import progress_wanted
-from dropvision.inspection import detect_orientation
+from dropvision.orientation import detect_orientation
 from dropvision.orientation import from_canonical
 from dropvision.sequence import SequenceError, open_sequence
 from dropvision.synth import SynthConfig, write_synthetic_sequence

@@ -88,9 +88,9 @@ def test_frames_list_pages_use_cached_tiff_and_close(tmp_path):
         {"file": "stack.tif", "page": 2, "delay_us": 5.0},
         {"file": "stack.tif", "page": 0, "delay_us": 7.0}]})
     seq = open_sequence(tmp_path)
-    np.testing.assert_array_equal(seq.read(0).image, pages[2])
-    assert "stack.tif" in seq.open_files
+    np.testing.assert_array_equal(seq.read(0).image, pages[2])  # the opening's probe decoded it
     np.testing.assert_array_equal(seq.read(1).image, pages[0])
+    assert "stack.tif" in seq.open_files
     seq.close()
     assert not seq.open_files
     np.testing.assert_array_equal(seq.read(1).image, pages[0])  # reopens after close
@@ -216,8 +216,10 @@ def test_open_decodes_only_first_frame(tmp_path, monkeypatch):
     seq = open_sequence(tmp_path)
     assert len(calls) == 1 and calls[0].endswith("f0.png")
     it = iter(seq)
+    next(it)  # the first frame: the opening's decode
+    assert len(calls) == 1
     next(it)
-    assert len(calls) == 2
+    assert len(calls) == 2 and calls[1].endswith("f1.png")
     it.close()
 
 
@@ -517,3 +519,30 @@ def test_writer_rejects_bad_input(tmp_path):
         write_image(tmp_path / "a.png", _img(), page_description="{}")
     with pytest.raises(ValueError, match="one finite delay per page"):
         write_multipage_tiff(tmp_path / "s.tif", [_img(), _img()], [0.0])
+
+
+def test_opening_and_reading_the_first_frame_decode_it_once(tmp_path, monkeypatch):
+    """The opening's probe decodes the first frame; reading it, or opening the unchanged folder
+    again (the shot watch's check, then its measurement), takes that decode; a rewritten file
+    is decoded again (its identity changed)."""
+    import dropvision.sequence as S
+
+    images = _seq(tmp_path, ["a.png", "b.png"], [0.0, 10.0])
+    calls = []
+    native = S.Sequence._decode_native
+    monkeypatch.setattr(S.Sequence, "_decode_native", lambda self, r, p, ref: calls.append(ref.file) or native(self, r, p, ref))
+    with open_sequence(tmp_path) as seq:
+        first = seq.read(0).image
+        second = seq.read(1).image
+    with open_sequence(tmp_path) as seq:
+        again = seq.read(0).image
+    assert calls == ["a.png", "b.png"]
+    np.testing.assert_array_equal(first, images[0])
+    np.testing.assert_array_equal(again, images[0])
+    np.testing.assert_array_equal(second, images[1])
+    first[:] = 0  # a caller's copy: the kept frame is not changed through it
+    other = _img()
+    write_image(tmp_path / "a.png", other)
+    with open_sequence(tmp_path) as seq:
+        np.testing.assert_array_equal(seq.read(0).image, other)
+    assert calls == ["a.png", "b.png", "a.png"]

@@ -8,7 +8,9 @@
     4 facade       the packages ``dropvision`` and ``identify`` themselves (their ``__init__``)
 
 A module may import its own layer and the layers below it; ``identify`` (modelling and its
-application) never imports ``dropvision``. The facade is the user's entry point
+application) never imports ``dropvision``. Within the measurement layer only the synthesizer
+(``dropvision.synth``: it renders drops from modelled physics) imports ``identify``; the measuring
+modules take the drive and flow formulas they need from ``dvcore.waveform`` (issue 34). The facade is the user's entry point
 (``dropvision.run_campaign``, ``identify.fit``): its lazy map may name any layer of its own
 package (``dropvision.run_campaign`` is the application layer's), and in exchange nothing in the
 project imports the facade (import ``dvcore.__version__``, ``dropvision.quality``, ... instead),
@@ -176,6 +178,24 @@ def upward_edges(graph, paths, layer_of=layer) -> list[str]:
     return bad
 
 
+#: Measurement-layer packages that may import the modelling layer (the synthesizer renders drops
+#: from ``identify.physics`` and fits its template campaigns with ``identify.template_fit``).
+MODELLING_USERS = ("dropvision.synth",)
+
+
+def measurement_imports_modelling(graph, paths, layer_of=layer) -> list[str]:
+    """One line per import of ``identify`` by a measuring module (layer 2 outside
+    :data:`MODELLING_USERS`): measuring an image must not depend on a model."""
+    bad = []
+    for mod, deps in graph.items():
+        if layer_of(mod) != 2 or any(mod == p or mod.startswith(p + ".") for p in MODELLING_USERS):
+            continue
+        for dep, line in deps.items():
+            if dep.split(".")[0] == "identify":
+                bad.append(f"{paths[mod]}:{line}: measuring module {mod} imports modelling {dep}")
+    return bad
+
+
 def import_cycles(graph) -> list[list[str]]:
     """Every cycle found by a depth-first search (each reported once, as a closed path)."""
     cycles, state, stack = [], {}, []
@@ -205,6 +225,11 @@ PATHS = {m: p.relative_to(ROOT) for m, p in MODULES.items()}
 def test_imports_go_one_way():
     bad = upward_edges(GRAPH, PATHS)
     assert not bad, "upward imports:\n" + "\n".join(bad)
+
+
+def test_measurement_does_not_import_modelling():
+    bad = measurement_imports_modelling(GRAPH, PATHS)
+    assert not bad, "measurement imports modelling:\n" + "\n".join(bad)
 
 
 def test_no_import_cycles():
@@ -262,6 +287,18 @@ def test_a_planted_cycle_and_upward_edge_are_caught_in_a_synthetic_graph():
     up = upward_edges(graph, paths)
     assert up == ["dvcore/schema.py:7: dvcore.schema (foundation) imports identify.hybrid (modelling)"]
     assert import_cycles(graph) == [["identify.hybrid", "identify.ecm", "identify.kfold", "identify.hybrid"]]
+
+
+def test_a_measuring_module_importing_modelling_is_caught():
+    graph = {
+        "dropvision.flow": {"identify.ecm": 16, "dvcore.waveform": 17},  # measuring -> modelling
+        "dropvision.synth.planning": {"identify.physics": 15},  # the synthesizer may
+        "dropvision.app.campaign_dataset": {"identify.waveform": 32},  # the application may
+        "identify.ecm": {"dvcore.waveform": 35},
+    }
+    paths = {m: f"{m.replace('.', '/')}.py" for m in graph}
+    assert measurement_imports_modelling(graph, paths) == [
+        "dropvision/flow.py:16: measuring module dropvision.flow imports modelling identify.ecm"]
 
 
 def _plant(root: Path, files: dict[str, str]) -> None:

@@ -662,9 +662,9 @@ def _detached(bbox, top, bottom, *, volume_nl=0.01, length_um=16.0, touching=Fal
 
 
 def test_class_image_rejected_and_touching_bodies():
-    """dropvision.bodies.class_image, a pure function: segmentation + the frame's bodies in,
+    """dropvision.app.rerun_log.class_image, a pure function: segmentation + the frame's bodies in,
     class image and one box per body (per part of a split silhouette) out."""
-    from dropvision.bodies import class_image
+    from dropvision.app.rerun_log import class_image
     from dropvision.segmentation import find_nozzle_body, segment
 
     mask = np.zeros((64, 40), np.uint8)

@@ -223,3 +223,28 @@ def test_fit_command_line_logs_the_jetting_window_to_rerun(tmp_path):
     ents = Rrd(rrd).entities()
     assert {"/identify/window/volume_px3_mean", "/identify/window/n_drops_p1",
             "/identify/window/n_drops_p1/training", "/identify/window/about"} <= ents, sorted(ents)
+
+
+def test_folds_never_split_a_setting_and_equal_kfold_without_repeats():
+    """The continuous outputs' folds (`identify.tabular._folds`) hold out every row of a setting
+    together (repeats of a setting in the training folds made the out-of-fold errors optimistic);
+    without a repeated setting they are scikit-learn's KFold over the rows (saved models refit alike)."""
+    from sklearn.model_selection import KFold
+
+    from identify import tabular
+    from identify.kfold import group_ids
+
+    X = np.random.default_rng(1).normal(size=(40, 3))
+    for (a_tr, a_te), (b_tr, b_te) in zip(tabular._folds(X, 5, 3, "y"),
+                                          KFold(5, shuffle=True, random_state=3).split(np.zeros(40))):
+        assert np.array_equal(a_tr, b_tr) and np.array_equal(a_te, b_te)
+    Xr = np.repeat(X[:12], 3, axis=0)[::-1]
+    ids, n = group_ids(Xr)
+    assert n == 12 and ids[0] == 0 and list(ids[:4]) == [0, 0, 0, 1]
+    held = np.zeros(len(Xr), int)
+    for tr, te in tabular._folds(Xr, 4, 0, "y"):
+        held[te] += 1
+        assert not {tuple(r) for r in Xr[tr]} & {tuple(r) for r in Xr[te]}
+    assert (held == 1).all()
+    with pytest.raises(tabular.TabularError, match="only 3 distinct setting"):
+        tabular._folds(np.repeat(X[:3], 5, axis=0), 5, 0, "y")

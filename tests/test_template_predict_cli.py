@@ -157,3 +157,57 @@ def test_the_other_commands_say_how_to_predict_a_template_model(model_file, caps
     assert main(["design", str(path), "--volume-nl", "30"]) == 2
     err = capsys.readouterr().err
     assert "a model on a waveform template (identify.template-model/1)" in err and "--set NAME=VALUE" in err
+
+
+def test_predict_reads_the_ecm_once_and_equals_it_at_each_instant(model_file):
+    """`TemplateModel.predict` evaluates the ECM once at both instants; its numbers are those of
+    `ecm_response` at the pinch-off instant and at the velocity instant, each alone."""
+    path, _ = model_file
+    m = TemplateModel.from_json(path)
+    values = {**THREE_PULSE_CENTRE, "V1": 31.0, "w1": 205.0}
+    p = m.predict(values)
+    d = m.drive(values)
+    vol, _ = m.ecm_response(d, [p["pinchoff_us"]])
+    _, vel = m.ecm_response(d, [d.velocity_instant_us])
+    assert np.isfinite(vol[0]) and vel[0] > 0
+    assert p["grown_volume_at_pinchoff_nl"] == float(vol[0])
+    assert p["flow_velocity_at_velocity_instant_m_s"] == float(vel[0])
+
+
+@pytest.mark.parametrize("edit, key", [
+    (lambda d: d["ecm"]["coefficients"].__setitem__("A0", -abs(d["ecm"]["coefficients"]["A0"])),
+     "ecm.coefficients describe no stable third-order system"),
+    (lambda d: d.__setitem__("nozzle_inner_diameter_um", 1e9), "nozzle_inner_diameter_um must be at most"),
+    (lambda d: d.__setitem__("dead_time_us", -1.0), "dead_time_us must be >= 0"),
+])
+def test_a_template_model_gets_the_checks_of_a_model_file(model_file, tmp_path, edit, key):
+    """The checks `identify.model_file` applies to a (u1, u2) model (ranges, a stable ECM by
+    Routh-Hurwitz) apply to a template model: one line naming the file and the key."""
+    path, _ = model_file
+    d = json.loads(path.read_text(encoding="utf-8"))
+    TemplateModel.from_dict(d, source="ok.json")  # unedited: accepted
+    edit(d)
+    with pytest.raises(ValueError) as info:
+        TemplateModel.from_dict(d, source="edited.json")
+    msg = str(info.value)
+    assert msg.startswith("edited.json: ") and key in msg and "\n" not in msg, msg
+
+
+def test_one_function_tells_the_kind_of_a_model_file(model_file, tmp_path):
+    """`identify.model_file.model_schema`: the schema id of each model identify writes, None for
+    anything else; a file too large to parse is told by its head (identify writes ``schema`` first)."""
+    from identify.model_file import model_schema
+
+    path, _ = model_file
+    assert model_schema(path) == schema.TEMPLATE_MODEL.schema
+    big = tmp_path / "big.json"
+    big.write_text('{"schema": "%s", "pad": "%s"}' % (schema.TABULAR_MODEL.schema, "x" * (1 << 21)), encoding="utf-8")
+    assert model_schema(big) == schema.TABULAR_MODEL.schema
+    hybrid = tmp_path / "hybrid.json"
+    hybrid.write_text(json.dumps({"schema": schema.MODEL.schema}), encoding="utf-8")
+    assert model_schema(hybrid) == schema.MODEL.schema
+    for name, text in (("other.json", '{"schema": "dropvision.sequence/1"}'), ("list.json", "[1, 2]"),
+                       ("notes.txt", "not json \xff")):
+        (tmp_path / name).write_text(text, encoding="utf-8")
+        assert model_schema(tmp_path / name) is None, name
+    assert model_schema(tmp_path / "missing.json") is None

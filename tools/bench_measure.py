@@ -295,7 +295,7 @@ STAGES = {
     "  detached body description": ("dropvision/bodies.py", "describe_detached"),
     "  touching-satellite split": ("dropvision/frame.py", "_split_touching"),
     "assembly (frames, summary)": ("dropvision/summary.py", "assemble"),
-    "bodies table": ("dropvision/classify.py", "bodies_table"),
+    "bodies table": ("dropvision/bodies_table.py", "bodies_table"),
 }
 
 

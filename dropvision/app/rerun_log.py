@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import argparse
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, is_dataclass
 from dataclasses import fields as dataclass_fields
 from pathlib import Path
@@ -69,6 +69,9 @@ from identify.app.rerun_stream import close_stream, delay_ns, open_stream
 if TYPE_CHECKING:  # pragma: no cover - typing only
     import rerun as rr
     import rerun.blueprint as rrb
+
+    from dropvision.bodies import DetachedBody
+    from dropvision.segmentation import DarkBody, Segmentation
 
 __all__ = [
     "CLASS_BACKGROUND",
@@ -84,6 +87,7 @@ __all__ = [
     "CLASSES",
     "LABELLED_CLASSES",
     "body_labels",
+    "class_image",
     "PIXEL_CENTRE_OFFSET",
     "ROW_SERIES",
     "RerunLogger",
@@ -383,6 +387,105 @@ _CHAR_WIDTH = 0.42
 # --- logger ----------------------------------------------------------------------------------
 
 
+
+# --- the class image of a measured frame ------------------------------------------------------
+
+
+def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody] = (),
+                rejected: Sequence[DetachedBody] = (), opaque: np.ndarray | None = None, *,
+                compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
+    """Per-pixel segmentation classes and per-body boxes of one frame (for the Rerun viewer).
+
+    The classes follow the rules of bodies.parquet (`dropvision.bodies_table`) as far as one frame
+    can tell (`dropvision.segmentation` says what each ``CLASS_*`` is). A view of the measured
+    bodies, not a measurement: it lives with the viewer (moved from `dropvision.bodies`).
+
+    Parameters
+    ----------
+    seg : Segmentation
+    nozzle_body : DarkBody or None
+        The body holding the attached liquid (`CLASS_ATTACHED`; other top bodies `CLASS_NOZZLE`).
+    bodies : sequence of DetachedBody
+        The frame's in-focus detached bodies, largest first (`FrameRecord.bodies`), matched to
+        the segmentation by their ``bbox``: cut by the frame or band (``leaves`` /
+        ``out_of_band``) `CLASS_BORDER`; the first `CLASS_DROP`; one with ``touching`` (split
+        off the main drop at a waist, same silhouette) `CLASS_TOUCHING` on its side of the
+        main drop's rows; longer than ``compact_ratio`` equivalent-sphere diameters `CLASS_TAIL`;
+        the others `CLASS_SATELLITE`.
+    rejected : sequence of DetachedBody
+        The out-of-focus bodies (`FrameRecord.rejected`): `CLASS_OUT_OF_FOCUS`.
+    opaque : ndarray of bool, optional
+        Static specks (`CLASS_SPECK` where no body is).
+    compact_ratio : float
+        ``MeasureConfig.compact_ratio``.
+
+    Returns
+    -------
+    labels : ndarray of uint8
+        Class id per region pixel.  A detached body in neither list (joined to the attached
+        liquid by a thread thinner than the blur) is `CLASS_ATTACHED`.
+    boxes : list of dict
+        ``{"bbox": (x0, y0, x1, y1), "class_id": int}`` per body (region coordinates, px,
+        half-open), with ``"volume_nl"`` for detached bodies; a split silhouette gives one box
+        per part, each around its own pixels.
+    """
+    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
+    for j, d in enumerate(bodies):
+        if d.leaves or d.out_of_band:
+            cls = CLASS_BORDER
+        elif j == 0:
+            cls = CLASS_DROP
+        elif d.touching:
+            cls = CLASS_TOUCHING
+        elif d.elongated(compact_ratio):
+            cls = CLASS_TAIL
+        else:
+            cls = CLASS_SATELLITE
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
+    for d in rejected:
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
+    classes = np.zeros(len(seg.bodies) + 1, np.uint8)
+    for b in seg.bodies:
+        found = parts.get(b.bbox)
+        if b.nozzle:
+            classes[b.label] = CLASS_ATTACHED if b is nozzle_body else CLASS_NOZZLE
+        elif found:
+            whole = [cls for d, cls in found if not d.touching]
+            classes[b.label] = whole[0] if whole else found[0][1]
+        else:
+            classes[b.label] = CLASS_ATTACHED
+    labels = classes[seg.labels]
+    boxes = []
+    for b in seg.bodies:
+        bbox = b.bbox
+        found = parts.get(bbox) if not b.nozzle else None
+        if not found:
+            boxes.append({"bbox": bbox, "class_id": int(classes[b.label])})
+            continue
+        if len(found) == 1:
+            d, cls = found[0]
+            boxes.append({"bbox": bbox, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+            continue
+        # one silhouette, several parts (a satellite touching the main drop, split at the waist)
+        mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
+        sub = labels[b.y0:b.y1, b.x0:b.x1]
+        rows = np.arange(b.y0, b.y1)[:, None]
+        whole = next((d for d, _ in found if not d.touching), None)
+        for d, cls in found:
+            if d is whole or whole is None:
+                continue
+            side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
+            sub[mine & side] = cls
+        for d, cls in found:
+            rr, cc = np.nonzero(mine & (sub == cls))
+            box = bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
+                                              b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
+            boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+    if opaque is not None:
+        labels[opaque & (labels == 0)] = CLASS_SPECK
+    return labels, boxes
+
+
 @dataclass
 class _Calibration:
     tip_row: float | None  # None: no nozzle found (no tip plane)
@@ -652,6 +755,16 @@ class RerunLogger:
         elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
             text += f": quality {float(quality):g}"
         rec.log("/log", rr.TextLog(text, level=level))
+
+    def log_measured_frame(self, ref: Any, image: np.ndarray, transmission: np.ndarray, seg: Segmentation,
+                           nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody],
+                           rejected: Sequence[DetachedBody], opaque: np.ndarray | None, edges: np.ndarray, *,
+                           compact_ratio: float, roi_origin_xy: tuple[int, int]) -> None:
+        """:meth:`log_frame` of a measured frame: its segmentation and bodies drawn as the class
+        image and body boxes of :func:`class_image` (region coordinates, placed at
+        ``roi_origin_xy``); no frame-table row."""
+        labels, boxes = class_image(seg, nozzle_body, bodies, rejected, opaque, compact_ratio=compact_ratio)
+        self.log_frame(ref, image, transmission, labels, edges, boxes, None, roi_origin_xy=roi_origin_xy)
 
     def _log_bodies(self, boxes: list[_Box], shape: tuple[int, int] | None) -> None:
         """Boxes of every body (class colour, label on hover) and, beside the boxes of the

@@ -305,7 +305,7 @@ class SynthConfig:
         """The template drive (`identify.waveform.Drive`), None without ``waveform``."""
         if self.waveform is None:
             return None
-        from identify.waveform import drive_from_document
+        from dvcore.waveform import drive_from_document
 
         doc = {k: v for k, v in self.waveform.items() if k != "laws"}
         return drive_from_document({**doc, "dead_time_us": self.physics.dead_time_us}, "SynthConfig")

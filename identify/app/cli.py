@@ -86,16 +86,9 @@ def _print_summary(summary: dict, header: str) -> None:
 
 def _is_model_file(path) -> bool:
     """True when ``path`` is a model.json written by identify (replacing it loses nothing)."""
-    from identify.app.tabular_cli import is_table_model
-    from identify.hybrid import SCHEMA
+    from identify.model_file import model_schema
 
-    if is_table_model(path):
-        return True
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.loads(fh.read(1 << 20)).get("schema") in (SCHEMA, schema.TEMPLATE_MODEL.schema)
-    except (OSError, ValueError, AttributeError, RecursionError):
-        return False
+    return model_schema(path) is not None
 
 
 def cmd_fit(args) -> int:
@@ -226,13 +219,10 @@ def _with_recording(args, log) -> None:
 
 def _load_model(path):
     from identify.hybrid import HybridModel
+    from identify.model_file import model_schema
 
-    try:
-        with open(path, encoding="utf-8") as fh:
-            is_template = json.loads(fh.read(1 << 20)).get("schema") == schema.TEMPLATE_MODEL.schema
-    except (OSError, ValueError, AttributeError, RecursionError):
-        is_template = False  # HybridModel.from_json says what is wrong with it
-    if is_template:
+    # anything else than a template model: HybridModel.from_json says what is wrong with it
+    if model_schema(path) == schema.TEMPLATE_MODEL.schema:
         raise UsageError(f"{path}: a model on a waveform template ({schema.TEMPLATE_MODEL.schema}): this command "
                          "reads (u1, u2) models; predict it with `identify predict MODEL --set NAME=VALUE ...` or "
                          "`--table ROWS.csv --out FILE`")

@@ -49,16 +49,10 @@ def parse_settings(items) -> dict:
 
 def is_table_model(path) -> bool:
     """True when ``path`` is a model file of :mod:`identify.tabular` (replacing it loses nothing)."""
-    import json
+    from dvcore import schema
+    from identify.model_file import model_schema
 
-    from identify.tabular import SCHEMA
-
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(4096).decode("utf-8", "replace")
-        return f'"schema": "{SCHEMA}"' in head or json.loads(head).get("schema") == SCHEMA
-    except (OSError, ValueError, AttributeError):
-        return False
+    return model_schema(path) == schema.TABULAR_MODEL.schema
 
 
 def is_prediction_table(path) -> bool:

@@ -22,11 +22,9 @@ UNITS = {"pinchoff_us": "us", "grown_volume_at_pinchoff_nl": "nl", "inflight_vol
 
 def is_template_model(path) -> bool:
     """True when ``path`` is a model file of :mod:`identify.template_fit` (its schema id)."""
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.loads(fh.read(1 << 20)).get("schema") == schema.TEMPLATE_MODEL.schema
-    except (OSError, ValueError, AttributeError, RecursionError):
-        return False
+    from identify.model_file import model_schema
+
+    return model_schema(path) == schema.TEMPLATE_MODEL.schema
 
 
 def _refuse_other_options(args, what: str) -> None:
