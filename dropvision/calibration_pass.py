@@ -22,13 +22,13 @@ import cv2
 import numpy as np
 
 import dropvision.quality as q
-from dropvision.background import median_by_selection
+from dropvision.background import NoNozzleError, median_by_selection
 from dropvision.blur import edge_sigma_px, esf_sigma_px
 from dropvision.bodies import hanging_columns, measure_attached
 from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
-from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
+from dropvision.context import BlurReference, FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
 from dropvision.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
                                top_bodies)
@@ -119,14 +119,13 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
             # without a nozzle, its detached drops are measured where the frame's orientation is known (stated
             # or detected): an undetected one is refused, naming what each edge shows
-            allow_no_nozzle=(meta.nozzle_tip_row is None
-                             and not str((meta.sources or {}).get("orientation", "")).startswith("default")),
+            allow_no_nozzle=meta.nozzle_tip_row is None and not getattr(meta, "orientation_assumed", False),
             pixel_size_from_nozzle=pixel_size_from_nozzle(meta),
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
         seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
-                if how and str(exc).startswith("no nozzle") else "")
+                if how and isinstance(exc, NoNozzleError) else "")
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     expected = (meta.nozzle_outer_diameter_um / cal.pixel_size_um
@@ -156,7 +155,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
     spread_px = _nozzle_edge_spread(first, ctx) if nozzle is not None else float("nan")
     focus = focus_reference(found, spread_px, sigma, ctx.sigma_px, ctx.smooth_px, config)
     sigma = focus.sigma_px
-    ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, edge_blur_ref_source=focus.edge_blur_ref_source,
+    ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, blur_reference=focus.blur_reference,
                   mist_blur_factor=focus.mist_blur_factor, sigma_px=focus.effective_sigma_px,
                   nozzle_blur_px=focus.nozzle_blur_px)
     if focus.nozzle_out_of_focus:
@@ -309,8 +308,8 @@ class FocusReference:
     ----------
     edge_blur_ref_px : float
         Edge spread mist is judged against (`dropvision.classify`).
-    edge_blur_ref_source : str
-        Where it comes from (written in the summary).
+    blur_reference : BlurReference
+        Where it comes from (its text is written in the summary).
     mist_blur_factor : float
         The limit's factor on it (``config.mist_blur_factor`` or ``mist_blur_factor_bodies``).
     sigma_px : float
@@ -325,7 +324,7 @@ class FocusReference:
     """
 
     edge_blur_ref_px: float
-    edge_blur_ref_source: str
+    blur_reference: BlurReference
     mist_blur_factor: float
     sigma_px: float
     effective_sigma_px: float
@@ -362,7 +361,7 @@ def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma
     """
     body = body_blur_reference(found, nozzle_edge_spread_px, walls_sigma_px, config)
     if body is None:
-        return FocusReference(edge_blur_ref_px=nozzle_edge_spread_px, edge_blur_ref_source="nozzle walls",
+        return FocusReference(edge_blur_ref_px=nozzle_edge_spread_px, blur_reference=BlurReference.NOZZLE_WALLS,
                               mist_blur_factor=config.mist_blur_factor, sigma_px=walls_sigma_px,
                               effective_sigma_px=effective_sigma_px, nozzle_blur_px=0.0, nozzle_out_of_focus=False)
     note = (f"the nozzle walls are out of focus (edge spread {nozzle_edge_spread_px:.2f} px against "
@@ -370,7 +369,7 @@ def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma
             "detached bodies, no per-frame blur or contrast from the walls")
     return FocusReference(
         edge_blur_ref_px=body.edge_blur_ref_px,
-        edge_blur_ref_source="sharpest detached body (the nozzle walls are out of focus)",
+        blur_reference=BlurReference.SHARPEST_BODY,
         mist_blur_factor=config.mist_blur_factor_bodies, sigma_px=body.sigma_px,
         effective_sigma_px=smoothed_sigma_px(body.sigma_px if config.blur_correction else 0.0, smooth_px),
         nozzle_blur_px=body.nozzle_blur_px, nozzle_out_of_focus=True, note=note)
@@ -407,13 +406,13 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     depth = max(1.0 - float(cal.liquid_level), 0.05)
     terms = {"edge floor": float(config.edge_position_floor_px),
              "background level": float(cal.background.residual) * math.sqrt(2.0 * math.pi) * sig / depth}
-    clipped = cal.clipped or {}
-    if clipped.get("used") and not clipped.get("level_known", True):
-        terms["clipped background"] = 0.5 * float(clipped.get("edge_range_px", 1.0))
-    elif clipped.get("used"):
-        level = float(clipped["level"])
-        rel = float(clipped.get("level_uncertainty", float("nan"))) / level
-        span = 1.0 - float(clipped.get("max_value", level)) / level
+    clipped = cal.clipped
+    if clipped is not None and not clipped.level_known:
+        terms["clipped background"] = 0.5 * float(clipped.edge_range_px)
+    elif clipped is not None:
+        level = float(clipped.level)
+        rel = float(clipped.level_uncertainty) / level
+        span = 1.0 - float(clipped.max_value) / level
         rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
         terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
     return terms
@@ -478,7 +477,7 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
                             min_pixels: int = 500) -> ClipIllumination | None:
     """The backlight under a clipped background (`ClipIllumination`), from the frame's unclipped background.
 
-    Only for a clipped background whose level was estimated (``cal.clipped`` used, level known) and a
+    Only for a clipped background whose level was estimated (``cal.clipped`` with its level known) and a
     nozzle found; the background pixels between 30 % and 97 % of the sensor maximum, away from dark
     bodies (`dropvision.background.dark_bodies_mask`), at least ``min_pixels`` of them (at most ~20000
     used).  None otherwise (a background clipped everywhere shows nothing of its
@@ -486,8 +485,8 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
     """
     from dropvision.background import dark_bodies_mask
 
-    clipped = cal.clipped or {}
-    if not (clipped.get("used") and clipped.get("level_known") and cal.nozzle_found
+    clipped = cal.clipped
+    if not (clipped is not None and clipped.level_known and cal.nozzle_found
             and np.isfinite(cal.tip_row) and np.isfinite(cal.axis_col)):
         return None
     img = np.asarray(image, np.float32)
@@ -514,8 +513,8 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
         refs.append(float(np.mean(sum(c * wu ** i * wv ** j for c, (i, j) in zip(coef, terms)))))
     if not (refs[0] > 0 and refs[1] > 0):
         return None
-    level = float(clipped["level"])
-    rel_se = float(clipped.get("level_uncertainty", float("nan"))) / level
+    level = float(clipped.level)
+    rel_se = float(clipped.level_uncertainty) / level
     return ClipIllumination(coef2=fits[0], coef3=fits[1], shape=(h, w), ref2=refs[0], ref3=refs[1],
                             level_rel_se=rel_se if np.isfinite(rel_se) else 0.0)
 
@@ -668,7 +667,7 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
             cal.notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
                              f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
                              "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
-        if not cal.axis_source.startswith("user"):
+        if not cal.axis_col_given:
             cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
                                                    if cal.nozzle_found else
                                                    "line of the detached in-focus drops (no nozzle found)")
@@ -678,7 +677,7 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
                             if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
         cal.liquid_level, cal.threshold = level, edge_threshold(level)
     face = holder_face(t_first, cal.threshold, cal.axis_col) if cal.nozzle_found else None
-    if face is not None and not cal.tip_source.startswith("user"):
+    if face is not None and not cal.tip_row_given:
         tip = face[0] + face[1] * cal.axis_col
         if abs(tip - cal.tip_row) > 0.5:
             cal.notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "

@@ -7,6 +7,7 @@ noisy frames (`smooth_roi`).  The pass that fills it is `dropvision.calibration_
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
@@ -17,6 +18,15 @@ from dropvision.calibration import Calibration
 from dropvision.config import MeasureConfig
 from dropvision.segmentation import threshold_image
 from dropvision.volume import NL_PER_UM3
+
+
+class BlurReference(enum.Enum):
+    """What a body's edge spread is judged against (`dropvision.classify`): the in-focus nozzle
+    walls, or the sharpest detached body when the walls are out of focus.  The value is the text
+    summary.json's ``calibration.edge_blur_ref_source`` holds; decisions use the member, never the text."""
+
+    NOZZLE_WALLS = "nozzle walls"
+    SHARPEST_BODY = "sharpest detached body (the nozzle walls are out of focus)"
 
 
 @dataclass
@@ -63,7 +73,7 @@ class FrameContext:
     min_wall_contrast: float = 0.0
     # out-of-focus bodies (`dropvision.classify`): edge spread of the in-focus nozzle and the limit rule
     edge_blur_ref_px: float = float("nan")
-    edge_blur_ref_source: str = "nozzle walls"
+    blur_reference: BlurReference = BlurReference.NOZZLE_WALLS
     # standard uncertainty of an edge position common to a body (px)
     edge_position_sigma_px: float = 0.05
     edge_noise_px: float = 0.0  # independent noise of one edge (px): noise / edge slope

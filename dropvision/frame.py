@@ -36,7 +36,7 @@ from dropvision.bodies import (
     off_path_reason,
 )
 from dropvision.classify import appearance, out_of_focus_reason
-from dropvision.context import FrameContext, smooth_roi
+from dropvision.context import BlurReference, FrameContext, smooth_roi
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
 from dropvision.edges import RowEdges
@@ -144,7 +144,8 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
         body = describe_detached(ctx, seg, b, ed, bv)
         body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
         why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px,
-                                  "nozzle walls'" if ctx.edge_blur_ref_source == "nozzle walls" else "the sharpest body's")
+                                  "nozzle walls'" if ctx.blur_reference is BlurReference.NOZZLE_WALLS
+                                  else "the sharpest body's")
         if why is None:
             rec.bodies.append(body)
             sources[id(body)] = (b, ed)
@@ -153,7 +154,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             rec.rejected.append(body)
     rec.bodies.sort(key=lambda d: -d.volume_nl)
     for body in rec.bodies[1:]:
-        why = off_path_reason(rec.bodies[0], body, ctx.edge_blur_ref_source == "nozzle walls")
+        why = off_path_reason(rec.bodies[0], body, ctx.blur_reference is BlurReference.NOZZLE_WALLS)
         if why is not None:
             body.reason, body.off_path = why, True
             rec.rejected.append(body)

@@ -222,7 +222,7 @@ class MeasuredParts:
     cal: object
     sigma_px: float
     edge_blur_ref_px: float
-    edge_blur_ref_source: str
+    blur_reference: object  # dropvision.context.BlurReference
     meta: object
     errors: list
 
@@ -245,7 +245,7 @@ def measure_parts(seq: Sequence, config: MeasureConfig = MeasureConfig()) -> Mea
     (the same `MeasureResult`). ``seq`` is closed."""
     records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config)
     return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.edge_blur_ref_px),
-                         ctx.edge_blur_ref_source, meta, errors)
+                         ctx.blur_reference, meta, errors)
 
 
 def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: list, decoded: dict):
@@ -296,5 +296,5 @@ def result_from_records(records: list[FrameRecord], cal, sigma_px: float, ctx, m
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
     bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
     summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
-    summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source
+    summary["calibration"]["edge_blur_ref_source"] = ctx.blur_reference.value
     return MeasureResult(frames, summary, bodies)

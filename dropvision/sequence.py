@@ -511,10 +511,12 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     if first_img is None:
         raise SequenceError(f"{folder}: no readable image among {len(refs)} frame(s) "
                             f"(first problem: {first_error})")
+    orientation_assumed = False
     if not orientation_given:
         from dropvision.inspection import detect_orientation  # cv2 work only when needed
 
         guess = detect_orientation(first_img)
+        orientation_assumed = guess.orientation is None
         if guess.orientation is not None:
             orientation = guess.orientation
             sources["orientation"] = f"detected in {first_ref.file}: {guess.reason}"
@@ -549,7 +551,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
                         orientation, waveform, ink, tuple(refs), canonical_shape, bit_depth,
-                        reordered, extra, source, sources)
+                        reordered, extra, source, sources, orientation_assumed=orientation_assumed)
     seq = Sequence(meta, first_img.dtype, refused)
     if pixel_size_um is None:
         seq.meta = _pixel_size_from_nozzle(seq, first_img, first_ref, where_of("nozzle_outer_diameter_um"))
@@ -558,7 +560,8 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
 
 #: Frames spread over a sequence in which the nozzle's outer width is measured.
 _NOZZLE_FRAMES = 7
-#: How ``SequenceMeta.pixel_size_source`` begins when the pixel size is the nozzle's outer diameter over its width.
+#: How ``SequenceMeta.pixel_size_source`` begins when the pixel size is the nozzle's outer diameter over its width
+#: (text only: ``SequenceMeta.pixel_size_from_nozzle`` says so).
 NOZZLE_PIXEL_SIZE_SOURCE = "nozzle outer diameter"
 
 
@@ -566,7 +569,7 @@ def pixel_size_from_nozzle(meta) -> bool:
     """Whether the pixel size was not given and comes from the nozzle's (needle's) outer diameter:
     the calibration measures the width again by the same rule in its first frame and that value is
     the pixel size (`dropvision.calibration.calibrate_frames` ``pixel_size_from_nozzle``)."""
-    return str(getattr(meta, "pixel_size_source", "") or "").startswith(NOZZLE_PIXEL_SIZE_SOURCE)
+    return bool(getattr(meta, "pixel_size_from_nozzle", False))
 
 
 def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef, where: str
@@ -597,7 +600,7 @@ def _pixel_size_from_nozzle(seq: Sequence, first_img: np.ndarray, first_ref: Fra
               f"{'s' if used != 1 else ''} from {first_ref.file}; diameter from "
               f"{meta.sources.get('nozzle_outer_diameter')})")
     return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,
-                               sources={**meta.sources, "pixel_size": source})
+                               sources={**meta.sources, "pixel_size": source}, pixel_size_from_nozzle=True)
 
 
 
@@ -695,10 +698,12 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                "nozzle_inner_diameter": None if nozzle_inner_diameter_um is None else "argument nozzle_inner_diameter_um",
                "delay": "argument delays_us", "waveform": None if waveform is None else "argument waveform",
                "bit_depth": "argument bit_depth" if bit_depth_given else f"{grey[0].dtype} frames"}
+    orientation_assumed = False
     if orientation is None:
         from dropvision.inspection import detect_orientation  # cv2 work only when needed
 
         guess = detect_orientation(grey[order[0]])
+        orientation_assumed = guess.orientation is None
         orientation = guess.orientation or "down"
         sources["orientation"] = (f"detected in frame {order[0]}: {guess.reason}" if guess.orientation else
                                   f"default (down): not detected in frame {order[0]}, {guess.reason}"
@@ -719,5 +724,6 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                         None if tip_c is None else float(tip_c), None if axis_c is None else float(axis_c),
                         orientation, validate_waveform(waveform, where), validate_ink(ink, where),
                         tuple(refs), tuple(int(n) for n in canonical[0].shape), int(bit_depth),
-                        order != list(range(len(grey))), {}, "arguments", sources)
+                        order != list(range(len(grey))), {}, "arguments", sources,
+                        orientation_assumed=orientation_assumed)
     return ArraySequence(meta, canonical)

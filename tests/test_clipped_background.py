@@ -125,11 +125,13 @@ def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
     from types import SimpleNamespace
 
     from dropvision.bodies import clip_level_px, common_edge_sigma_px
+    from dropvision.calibration import ClippedBackground
     from dropvision.calibration_pass import illumination_under_clip
 
     img, light = _vignetted_clipped_frame()
     assert 0.3 < np.mean(img >= 255.0) < 0.9
-    cal = SimpleNamespace(clipped={"used": True, "level_known": True, "level": 280.0, "level_uncertainty": 0.5},
+    cal = SimpleNamespace(clipped=ClippedBackground(fraction=0.5, level=280.0, level_uncertainty=0.5, max_value=255,
+                                                    level_known=True),
                           nozzle_found=True, tip_row=40.0, axis_col=160.0, nozzle_outer_diameter_px=40.0)
     fit = illumination_under_clip(img, cal, 255)
     assert fit is not None

@@ -12,7 +12,7 @@ from dropvision.calibration import calibrate_frames
 from dropvision.config import MeasureConfig
 from dropvision.calibration_pass import (APPEARANCE_DTYPE, body_blur_reference, focus_reference, noise_smoothing,
                                          smoothed_sigma_px, wall_reference)
-from dropvision.context import smoothing_kernel_sigma_px
+from dropvision.context import BlurReference, smoothing_kernel_sigma_px
 from dropvision.edges import edge_threshold
 from dropvision.nozzle import find_nozzle
 from dropvision.synth import SynthConfig, synthesize
@@ -108,7 +108,7 @@ def test_focus_reference_walls_in_focus_keep_their_references():
     limit = config.mist_blur_factor * 1.0 + config.mist_blur_offset_px
     ref = focus_reference(found, limit, 1.1, 1.3, 2.0, config)
     assert not ref.nozzle_out_of_focus and ref.note is None
-    assert (ref.edge_blur_ref_px, ref.edge_blur_ref_source) == (limit, "nozzle walls")
+    assert (ref.edge_blur_ref_px, ref.blur_reference) == (limit, BlurReference.NOZZLE_WALLS)
     assert ref.mist_blur_factor == config.mist_blur_factor
     assert ref.sigma_px == 1.1 and ref.effective_sigma_px == 1.3 and ref.nozzle_blur_px == 0.0
 
@@ -118,7 +118,7 @@ def test_focus_reference_walls_out_of_focus_take_the_sharpest_body():
     found = _found((1.0, 0.9), (2.0, 1.8))
     ref = focus_reference(found, 4.0, 1.1, 1.3, 0.0, config)
     assert ref.nozzle_out_of_focus and "out of focus (edge spread 4.00 px against 1.00 px" in ref.note
-    assert ref.edge_blur_ref_px == 1.0 and ref.edge_blur_ref_source.startswith("sharpest detached body")
+    assert ref.edge_blur_ref_px == 1.0 and ref.blur_reference is BlurReference.SHARPEST_BODY
     assert ref.mist_blur_factor == config.mist_blur_factor_bodies
     assert ref.sigma_px == 0.9 and ref.effective_sigma_px == 0.9 and ref.nozzle_blur_px == 1.1
     # smoothed frames: the kernel added to the body's blur; no blur correction: none
