@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -33,7 +34,7 @@ from dropvision.segmentation import (
     Segmentation,
     find_nozzle_body,
 )
-from dropvision.edges import RowEdges, body_edges
+from dropvision.edges import RowEdges, body_edges, edge_shift_px
 from dropvision.nozzle import Protrusion, protruding_columns
 from dropvision.volume import (
     equivalent_diameter_um,
@@ -85,6 +86,34 @@ class DetachedBody:
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
         return self.length_um > compact_ratio * equivalent_diameter_um(self.volume_nl)
+
+
+class DetachedClass(enum.Enum):
+    """The class of an in-focus detached body of one frame (`detached_class`); the value is its
+    ``body_class`` in bodies.parquet where it has one of its own (a touching body is a ``satellite``)."""
+
+    BORDER = "border"
+    MAIN_DROP = "main_drop"
+    TOUCHING = "touching"
+    TAIL = "tail"
+    SATELLITE = "satellite"
+
+
+def detached_class(body: DetachedBody, index: int, compact_ratio: float) -> DetachedClass:
+    """The one rule for the class of the ``index``-th in-focus detached body of a frame (largest
+    first, `FrameRecord.bodies`), used by bodies.parquet (`dropvision.classify.bodies_table`) and
+    the viewer's class image (`class_image`): cut by the frame or the measured band, ``BORDER``;
+    the first, ``MAIN_DROP``; split off the main drop at a waist, ``TOUCHING``; longer than
+    ``compact_ratio`` equivalent-sphere diameters, ``TAIL``; else ``SATELLITE``."""
+    if body.leaves or body.out_of_band:
+        return DetachedClass.BORDER
+    if index == 0:
+        return DetachedClass.MAIN_DROP
+    if body.touching:
+        return DetachedClass.TOUCHING
+    if body.elongated(compact_ratio):
+        return DetachedClass.TAIL
+    return DetachedClass.SATELLITE
 
 
 @dataclass
@@ -294,9 +323,7 @@ def clip_level_px(volume: BodyVolume, ctx: FrameContext) -> float:
     if not (np.isfinite(volume.centroid_row) and np.isfinite(volume.centroid_col)):
         return 0.0
     rel = ctx.clip_light.relative_error(volume.centroid_row + ctx.r0, volume.centroid_col + ctx.c0)
-    sig = max(float(ctx.sigma_px), 0.5) if np.isfinite(ctx.sigma_px) else 1.0
-    depth = max(1.0 - float(ctx.liquid_level), 0.05)
-    return float(rel * math.sqrt(2.0 * math.pi) * sig / depth)
+    return edge_shift_px(rel, ctx.sigma_px, ctx.liquid_level)
 
 
 def edge_noise_total_px(ctx: FrameContext) -> float:
@@ -468,17 +495,11 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         per part, each around its own pixels.
     """
     parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
+    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
+           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
+           DetachedClass.SATELLITE: CLASS_SATELLITE}
     for j, d in enumerate(bodies):
-        if d.leaves or d.out_of_band:
-            cls = CLASS_BORDER
-        elif j == 0:
-            cls = CLASS_DROP
-        elif d.touching:
-            cls = CLASS_TOUCHING
-        elif d.elongated(compact_ratio):
-            cls = CLASS_TAIL
-        else:
-            cls = CLASS_SATELLITE
+        cls = ids[detached_class(d, j, compact_ratio)]
         parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
     for d in rejected:
         parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))

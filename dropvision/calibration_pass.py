@@ -29,7 +29,7 @@ from dropvision.calibration import Calibration, CalibrationError, calibrate_fram
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
 from dropvision.context import BlurReference, FrameContext, smooth_roi, smoothing_kernel_sigma_px
-from dropvision.edges import body_edges, edge_threshold
+from dropvision.edges import body_edges, edge_shift_px, edge_threshold
 from dropvision.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
                                top_bodies)
 from dropvision.segmentation import dark_mask, find_nozzle_body, segment
@@ -185,10 +185,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
     if nozzle is not None and not focus.nozzle_out_of_focus:
         cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
         cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
-    sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
     ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
-                  edge_noise_px=float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig
-                                      / max(1.0 - cal.liquid_level, 0.05)))
+                  edge_noise_px=edge_shift_px(ctx.noise_t, sigma, cal.liquid_level))
     return cal, sigma, ctx
 
 
@@ -402,10 +400,8 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     dict
         Term name -> px.
     """
-    sig = max(float(sigma_px), 0.5) if np.isfinite(sigma_px) else 1.0
-    depth = max(1.0 - float(cal.liquid_level), 0.05)
     terms = {"edge floor": float(config.edge_position_floor_px),
-             "background level": float(cal.background.residual) * math.sqrt(2.0 * math.pi) * sig / depth}
+             "background level": edge_shift_px(float(cal.background.residual), sigma_px, cal.liquid_level)}
     clipped = cal.clipped
     if clipped is not None and not clipped.level_known:
         terms["clipped background"] = 0.5 * float(clipped.edge_range_px)
@@ -414,7 +410,7 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
         rel = float(clipped.level_uncertainty) / level
         span = 1.0 - float(clipped.max_value) / level
         rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
-        terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
+        terms["clipped background"] = edge_shift_px(rel, sigma_px, cal.liquid_level)
     return terms
 
 
