@@ -244,8 +244,8 @@ def measure_parts(seq: Sequence, config: MeasureConfig = MeasureConfig()) -> Mea
     """`measure_sequence` of an open sequence, up to its tables: ``.result(config)`` gives them
     (the same `MeasureResult`). ``seq`` is closed."""
     records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config)
-    return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.edge_blur_ref_px),
-                         ctx.blur_reference, meta, errors)
+    return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.blur.reference_spread_px),
+                         ctx.blur.reference, meta, errors)
 
 
 def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: list, decoded: dict):
@@ -294,7 +294,7 @@ def result_from_records(records: list[FrameRecord], cal, sigma_px: float, ctx, m
     frames, summary = assemble(records, cal, sigma_px, meta, config, errors)
     summary.update(source_keys(meta))
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
-    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
-    summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
-    summary["calibration"]["edge_blur_ref_source"] = ctx.blur_reference.value
+    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.blur.reference_spread_px, compact_ratio=config.compact_ratio)
+    summary["calibration"]["edge_blur_ref_px"] = float(ctx.blur.reference_spread_px)
+    summary["calibration"]["edge_blur_ref_source"] = ctx.blur.reference.value
     return MeasureResult(frames, summary, bodies)

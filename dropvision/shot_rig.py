@@ -509,8 +509,8 @@ def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: floa
         if why is None:
             rec = measure_frame(fr.image, rig.ctx, fr.ref)
             rec.flags = list(rig.flags) + rec.flags
-            return MeasuredParts([rec], light_calibration(rig.cal), rig.sigma_px, float(rig.ctx.edge_blur_ref_px),
-                                 rig.ctx.blur_reference, meta, []), None
+            return MeasuredParts([rec], light_calibration(rig.cal), rig.sigma_px, float(rig.ctx.blur.reference_spread_px),
+                                 rig.ctx.blur.reference, meta, []), None
         first_why = first_why or why
         if fr is None or fr.image is None:
             break
