@@ -185,13 +185,14 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     -------
     AttachedLiquid
     """
+    geo, photo = ctx.geometry, ctx.photometry
     # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
     halo_px = 3.0 * max(ctx.blur.correction_sigma_px if np.isfinite(ctx.blur.correction_sigma_px) else 0.0, 0.5)
-    ed = body_edges(roi, ctx.photometry.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
-                    ctx.photometry.threshold, gain, row_min=max(0, int(math.floor(ctx.geometry.tip_roi)) - 1),
-                    bright_row_min=int(math.ceil(ctx.geometry.tip_roi + halo_px)) if np.isfinite(ctx.geometry.tip_roi) else 0)
+    ed = body_edges(roi, photo.inv_background, seg.labels, body.label, (body.x0, body.y0, body.x1, body.y1),
+                    photo.threshold, gain, row_min=max(0, int(math.floor(geo.tip_roi)) - 1),
+                    bright_row_min=int(math.ceil(geo.tip_roi + halo_px)) if np.isfinite(geo.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
-    if np.isfinite(ctx.geometry.face_row0_px):
+    if np.isfinite(geo.face_row0_px):
         found = hanging_columns(roi, ctx, seg, body, gain)
         if found is None:
             return nothing_hangs(ed, 0.0)
@@ -200,34 +201,35 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                       np.minimum(ed.right_px[keep], found.last + 0.5), ed.touches)
         ed = edges_in_the_halo(roi, ctx, ed, found, gain)
         if not found.liquid:  # the face's blurred halo: no liquid, but as much could hide in it
-            return nothing_hangs(ed, integrate(ed, ctx.geometry.tilt_rad, ctx.geometry.tip_roi, 0.0).volume_px3 * ctx.geometry.nl_per_px3)
-    span = plane_span_chord_px(ed, ctx.geometry.tip_roi, ctx.geometry.axis_roi, ctx.geometry.tilt_rad)
-    clip_to_tip_plane(ed, ctx.geometry.tip_roi, ctx.geometry.axis_roi, ctx.geometry.tilt_rad)
-    bv = replace(integrate(ed, ctx.geometry.tilt_rad, ctx.geometry.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
-    near = out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * ctx.geometry.nl_per_px3
-    return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.geometry.nl_per_px3, bottom_row=bv.bottom_row,
-                          neck_px=neck_chord_px(ed, ctx.geometry.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
+            return nothing_hangs(ed, integrate(ed, geo.tilt_rad, geo.tip_roi, 0.0).volume_px3 * geo.nl_per_px3)
+    span = plane_span_chord_px(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
+    clip_to_tip_plane(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
+    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
+    near = out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3
+    return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
+                          neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
-                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * ctx.geometry.nl_per_px3,
+                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * geo.nl_per_px3,
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
-                                                                                         ctx.geometry.tilt_rad) * ctx.geometry.nl_per_px3,
+                                                                                         geo.tilt_rad) * geo.nl_per_px3,
                                                               near)))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
                     gain: float) -> Protrusion | None:
-    """What reaches below an out-of-focus holder's face (``ctx.geometry.face_row0_px``, ``ctx.geometry.face_slope``) at the axis, and
+    """What reaches below an out-of-focus holder's face (``ctx.geometry.face_row0_px``, ``face_slope``) at the axis, and
     whether it is liquid (`dropvision.nozzle.protruding_columns`; columns in region px), or None."""
+    geo, photo = ctx.geometry, ctx.photometry
     limit = ctx.blur.mist_blur_factor * ctx.blur.reference_spread_px + ctx.config.mist_blur_offset_px
     x0, x1 = body.x0, body.x1
     y1 = min(roi.shape[0], body.y1 + int(math.ceil(3.0 * limit)) + 2)
     mask = seg.labels[:body.y1, x0:x1] == body.label
-    t = roi[:y1, x0:x1].astype(np.float32) * ctx.photometry.inv_background[:y1, x0:x1]
+    t = roi[:y1, x0:x1].astype(np.float32) * photo.inv_background[:y1, x0:x1]
     if gain != 1.0:
         t /= np.float32(gain)
-    face = ctx.geometry.face_row0_px + ctx.geometry.face_slope * (np.arange(x0, x1) + ctx.geometry.col0_px) - ctx.geometry.row0_px
-    found = protruding_columns(mask, t, face, ctx.geometry.axis_roi - x0, 0.5 * (ctx.photometry.threshold + ctx.photometry.liquid_level), limit,
-                               judge_focus=not ctx.geometry.face_liquid_seen)
+    face = geo.face_row0_px + geo.face_slope * (np.arange(x0, x1) + geo.col0_px) - geo.row0_px
+    found = protruding_columns(mask, t, face, geo.axis_roi - x0, 0.5 * (photo.threshold + photo.liquid_level), limit,
+                               judge_focus=not geo.face_liquid_seen)
     return None if found is None else replace(found, first=found.first + x0, last=found.last + x0)
 
 
@@ -320,10 +322,11 @@ def clip_level_px(volume: BodyVolume, ctx: FrameContext) -> float:
     (`dropvision.calibration_pass.ClipIllumination.relative_error`), moving the 50 % crossing by
     ``dB/B / slope`` with the edge's slope ``(1 - T_liquid) / (sqrt(2 pi) sigma)``
     (`dropvision.calibration_pass.edge_position_terms_px`); 0 without a centroid."""
+    geo, photo = ctx.geometry, ctx.photometry
     if not (np.isfinite(volume.centroid_row) and np.isfinite(volume.centroid_col)):
         return 0.0
-    rel = ctx.blur.clip_light.relative_error(volume.centroid_row + ctx.geometry.row0_px, volume.centroid_col + ctx.geometry.col0_px)
-    return edge_shift_px(rel, ctx.blur.correction_sigma_px, ctx.photometry.liquid_level)
+    rel = ctx.blur.clip_light.relative_error(volume.centroid_row + geo.row0_px, volume.centroid_col + geo.col0_px)
+    return edge_shift_px(rel, ctx.blur.correction_sigma_px, photo.liquid_level)
 
 
 def edge_noise_total_px(ctx: FrameContext) -> float:
@@ -349,9 +352,10 @@ def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> f
     (`common_edge_sigma_px`) and the body's own edge definition
     (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
     slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
-    definition = edge_definition_px(volume, ctx.photometry.liquid_level, sample_noise_t(ctx))
-    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), ctx.geometry.tilt_rad, definition_px=definition)
-    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.geometry.tilt_rad, closed)))
+    geo, photo = ctx.geometry, ctx.photometry
+    definition = edge_definition_px(volume, photo.liquid_level, sample_noise_t(ctx))
+    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), geo.tilt_rad, definition_px=definition)
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, geo.tilt_rad, closed)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -359,10 +363,12 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [_common_px3(volume, ctx, closed=not plane), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.geometry.tilt_rad)]
+    geo = ctx.geometry
+    parts = [_common_px3(volume, ctx, closed=not plane),
+             random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), geo.tilt_rad)]
     if plane:
-        parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.geometry.tilt_rad))
-    return float(math.sqrt(sum(p * p for p in parts))) * ctx.geometry.nl_per_px3
+        parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), geo.tilt_rad))
+    return float(math.sqrt(sum(p * p for p in parts))) * geo.nl_per_px3
 
 
 def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -431,28 +437,29 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         of the measured band inside the frame; ``on_dust``: opaque dust on its boundary (a speck
         wholly inside the silhouette changes no edge).
     """
+    geo, photo = ctx.geometry, ctx.photometry
     hh, ww = seg.labels.shape
     b = body
-    px = ctx.geometry.pixel_size_um
-    cos_t = math.cos(ctx.geometry.tilt_rad)
-    z, x = ctx.geometry.to_axis_um(volume.centroid_row, volume.centroid_col)
-    leaves = b.y1 >= hh or (b.x0 == 0 and ctx.geometry.col0_px == 0) or (b.x1 >= ww and ctx.geometry.col1_px >= ctx.geometry.frame_width_px)
-    out_band = (b.x0 == 0 and ctx.geometry.col0_px > 0) or (b.x1 >= ww and ctx.geometry.col1_px < ctx.geometry.frame_width_px)
+    px = geo.pixel_size_um
+    cos_t = math.cos(geo.tilt_rad)
+    z, x = geo.to_axis_um(volume.centroid_row, volume.centroid_col)
+    leaves = b.y1 >= hh or (b.x0 == 0 and geo.col0_px == 0) or (b.x1 >= ww and geo.col1_px >= geo.frame_width_px)
+    out_band = (b.x0 == 0 and geo.col0_px > 0) or (b.x1 >= ww and geo.col1_px < geo.frame_width_px)
     on_dust = False
-    if ctx.photometry.opaque is not None:
+    if photo.opaque is not None:
         # an opaque speck inside the silhouette is filled over and changes no edge; one on its
         # boundary cuts a notch into it
         inside = (seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label).astype(np.uint8)
         rim = inside > cv2.erode(inside, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        on_dust = bool(ctx.photometry.opaque[b.y0:b.y1, b.x0:b.x1][rim].any())
+        on_dust = bool(photo.opaque[b.y0:b.y1, b.x0:b.x1][rim].any())
     return DetachedBody(
         top_chord_ratio=top_chord_ratio(edges, volume),
-        volume_nl=volume.volume_px3 * ctx.geometry.nl_per_px3, z_um=z, x_um=x,
+        volume_nl=volume.volume_px3 * geo.nl_per_px3, z_um=z, x_um=x,
         length_um=(volume.bottom_row - volume.top_row + 1) * px * cos_t,
         diameter_um=volume.max_chord_px * px * cos_t,
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
         on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
-        row_px=volume.centroid_row + ctx.geometry.row0_px, col_px=volume.centroid_col + ctx.geometry.col0_px,
+        row_px=volume.centroid_row + geo.row0_px, col_px=volume.centroid_col + geo.col0_px,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
     )
 

@@ -559,25 +559,26 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
     -------
     ndarray of `APPEARANCE_DTYPE`
     """
+    photo = ctx.photometry
     out = []
-    depth_min = 0.5 * (1.0 - ctx.photometry.liquid_level)
+    depth_min = 0.5 * (1.0 - photo.liquid_level)
     for i, img in enumerate(images):
         roi = ctx.region(img)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.photometry.thr_image, ctx.photometry.allowed), ctx.config.min_body_area_px)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
         hh, ww = seg.labels.shape
         t = None
         for b in seg.bodies:
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
-            app = appearance(roi, ctx.photometry.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
-                             floor=ctx.photometry.liquid_level)
+            app = appearance(roi, photo.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=photo.liquid_level)
             if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
                 # its outline's edge-spread function: the blur of the jet's plane
-                ed = body_edges(roi, ctx.photometry.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
-                                ctx.photometry.threshold)
+                ed = body_edges(roi, photo.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
+                                photo.threshold)
                 if t is None:
-                    t = roi.astype(np.float32) * ctx.photometry.inv_background
-                sig = esf_sigma_px(t, *outline(ed), ctx.photometry.liquid_level)
+                    t = roi.astype(np.float32) * photo.inv_background
+                sig = esf_sigma_px(t, *outline(ed), photo.liquid_level)
                 out.append((i, b.area_px, app.min_transmission, app.edge_blur_px, sig))
     return np.array(out, APPEARANCE_DTYPE)
 
@@ -606,18 +607,19 @@ def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[fl
     -------
     (column, number of frames it comes from, level); (NaN, 0, NaN) without any such body.
     """
+    geo, photo = ctx.geometry, ctx.photometry
     cols, levels = [], []
-    depth_min = 0.5 * (1.0 - ctx.photometry.liquid_level)
+    depth_min = 0.5 * (1.0 - photo.liquid_level)
     for img in images:
         roi = ctx.region(img)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.photometry.thr_image, ctx.photometry.allowed), ctx.config.min_body_area_px)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
         hh, ww = seg.labels.shape
         liquid = []
         for b in sorted(seg.bodies, key=lambda b: -b.area_px):
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
-            app = appearance(roi, ctx.photometry.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
-                             floor=ctx.photometry.liquid_level)
+            app = appearance(roi, photo.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
+                             floor=photo.liquid_level)
             if (1.0 - app.min_transmission >= depth_min
                     and out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor,
                                             ctx.config.mist_blur_offset_px) is None):
@@ -626,11 +628,11 @@ def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[fl
             continue
         best = liquid[0]
         _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
-        cols.append(float(np.mean(cc)) + best.x0 + ctx.geometry.col0_px)
+        cols.append(float(np.mean(cc)) + best.x0 + geo.col0_px)
         region = np.isin(seg.labels, [b.label for b in liquid])
-        if ctx.photometry.opaque is not None:
-            region &= ~ctx.photometry.opaque
-        lv = interior_level(roi.astype(np.float32) * ctx.photometry.inv_background, region, threshold=ctx.photometry.threshold)
+        if photo.opaque is not None:
+            region &= ~photo.opaque
+        lv = interior_level(roi.astype(np.float32) * photo.inv_background, region, threshold=photo.threshold)
         if np.isfinite(lv):
             levels.append(lv)
     if not cols:
@@ -697,7 +699,8 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
         cal, geometry, dtype, max_value, noise_transmission=ctx.photometry.noise_transmission,
         smoothing_sigma_px=ctx.photometry.smoothing_sigma_px)
     if face is not None and liquid_seen_hanging(images, FrameContext(geometry, photometry, ctx.blur, config)):
-        geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face, face_liquid_seen=True)
+        geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face,
+                                             face_liquid_seen=True)
         cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
                          "at the axis below the face is taken as its meniscus in every frame")
     return geometry, photometry
@@ -712,28 +715,30 @@ def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) 
     read at the plane.  NaN with fewer than 2 such rows (a meniscus flat at, or inside, the orifice)
     or none at all.
     """
+    geo, photo = ctx.geometry, ctx.photometry
     roi = ctx.region(image)
-    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.photometry.thr_image, ctx.photometry.allowed), ctx.config.min_body_area_px)
-    body = find_nozzle_body(seg.bodies, ctx.geometry.axis_roi)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+    body = find_nozzle_body(seg.bodies, geo.axis_roi)
     if body is None:
         return float("nan")
     att = measure_attached(roi, ctx, seg, body, 1.0)
     r, left, right = outline(att.edges)
-    below = r > ctx.geometry.tip_roi + 0.5
+    below = r > geo.tip_roi + 0.5
     r, chord = r[below][:rows], (right - left)[below][:rows]
     if r.size < 2:
         return float("nan")
-    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), ctx.geometry.tip_roi))
-    return float(np.sqrt(sq) * math.cos(ctx.geometry.tilt_rad)) if sq > 0 else float("nan")
+    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), geo.tip_roi))
+    return float(np.sqrt(sq) * math.cos(geo.tilt_rad)) if sq > 0 else float("nan")
 
 
 def liquid_seen_hanging(images, ctx: FrameContext) -> bool:
     """Whether a calibration frame shows liquid hanging in focus below an out-of-focus face
     (`dropvision.bodies.hanging_columns`)."""
+    geo, photo = ctx.geometry, ctx.photometry
     for img in images:
         roi = ctx.region(img)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.photometry.thr_image, ctx.photometry.allowed), ctx.config.min_body_area_px)
-        body = find_nozzle_body(seg.bodies, ctx.geometry.axis_roi)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+        body = find_nozzle_body(seg.bodies, geo.axis_roi)
         if body is not None:
             found = hanging_columns(roi, ctx, seg, body, 1.0)
             if found is not None and found.liquid:
@@ -781,11 +786,12 @@ def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
 
 def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
     """Edge spread of the nozzle body in the first calibration frame (`dropvision.classify`)."""
+    geo, photo = ctx.geometry, ctx.photometry
     roi = ctx.region(first)
-    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.photometry.thr_image, ctx.photometry.allowed), ctx.config.min_body_area_px)
-    body = find_nozzle_body(seg.bodies, ctx.geometry.axis_roi)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+    body = find_nozzle_body(seg.bodies, geo.axis_roi)
     return (float("nan") if body is None
-            else nozzle_edge_spread_px(roi, ctx.photometry.inv_background, seg.labels, body, floor=ctx.photometry.liquid_level))
+            else nozzle_edge_spread_px(roi, photo.inv_background, seg.labels, body, floor=photo.liquid_level))
 
 
 def transmission_noise(transmission: np.ndarray, default: float) -> float:

@@ -143,7 +143,8 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
                          floor=ctx.photometry.liquid_level)
         body = describe_detached(ctx, seg, b, ed, bv)
         body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
-        why = out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor, ctx.config.mist_blur_offset_px,
+        why = out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor,
+                                  ctx.config.mist_blur_offset_px,
                                   "nozzle walls'" if ctx.blur.reference is BlurReference.NOZZLE_WALLS
                                   else "the sharpest body's")
         if why is None:
