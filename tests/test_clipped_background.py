@@ -160,3 +160,20 @@ def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
     assert clip_level_px(body, wide) < 0.5 and common_edge_sigma_px(wide, body) == pytest.approx(0.5)
     # a background clipped everywhere shows nothing of its shape: no fit
     assert illumination_under_clip(np.minimum(img * 0 + 255.0, 255.0), cal, 255) is None
+
+
+def test_clipped_background_record_writes_the_same_keys():
+    """`ClippedBackground` (a frozen record, no dict read with defaults) writes summary.json's
+    ``calibration.clipped_background`` with its keys in their order; ``edge_range_px`` only with an
+    unknown level."""
+    from dropvision.calibration import ClippedBackground
+
+    known = ClippedBackground(fraction=0.6, level=280.0, level_uncertainty=0.5, max_value=255, level_known=True)
+    assert list(known.to_dict()) == ["fraction", "level", "level_uncertainty", "max_value", "method", "level_known",
+                                     "used"]
+    assert known.to_dict()["used"] is True and known.to_dict()["method"] == ClippedBackground.METHOD
+    lower = ClippedBackground(fraction=0.9, level=255.0, level_uncertainty=float("nan"), max_value=255,
+                              level_known=False, edge_range_px=1.25)
+    assert list(lower.to_dict())[-1] == "edge_range_px" and lower.to_dict()["edge_range_px"] == 1.25
+    with pytest.raises(AttributeError):
+        known.level = 300.0  # frozen

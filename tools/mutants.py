@@ -269,6 +269,20 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("tabular_region_low_unchecked", "identify/tabular.py",
            "for i in np.flatnonzero(X[:, j] < self.low[j]):", "for i in np.flatnonzero(X[:, j] < -np.inf):",
            ("tests/test_tabular.py",), "an input below its training range is not flagged"),
+    # --- issue 34: the seams of decisions that no longer read a message -------------------------
+    Mutant("edge_slope_without_sqrt_2pi", "dropvision/edges.py",
+           "return float(transmission_error * _SQRT_2PI * sig / depth)",
+           "return float(transmission_error * sig / depth)",
+           ("tests/test_clipped_background.py::test_backlight_under_the_clip_is_extrapolated_from_what_is_seen",),
+           "the one edge slope (edges.edge_shift_px) loses its sqrt(2 pi)"),
+    Mutant("same_view_flag_dropped", "dropvision/shot_rig.py",
+           'f"{MAX_SHIFT_PX:g} px)", same_view=True)', 'f"{MAX_SHIFT_PX:g} px)")',
+           ("tests/test_shots_shared.py::test_fingerprints_tell_a_moved_camera_and_another_light",),
+           "a shifted shot is no longer known as the same view (the flag, not the words, decides)"),
+    Mutant("touching_body_rule", "dropvision/bodies.py",
+           "    if body.touching:\n        return DetachedClass.TOUCHING", "    if False:\n        return DetachedClass.TOUCHING",
+           ("tests/test_rerun.py::test_class_image_rejected_and_touching_bodies",),
+           "the one body-class rule (bodies.detached_class) forgets a body split off the main drop"),
 )
 
 
