@@ -35,6 +35,11 @@ class CalibrationError(ValueError):
     """The frames do not allow a calibration (no nozzle found...)."""
 
 
+class NoNozzleError(CalibrationError):
+    """No nozzle in the frame: no dark body at the top edge, or none with a nozzle's walls or face.
+    Callers that can measure without a nozzle catch this class (never the message's words)."""
+
+
 class CalibrationWarning(UserWarning):
     """A calibration cross-check disagrees (e.g. pixel size vs nozzle width)."""
 

@@ -13,6 +13,7 @@ The per-pixel class image the viewer shows is drawn from these bodies by
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass, replace
 
@@ -25,7 +26,7 @@ from dropvision.segmentation import (
     Segmentation,
     find_nozzle_body,
 )
-from dropvision.edges import RowEdges, body_edges
+from dropvision.edges import RowEdges, body_edges, edge_shift_px
 from dropvision.nozzle import Protrusion, protruding_columns
 from dropvision.volume import (
     equivalent_diameter_um,
@@ -77,6 +78,34 @@ class DetachedBody:
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
         return self.length_um > compact_ratio * equivalent_diameter_um(self.volume_nl)
+
+
+class DetachedClass(enum.Enum):
+    """The class of an in-focus detached body of one frame (`detached_class`); the value is its
+    ``body_class`` in bodies.parquet where it has one of its own (a touching body is a ``satellite``)."""
+
+    BORDER = "border"
+    MAIN_DROP = "main_drop"
+    TOUCHING = "touching"
+    TAIL = "tail"
+    SATELLITE = "satellite"
+
+
+def detached_class(body: DetachedBody, index: int, compact_ratio: float) -> DetachedClass:
+    """The one rule for the class of the ``index``-th in-focus detached body of a frame (largest
+    first, `FrameRecord.bodies`), used by bodies.parquet (`dropvision.classify.bodies_table`) and
+    the viewer's class image (`class_image`): cut by the frame or the measured band, ``BORDER``;
+    the first, ``MAIN_DROP``; split off the main drop at a waist, ``TOUCHING``; longer than
+    ``compact_ratio`` equivalent-sphere diameters, ``TAIL``; else ``SATELLITE``."""
+    if body.leaves or body.out_of_band:
+        return DetachedClass.BORDER
+    if index == 0:
+        return DetachedClass.MAIN_DROP
+    if body.touching:
+        return DetachedClass.TOUCHING
+    if body.elongated(compact_ratio):
+        return DetachedClass.TAIL
+    return DetachedClass.SATELLITE
 
 
 @dataclass
@@ -148,13 +177,14 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     -------
     AttachedLiquid
     """
+    geo, photo = ctx.geometry, ctx.photometry
     # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
-    halo_px = 3.0 * max(ctx.sigma_px if np.isfinite(ctx.sigma_px) else 0.0, 0.5)
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
-                    ctx.threshold, gain, row_min=max(0, int(math.floor(ctx.tip_roi)) - 1),
-                    bright_row_min=int(math.ceil(ctx.tip_roi + halo_px)) if np.isfinite(ctx.tip_roi) else 0)
+    halo_px = 3.0 * max(ctx.blur.correction_sigma_px if np.isfinite(ctx.blur.correction_sigma_px) else 0.0, 0.5)
+    ed = body_edges(roi, photo.inv_background, seg.labels, body.label, body.bbox,
+                    photo.threshold, gain, row_min=max(0, int(math.floor(geo.tip_roi)) - 1),
+                    bright_row_min=int(math.ceil(geo.tip_roi + halo_px)) if np.isfinite(geo.tip_roi) else 0)
     # an out-of-focus holder: only what hangs below its face is liquid
-    if np.isfinite(getattr(ctx, "face_a", float("nan"))):
+    if np.isfinite(geo.face_row0_px):
         found = hanging_columns(roi, ctx, seg, body, gain)
         if found is None:
             return nothing_hangs(ed, 0.0)
@@ -163,34 +193,35 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                       np.minimum(ed.right_px[keep], found.last + 0.5), ed.touches)
         ed = edges_in_the_halo(roi, ctx, ed, found, gain)
         if not found.liquid:  # the face's blurred halo: no liquid, but as much could hide in it
-            return nothing_hangs(ed, integrate(ed, ctx.tilt_rad, ctx.tip_roi, 0.0).volume_px3 * ctx.nl_per_px3)
-    span = plane_span_chord_px(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
-    clip_to_tip_plane(ed, ctx.tip_roi, ctx.axis_roi, ctx.tilt_rad)
-    bv = replace(integrate(ed, ctx.tilt_rad, ctx.tip_roi, ctx.sigma_px), plane_span_px=span)
-    near = out_of_focus_nozzle_px3(bv, ctx.nozzle_blur_px) * ctx.nl_per_px3
-    return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3, bottom_row=bv.bottom_row,
-                          neck_px=neck_chord_px(ed, ctx.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
+            return nothing_hangs(ed, integrate(ed, geo.tilt_rad, geo.tip_roi, 0.0).volume_px3 * geo.nl_per_px3)
+    span = plane_span_chord_px(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
+    clip_to_tip_plane(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
+    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
+    near = out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3
+    return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
+                          neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
-                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * ctx.nl_per_px3,
+                          common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * geo.nl_per_px3,
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
-                                                                                         ctx.tilt_rad) * ctx.nl_per_px3,
+                                                                                         geo.tilt_rad) * geo.nl_per_px3,
                                                               near)))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
                     gain: float) -> Protrusion | None:
-    """What reaches below an out-of-focus holder's face (``ctx.face_a``, ``ctx.face_b``) at the axis, and
+    """What reaches below an out-of-focus holder's face (``ctx.geometry.face_row0_px``, ``face_slope``) at the axis, and
     whether it is liquid (`dropvision.nozzle.protruding_columns`; columns in region px), or None."""
-    limit = ctx.mist_blur_factor * ctx.edge_blur_ref_px + ctx.mist_blur_offset_px
+    geo, photo = ctx.geometry, ctx.photometry
+    limit = ctx.blur.mist_blur_factor * ctx.blur.reference_spread_px + ctx.config.mist_blur_offset_px
     x0, x1 = body.x0, body.x1
     y1 = min(roi.shape[0], body.y1 + int(math.ceil(3.0 * limit)) + 2)
     mask = seg.labels[:body.y1, x0:x1] == body.label
-    t = roi[:y1, x0:x1].astype(np.float32) * ctx.inv_background[:y1, x0:x1]
+    t = roi[:y1, x0:x1].astype(np.float32) * photo.inv_background[:y1, x0:x1]
     if gain != 1.0:
         t /= np.float32(gain)
-    face = ctx.face_a + ctx.face_b * (np.arange(x0, x1) + ctx.c0) - ctx.r0
-    found = protruding_columns(mask, t, face, ctx.axis_roi - x0, 0.5 * (ctx.threshold + ctx.liquid_level), limit,
-                               judge_focus=not ctx.face_liquid_seen)
+    face = geo.face_row0_px + geo.face_slope * (np.arange(x0, x1) + geo.col0_px) - geo.row0_px
+    found = protruding_columns(mask, t, face, geo.axis_roi - x0, 0.5 * (photo.threshold + photo.liquid_level), limit,
+                               judge_focus=not geo.face_liquid_seen)
     return None if found is None else replace(found, first=found.first + x0, last=found.last + x0)
 
 
@@ -205,9 +236,9 @@ def edges_in_the_halo(roi: np.ndarray, ctx: FrameContext, edges: RowEdges, found
     crossings within the protrusion's columns by linear interpolation (a lens spot inside is
     liquid).  A row without a pixel that dark holds no liquid.  Rows below the halo are unchanged.
     """
-    blur = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) and ctx.nozzle_blur_px > 0 else 0.0
-    y_end = min(roi.shape[0], int(math.ceil(ctx.tip_roi + 3.0 * blur)) + 1)
-    y_start = max(0, int(math.floor(ctx.tip_roi)))
+    blur = ctx.blur.nozzle_sigma_px if np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0 else 0.0
+    y_end = min(roi.shape[0], int(math.ceil(ctx.geometry.tip_roi + 3.0 * blur)) + 1)
+    y_start = max(0, int(math.floor(ctx.geometry.tip_roi)))
     halo = (edges.row >= y_start) & (edges.row < y_end)
     if not halo.any():
         return edges
@@ -218,8 +249,8 @@ def edges_in_the_halo(roi: np.ndarray, ctx: FrameContext, edges: RowEdges, found
         return edges
     rows, lefts, rights = [], [], []
     for y in np.unique(edges.row[halo]):
-        t = roi[y].astype(np.float32) * ctx.inv_background[y] / np.float32(gain)
-        thr = 0.5 * float(np.median(t[side])) * (1.0 + ctx.liquid_level)
+        t = roi[y].astype(np.float32) * ctx.photometry.inv_background[y] / np.float32(gain)
+        thr = 0.5 * float(np.median(t[side])) * (1.0 + ctx.photometry.liquid_level)
         dark = np.nonzero(t[found.first:found.last + 1] < thr)[0]
         if dark.size == 0:
             continue
@@ -253,7 +284,7 @@ def _plane_sigma_px(ctx: FrameContext) -> float:
     """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
     and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`), or
     to the walls' blur when they are out of focus."""
-    nb = ctx.nozzle_blur_px if np.isfinite(ctx.nozzle_blur_px) else 0.0
+    nb = ctx.blur.nozzle_sigma_px if np.isfinite(ctx.blur.nozzle_sigma_px) else 0.0
     return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
                            + nb * nb))
 
@@ -262,17 +293,17 @@ def common_edge_sigma_px(ctx: FrameContext, volume: BodyVolume | None = None) ->
     """The sequence's measured edge-position error common to a body (px): the calibration's terms
     (background level, clipped background) without its fixed sub-pixel floor, which a volume
     replaces by the measured sub-pixel error of each edge (`edge_noise_total_px`).  Under a clipped
-    background whose shape is seen (``ctx.clip_light``), the clipped term is the body's own
+    background whose shape is seen (``ctx.blur.clip_light``), the clipped term is the body's own
     (`clip_level_px`, at its centroid) where that is larger than the sequence's: the level's excess
     over the clip (the rise of the backlight from the clip's edge to the nozzle, which no fit of the
     frame's corners can undo) stays the least of it.  On the synthetic clipped pendant drop (the
     backlight 8 % above the nozzle's level at the drop) the median |error| / u over 8 noise draws
     went from 1.12 to 0.92, every draw within 2 u."""
-    total = float(ctx.edge_position_sigma_px)
-    floor = float(getattr(ctx, "edge_floor_px", 0.0))
+    total = float(ctx.blur.edge_position_sigma_px)
+    floor = float(ctx.config.edge_position_floor_px)
     sq = total * total - floor * floor
-    if volume is not None and getattr(ctx, "clip_light", None) is not None:
-        seq = float(ctx.clip_term_px)
+    if volume is not None and ctx.blur.clip_light is not None:
+        seq = float(ctx.blur.clip_term_px)
         sq += max(clip_level_px(volume, ctx), seq) ** 2 - seq * seq
     return math.sqrt(max(sq, 0.0))
 
@@ -283,27 +314,26 @@ def clip_level_px(volume: BodyVolume, ctx: FrameContext) -> float:
     (`dropvision.calibration_pass.ClipIllumination.relative_error`), moving the 50 % crossing by
     ``dB/B / slope`` with the edge's slope ``(1 - T_liquid) / (sqrt(2 pi) sigma)``
     (`dropvision.calibration_pass.edge_position_terms_px`); 0 without a centroid."""
+    geo, photo = ctx.geometry, ctx.photometry
     if not (np.isfinite(volume.centroid_row) and np.isfinite(volume.centroid_col)):
         return 0.0
-    rel = ctx.clip_light.relative_error(volume.centroid_row + ctx.r0, volume.centroid_col + ctx.c0)
-    sig = max(float(ctx.sigma_px), 0.5) if np.isfinite(ctx.sigma_px) else 1.0
-    depth = max(1.0 - float(ctx.liquid_level), 0.05)
-    return float(rel * math.sqrt(2.0 * math.pi) * sig / depth)
+    rel = ctx.blur.clip_light.relative_error(volume.centroid_row + geo.row0_px, volume.centroid_col + geo.col0_px)
+    return edge_shift_px(rel, ctx.blur.correction_sigma_px, photo.liquid_level)
 
 
 def edge_noise_total_px(ctx: FrameContext) -> float:
-    """Independent error of one edge (px): the noise over the edge's slope (``ctx.edge_noise_px``)
+    """Independent error of one edge (px): the noise over the edge's slope (``ctx.blur.edge_noise_px``)
     and the sub-pixel interpolation's error at the calibrated blur
     (`dropvision.volume.interpolation_error_px`), in quadrature."""
-    return float(math.hypot(ctx.edge_noise_px, interpolation_error_px(ctx.sigma_px)))
+    return float(math.hypot(ctx.blur.edge_noise_px, interpolation_error_px(ctx.blur.correction_sigma_px)))
 
 
 def sample_noise_t(ctx: FrameContext) -> float:
     """Standard deviation of one pixel's transmission as the edges see it: the frame's noise
-    (``ctx.noise_t``), less where the frame is smoothed before its edges are placed (a Gaussian of
-    ``ctx.smooth_px`` divides white noise by ``2 sqrt(pi) smooth_px``)."""
-    noise = float(getattr(ctx, "noise_t", 0.0))
-    smooth = float(getattr(ctx, "smooth_px", 0.0))
+    (``ctx.photometry.noise_transmission``), less where the frame is smoothed before its edges are placed (a Gaussian of
+    ``ctx.photometry.smoothing_sigma_px`` divides white noise by ``2 sqrt(pi) sigma``)."""
+    noise = float(ctx.photometry.noise_transmission)
+    smooth = float(ctx.photometry.smoothing_sigma_px)
     if np.isfinite(smooth) and smooth > 0:
         noise /= max(2.0 * math.sqrt(math.pi) * smooth, 1.0)
     return noise
@@ -314,9 +344,10 @@ def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> f
     (`common_edge_sigma_px`) and the body's own edge definition
     (`dropvision.volume.edge_definition_px`), with the blur correction's model error and the
     slices' tilt factor (`dropvision.volume.tilt_model_uncertainty_px3`)."""
-    definition = edge_definition_px(volume, getattr(ctx, "liquid_level", float("nan")), sample_noise_t(ctx))
-    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), ctx.tilt_rad, definition_px=definition)
-    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, ctx.tilt_rad, closed)))
+    geo, photo = ctx.geometry, ctx.photometry
+    definition = edge_definition_px(volume, photo.liquid_level, sample_noise_t(ctx))
+    edges = volume_uncertainty_px3(volume, common_edge_sigma_px(ctx, volume), geo.tilt_rad, definition_px=definition)
+    return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, geo.tilt_rad, closed)))
 
 
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
@@ -324,10 +355,12 @@ def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: boo
     (`dropvision.volume.volume_uncertainty_px3`), the edges' own noise
     (`dropvision.volume.random_volume_uncertainty_px3`) and, for liquid cut at the tip plane
     (``plane``), the plane's place (as uncertain as an edge) in quadrature."""
-    parts = [_common_px3(volume, ctx, closed=not plane), random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), ctx.tilt_rad)]
+    geo = ctx.geometry
+    parts = [_common_px3(volume, ctx, closed=not plane),
+             random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), geo.tilt_rad)]
     if plane:
-        parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), ctx.tilt_rad))
-    return float(math.sqrt(sum(p * p for p in parts))) * ctx.nl_per_px3
+        parts.append(plane_cut_uncertainty_px3(volume, _plane_sigma_px(ctx), geo.tilt_rad))
+    return float(math.sqrt(sum(p * p for p in parts))) * geo.nl_per_px3
 
 
 def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -349,9 +382,9 @@ def measure_body(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: Da
     edges : RowEdges
     volume : BodyVolume
     """
-    ed = body_edges(roi, ctx.inv_background, seg.labels, body.label, body.bbox,
-                    ctx.threshold, gain)
-    return ed, integrate(ed, ctx.tilt_rad, None, ctx.sigma_px)
+    ed = body_edges(roi, ctx.photometry.inv_background, seg.labels, body.label, body.bbox,
+                    ctx.photometry.threshold, gain)
+    return ed, integrate(ed, ctx.geometry.tilt_rad, None, ctx.blur.correction_sigma_px)
 
 
 def off_path_reason(main: DetachedBody, body: DetachedBody, through_tip: bool = True) -> str | None:
@@ -396,27 +429,28 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         of the measured band inside the frame; ``on_dust``: opaque dust on its boundary (a speck
         wholly inside the silhouette changes no edge).
     """
+    geo, photo = ctx.geometry, ctx.photometry
     hh, ww = seg.labels.shape
     b = body
-    px = ctx.pixel_size_um
-    cos_t = math.cos(ctx.tilt_rad)
-    z, x = ctx.to_axis_um(volume.centroid_row, volume.centroid_col)
-    leaves = b.y1 >= hh or (b.x0 == 0 and ctx.c0 == 0) or (b.x1 >= ww and ctx.c1 >= ctx.width)
-    out_band = (b.x0 == 0 and ctx.c0 > 0) or (b.x1 >= ww and ctx.c1 < ctx.width)
+    px = geo.pixel_size_um
+    cos_t = math.cos(geo.tilt_rad)
+    z, x = geo.to_axis_um(volume.centroid_row, volume.centroid_col)
+    leaves = b.y1 >= hh or (b.x0 == 0 and geo.col0_px == 0) or (b.x1 >= ww and geo.col1_px >= geo.frame_width_px)
+    out_band = (b.x0 == 0 and geo.col0_px > 0) or (b.x1 >= ww and geo.col1_px < geo.frame_width_px)
     on_dust = False
-    if ctx.opaque is not None:
+    if photo.opaque is not None:
         # an opaque speck inside the silhouette is filled over and changes no edge; one on its
         # boundary cuts a notch into it
         inside = (seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label).astype(np.uint8)
         rim = inside > cv2.erode(inside, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=0)
-        on_dust = bool(ctx.opaque[b.y0:b.y1, b.x0:b.x1][rim].any())
+        on_dust = bool(photo.opaque[b.y0:b.y1, b.x0:b.x1][rim].any())
     return DetachedBody(
         top_chord_ratio=top_chord_ratio(edges, volume),
-        volume_nl=volume.volume_px3 * ctx.nl_per_px3, z_um=z, x_um=x,
+        volume_nl=volume.volume_px3 * geo.nl_per_px3, z_um=z, x_um=x,
         length_um=(volume.bottom_row - volume.top_row + 1) * px * cos_t,
         diameter_um=volume.max_chord_px * px * cos_t,
         top_row=volume.top_row, bottom_row=volume.bottom_row, leaves=bool(leaves), out_of_band=bool(out_band),
         on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
-        row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
+        row_px=volume.centroid_row + geo.row0_px, col_px=volume.centroid_col + geo.col0_px,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
     )

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from dropvision.bodies import DetachedClass, detached_class
 from dvcore import schema
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
@@ -87,17 +88,18 @@ def bodies_table(records, frames: pd.DataFrame, *, edge_blur_ref_px: float, comp
                          **r.attached_body, "volume_nl": r.attached_volume_nl})
             n += 1
         for j, b in enumerate(r.bodies):
+            kind = detached_class(b, j, compact_ratio)
             cls, counted = "satellite", False
-            if b.leaves or b.out_of_band:
+            if kind is DetachedClass.BORDER:
                 cls, why = "border", "touches the edge of the frame or of the measured band: cut"
             elif attached[k]:
                 cls, why = "noise", "detached body in a frame before the pinch-off: not liquid of this firing"
-            elif j == 0:
+            elif kind is DetachedClass.MAIN_DROP:
                 cls, why = "main_drop", "largest in-focus detached body"
-            elif b.touching:
+            elif kind is DetachedClass.TOUCHING:
                 why = b.reason + ": a drop of its own, counted; its volume stays in the main drop's"
                 counted = known
-            elif b.elongated(compact_ratio):
+            elif kind is DetachedClass.TAIL:
                 cls, why = "tail", f"in focus, detached, longer than {compact_ratio:g} equivalent diameters"
                 counted = known
             else:

@@ -13,12 +13,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import cv2
 import numpy as np
 
-from dropvision.background import (BackgroundModel, CalibrationError, CalibrationWarning, clipped_edge_range_px,
-                                   clipped_fraction, darkest_level, estimate_background, unclipped_level)
+from dropvision.background import (BackgroundModel, CalibrationError, CalibrationWarning, NoNozzleError,
+                                   clipped_edge_range_px, clipped_fraction, darkest_level, estimate_background,
+                                   unclipped_level)
 from dropvision.edges import DEFAULT_EDGE_THRESHOLD, edge_threshold, first_pass_threshold
 from dropvision.nozzle import find_nozzle, find_tip, outer_diameter_uncertainty_px
 from dropvision.segmentation import fill_holes
@@ -52,6 +54,50 @@ def interior_level(transmission: np.ndarray, region: np.ndarray, erode_px: int =
     return level
 
 
+@dataclass(frozen=True)
+class ClippedBackground:
+    """A background clipped at the sensor maximum over more than ``clipped_limit`` of the frame.
+
+    Attributes
+    ----------
+    fraction : float
+        Fraction of the background model at the sensor maximum.
+    level : float
+        Grey level used wherever the background is clipped: the unclipped level read at the
+        nozzle walls (`dropvision.background.unclipped_level`), or the sensor maximum (a lower
+        bound) when it could not be estimated (``level_known`` False).
+    level_uncertainty : float
+        Standard uncertainty of ``level`` (grey levels; NaN when unknown).
+    max_value : int
+        Sensor maximum (grey levels).
+    level_known : bool
+        The level was estimated (above the sensor maximum).
+    edge_range_px : float
+        With an unknown level: how far (px) the true edge may lie outside the measured one
+        (`dropvision.background.clipped_edge_range_px`); NaN when the level is known.
+    """
+
+    fraction: float
+    level: float
+    level_uncertainty: float
+    max_value: int
+    level_known: bool
+    edge_range_px: float = float("nan")
+
+    #: How the level is found (summary.json's ``calibration.clipped_background.method``).
+    METHOD: ClassVar[str] = ("background grey level from the unclipped part of the top body's edge profile "
+                             "(background.unclipped_level), used wherever the background model is at the "
+                             "sensor maximum")
+
+    def to_dict(self) -> dict:
+        """summary.json's ``calibration.clipped_background`` (its keys and their order unchanged)."""
+        out = {"fraction": self.fraction, "level": self.level, "level_uncertainty": self.level_uncertainty,
+               "max_value": self.max_value, "method": self.METHOD, "level_known": self.level_known, "used": True}
+        if not self.level_known:
+            out["edge_range_px"] = self.edge_range_px
+        return out
+
+
 @dataclass
 class Calibration:
     """Everything the per-frame measurement needs (full-frame canonical coordinates)."""
@@ -78,8 +124,8 @@ class Calibration:
     pixel_size_ratio: float = float("nan")
     #: Standard uncertainty of that ratio from the measured outer diameter (see `outer_diameter_uncertainty_px`).
     pixel_size_ratio_uncertainty: float = float("nan")
-    #: A clipped background: ``fraction`` at the sensor maximum, unclipped ``level`` (NaN: unknown), ``method``.
-    clipped: dict | None = None
+    #: A clipped background (`ClippedBackground`); None when the background is not clipped.
+    clipped: ClippedBackground | None = None
     #: Parts of the edge-position uncertainty common to a body (px; `dropvision.calibration_pass.edge_position_terms_px`).
     edge_position_terms_px: dict = field(default_factory=dict)
     #: The nozzle walls are out of focus (the sharpest detached body is the in-focus reference).
@@ -99,6 +145,9 @@ class Calibration:
     pixel_size_uncertainty_um: float = 0.0
     #: Parts (px, standard uncertainties) of the needle's outer width when the pixel size comes from it.
     nozzle_width_terms_px: dict = field(default_factory=dict)
+    #: The tip row and the axis column were given (sequence.json or an option), not measured: nothing replaces them.
+    tip_row_given: bool = False
+    axis_col_given: bool = False
 
     @property
     def pixel_size_relative_uncertainty(self) -> float:
@@ -120,9 +169,9 @@ class Calibration:
     @property
     def clipped_level(self) -> float:
         """Unclipped background level used where the background is clipped; NaN when not clipped or unknown."""
-        if not self.clipped or not self.clipped.get("used", False):
+        if self.clipped is None:
             return float("nan")  # not clipped
-        return float(self.clipped["level"])
+        return float(self.clipped.level)
 
     @property
     def tilt_deg(self) -> float:
@@ -162,7 +211,7 @@ class Calibration:
                 "illumination_falloff": self.background.falloff,
                 "residual": self.background.residual,
             },
-            "clipped_background": None if self.clipped is None else dict(self.clipped),
+            "clipped_background": None if self.clipped is None else self.clipped.to_dict(),
             "edge_position_uncertainty_px": self.edge_position_uncertainty_px,
             "edge_position_terms_px": dict(self.edge_position_terms_px),
             "volume_uncertainty_source": self.volume_uncertainty_source,
@@ -228,7 +277,7 @@ def calibrate_frames(
     """
     bg = estimate_background(spread, static_dust=static_dust)
     notes: list[str] = []
-    clipped = None
+    clipped: ClippedBackground | None = None
     from_nozzle = bool(pixel_size_from_nozzle and nozzle_outer_diameter_um)
     # the width is the pixel size's source: no expected width steers the walls' choice (one rule)
     expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um and not from_nozzle else None
@@ -237,13 +286,9 @@ def calibrate_frames(
         level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background,
                                                              DEFAULT_EDGE_THRESHOLD,
                                                              expected), max_value)
-        clipped = {"fraction": frac, "level": level, "level_uncertainty": level_se, "max_value": int(max_value),
-                   "method": "background grey level from the unclipped part of the top body's edge profile "
-                             "(background.unclipped_level), used wherever the background model is at the "
-                             "sensor maximum"}
-        clipped["level_known"] = bool(np.isfinite(level) and level > max_value)
-        clipped["used"] = True
-        if clipped["level_known"]:
+        if bool(np.isfinite(level) and level > max_value):
+            clipped = ClippedBackground(fraction=frac, level=level, level_uncertainty=level_se,
+                                        max_value=int(max_value), level_known=True)
             bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(level),
                                      bg.background).astype(np.float32)
             notes.append(f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
@@ -252,15 +297,16 @@ def calibrate_frames(
         else:
             # the true level is at or above the clip: the sensor maximum is its lower bound, and the
             # true edge lies between our crossing and the first clipped pixel outside it
-            clipped["level"], clipped["level_uncertainty"] = float(max_value), float("nan")
             bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(max_value),
                                      bg.background).astype(np.float32)
             nz = find_nozzle(np.asarray(first, np.float32) / bg.background, DEFAULT_EDGE_THRESHOLD, expected)
-            clipped["edge_range_px"] = clipped_edge_range_px(first, nz, max_value)
+            clipped = ClippedBackground(fraction=frac, level=float(max_value), level_uncertainty=float("nan"),
+                                        max_value=int(max_value), level_known=False,
+                                        edge_range_px=clipped_edge_range_px(first, nz, max_value))
             notes.append(f"background clipped over {100 * frac:.0f} % of the frame and its level could not be "
                          f"estimated (the middle of the nozzle walls' edge is clipped too): the sensor maximum "
                          f"{max_value} is taken as its level (a lower bound); the true edge lies within "
-                         f"{clipped['edge_range_px']:.2f} px outside the measured one (in the uncertainty)")
+                         f"{clipped.edge_range_px:.2f} px outside the measured one (in the uncertainty)")
     t_first = np.asarray(first, np.float32) / bg.background
     # first pass with a 50 % threshold, refined with the measured nozzle level
     # first pass at 50 % (half-way to the darkest body in a low-contrast frame, where the nozzle
@@ -269,7 +315,7 @@ def calibrate_frames(
     try:
         nozzle = find_nozzle(t_first, first_pass_threshold(darkest), expected)
     except CalibrationError as exc:
-        if not (allow_no_nozzle and str(exc).startswith("no nozzle")):
+        if not (allow_no_nozzle and isinstance(exc, NoNozzleError)):
             raise
         return _without_nozzle(exc, t_first, spread, bg, pixel_size_um, first_pass_threshold(darkest), notes, clipped)
     thr_n = edge_threshold(nozzle.interior_level)
@@ -326,9 +372,9 @@ def calibrate_frames(
         pixel_size_um=float(pixel_size_um),
         pixel_size_source=source,
         tip_row=float(tip),
-        tip_source=tip_src,
+        tip_source=tip_src, tip_row_given=tip_row is not None,
         axis_col=float(axis),
-        axis_source=axis_src,
+        axis_source=axis_src, axis_col_given=axis_col is not None,
         tilt_rad=float(tilt),
         tilt_source=tilt_src,
         liquid_level=liquid,
@@ -351,7 +397,7 @@ NO_NOZZLE_TILT_SOURCE = "image columns (assumed: no nozzle found)"
 
 
 def _without_nozzle(exc: CalibrationError, t_first: np.ndarray, spread: list[np.ndarray], bg: BackgroundModel,
-                    pixel_size_um: float, threshold: float, notes: list[str], clipped: dict | None) -> Calibration:
+                    pixel_size_um: float, threshold: float, notes: list[str], clipped: ClippedBackground | None) -> Calibration:
     """A calibration without a nozzle, for a frame whose detached drops can still be measured.
 
     Only when the first frame holds a dark body touching no edge of the frame of at least 50 px

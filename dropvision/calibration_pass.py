@@ -2,8 +2,9 @@
 
 `calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
 (`dropvision.calibration.calibrate_frames`: background, nozzle, axis, tilt, tip plane, liquid level),
-and then runs the stages below, each taking arrays and returning a small result it applies to the
-context it built (`dropvision.context.FrameContext.build`):
+and then runs the stages below, each taking arrays (or the groups built so far) and returning a
+small frozen result; the context's groups (`dropvision.context.Geometry`, `PhotometricReference`,
+`BlurModel`) are built from them, and the `FrameContext` once, at the end:
 
 - `noise_smoothing`: the transmission noise, and whether noisy frames are smoothed first;
 - `wall_reference`: the nozzle walls' sharpness and contrast, against which a frame's blur and
@@ -16,25 +17,33 @@ context it built (`dropvision.context.FrameContext.build`):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 import dropvision.quality as q
-from dropvision.background import median_by_selection
+from dropvision.background import NoNozzleError, median_by_selection
 from dropvision.blur import edge_sigma_px, esf_sigma_px
 from dropvision.bodies import hanging_columns, measure_attached
 from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
-from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
-from dropvision.edges import body_edges, edge_threshold
+from dropvision.context import (BlurModel, BlurReference, FrameContext, Geometry, PhotometricReference, WallReference,
+                                smoothing_kernel_sigma_px)
+from dropvision.edges import body_edges, edge_shift_px, edge_threshold
 from dropvision.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
                                top_bodies)
 from dropvision.segmentation import dark_mask, find_nozzle_body, segment
 from dropvision.sequence import SequenceError, pixel_size_from_nozzle
 from dropvision.volume import outline
+
+
+#: The frames' transmission noise taken when the first calibration frame has too few bright pixels to measure it.
+DEFAULT_NOISE_TRANSMISSION = 0.01
+#: The name of the edge-position term of a clipped background (`edge_position_terms_px`; summary.json
+#: ``calibration.edge_position_terms_px``): a body's own term replaces it under a seen backlight.
+CLIPPED_BACKGROUND_TERM = "clipped background"
 
 
 def calibration_indices(delays_us: np.ndarray, n: int) -> list[int]:
@@ -79,9 +88,9 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
     -------
     cal : Calibration
     sigma_px : float
-        Effective edge blur (Gaussian sigma, px).
+        The calibrated edge blur (Gaussian sigma, px; ``ctx.blur.calibrated_sigma_px``).
     ctx : FrameContext
-        What `dropvision.frame.measure_frame` needs.
+        What `dropvision.frame.measure_frame` needs, built once at the end of the pass.
 
     Raises
     ------
@@ -119,55 +128,59 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
             max_value=2 ** int(meta.bit_depth) - 1, clipped_limit=config.saturation_limit,
             # without a nozzle, its detached drops are measured where the frame's orientation is known (stated
             # or detected): an undetected one is refused, naming what each edge shows
-            allow_no_nozzle=(meta.nozzle_tip_row is None
-                             and not str((meta.sources or {}).get("orientation", "")).startswith("default")),
+            allow_no_nozzle=meta.nozzle_tip_row is None and not getattr(meta, "orientation_assumed", False),
             pixel_size_from_nozzle=pixel_size_from_nozzle(meta),
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
         seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
-                if how and str(exc).startswith("no nozzle") else "")
+                if how and isinstance(exc, NoNozzleError) else "")
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background
     expected = (meta.nozzle_outer_diameter_um / cal.pixel_size_um
                 if meta.nozzle_outer_diameter_um and not cal.pixel_size_from_nozzle else None)
     max_value = 2 ** int(meta.bit_depth) - 1
-    nozzle, sigma, reach = None, float("nan"), 0.0
+    nozzle, walls_sigma, reach = None, float("nan"), 0.0
     if cal.nozzle_found:
         nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
         clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
-        sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
+        walls_sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
         reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal)
                     for img in images)
-    ctx = FrameContext.build(cal, sigma, first.dtype, max_value, config, attached_half_width_px=reach)
-    noise = noise_smoothing(t_first[ctx.r0:, ctx.c0:ctx.c1], ctx.sigma_px, config, default_noise_t=ctx.noise_t)
-    ctx = replace(ctx, clipped_level=cal.clipped_level, noise_t=noise.noise_t, smooth_px=noise.smooth_px,
-                  sigma_px=noise.sigma_px)
-    walls = None if nozzle is None else wall_reference(nozzle, cal.tip_row, cal.background.background, t_first, sigma,
-                                                       cal.liquid_level, config)
-    if walls is not None:
-        ctx = replace(ctx, wall_rows=walls.rows, wall_cols=walls.cols, wall_inv_background=walls.inv_background,
-                      blur_ref_px=walls.blur_px, sharpness_ref=walls.sharpness,
-                      max_frame_blur_px=walls.max_frame_blur_px, min_wall_contrast=walls.min_wall_contrast)
-    found = detached_appearances(images, ctx)
+    # the walls as the reference: the region, the frames' noise and smoothing, the walls' sharpness
+    geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach)
+    noise = noise_smoothing(geometry.crop(t_first), walls_sigma if config.blur_correction else 0.0, config,
+                            default_noise_transmission=DEFAULT_NOISE_TRANSMISSION)
+    walls = None if nozzle is None else wall_reference(nozzle, cal.tip_row, cal.background.background, t_first,
+                                                       walls_sigma, cal.liquid_level, config)
+    photometry = PhotometricReference.from_calibration(
+        cal, geometry, first.dtype, max_value, noise_transmission=noise.noise_transmission,
+        smoothing_sigma_px=noise.smoothing_sigma_px,
+        walls=walls)
+    walls_ctx = FrameContext(geometry, photometry, BlurModel(calibrated_sigma_px=walls_sigma,
+                                                             correction_sigma_px=noise.correction_sigma_px), config)
+    found = detached_appearances(images, walls_ctx)
     if nozzle is None and not found.size:
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: no nozzle: no dark body touches the top edge "
                             "of the frame, and no detached drop to measure without it")
-    spread_px = _nozzle_edge_spread(first, ctx) if nozzle is not None else float("nan")
-    focus = focus_reference(found, spread_px, sigma, ctx.sigma_px, ctx.smooth_px, config)
-    sigma = focus.sigma_px
-    ctx = replace(ctx, edge_blur_ref_px=focus.edge_blur_ref_px, edge_blur_ref_source=focus.edge_blur_ref_source,
-                  mist_blur_factor=focus.mist_blur_factor, sigma_px=focus.effective_sigma_px,
-                  nozzle_blur_px=focus.nozzle_blur_px)
+    # the in-focus reference: the walls, or the sharpest detached body when they are out of focus
+    spread_px = _nozzle_edge_spread(first, walls_ctx) if nozzle is not None else float("nan")
+    focus = focus_reference(found, spread_px, walls_sigma, noise.correction_sigma_px, noise.smoothing_sigma_px, config)
+    sigma = focus.calibrated_sigma_px
+
+    def blur_model(**uncertainty) -> BlurModel:
+        return BlurModel(calibrated_sigma_px=sigma, correction_sigma_px=focus.correction_sigma_px,
+                         reference=focus.blur_reference, reference_spread_px=focus.reference_spread_px,
+                         mist_blur_factor=focus.mist_blur_factor, nozzle_sigma_px=focus.nozzle_sigma_px, **uncertainty)
+
     if focus.nozzle_out_of_focus:
         # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
-        ctx = replace(ctx, wall_rows=None, wall_cols=None, wall_inv_background=None,
-                      max_frame_blur_px=float("inf"), tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD)
         if nozzle is not None:
             cal.nozzle_out_of_focus = True
             cal.notes.append(focus.note)
             cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
-        ctx = _in_focus_axis_and_face(cal, ctx, images, t_first, sigma, first.dtype, max_value, config, reach)
+        geometry, photometry = _in_focus_axis_and_face(cal, FrameContext(geometry, photometry, blur_model(), config),
+                                                       images, t_first, first.dtype, max_value, reach)
     cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
     if cal.pixel_size_from_nozzle and nozzle is not None:
         cal.nozzle_width_terms_px = needle_width_terms_px(nozzle, cal.edge_position_uncertainty_px, sigma)
@@ -180,16 +193,15 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
                                   f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
                                                                      cal.nozzle_width_terms_px.items()) + ")")
     clip_light = illumination_under_clip(first, cal, max_value)
-    if clip_light is not None:
-        ctx = replace(ctx, clip_light=clip_light,
-                      clip_term_px=float(cal.edge_position_terms_px.get("clipped background", 0.0)))
+    blur = blur_model(edge_position_sigma_px=cal.edge_position_uncertainty_px,
+                      edge_noise_px=edge_shift_px(photometry.noise_transmission, sigma, cal.liquid_level),
+                      clip_light=clip_light,
+                      clip_term_px=(0.0 if clip_light is None else
+                                    float(cal.edge_position_terms_px.get(CLIPPED_BACKGROUND_TERM, 0.0))))
+    ctx = FrameContext(geometry, photometry, blur, config)
     if nozzle is not None and not focus.nozzle_out_of_focus:
         cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
         cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
-    sig = max(float(sigma), 0.5) if np.isfinite(sigma) else 1.0
-    ctx = replace(ctx, edge_position_sigma_px=cal.edge_position_uncertainty_px,
-                  edge_noise_px=float(ctx.noise_t * math.sqrt(2.0 * math.pi) * sig
-                                      / max(1.0 - cal.liquid_level, 0.05)))
     return cal, sigma, ctx
 
 
@@ -199,19 +211,19 @@ class BodyBlurReference:
 
     Attributes
     ----------
-    edge_blur_ref_px : float
+    reference_spread_px : float
         Its edge spread (`dropvision.classify`): mist is judged against it.
-    sigma_px : float
+    calibrated_sigma_px : float
         Its edge blur (Gaussian sigma of its outline's edge-spread fit, else its edge spread):
         the calibration's blur from then on.
-    nozzle_blur_px : float
-        The walls' own blur: their edge-spread fit, else the body's scaled by the two spreads
-        (three times the body's without a wall spread).
+    nozzle_sigma_px : float
+        The walls' own blur (Gaussian sigma): their edge-spread fit, else the body's scaled by the
+        two spreads (three times the body's without a wall spread).
     """
 
-    edge_blur_ref_px: float
-    sigma_px: float
-    nozzle_blur_px: float
+    reference_spread_px: float
+    calibrated_sigma_px: float
+    nozzle_sigma_px: float
 
 
 def body_blur_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
@@ -243,7 +255,7 @@ def body_blur_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_s
     sigma = float(sharpest["esf_sigma_px"]) if np.isfinite(sharpest["esf_sigma_px"]) else float(body_ref)
     nozzle_blur = float(walls_sigma_px if np.isfinite(walls_sigma_px) else
                         sigma * nozzle_edge_spread_px / body_ref if np.isfinite(nozzle_edge_spread_px) else 3.0 * sigma)
-    return BodyBlurReference(edge_blur_ref_px=body_ref, sigma_px=sigma, nozzle_blur_px=nozzle_blur)
+    return BodyBlurReference(reference_spread_px=body_ref, calibrated_sigma_px=sigma, nozzle_sigma_px=nozzle_blur)
 
 
 def smoothed_sigma_px(sigma_px: float, smooth_px: float) -> float:
@@ -261,21 +273,21 @@ class NoiseSmoothing:
 
     Attributes
     ----------
-    noise_t : float
+    noise_transmission : float
         Robust standard deviation of the transmission noise (`transmission_noise`).
-    smooth_px : float
-        Gaussian smoothing (px) of each region before segmentation (0: none).
-    sigma_px : float
+    smoothing_sigma_px : float
+        Gaussian smoothing (sigma, px) of each region before segmentation (0: none).
+    correction_sigma_px : float
         The edge blur the volumes are corrected for (px), the smoothing included (`smoothed_sigma_px`).
     """
 
-    noise_t: float
-    smooth_px: float
-    sigma_px: float
+    noise_transmission: float
+    smoothing_sigma_px: float
+    correction_sigma_px: float
 
 
 def noise_smoothing(transmission_roi: np.ndarray, sigma_px: float, config: MeasureConfig, *,
-                    default_noise_t: float) -> NoiseSmoothing:
+                    default_noise_transmission: float) -> NoiseSmoothing:
     """Noise of the first calibration frame, and the smoothing noisy (low-contrast) frames get.
 
     Parameters
@@ -286,18 +298,19 @@ def noise_smoothing(transmission_roi: np.ndarray, sigma_px: float, config: Measu
         Edge blur of the volume correction (px; 0 without it).
     config : MeasureConfig
         Frames noisier than ``smooth_noise_limit`` are smoothed by ``smooth_px``.
-    default_noise_t : float
+    default_noise_transmission : float
         The noise taken when the frame has too few bright pixels to measure it.
 
     Returns
     -------
     NoiseSmoothing
     """
-    noise_t = transmission_noise(transmission_roi, default_noise_t)
-    if noise_t > config.smooth_noise_limit:
+    noise = transmission_noise(transmission_roi, default_noise_transmission)
+    if noise > config.smooth_noise_limit:
         smooth_px = float(config.smooth_px)
-        return NoiseSmoothing(noise_t=noise_t, smooth_px=smooth_px, sigma_px=smoothed_sigma_px(sigma_px, smooth_px))
-    return NoiseSmoothing(noise_t=noise_t, smooth_px=0.0, sigma_px=sigma_px)
+        return NoiseSmoothing(noise_transmission=noise, smoothing_sigma_px=smooth_px,
+                              correction_sigma_px=smoothed_sigma_px(sigma_px, smooth_px))
+    return NoiseSmoothing(noise_transmission=noise, smoothing_sigma_px=0.0, correction_sigma_px=sigma_px)
 
 
 @dataclass(frozen=True)
@@ -307,35 +320,35 @@ class FocusReference:
 
     Attributes
     ----------
-    edge_blur_ref_px : float
+    reference_spread_px : float
         Edge spread mist is judged against (`dropvision.classify`).
-    edge_blur_ref_source : str
-        Where it comes from (written in the summary).
+    blur_reference : BlurReference
+        Where it comes from (its text is written in the summary).
     mist_blur_factor : float
         The limit's factor on it (``config.mist_blur_factor`` or ``mist_blur_factor_bodies``).
-    sigma_px : float
+    calibrated_sigma_px : float
         Calibrated edge blur (Gaussian sigma, px): the walls' fit, or the body's.
-    effective_sigma_px : float
+    correction_sigma_px : float
         The blur the volumes are corrected for (px; 0 without correction; smoothing included).
-    nozzle_blur_px : float
-        The walls' own blur when they are out of focus (px), else 0.
+    nozzle_sigma_px : float
+        The walls' own blur (Gaussian sigma) when they are out of focus (px), else 0.
     nozzle_out_of_focus : bool
     note : str or None
         The summary's note when the walls are out of focus.
     """
 
-    edge_blur_ref_px: float
-    edge_blur_ref_source: str
+    reference_spread_px: float
+    blur_reference: BlurReference
     mist_blur_factor: float
-    sigma_px: float
-    effective_sigma_px: float
-    nozzle_blur_px: float
+    calibrated_sigma_px: float
+    correction_sigma_px: float
+    nozzle_sigma_px: float
     nozzle_out_of_focus: bool
     note: str | None = None
 
 
 def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
-                    effective_sigma_px: float, smooth_px: float, config: MeasureConfig) -> FocusReference:
+                    correction_sigma_px: float, smooth_px: float, config: MeasureConfig) -> FocusReference:
     """The blur references: the nozzle walls, or the sharpest detached body when they are out of focus.
 
     When the nozzle (or the holder block around it) is out of focus, what is in focus is the
@@ -350,7 +363,7 @@ def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma
         Edge spread of the nozzle walls in the first frame (NaN: not measured).
     walls_sigma_px : float
         The walls' edge-spread fit (`dropvision.blur.edge_sigma_px`).
-    effective_sigma_px : float
+    correction_sigma_px : float
         The blur correction so far (`noise_smoothing`): kept when the walls are in focus.
     smooth_px : float
         Smoothing of noisy frames (px; 0: none).
@@ -362,18 +375,18 @@ def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma
     """
     body = body_blur_reference(found, nozzle_edge_spread_px, walls_sigma_px, config)
     if body is None:
-        return FocusReference(edge_blur_ref_px=nozzle_edge_spread_px, edge_blur_ref_source="nozzle walls",
-                              mist_blur_factor=config.mist_blur_factor, sigma_px=walls_sigma_px,
-                              effective_sigma_px=effective_sigma_px, nozzle_blur_px=0.0, nozzle_out_of_focus=False)
+        return FocusReference(reference_spread_px=nozzle_edge_spread_px, blur_reference=BlurReference.NOZZLE_WALLS,
+                              mist_blur_factor=config.mist_blur_factor, calibrated_sigma_px=walls_sigma_px,
+                              correction_sigma_px=correction_sigma_px, nozzle_sigma_px=0.0, nozzle_out_of_focus=False)
     note = (f"the nozzle walls are out of focus (edge spread {nozzle_edge_spread_px:.2f} px against "
-            f"{body.edge_blur_ref_px:.2f} px of the sharpest detached body): in-focus and blur judged from the "
+            f"{body.reference_spread_px:.2f} px of the sharpest detached body): in-focus and blur judged from the "
             "detached bodies, no per-frame blur or contrast from the walls")
     return FocusReference(
-        edge_blur_ref_px=body.edge_blur_ref_px,
-        edge_blur_ref_source="sharpest detached body (the nozzle walls are out of focus)",
-        mist_blur_factor=config.mist_blur_factor_bodies, sigma_px=body.sigma_px,
-        effective_sigma_px=smoothed_sigma_px(body.sigma_px if config.blur_correction else 0.0, smooth_px),
-        nozzle_blur_px=body.nozzle_blur_px, nozzle_out_of_focus=True, note=note)
+        reference_spread_px=body.reference_spread_px,
+        blur_reference=BlurReference.SHARPEST_BODY,
+        mist_blur_factor=config.mist_blur_factor_bodies, calibrated_sigma_px=body.calibrated_sigma_px,
+        correction_sigma_px=smoothed_sigma_px(body.calibrated_sigma_px if config.blur_correction else 0.0, smooth_px),
+        nozzle_sigma_px=body.nozzle_sigma_px, nozzle_out_of_focus=True, note=note)
 
 
 def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureConfig) -> dict[str, float]:
@@ -403,19 +416,17 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     dict
         Term name -> px.
     """
-    sig = max(float(sigma_px), 0.5) if np.isfinite(sigma_px) else 1.0
-    depth = max(1.0 - float(cal.liquid_level), 0.05)
     terms = {"edge floor": float(config.edge_position_floor_px),
-             "background level": float(cal.background.residual) * math.sqrt(2.0 * math.pi) * sig / depth}
-    clipped = cal.clipped or {}
-    if clipped.get("used") and not clipped.get("level_known", True):
-        terms["clipped background"] = 0.5 * float(clipped.get("edge_range_px", 1.0))
-    elif clipped.get("used"):
-        level = float(clipped["level"])
-        rel = float(clipped.get("level_uncertainty", float("nan"))) / level
-        span = 1.0 - float(clipped.get("max_value", level)) / level
+             "background level": edge_shift_px(float(cal.background.residual), sigma_px, cal.liquid_level)}
+    clipped = cal.clipped
+    if clipped is not None and not clipped.level_known:
+        terms[CLIPPED_BACKGROUND_TERM] = 0.5 * float(clipped.edge_range_px)
+    elif clipped is not None:
+        level = float(clipped.level)
+        rel = float(clipped.level_uncertainty) / level
+        span = 1.0 - float(clipped.max_value) / level
         rel = math.hypot(rel if np.isfinite(rel) else 0.02, max(span, 0.0) / math.sqrt(3.0))
-        terms["clipped background"] = rel * math.sqrt(2.0 * math.pi) * sig / depth
+        terms[CLIPPED_BACKGROUND_TERM] = edge_shift_px(rel, sigma_px, cal.liquid_level)
     return terms
 
 
@@ -478,7 +489,7 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
                             min_pixels: int = 500) -> ClipIllumination | None:
     """The backlight under a clipped background (`ClipIllumination`), from the frame's unclipped background.
 
-    Only for a clipped background whose level was estimated (``cal.clipped`` used, level known) and a
+    Only for a clipped background whose level was estimated (``cal.clipped`` with its level known) and a
     nozzle found; the background pixels between 30 % and 97 % of the sensor maximum, away from dark
     bodies (`dropvision.background.dark_bodies_mask`), at least ``min_pixels`` of them (at most ~20000
     used).  None otherwise (a background clipped everywhere shows nothing of its
@@ -486,8 +497,8 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
     """
     from dropvision.background import dark_bodies_mask
 
-    clipped = cal.clipped or {}
-    if not (clipped.get("used") and clipped.get("level_known") and cal.nozzle_found
+    clipped = cal.clipped
+    if not (clipped is not None and clipped.level_known and cal.nozzle_found
             and np.isfinite(cal.tip_row) and np.isfinite(cal.axis_col)):
         return None
     img = np.asarray(image, np.float32)
@@ -514,8 +525,8 @@ def illumination_under_clip(image: np.ndarray, cal: Calibration, max_value: int,
         refs.append(float(np.mean(sum(c * wu ** i * wv ** j for c, (i, j) in zip(coef, terms)))))
     if not (refs[0] > 0 and refs[1] > 0):
         return None
-    level = float(clipped["level"])
-    rel_se = float(clipped.get("level_uncertainty", float("nan"))) / level
+    level = float(clipped.level)
+    rel_se = float(clipped.level_uncertainty) / level
     return ClipIllumination(coef2=fits[0], coef3=fits[1], shape=(h, w), ref2=refs[0], ref3=refs[1],
                             level_rel_se=rel_se if np.isfinite(rel_se) else 0.0)
 
@@ -548,25 +559,26 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
     -------
     ndarray of `APPEARANCE_DTYPE`
     """
+    photo = ctx.photometry
     out = []
-    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    depth_min = 0.5 * (1.0 - photo.liquid_level)
     for i, img in enumerate(images):
-        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        roi = ctx.region(img)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
         hh, ww = seg.labels.shape
         t = None
         for b in seg.bodies:
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
-            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
-                             floor=ctx.liquid_level)
+            app = appearance(roi, photo.inv_background, seg.labels, b.label, b.bbox, 1.0,
+                             floor=photo.liquid_level)
             if 1.0 - app.min_transmission >= depth_min and np.isfinite(app.edge_blur_px):
                 # its outline's edge-spread function: the blur of the jet's plane
-                ed = body_edges(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1),
-                                ctx.threshold)
+                ed = body_edges(roi, photo.inv_background, seg.labels, b.label, b.bbox,
+                                photo.threshold)
                 if t is None:
-                    t = roi.astype(np.float32) * ctx.inv_background
-                sig = esf_sigma_px(t, *outline(ed), ctx.liquid_level)
+                    t = roi.astype(np.float32) * photo.inv_background
+                sig = esf_sigma_px(t, *outline(ed), photo.liquid_level)
                 out.append((i, b.area_px, app.min_transmission, app.edge_blur_px, sig))
     return np.array(out, APPEARANCE_DTYPE)
 
@@ -578,11 +590,6 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
 #: tilt ``t`` left out is ``1 - cos t``: 0.14 % at 3 deg.
 AXIS_ALONG_COLUMNS_TILT_RAD = 0.0
 AXIS_ALONG_COLUMNS_SOURCE = "image columns (assumed: the nozzle walls are out of focus)"
-
-
-#: Fields of a `FrameContext` that follow the calibration's tip plane and axis (the region of interest).
-_REGION_FIELDS = ("r0", "c0", "c1", "height", "width", "inv_background", "background", "thr_image", "allowed",
-                  "opaque", "tip_roi", "axis_col", "tip_row", "tilt_rad", "sample_rows", "sample_cols")
 
 
 def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int, float]:
@@ -600,31 +607,32 @@ def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[fl
     -------
     (column, number of frames it comes from, level); (NaN, 0, NaN) without any such body.
     """
+    geo, photo = ctx.geometry, ctx.photometry
     cols, levels = [], []
-    depth_min = 0.5 * (1.0 - ctx.liquid_level)
+    depth_min = 0.5 * (1.0 - photo.liquid_level)
     for img in images:
-        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
+        roi = ctx.region(img)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
         hh, ww = seg.labels.shape
         liquid = []
         for b in sorted(seg.bodies, key=lambda b: -b.area_px):
             if b.nozzle or b.area_px < min_area_px or b.x0 == 0 or b.x1 == ww or b.y1 == hh:
                 continue
-            app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), 1.0,
-                             floor=ctx.liquid_level)
+            app = appearance(roi, photo.inv_background, seg.labels, b.label, b.bbox, 1.0,
+                             floor=photo.liquid_level)
             if (1.0 - app.min_transmission >= depth_min
-                    and out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor,
-                                            ctx.mist_blur_offset_px) is None):
+                    and out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor,
+                                            ctx.config.mist_blur_offset_px) is None):
                 liquid.append(b)
         if not liquid:
             continue
         best = liquid[0]
         _, cc = np.nonzero(seg.labels[best.y0:best.y1, best.x0:best.x1] == best.label)
-        cols.append(float(np.mean(cc)) + best.x0 + ctx.c0)
+        cols.append(float(np.mean(cc)) + best.x0 + geo.col0_px)
         region = np.isin(seg.labels, [b.label for b in liquid])
-        if ctx.opaque is not None:
-            region &= ~ctx.opaque
-        lv = interior_level(roi.astype(np.float32) * ctx.inv_background, region, threshold=ctx.threshold)
+        if photo.opaque is not None:
+            region &= ~photo.opaque
+        lv = interior_level(roi.astype(np.float32) * photo.inv_background, region, threshold=photo.threshold)
         if np.isfinite(lv):
             levels.append(lv)
     if not cols:
@@ -646,8 +654,8 @@ def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> 
     return fit_face_line(cols, bottom)
 
 
-def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first: np.ndarray, sigma_px: float,
-                            dtype, max_value: int, config: MeasureConfig, reach: float) -> FrameContext:
+def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first: np.ndarray, dtype, max_value: int,
+                            reach: float) -> tuple[Geometry, PhotometricReference]:
     """With the nozzle walls out of focus, the jet's axis and the tip plane from what is in focus.
 
     A blurred holder's midline is not the jet's axis (it is no nozzle, and the capillary sits
@@ -655,8 +663,9 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
     the detached in-focus drops (`in_focus_drops`, which also gives the liquid's level: the liquid
     below the walls' end is a blurred holder), the tip plane the holder's face (the 50 % line of
     its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
-    below that face (`dropvision.nozzle.protruding_columns`, with ``ctx.face_a``/``face_b``).
-    ``cal`` is updated (axis, tip, their sources, a note) and the region of interest rebuilt.
+    below that face (`dropvision.nozzle.protruding_columns`, with ``Geometry.face_row0_px``/``face_slope``).
+    ``cal`` is updated (axis, tip, their sources, a note); the region of interest and its photometric
+    reference (without the walls) are built anew and returned.
     """
     axis, n_frames, level = in_focus_drops(images, ctx)
     if np.isfinite(axis):
@@ -668,7 +677,7 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
             cal.notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
                              f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
                              "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
-        if not cal.axis_source.startswith("user"):
+        if not cal.axis_col_given:
             cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
                                                    if cal.nozzle_found else
                                                    "line of the detached in-focus drops (no nozzle found)")
@@ -678,21 +687,23 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
                             if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
         cal.liquid_level, cal.threshold = level, edge_threshold(level)
     face = holder_face(t_first, cal.threshold, cal.axis_col) if cal.nozzle_found else None
-    if face is not None and not cal.tip_source.startswith("user"):
+    if face is not None and not cal.tip_row_given:
         tip = face[0] + face[1] * cal.axis_col
         if abs(tip - cal.tip_row) > 0.5:
             cal.notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "
                              f"walls' silhouette ends: row {cal.tip_row:.1f})")
         cal.tip_row, cal.tip_source = float(tip), "the out-of-focus holder's face (straight fit of its 50 % line)"
-    new = FrameContext.build(cal, sigma_px, dtype, max_value, config, attached_half_width_px=reach)
-    ctx = replace(ctx, **{f: getattr(new, f) for f in _REGION_FIELDS + ("threshold", "liquid_level", "thr_image")})
-    if face is not None:
-        ctx = replace(ctx, face_a=face[0], face_b=face[1])
-        if liquid_seen_hanging(images, ctx):
-            ctx = replace(ctx, face_liquid_seen=True)
-            cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
-                             "at the axis below the face is taken as its meniscus in every frame")
-    return ctx
+    config = ctx.config
+    geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face)
+    photometry = PhotometricReference.from_calibration(
+        cal, geometry, dtype, max_value, noise_transmission=ctx.photometry.noise_transmission,
+        smoothing_sigma_px=ctx.photometry.smoothing_sigma_px)
+    if face is not None and liquid_seen_hanging(images, FrameContext(geometry, photometry, ctx.blur, config)):
+        geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face,
+                                             face_liquid_seen=True)
+        cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
+                         "at the axis below the face is taken as its meniscus in every frame")
+    return geometry, photometry
 
 
 def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) -> float:
@@ -704,28 +715,30 @@ def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) 
     read at the plane.  NaN with fewer than 2 such rows (a meniscus flat at, or inside, the orifice)
     or none at all.
     """
-    roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
-    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
-    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    geo, photo = ctx.geometry, ctx.photometry
+    roi = ctx.region(image)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+    body = find_nozzle_body(seg.bodies, geo.axis_roi)
     if body is None:
         return float("nan")
     att = measure_attached(roi, ctx, seg, body, 1.0)
     r, left, right = outline(att.edges)
-    below = r > ctx.tip_roi + 0.5
+    below = r > geo.tip_roi + 0.5
     r, chord = r[below][:rows], (right - left)[below][:rows]
     if r.size < 2:
         return float("nan")
-    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), ctx.tip_roi))
-    return float(np.sqrt(sq) * math.cos(ctx.tilt_rad)) if sq > 0 else float("nan")
+    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), geo.tip_roi))
+    return float(np.sqrt(sq) * math.cos(geo.tilt_rad)) if sq > 0 else float("nan")
 
 
 def liquid_seen_hanging(images, ctx: FrameContext) -> bool:
     """Whether a calibration frame shows liquid hanging in focus below an out-of-focus face
     (`dropvision.bodies.hanging_columns`)."""
+    geo, photo = ctx.geometry, ctx.photometry
     for img in images:
-        roi = smooth_roi(img[ctx.r0:, ctx.c0:ctx.c1], ctx)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
-        body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+        roi = ctx.region(img)
+        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+        body = find_nozzle_body(seg.bodies, geo.axis_roi)
         if body is not None:
             found = hanging_columns(roi, ctx, seg, body, 1.0)
             if found is not None and found.liquid:
@@ -773,11 +786,12 @@ def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
 
 def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
     """Edge spread of the nozzle body in the first calibration frame (`dropvision.classify`)."""
-    roi = smooth_roi(first[ctx.r0:, ctx.c0:ctx.c1], ctx)
-    seg = segment(dark_mask(np.ascontiguousarray(roi), ctx.thr_image, ctx.allowed), ctx.min_area_px)
-    body = find_nozzle_body(seg.bodies, ctx.axis_roi)
+    geo, photo = ctx.geometry, ctx.photometry
+    roi = ctx.region(first)
+    seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+    body = find_nozzle_body(seg.bodies, geo.axis_roi)
     return (float("nan") if body is None
-            else nozzle_edge_spread_px(roi, ctx.inv_background, seg.labels, body, floor=ctx.liquid_level))
+            else nozzle_edge_spread_px(roi, photo.inv_background, seg.labels, body, floor=photo.liquid_level))
 
 
 def transmission_noise(transmission: np.ndarray, default: float) -> float:
@@ -800,35 +814,6 @@ def transmission_noise(transmission: np.ndarray, default: float) -> float:
     if d.size > 100:  # np.median's values, by selection within a bracket (speed only)
         return float(1.4826 * median_by_selection(np.abs(d - median_by_selection(d))) / np.sqrt(2.0))
     return default
-
-
-@dataclass(frozen=True)
-class WallReference:
-    """The nozzle walls well above the tip plane: the per-frame sharpness and contrast reference.
-
-    Attributes
-    ----------
-    rows, cols : ndarray of int
-        Pixel windows across the walls (`dropvision.quality.wall_windows`, full-frame).
-    inv_background : ndarray of float32
-        ``1 / background`` at those pixels.
-    blur_px : float
-        Calibrated edge blur the walls' sharpness corresponds to (px).
-    sharpness : float
-        Their edge sharpness in the calibration frame (`dropvision.quality.edge_sharpness`).
-    max_frame_blur_px : float
-        A frame blurrier than this is flagged.
-    min_wall_contrast : float
-        A frame whose walls' contrast is below this is flagged.
-    """
-
-    rows: np.ndarray
-    cols: np.ndarray
-    inv_background: np.ndarray
-    blur_px: float
-    sharpness: float
-    max_frame_blur_px: float
-    min_wall_contrast: float
 
 
 def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.ndarray, sigma_px: float,
@@ -867,7 +852,7 @@ def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.n
         return None
     return WallReference(
         rows=wr, cols=wc, inv_background=(1.0 / background[wr, wc]).astype(np.float32),
-        blur_px=float(sigma_px), sharpness=sharp,
+        blur_sigma_px=float(sigma_px), sharpness=sharp,
         max_frame_blur_px=min(config.max_blur_px, (1.0 + config.blur_change_tolerance) * sigma_px),
         min_wall_contrast=contrast * max(1.0 - config.contrast_change_tolerance,
                                          config.min_contrast / max(1.0 - liquid_level, 1e-6)))

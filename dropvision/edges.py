@@ -41,6 +41,23 @@ def edge_threshold(interior_level: float) -> float:
     return 0.5 * (1.0 + interior_level)
 
 
+def edge_shift_px(transmission_error: float, blur_sigma_px: float, liquid_level: float) -> float:
+    """How far (px) an error in transmission moves an edge's 50 % crossing: over the edge's slope
+    ``(1 - T_liquid) / (sqrt(2 pi) sigma)``, i.e. ``error * sqrt(2 pi) * sigma / depth``.
+
+    The one rule of the slope (the background's misfit, a clipped level, the frame's noise and a
+    body's backlight under a clip all move an edge so).  ``blur_sigma_px`` is taken as at least
+    0.5 px (the pixel box; 1 px when unknown), the liquid's depth ``1 - liquid_level`` as at
+    least 0.05.
+    """
+    sig = max(float(blur_sigma_px), 0.5) if np.isfinite(blur_sigma_px) else 1.0
+    depth = max(1.0 - float(liquid_level), 0.05)
+    return float(transmission_error * _SQRT_2PI * sig / depth)
+
+
+_SQRT_2PI = math.sqrt(2.0 * math.pi)
+
+
 def first_pass_threshold(darkest_transmission: float) -> float:
     """Edge level for a first look at a frame whose interior level is not measured yet.
 

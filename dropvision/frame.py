@@ -35,7 +35,7 @@ from dropvision.bodies import (
     off_path_reason,
 )
 from dropvision.classify import appearance, out_of_focus_reason
-from dropvision.context import FrameContext, smooth_roi
+from dropvision.context import BlurReference, FrameContext
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
 from dropvision.edges import RowEdges
@@ -97,11 +97,11 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     photo = measure_photometry(image, ctx)
     rec.gain, rec.blur_px, rec.wall_contrast = photo.gain, photo.blur_px, photo.wall_contrast
     rec.flags.extend(photo.flags)
-    roi = smooth_roi(image[ctx.r0:, ctx.c0:ctx.c1], ctx)
+    roi = ctx.region(image)
     seg = segment_frame(roi, ctx, rec.gain)
     edges: list[RowEdges] = []
     # no tip plane: the calibration found no nozzle (`dropvision.calibration`), nothing is attached
-    nozzle_body = find_nozzle_body(seg.bodies, ctx.axis_roi) if np.isfinite(ctx.tip_roi) else None
+    nozzle_body = find_nozzle_body(seg.bodies, ctx.geometry.axis_roi) if np.isfinite(ctx.geometry.tip_roi) else None
     threads: set[int] = set()
     sources: dict[int, tuple[DarkBody, RowEdges]] = {}
     if nozzle_body is None:
@@ -132,18 +132,20 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             continue
         if b.label in threads:  # still joined by a thread thinner than the blur: attached liquid
             if np.isfinite(rec.attached_volume_nl):
-                rec.attached_volume_nl += bv.volume_px3 * ctx.nl_per_px3
+                rec.attached_volume_nl += bv.volume_px3 * ctx.geometry.nl_per_px3
                 u = body_volume_uncertainty_nl(bv, ctx)  # the same edge error: added, not in quadrature
                 rec.attached_volume_uncertainty_nl += u
                 rec.attached_common_uncertainty_nl += u
             rec.attached_bottom_row = max(rec.attached_bottom_row, bv.bottom_row)
             continue
-        app = appearance(roi, ctx.inv_background, seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), rec.gain,
-                         floor=ctx.liquid_level)
+        app = appearance(roi, ctx.photometry.inv_background, seg.labels, b.label, b.bbox, rec.gain,
+                         floor=ctx.photometry.liquid_level)
         body = describe_detached(ctx, seg, b, ed, bv)
         body.min_transmission, body.edge_blur_px = app.min_transmission, app.edge_blur_px
-        why = out_of_focus_reason(app, ctx.edge_blur_ref_px, ctx.mist_blur_factor, ctx.mist_blur_offset_px,
-                                  "nozzle walls'" if ctx.edge_blur_ref_source == "nozzle walls" else "the sharpest body's")
+        why = out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor,
+                                  ctx.config.mist_blur_offset_px,
+                                  "nozzle walls'" if ctx.blur.reference is BlurReference.NOZZLE_WALLS
+                                  else "the sharpest body's")
         if why is None:
             rec.bodies.append(body)
             sources[id(body)] = (b, ed)
@@ -152,7 +154,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             rec.rejected.append(body)
     rec.bodies.sort(key=lambda d: -d.volume_nl)
     for body in rec.bodies[1:]:
-        why = off_path_reason(rec.bodies[0], body, ctx.edge_blur_ref_source == "nozzle walls")
+        why = off_path_reason(rec.bodies[0], body, ctx.blur.reference is BlurReference.NOZZLE_WALLS)
         if why is not None:
             body.reason, body.off_path = why, True
             rec.rejected.append(body)
@@ -168,7 +170,7 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
     """A satellite touching the main drop (one silhouette with a short waist) is split off it.
 
     The main drop is then the larger lobe; the smaller one, when compact (at most
-    ``ctx.compact_ratio`` equivalent diameters long: a tail with a bulb is not split off), is
+    ``ctx.config.compact_ratio`` equivalent diameters long: a tail with a bulb is not split off), is
     listed as a touching satellite (counted in ``n_satellites``: a drop of its own; its volume
     stays in the main drop's ``drop_volume_nl`` and the detached volume). `dropvision.volume.waist_row` says
     what a waist is.
@@ -179,17 +181,17 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
     main = rec.bodies[0]
     parts = []
     for part in split_at_row(edges, row):
-        vol = integrate(part, ctx.tilt_rad, None, ctx.sigma_px)
+        vol = integrate(part, ctx.geometry.tilt_rad, None, ctx.blur.correction_sigma_px)
         if vol.volume_px3 <= 0:
             return
         d = describe_detached(ctx, seg, body, part, vol)
         d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
         parts.append(d)
     parts.sort(key=lambda d: -d.volume_nl)
-    if parts[1].elongated(ctx.compact_ratio):  # a tail (with a bulb), not a satellite
+    if parts[1].elongated(ctx.config.compact_ratio):  # a tail (with a bulb), not a satellite
         return
     parts[1].touching = True
-    parts[1].reason = f"touches the main drop (one silhouette, split at its waist, row {row + ctx.r0})"
+    parts[1].reason = f"touches the main drop (one silhouette, split at its waist, row {row + ctx.geometry.row0_px})"
     rec.bodies[0] = parts[0]
     rec.bodies.append(parts[1])
     rec.bodies[1:] = sorted(rec.bodies[1:], key=lambda d: -d.volume_nl)
@@ -223,8 +225,8 @@ class Photometry:
 def measure_photometry(image: np.ndarray, ctx: FrameContext) -> Photometry:
     """Illumination gain, saturation, edge blur and wall contrast of a frame.
 
-    Flags: illumination unknown or off by more than 10 ``ctx.gain_tolerance``, more than
-    ``ctx.saturation_limit`` of the background samples saturated, blur or contrast off the
+    Flags: illumination unknown or off by more than 10 ``ctx.config.gain_tolerance``, more than
+    ``ctx.config.saturation_limit`` of the background samples saturated, blur or contrast off the
     calibration frame's (an unmeasurable blur, walls without any edge, is NaN and flagged blurred),
     less than half of the frame bright background (`dropvision.quality.background_fraction`: no
     backlit drop image at all).
@@ -241,30 +243,32 @@ def measure_photometry(image: np.ndarray, ctx: FrameContext) -> Photometry:
     """
     flags: list[str] = []
     blur_px = wall_contrast = float("nan")
-    samples = image[ctx.r0:, ctx.c0:ctx.c1][ctx.sample_rows, ctx.sample_cols]
-    clipped = bool(np.isfinite(ctx.clipped_level))
+    ph = ctx.photometry
+    samples = ctx.geometry.crop(image)[ph.sample_rows, ph.sample_cols]
+    clipped = bool(np.isfinite(ph.clipped_level))
     # a clipped background shows no strobe variation: the strobe is taken as steady (gain 1)
-    gain = 1.0 if clipped else q.frame_gain(samples, ctx.background[ctx.sample_rows, ctx.sample_cols])
+    gain = 1.0 if clipped else q.frame_gain(samples, ph.background[ph.sample_rows, ph.sample_cols])
     if not np.isfinite(gain):
         gain = 1.0
         flags.append(q.ILLUMINATION)
-    if q.saturation_fraction(samples, ctx.max_value) > ctx.saturation_limit:
+    if q.saturation_fraction(samples, ph.max_value) > ctx.config.saturation_limit:
         flags.append(q.CLIPPED if clipped else q.SATURATED)
-    if ctx.wall_rows is not None:
-        prof = image[ctx.wall_rows, ctx.wall_cols].astype(np.float32) * ctx.wall_inv_background / gain
+    walls = ph.walls
+    if walls is not None:
+        prof = image[walls.rows, walls.cols].astype(np.float32) * walls.inv_background / gain
         sharp = q.edge_sharpness(prof)
         wall_contrast = q.wall_contrast(prof)
         if sharp > 0:
-            blur_px = ctx.blur_ref_px * ctx.sharpness_ref / sharp
-            if blur_px > ctx.max_frame_blur_px:
+            blur_px = walls.blur_sigma_px * walls.sharpness / sharp
+            if blur_px > walls.max_frame_blur_px:
                 flags.append(q.BLURRED)
         else:
             # the walls show no edge at all (a black or uniform frame): the blur is unmeasurable,
             # NaN (the frames table holds no infinities) and the frame flagged as blurred
             flags.append(q.BLURRED)
-        if wall_contrast < ctx.min_wall_contrast:
+        if wall_contrast < walls.min_wall_contrast:
             flags.append(q.LOW_CONTRAST)
-    if abs(gain - 1.0) > 10 * ctx.gain_tolerance:
+    if abs(gain - 1.0) > 10 * ctx.config.gain_tolerance:
         flags.append(q.ILLUMINATION)
     if q.background_fraction(image) < q.MIN_BACKGROUND_FRACTION:  # a photograph, a texture: no drop image
         flags.append(q.NOT_DROP_IMAGE)
@@ -280,18 +284,18 @@ def segment_frame(roi: np.ndarray, ctx: FrameContext, gain: float) -> Segmentati
         Raw frame, region of interest.
     ctx : FrameContext
     gain : float
-        Frame illumination relative to the background model; beyond ``ctx.gain_tolerance`` the
+        Frame illumination relative to the background model; beyond ``ctx.config.gain_tolerance`` the
         threshold image is recomputed for it.
 
     Returns
     -------
     Segmentation
     """
-    thr_img = ctx.thr_image
-    if abs(gain - 1.0) > ctx.gain_tolerance:
-        thr_img = threshold_image(ctx.background * gain, ctx.threshold, roi.dtype)
-    mask = dark_mask(np.ascontiguousarray(roi), thr_img, ctx.allowed)
-    return segment(mask, ctx.min_area_px)
+    thr_img = ctx.photometry.thr_image
+    if abs(gain - 1.0) > ctx.config.gain_tolerance:
+        thr_img = threshold_image(ctx.photometry.background * gain, ctx.photometry.threshold, roi.dtype)
+    mask = dark_mask(np.ascontiguousarray(roi), thr_img, ctx.photometry.allowed)
+    return segment(mask, ctx.config.min_body_area_px)
 
 
 def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentation, nozzle_body: DarkBody | None,
@@ -301,21 +305,19 @@ def _log_frame(logger, ref, image: np.ndarray, ctx: FrameContext, seg: Segmentat
     The class image and body boxes follow bodies.parquet's rules as far as one frame can tell
     (`dropvision.app.rerun_log.class_image`): mist and dust both as out of focus (``rec.rejected``).
     """
-    from dropvision.config import MeasureConfig  # the default when the context has no compact_ratio
-
+    g = ctx.geometry
     t_full = image.astype(np.float32)
-    t_full[ctx.r0:, ctx.c0:ctx.c1] *= ctx.inv_background
+    g.crop(t_full)[...] *= ctx.photometry.inv_background
     pts = []
     for ed in all_edges:
         pts.append(np.column_stack([ed.left_px, ed.row]))
         pts.append(np.column_stack([ed.right_px, ed.row]))
     edges = np.concatenate(pts) if pts else np.zeros((0, 2))
-    t_roi = t_full[ctx.r0:, ctx.c0:ctx.c1]
+    t_roi = g.crop(t_full)
     t_full = np.ones_like(t_full)
-    t_full[ctx.r0:, ctx.c0:ctx.c1] = t_roi
-    logger.log_measured_frame(ref, image, t_full, seg, nozzle_body, rec.bodies, rec.rejected, ctx.opaque, edges,
-                              compact_ratio=getattr(ctx, "compact_ratio", MeasureConfig.compact_ratio),
-                              roi_origin_xy=(ctx.c0, ctx.r0))
+    g.crop(t_full)[...] = t_roi
+    logger.log_measured_frame(ref, image, t_full, seg, nozzle_body, rec.bodies, rec.rejected, ctx.photometry.opaque,
+                              edges, compact_ratio=ctx.config.compact_ratio, roi_origin_xy=(g.col0_px, g.row0_px))
 
 
 #: Fewest frames for which `stream_frames` forks worker processes (below, threads: forking two

@@ -91,5 +91,5 @@ def pixel_size_from_nozzle_width(meta: SequenceMeta, images, first_file: str, wh
     source = (f"{NOZZLE_PIXEL_SIZE_SOURCE} {d_out:g} um / {width_px:.2f} px (median over {used} frame"
               f"{'s' if used != 1 else ''} from {first_file}; diameter from "
               f"{meta.sources.get('nozzle_outer_diameter')})")
-    return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source,
+    return dataclasses.replace(meta, pixel_size_um=pixel_size_um, pixel_size_source=source, pixel_size_from_nozzle=True,
                                sources={**meta.sources, "pixel_size": source})

@@ -180,7 +180,8 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
         raise SequenceError(f"{meta.path}: --{given[0].replace('_', '-')} applies to a printhead row (several nozzles "
                             "under one plate, or a scan of them); this sequence shows one nozzle")
     records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config, logger, progress)
-    result = result_from_records(records, cal, sigma, ctx, meta, config, errors)
+    result = result_from_records(records, cal, sigma, ctx.blur.reference_spread_px, ctx.blur.reference, meta, config,
+                                 errors)
     frames, summary = result.frames, result.summary
     if logger is not None:
         logger.log_table(frames)
@@ -222,15 +223,16 @@ class MeasuredParts:
 
     records: list
     cal: object
-    sigma_px: float
-    edge_blur_ref_px: float
-    edge_blur_ref_source: str
+    sigma_px: float  # the calibrated blur (`dropvision.context.BlurModel.calibrated_sigma_px`)
+    reference_spread_px: float  # the in-focus reference's edge spread (summary ``edge_blur_ref_px``)
+    blur_reference: object  # dropvision.context.BlurReference
     meta: object
     errors: list
 
     def result(self, config: MeasureConfig) -> MeasureResult:
         """The `MeasureResult` `measure_sequence` gives (`result_from_records`)."""
-        return result_from_records(self.records, self.cal, self.sigma_px, self, self.meta, config, self.errors)
+        return result_from_records(self.records, self.cal, self.sigma_px, self.reference_spread_px,
+                                   self.blur_reference, self.meta, config, self.errors)
 
 
 def light_calibration(cal):
@@ -246,8 +248,8 @@ def measure_parts(seq: Sequence, config: MeasureConfig = MeasureConfig()) -> Mea
     """`measure_sequence` of an open sequence, up to its tables: ``.result(config)`` gives them
     (the same `MeasureResult`). ``seq`` is closed."""
     records, cal, sigma, ctx, meta, errors = _calibrated_records(seq, config)
-    return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.edge_blur_ref_px),
-                         ctx.edge_blur_ref_source, meta, errors)
+    return MeasuredParts(records, light_calibration(cal), float(sigma), float(ctx.blur.reference_spread_px),
+                         ctx.blur.reference, meta, errors)
 
 
 def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: list, decoded: dict):
@@ -289,14 +291,15 @@ def calibration_flags(cal, sigma_px: float, config: MeasureConfig) -> list[str]:
     return flags
 
 
-def result_from_records(records: list[FrameRecord], cal, sigma_px: float, ctx, meta, config: MeasureConfig,
-                        errors: list) -> MeasureResult:
+def result_from_records(records: list[FrameRecord], cal, sigma_px: float, reference_spread_px: float,
+                        blur_reference, meta, config: MeasureConfig, errors: list) -> MeasureResult:
     """The frames table, bodies table and summary of measured records (`dropvision.summary.assemble`,
-    the sources of ``meta``, the blur reference of ``ctx``): what `measure_sequence` returns."""
+    the sources of ``meta``, the in-focus reference: its edge spread ``reference_spread_px`` and its
+    `dropvision.context.BlurReference`): what `measure_sequence` returns."""
     frames, summary = assemble(records, cal, sigma_px, meta, config, errors)
     summary.update(source_keys(meta))
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
-    bodies = bodies_table(records, frames, edge_blur_ref_px=ctx.edge_blur_ref_px, compact_ratio=config.compact_ratio)
-    summary["calibration"]["edge_blur_ref_px"] = float(ctx.edge_blur_ref_px)
-    summary["calibration"]["edge_blur_ref_source"] = ctx.edge_blur_ref_source
+    bodies = bodies_table(records, frames, edge_blur_ref_px=reference_spread_px, compact_ratio=config.compact_ratio)
+    summary["calibration"]["edge_blur_ref_px"] = float(reference_spread_px)
+    summary["calibration"]["edge_blur_ref_source"] = blur_reference.value
     return MeasureResult(frames, summary, bodies)

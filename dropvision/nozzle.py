@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from dropvision.background import CalibrationError
+from dropvision.background import CalibrationError, NoNozzleError
 from dropvision.edges import DEFAULT_EDGE_THRESHOLD, first_rising_crossing, runs, subpixel_edges
 from dropvision.segmentation import fill_holes
 
@@ -304,7 +304,7 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     mask = (t < threshold).astype(np.uint8)
     top = largest_top_body(mask)
     if top is None:
-        raise CalibrationError("no nozzle: no dark body touches the top edge of the frame")
+        raise NoNozzleError("no nozzle: no dark body touches the top edge of the frame")
     body, y1 = top[0] > 0, top[1]  # the body's rows 0 .. y1 - 1 (its lowest row y1 - 1)
     rr, s, e = runs(body[:y1])
     # outer silhouette per row: first start .. last stop
@@ -320,14 +320,14 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     width = np.where(a_start >= 0, a_stop - a_start, 0)
     cand = (width > 2) & (width < 0.9 * w) & (a_start > 0) & (a_stop < w)
     if cand.sum() < 3:
-        raise CalibrationError(f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to "
+        raise NoNozzleError(f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to "
                                f"{int(np.max(last - np.maximum(first, 0)))} px wide) has no straight walls")
     a, b = _straight_walls(width, cand, expected_width_px)
     face_slope = None
     if b - a < 3:  # no walls of the expected width: a nozzle barely protruding from a holder or plate
         face = _face_nozzle(t, body[:y1], threshold)
         if face is None:
-            raise CalibrationError(
+            raise NoNozzleError(
                 f"no nozzle: the dark body at the top edge (rows 0-{y1 - 1}, up to {int(width.max())} px wide) "
                 "has fewer than 3 rows of constant width"
                 + (f" near the expected {expected_width_px:.0f} px" if expected_width_px else "")

@@ -268,7 +268,8 @@ def detect_orientation(image: np.ndarray) -> OrientationGuess:
                             "which one is the nozzle", seen)
 
 
-def orientation_of_stored_frame(image: np.ndarray, frame_name: str, default: str = "down") -> tuple[str, str]:
+def orientation_of_stored_frame(image: np.ndarray, frame_name: str,
+                                default: str = "down") -> tuple[str, str, bool]:
     """The orientation of a sequence whose orientation was not given, and where it comes from.
 
     Parameters
@@ -286,9 +287,11 @@ def orientation_of_stored_frame(image: np.ndarray, frame_name: str, default: str
     source : str
         ``detected in <frame>: <reason>``, or ``default (<default>): not detected in <frame>,
         <reason> (<what was seen at each edge>)`` (``SequenceMeta.sources["orientation"]``).
+    assumed : bool
+        True where the frame did not tell and ``default`` was kept (``SequenceMeta.orientation_assumed``).
     """
     guess = detect_orientation(image)
     if guess.orientation is not None:
-        return guess.orientation, f"detected in {frame_name}: {guess.reason}"
+        return guess.orientation, f"detected in {frame_name}: {guess.reason}", False
     return default, (f"default ({default}): not detected in {frame_name}, {guess.reason}"
-                     + (f" ({guess.edges_text()})" if guess.edges else ""))
+                     + (f" ({guess.edges_text()})" if guess.edges else "")), True

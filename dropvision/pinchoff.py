@@ -74,6 +74,7 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
     set of int
         Labels (in ``seg.labels``) of the joined bodies.
     """
+    photo = ctx.photometry
     out: set[int] = set()
     labels = seg.labels
     yb = int(round(bottom_row))
@@ -81,9 +82,9 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
     if cols_b.size == 0:
         return out
     xb = 0.5 * (cols_b[0] + cols_b[-1])
-    sig = ctx.sigma_px if ctx.sigma_px > 0 else 1.0
-    margin = max(0.02, 4.0 * ctx.noise_t)
-    interior_margin = max(INTERIOR_THREAD_MARGIN, 4.0 * ctx.noise_t)
+    sig = ctx.blur.correction_sigma_px if ctx.blur.correction_sigma_px > 0 else 1.0
+    margin = max(0.02, 4.0 * photo.noise_transmission)
+    interior_margin = max(INTERIOR_THREAD_MARGIN, 4.0 * photo.noise_transmission)
 
     near, far = int(math.ceil(4.0 * sig)) + 3, int(math.ceil(4.0 * sig)) + 8
     side_offsets = np.concatenate([np.arange(-far, -near + 1), np.arange(near, far + 1)])
@@ -100,17 +101,17 @@ def thread_joined_labels(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, 
         # the path's column per row, rounded half to even like Python's round
         path_cols = np.round(xb + (xt - xb) * (rows - yb) / (b.y0 - yb)).astype(np.intp)
         # per row the darkest pixel within 2 px of the path
-        t_path = _window_min(roi, ctx.inv_background, rows, path_cols, _DARKEST_OFFSETS) / gain
+        t_path = _window_min(roi, photo.inv_background, rows, path_cols, _DARKEST_OFFSETS) / gain
         # sub-pixel 50 % crossings of the two ends along the path (end row dark, next row not)
         # (a path that does not rise from an end has no crossing there: the row's middle)
-        e_top = yb + (crossing_fraction(t_path[0], t_path[1], ctx.threshold) if t_path[1] > t_path[0] else 0.5)
-        e_bot = b.y0 - (crossing_fraction(t_path[-1], t_path[-2], ctx.threshold) if t_path[-2] > t_path[-1] else 0.5)
-        expected = end_tails_transmission(rows[1:-1], e_top, e_bot, sig, sig, ctx.liquid_level)
+        e_top = yb + (crossing_fraction(t_path[0], t_path[1], photo.threshold) if t_path[1] > t_path[0] else 0.5)
+        e_bot = b.y0 - (crossing_fraction(t_path[-1], t_path[-2], photo.threshold) if t_path[-2] > t_path[-1] else 0.5)
+        expected = end_tails_transmission(rows[1:-1], e_top, e_bot, sig, sig, photo.liquid_level)
         excess = expected - t_path[1:-1]
         # a thread darkens the path, not the rows beside it: a darker surround (a blurred holder's
         # halo the background model misses) darkens both and is no thread
         # per row the mean of the median of the free pixels on each side of the path
-        t_side = _sides_median_mean(roi, ctx.inv_background, labels, rows[1:-1], path_cols[1:-1],
+        t_side = _sides_median_mean(roi, photo.inv_background, labels, rows[1:-1], path_cols[1:-1],
                                     side_offsets, gain)
         local = np.where(np.isfinite(t_side), t_side - t_path[1:-1], np.inf)
         if excess.size >= 3:  # judge the rows not adjacent to an end (their taper is unmodelled)

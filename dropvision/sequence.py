@@ -635,8 +635,10 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                               keys.waveform, keys.ink, tuple(refs), (0, 0), 0, reordered, keys.extra, source)
     first_img, first_ref = _first_readable(Sequence(probe_meta, np.uint8, refused), refs)
     orientation = keys.orientation
+    orientation_assumed = False
     if not keys.orientation_given:
-        orientation, sources["orientation"] = orientation_of_stored_frame(first_img, first_ref.file, orientation)
+        orientation, sources["orientation"], orientation_assumed = orientation_of_stored_frame(
+            first_img, first_ref.file, orientation)
         first_img = to_canonical(first_img, orientation)
     canonical_shape = tuple(int(n) for n in first_img.shape)
     original_shape = (canonical_shape if not swaps_axes(orientation)
@@ -651,7 +653,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
                         orientation, keys.waveform, keys.ink, tuple(refs), canonical_shape, bit_depth,
-                        reordered, keys.extra, source, sources)
+                        reordered, keys.extra, source, sources, orientation_assumed=orientation_assumed)
     seq = Sequence(meta, first_img.dtype, refused)
     if pixel_size_um is None:
         from dropvision.inspection import pixel_size_from_nozzle_width  # the calibration's rule, loaded when needed
@@ -665,7 +667,7 @@ def pixel_size_from_nozzle(meta) -> bool:
     """Whether the pixel size was not given and comes from the nozzle's (needle's) outer diameter:
     the calibration measures the width again by the same rule in its first frame and that value is
     the pixel size (`dropvision.calibration.calibrate_frames` ``pixel_size_from_nozzle``)."""
-    return str(getattr(meta, "pixel_size_source", "") or "").startswith(NOZZLE_PIXEL_SIZE_SOURCE)
+    return bool(getattr(meta, "pixel_size_from_nozzle", False))
 
 
 def _nozzle_frames(seq: Sequence, first_img: np.ndarray, first_ref: FrameRef) -> list[np.ndarray]:
@@ -778,8 +780,10 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                "nozzle_inner_diameter": None if nozzle_inner_diameter_um is None else "argument nozzle_inner_diameter_um",
                "delay": "argument delays_us", "waveform": None if waveform is None else "argument waveform",
                "bit_depth": "argument bit_depth" if bit_depth_given else f"{grey[0].dtype} frames"}
+    orientation_assumed = False
     if orientation is None:
-        orientation, sources["orientation"] = orientation_of_stored_frame(grey[order[0]], f"frame {order[0]}")
+        orientation, sources["orientation"], orientation_assumed = orientation_of_stored_frame(
+            grey[order[0]], f"frame {order[0]}")
     repeats: Counter = Counter()
     refs, canonical = [], []
     for index, i in enumerate(order):
@@ -796,5 +800,6 @@ def sequence_from_arrays(images, delays_us, *, pixel_size_um: float, orientation
                         None if tip_c is None else float(tip_c), None if axis_c is None else float(axis_c),
                         orientation, validate_waveform(waveform, where), validate_ink(ink, where),
                         tuple(refs), tuple(int(n) for n in canonical[0].shape), int(bit_depth),
-                        order != list(range(len(grey))), {}, "arguments", sources)
+                        order != list(range(len(grey))), {}, "arguments", sources,
+                        orientation_assumed=orientation_assumed)
     return ArraySequence(meta, canonical)

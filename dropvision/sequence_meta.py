@@ -87,6 +87,11 @@ class SequenceMeta:
     #: ``nozzle_outer_diameter``, ``nozzle_inner_diameter``, ``delay``, ``waveform``,
     #: ``bit_depth`` (None: not given).
     sources: dict = field(default_factory=dict)
+    #: The orientation was neither given nor detected: ``"down"`` is assumed (``sources["orientation"]``
+    #: says what was seen at each edge).
+    orientation_assumed: bool = False
+    #: The pixel size is the nozzle's outer diameter over its measured width (no pixel size given).
+    pixel_size_from_nozzle: bool = False
 
     @property
     def delays_us(self) -> np.ndarray:

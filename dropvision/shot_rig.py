@@ -169,22 +169,38 @@ def scene_distance(fp: Fingerprint, ref: Fingerprint, max_shift_px: float = math
     return float(shift), float(np.percentile(np.abs(med - 1.0), 90))
 
 
-def disagreement(fp: Fingerprint, ref: Fingerprint) -> str | None:
+class Disagreement(str):
+    """Why a shared calibration does not hold for a shot (the text, written in notes), and whether the
+    shot is of the same view as the reference (``same_view``: same size, its scene compared, shifted or
+    lit otherwise): such a shot measured alone is measured from its frame as decoded, in the
+    reference's orientation.  Decisions read ``same_view``, never the text."""
+
+    same_view: bool
+
+    def __new__(cls, text: str, same_view: bool = False):
+        out = super().__new__(cls, text)
+        out.same_view = same_view
+        return out
+
+
+def disagreement(fp: Fingerprint, ref: Fingerprint) -> Disagreement | None:
     """Why the shared calibration (of the reference ``ref``) does not hold for a frame, or None.
 
     Another frame size; its scene shifted by more than `MAX_SHIFT_PX` (the camera or the holder
     moved); its background's shape changed by more than `MAX_BACKGROUND_CHANGE` beyond a gain
-    (the light moved, or another backlight)."""
+    (the light moved, or another backlight): the last two are of the same view (``same_view``)."""
     if fp.shape != ref.shape:
-        return (f"its size {fp.shape[1]}x{fp.shape[0]} differs from the shared calibration's "
-                f"{ref.shape[1]}x{ref.shape[0]}")
+        return Disagreement(f"its size {fp.shape[1]}x{fp.shape[0]} differs from the shared calibration's "
+                            f"{ref.shape[1]}x{ref.shape[0]}")
     shift, change = scene_distance(fp, ref, MAX_SHIFT_PX)
     if shift > MAX_SHIFT_PX:
-        return f"its scene is shifted by {shift:.1f} px against the shared calibration's (most {MAX_SHIFT_PX:g} px)"
+        return Disagreement(f"its scene is shifted by {shift:.1f} px against the shared calibration's (most "
+                            f"{MAX_SHIFT_PX:g} px)", same_view=True)
     if change > MAX_BACKGROUND_CHANGE:
-        return (f"its background differs by {100 * change:.0f} % from the shared calibration's beyond a gain "
-                f"(most {100 * MAX_BACKGROUND_CHANGE:.0f} %)" if math.isfinite(change) else
-                "too little background in common with the shared calibration's")
+        return (Disagreement(f"its background differs by {100 * change:.0f} % from the shared calibration's beyond "
+                             f"a gain (most {100 * MAX_BACKGROUND_CHANGE:.0f} %)", same_view=True)
+                if math.isfinite(change) else
+                Disagreement("too little background in common with the shared calibration's"))
     return None
 
 
@@ -493,8 +509,8 @@ def _with_rig(path: Path, name: str, rigs, config: MeasureConfig, delay_us: floa
         if why is None:
             rec = measure_frame(fr.image, rig.ctx, fr.ref)
             rec.flags = list(rig.flags) + rec.flags
-            return MeasuredParts([rec], light_calibration(rig.cal), rig.sigma_px, float(rig.ctx.edge_blur_ref_px),
-                                 rig.ctx.edge_blur_ref_source, meta, []), None
+            return MeasuredParts([rec], light_calibration(rig.cal), rig.sigma_px, float(rig.ctx.blur.reference_spread_px),
+                                 rig.ctx.blur.reference, meta, []), None
         first_why = first_why or why
         if fr is None or fr.image is None:
             break
@@ -547,11 +563,11 @@ def _measure_one(i: int, state) -> ShotOutcome:
                 why = "its own pixel size or nozzle diameter labels"
             elif rigs and i in known_alone:  # a calibration shot that agrees with no group: compared already
                 why = known_alone[i]
-                same_view = why.startswith(_SAME_VIEW)
+                same_view = getattr(why, "same_view", False)
             elif rigs:
                 out.parts, why = _with_rig(path, name, rigs, config, delay, decoded)
                 out.shared = out.parts is not None
-                same_view = out.parts is None and why is not None and why.startswith(_SAME_VIEW)
+                same_view = out.parts is None and getattr(why, "same_view", False)
             if out.parts is None and same_view:  # its scene was compared: the same view, measured alone
                 out.parts = _alone_as_decoded(path, name, rigs[0], config, delay, decoded)
             if out.parts is None:
@@ -562,11 +578,6 @@ def _measure_one(i: int, state) -> ShotOutcome:
             out.parts, out.error = None, str(exc)
     out.warnings = [(w.category, str(w.message)) for w in caught]
     return out
-
-
-#: The reasons of `disagreement` for a shot of the same view as the reference (same size, its scene compared):
-#: such a shot measured alone is measured from its frame as decoded, in the reference's orientation.
-_SAME_VIEW = ("its scene is shifted by", "its background differs by")
 
 
 # what a forked worker measures: (shots, rig, config, overrides, option_labels), set just before the pool

@@ -14,6 +14,35 @@ class UsageError(Exception):
     """Bad input the user can fix: printed as one line, exit status 2."""
 
 
+class ParameterError(ValueError):
+    """A bad value of a library function's parameter, said in Python terms: ``str(exc)`` is
+    ``"<parameter> <problem>"`` (``"volume_nl must be a positive number, got -1"``).  A command
+    line shows it with its option's name instead (:meth:`for_command_line`, applied by
+    :func:`describe`): ``"--volume-nl must be a positive number, got -1"``.
+
+    Attributes
+    ----------
+    parameter : str
+        The parameter's name.
+    problem : str
+        What is wrong with its value (the message after the name).
+    option : str or None
+        The command line option that sets it, where it is not ``--`` + the name with dashes.
+    """
+
+    def __init__(self, parameter: str, problem: str, option: str | None = None):
+        super().__init__(f"{parameter} {problem}")
+        self.parameter, self.problem, self.option = parameter, problem, option
+
+    def __reduce__(self):
+        return type(self), (self.parameter, self.problem, self.option)
+
+    def for_command_line(self) -> str:
+        """The message with the option's name in place of the parameter's."""
+        option = self.option or "--" + self.parameter.replace("_", "-")
+        return f"{option} {self.problem}"
+
+
 #: Failures that are the input's or the environment's fault (exit status 2, one line): files
 #: missing, unreadable, not a folder, names too long, a full disk (OSError); undecodable text
 #: and out-of-range values (ValueError, UnicodeError, OverflowError); pathologically nested
@@ -75,7 +104,7 @@ def describe(exc: BaseException, args=None) -> str:
     elif isinstance(exc, OverflowError):
         problem = f"number out of range ({exc})"
     else:
-        problem = str(exc) or type(exc).__name__
+        problem = (exc.for_command_line() if isinstance(exc, ParameterError) else str(exc)) or type(exc).__name__
         if isinstance(exc, UnicodeError):
             problem = f"cannot decode the text ({exc})"
         elif isinstance(exc, UsageError) or where is None or where in problem or _names_a_file(problem):

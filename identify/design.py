@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.spatial import Delaunay, QhullError
 
+from dvcore.errors import ParameterError
 from identify.montecarlo import check_samples
 
 
@@ -108,9 +109,9 @@ def design(
     ``near``: (u1 µm/ms, u2 µm) to stay closest to along a volume-only solution curve (default:
     the centre of the training region)."""
     if not np.isfinite(volume_nl) or volume_nl <= 0:
-        raise ValueError(f"--volume-nl must be a positive number, got {volume_nl!r}")
+        raise ParameterError("volume_nl", f"must be a positive number, got {volume_nl!r}")
     if velocity_m_s is not None and (not np.isfinite(velocity_m_s) or velocity_m_s <= 0):
-        raise ValueError(f"--velocity-m-s must be a positive number, got {velocity_m_s!r}")
+        raise ParameterError("velocity_m_s", f"must be a positive number, got {velocity_m_s!r}")
     if samples and samples > 1:  # 0 or 1: no spread; more: bounded by memory, checked before the search
         check_samples(samples)
     if model.controls is None or len(model.controls) < 3:

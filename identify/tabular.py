@@ -59,6 +59,7 @@ import pandas as pd
 
 from dvcore import schema
 from identify.kfold import group_ids
+from dvcore.errors import ParameterError
 
 __all__ = [
     "SCHEMA", "TabularError", "RefitMismatchWarning", "TabularModel", "fit_table", "read_table",
@@ -85,6 +86,11 @@ CHECK_RTOL = 1e-6
 
 class TabularError(ValueError):
     """A table or a tabular model file that cannot be used (the message names the file)."""
+
+
+class TabularParameterError(TabularError, ParameterError):
+    """A bad parameter value of a table model's design or tuning: a `TabularError` said in Python
+    terms (`dvcore.errors.ParameterError`; the command line writes the option's name)."""
 
 
 class RefitMismatchWarning(UserWarning):

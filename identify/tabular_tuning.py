@@ -54,7 +54,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
-from identify.tabular import TabularError, TabularModel
+from identify.tabular import TabularError, TabularModel, TabularParameterError
 
 __all__ = ["Target", "parse_targets", "candidates", "TableDesign", "design_table", "TableTuningResult",
            "tune_table", "write_table_tuning", "read_table_tuning", "load_table_rig", "LEVELS_PER_INPUT",
@@ -261,9 +261,9 @@ class TableDesign:
 def _check_options(tolerance_percent, min_probability):
     if not (isinstance(tolerance_percent, (int, float)) and math.isfinite(tolerance_percent)
             and 0 < tolerance_percent < 100):
-        raise TabularError(f"--tolerance-percent must be a number in (0, 100), got {tolerance_percent!r}")
+        raise TabularParameterError("tolerance_percent", f"must be a number in (0, 100), got {tolerance_percent!r}")
     if not (isinstance(min_probability, (int, float)) and 0 <= min_probability <= 1):
-        raise TabularError(f"--min-probability must be a number in [0, 1], got {min_probability!r}")
+        raise TabularParameterError("min_probability", f"must be a number in [0, 1], got {min_probability!r}")
 
 
 def _met(model, targets, pred_row: dict, tol: float) -> bool:
@@ -344,12 +344,13 @@ def load_table_rig(spec: str) -> Callable:
     """
     mod, sep, attr = str(spec).rpartition(":")
     if not sep or not mod or not attr:
-        raise TabularError(f"--rig {spec}: a table model takes --rig module:function (or path/to/file.py:function)")
+        raise TabularParameterError("spec", f"{spec}: a table model's rig is module:function (or path/to/file.py:function)",
+                                    option="--rig")
     try:
         if mod.endswith(".py") or os.sep in mod or "/" in mod:
             path = Path(mod)
             if not path.is_file():
-                raise TabularError(f"--rig {spec}: {path}: no such file")
+                raise TabularParameterError("spec", f"{spec}: {path}: no such file", option="--rig")
             name = f"_dropvision_rig_{abs(hash(str(path.resolve())))}"
             ms = importlib.util.spec_from_file_location(name, path)
             module = importlib.util.module_from_spec(ms)
@@ -368,9 +369,10 @@ def load_table_rig(spec: str) -> Callable:
     except TabularError:
         raise
     except Exception as exc:  # noqa: BLE001 - whatever the user's module raises on import: one line
-        raise TabularError(f"--rig {spec}: cannot load the function ({type(exc).__name__}: {exc})") from None
+        raise TabularParameterError("spec", f"{spec}: cannot load the function ({type(exc).__name__}: {exc})",
+                                    option="--rig") from None
     if not callable(fn):
-        raise TabularError(f"--rig {spec}: {attr} is not a function")
+        raise TabularParameterError("spec", f"{spec}: {attr} is not a function", option="--rig")
     return fn
 
 
@@ -499,11 +501,12 @@ def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, t
     from identify.tuning import file_sha256
 
     _check_options(tolerance_percent, min_probability)
-    for name, v in (("--prior-bias-percent", prior_bias_percent), ("--bias-lengthscale", lengthscale)):
+    for name, option, v in (("prior_bias_percent", None, prior_bias_percent),
+                            ("lengthscale", "--bias-lengthscale", lengthscale)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise TabularError(f"{name} must be a positive number, got {v!r}")
+            raise TabularParameterError(name, f"must be a positive number, got {v!r}", option=option)
     if isinstance(shots, bool) or int(shots) != shots or shots < 1:
-        raise TabularError(f"--shots must be an integer >= 1, got {shots!r}")
+        raise TabularParameterError("shots", f"must be an integer >= 1, got {shots!r}")
     clash = [n for n in model.inputs if n in FIXED_COLUMNS]
     if clash:
         raise TabularError(f"the model's input {clash[0]!r} has the name of a tuning column; rename it in the table")

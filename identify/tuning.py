@@ -35,6 +35,7 @@ from typing import Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from dvcore.errors import ParameterError
 from identify.design import Region, design
 
 __all__ = ["RigShot", "Rig", "CallableRig", "BiasEstimate", "update_bias", "TuningResult", "tune",
@@ -319,13 +320,46 @@ SLOPE_LENGTHSCALE = 0.3
 RESTART_STEP = 0.05
 
 
+@dataclass(frozen=True)
+class OutputColumns:
+    """The per-shot columns of ``tuning.parquet`` for one tuned output (declared in `dvcore.schema.TUNING`)."""
+
+    design_target: str
+    predicted: str
+    corrected: str
+    one_drop_low: str
+    one_drop_high: str
+    measured: str
+    measured_uncertainty: str
+    error_percent: str
+    bias_percent: str
+    bias_se_percent: str
+
+
+#: Output ("volume", "velocity") -> its per-shot columns of ``tuning.parquet``.
+OUTPUT_COLUMNS: dict[str, OutputColumns] = {
+    "volume": OutputColumns(
+        design_target="design_target_volume_nl", predicted="predicted_volume_nl", corrected="corrected_volume_nl",
+        one_drop_low="volume_one_drop_low_nl", one_drop_high="volume_one_drop_high_nl",
+        measured="measured_volume_nl", measured_uncertainty="measured_volume_uncertainty_nl",
+        error_percent="volume_error_percent", bias_percent="volume_bias_percent",
+        bias_se_percent="volume_bias_se_percent"),
+    "velocity": OutputColumns(
+        design_target="design_target_velocity_m_s", predicted="predicted_velocity_m_s",
+        corrected="corrected_velocity_m_s", one_drop_low="velocity_one_drop_low_m_s",
+        one_drop_high="velocity_one_drop_high_m_s", measured="measured_velocity_m_s",
+        measured_uncertainty="measured_velocity_uncertainty_m_s", error_percent="velocity_error_percent",
+        bias_percent="velocity_bias_percent", bias_se_percent="velocity_bias_se_percent"),
+}
+
+
 def _joint_cost(errors: dict, outputs: dict) -> float:
     """Sum of the squared relative errors in units of each output's tolerance (1: on the edge)."""
     return float(sum((errors[o] / tol) ** 2 for o, (_, t, tol) in outputs.items() if t is not None))
 
 
 def _shot_cost(rec: dict, outputs: dict) -> float:
-    errs = {o: rec.get(f"{o}_error_percent", float("nan")) for o in outputs}
+    errs = {o: rec.get(OUTPUT_COLUMNS[o].error_percent, float("nan")) for o in outputs}
     c = _joint_cost(errs, outputs)
     return c if math.isfinite(c) else math.inf
 
@@ -483,17 +517,17 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     """
     from dvcore.versions import software_versions
 
-    for name, v in (("--volume-nl", volume_nl), ("--volume-tolerance-percent", volume_tolerance_percent),
-                    ("--velocity-tolerance-percent", velocity_tolerance_percent),
-                    ("--prior-bias-percent", prior_bias_percent)):
+    for name, v in (("volume_nl", volume_nl), ("volume_tolerance_percent", volume_tolerance_percent),
+                    ("velocity_tolerance_percent", velocity_tolerance_percent),
+                    ("prior_bias_percent", prior_bias_percent)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ValueError(f"{name} must be a positive number, got {v!r}")
+            raise ParameterError(name, f"must be a positive number, got {v!r}")
     if velocity_m_s is not None and not (math.isfinite(velocity_m_s) and velocity_m_s > 0):
-        raise ValueError(f"--velocity-m-s must be a positive number, got {velocity_m_s!r}")
+        raise ParameterError("velocity_m_s", f"must be a positive number, got {velocity_m_s!r}")
     if int(shots) != shots or shots < 1:
-        raise ValueError(f"--shots must be an integer >= 1, got {shots!r}")
+        raise ParameterError("shots", f"must be an integer >= 1, got {shots!r}")
     if bias_lengthscale is not None and not (math.isfinite(bias_lengthscale) and bias_lengthscale > 0):
-        raise ValueError(f"--bias-lengthscale must be a positive number, got {bias_lengthscale!r}")
+        raise ParameterError("bias_lengthscale", f"must be a positive number, got {bias_lengthscale!r}")
     if not isinstance(rig, Rig):
         rig = CallableRig(rig)
     if model.controls is None or len(model.controls) < 3:
@@ -581,19 +615,19 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
                            _shot_std_rel(unc, value, drop_rel)))
             bias[o] = update_bias([r for r, _ in obs[o]], [s_ for _, s_ in obs[o]], prior[o], positions=positions,
                                   lengthscale=bias_lengthscale)
-            unit = key.rsplit("_", 1)[-1] if o == "volume" else "m_s"
+            col = OUTPUT_COLUMNS[o]
             err = _rel(value, target) if target is not None else float("nan")
             rec.update({
-                f"design_target_{o}_{unit}": goal[o] if goal[o] is not None else float("nan"),
-                f"predicted_{o}_{unit}": pred,
-                f"corrected_{o}_{unit}": corrected,
-                f"{o}_one_drop_low_{unit}": corrected - q * s,
-                f"{o}_one_drop_high_{unit}": corrected + q * s,
-                f"measured_{o}_{unit}": value,
-                f"measured_{o}_uncertainty_{unit}": unc,
-                f"{o}_error_percent": err,
-                f"{o}_bias_percent": 100.0 * bias[o].mean,
-                f"{o}_bias_se_percent": 100.0 * bias[o].se,
+                col.design_target: goal[o] if goal[o] is not None else float("nan"),
+                col.predicted: pred,
+                col.corrected: corrected,
+                col.one_drop_low: corrected - q * s,
+                col.one_drop_high: corrected + q * s,
+                col.measured: value,
+                col.measured_uncertainty: unc,
+                col.error_percent: err,
+                col.bias_percent: 100.0 * bias[o].mean,
+                col.bias_se_percent: 100.0 * bias[o].se,
             })
             if target is not None:
                 within = within and math.isfinite(err) and abs(err) <= tol
@@ -716,10 +750,12 @@ def load_rig(spec: str, **options) -> Rig:
         try:
             fn = getattr(importlib.import_module(mod), attr)
         except (ImportError, AttributeError) as exc:
-            raise ValueError(f"--rig {spec}: cannot load the function ({type(exc).__name__}: {exc})") from None
+            raise ParameterError("spec", f"{spec}: cannot load the function ({type(exc).__name__}: {exc})",
+                                 option="--rig") from None
         return CallableRig(fn, name=spec)
     found = {ep.name: ep for ep in entry_points(group=RIG_ENTRY_POINTS)}
     if spec not in found:
         names = ", ".join(sorted(found)) or "none installed"
-        raise ValueError(f"--rig {spec}: unknown rig (registered: {names}; or give module:function)")
+        raise ParameterError("spec", f"{spec}: unknown rig (registered: {names}; or give module:function)",
+                             option="--rig")
     return found[spec].load()(**options)

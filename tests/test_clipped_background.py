@@ -125,11 +125,13 @@ def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
     from types import SimpleNamespace
 
     from dropvision.bodies import clip_level_px, common_edge_sigma_px
+    from dropvision.calibration import ClippedBackground
     from dropvision.calibration_pass import illumination_under_clip
 
     img, light = _vignetted_clipped_frame()
     assert 0.3 < np.mean(img >= 255.0) < 0.9
-    cal = SimpleNamespace(clipped={"used": True, "level_known": True, "level": 280.0, "level_uncertainty": 0.5},
+    cal = SimpleNamespace(clipped=ClippedBackground(fraction=0.5, level=280.0, level_uncertainty=0.5, max_value=255,
+                                                    level_known=True),
                           nozzle_found=True, tip_row=40.0, axis_col=160.0, nozzle_outer_diameter_px=40.0)
     fit = illumination_under_clip(img, cal, 255)
     assert fit is not None
@@ -139,8 +141,14 @@ def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
         assert d2 == pytest.approx(light[row, col] / walls - 1.0, abs=0.003)
         assert abs(d3 - d2) < 0.003
     # the body's term: the relative offset over the edge's slope, sqrt(2 pi) sigma / (1 - T_liquid)
-    ctx = SimpleNamespace(clip_light=fit, clip_term_px=0.01, r0=0, c0=0, sigma_px=1.0, liquid_level=0.1,
-                          edge_position_sigma_px=0.02, edge_floor_px=0.0)
+    def context(clip_term_px, edge_position_sigma_px):
+        return SimpleNamespace(
+            geometry=SimpleNamespace(row0_px=0, col0_px=0), photometry=SimpleNamespace(liquid_level=0.1),
+            blur=SimpleNamespace(clip_light=fit, clip_term_px=clip_term_px, correction_sigma_px=1.0,
+                                 edge_position_sigma_px=edge_position_sigma_px),
+            config=SimpleNamespace(edge_position_floor_px=0.0))
+
+    ctx = context(0.01, 0.02)
     body = SimpleNamespace(centroid_row=120.0, centroid_col=160.0)
     rel = fit.relative_error(120.0, 160.0)
     assert rel > 0.05  # the centre lies well above the level read at the nozzle
@@ -148,7 +156,24 @@ def test_backlight_under_the_clip_is_extrapolated_from_what_is_seen():
     assert common_edge_sigma_px(ctx, body) == pytest.approx(
         np.sqrt(0.02**2 - 0.01**2 + clip_level_px(body, ctx) ** 2), rel=1e-9)
     # the sequence's term (the level's excess over the clip) is the least: where it is larger, it stays
-    wide = SimpleNamespace(**{**vars(ctx), "clip_term_px": 0.5, "edge_position_sigma_px": 0.5})
+    wide = context(0.5, 0.5)
     assert clip_level_px(body, wide) < 0.5 and common_edge_sigma_px(wide, body) == pytest.approx(0.5)
     # a background clipped everywhere shows nothing of its shape: no fit
     assert illumination_under_clip(np.minimum(img * 0 + 255.0, 255.0), cal, 255) is None
+
+
+def test_clipped_background_record_writes_the_same_keys():
+    """`ClippedBackground` (a frozen record, no dict read with defaults) writes summary.json's
+    ``calibration.clipped_background`` with its keys in their order; ``edge_range_px`` only with an
+    unknown level."""
+    from dropvision.calibration import ClippedBackground
+
+    known = ClippedBackground(fraction=0.6, level=280.0, level_uncertainty=0.5, max_value=255, level_known=True)
+    assert list(known.to_dict()) == ["fraction", "level", "level_uncertainty", "max_value", "method", "level_known",
+                                     "used"]
+    assert known.to_dict()["used"] is True and known.to_dict()["method"] == ClippedBackground.METHOD
+    lower = ClippedBackground(fraction=0.9, level=255.0, level_uncertainty=float("nan"), max_value=255,
+                              level_known=False, edge_range_px=1.25)
+    assert list(lower.to_dict())[-1] == "edge_range_px" and lower.to_dict()["edge_range_px"] == 1.25
+    with pytest.raises(AttributeError):
+        known.level = 300.0  # frozen

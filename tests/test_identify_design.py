@@ -39,5 +39,5 @@ def test_infeasible_target(model):
     assert "infeasible" in r.message and "nearest achievable" in r.message
     # nearest achievable is the largest drop: at the top of the stroke range
     assert r.u2_um == pytest.approx(35.0, abs=0.5)
-    with pytest.raises(ValueError, match="volume-nl"):
+    with pytest.raises(ValueError, match="^volume_nl must be a positive number"):
         design(model, -1.0)

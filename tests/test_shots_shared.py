@@ -9,6 +9,7 @@ are pinned to the solo ones (each image measured alone) and to the synthetic tru
 from __future__ import annotations
 
 import json
+import pickle
 import shutil
 
 import cv2
@@ -123,8 +124,12 @@ def test_fingerprints_tell_a_moved_camera_and_another_light(rig_shots):
     assert disagreement(fingerprint(b), fingerprint(a)) is None  # another drop, the same rig
     m = np.float32([[1, 0, 0], [0, 1, 3]])
     moved = cv2.warpAffine(b, m, b.shape[1::-1], borderMode=cv2.BORDER_REPLICATE)
-    assert disagreement(fingerprint(moved), fingerprint(a)).startswith("its scene is shifted by")
-    assert disagreement(fingerprint(b[:-2]), fingerprint(a)).startswith("its size 128x446 differs")
+    shifted, resized = disagreement(fingerprint(moved), fingerprint(a)), disagreement(fingerprint(b[:-2]), fingerprint(a))
+    assert shifted.startswith("its scene is shifted by")
+    assert resized.startswith("its size 128x446 differs")
+    # the decision to measure a shot alone from its frame as decoded reads the flag, never the words
+    assert shifted.same_view and not resized.same_view
+    assert pickle.loads(pickle.dumps(shifted)).same_view  # it crosses to a forked worker's parent intact
 
 
 def test_parallel_and_serial_give_identical_rows(rig_shots, tmp_path, monkeypatch):

@@ -275,9 +275,13 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     b_img = np.full(img.shape, bg, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     body = sg.find_nozzle_body(seg.bodies, 80.0)
-    ctx = SimpleNamespace(inv_background=1 / b_img, threshold=thr, tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0,
-                          sigma_px=0.0, nozzle_blur_px=0.0, nl_per_px3=2e-6, edge_position_sigma_px=0.05,
-                          edge_noise_px=0.0)
+    ctx = SimpleNamespace(
+        geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan),
+        photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=np.nan,
+                                   noise_transmission=0.0, smoothing_sigma_px=0.0),
+        blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=0.0, edge_position_sigma_px=0.05,
+                             edge_noise_px=0.0, clip_light=None),
+        config=SimpleNamespace(edge_position_floor_px=0.0))
     att = measure_attached(img, ctx, seg, body, 1.0)
     expected_nl = math.pi * 15.5**2 * 60.2 * 2e-6
     assert att.volume_nl == pytest.approx(expected_nl, rel=1e-3)

@@ -168,7 +168,7 @@ def test_rig_answers_are_checked(model):
 
     with pytest.raises(TabularError, match=r"rig lab: shot 1: the rig failed \(RuntimeError: camera lost\)"):
         tune_table(model, broken, ["volume_px3=1100"], rig_name="lab")
-    with pytest.raises(TabularError, match="--shots must be an integer >= 1"):
+    with pytest.raises(TabularError, match="^shots must be an integer >= 1"):
         tune_table(model, _rig(), ["volume_px3=1100"], shots=0)
 
 

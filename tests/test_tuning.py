@@ -123,7 +123,7 @@ def test_rig_answers_are_checked(demo_model):
         tune(demo_model, CallableRig(lambda u1, u2, shot: (float("nan"), 1.0), name="lab"), 20.0)
     with pytest.raises(ValueError, match="rig returned str"):
         tune(demo_model, CallableRig(lambda u1, u2: "20 nl", name="lab"), 20.0)
-    with pytest.raises(ValueError, match="--shots must be an integer >= 1"):
+    with pytest.raises(ValueError, match="^shots must be an integer >= 1"):
         tune(demo_model, _plant(demo_model), 20.0, shots=0)
     with pytest.raises(ValueError, match="unknown rig"):
         load_rig("nosuch")
@@ -243,3 +243,20 @@ def test_rerun_view_of_a_run(demo_model, tmp_path):
     assert [v[0] for v in batch.column("Scalars:scalars").to_pylist()] == pytest.approx(
         [s["measured_volume_nl"] for s in res.shots])
     assert res.message in rrd.static["/identify/tuning/table"]["TextDocument:text"][0]
+
+
+def test_tuning_columns_are_declared_and_library_errors_name_parameters():
+    """Every per-output column `tune` writes is a declared tuning.parquet column; a bad value is said
+    with the parameter's name by the library and with the option's by the command line's boundary."""
+    from dvcore.errors import ParameterError, describe
+    from dvcore.schema import TUNING
+    from identify.tuning import OUTPUT_COLUMNS
+
+    names = [c for cols in OUTPUT_COLUMNS.values() for c in vars(cols).values()]
+    assert len(names) == 20 and set(names) <= set(TUNING.column_names)
+    with pytest.raises(ParameterError, match="^volume_nl must be a positive number") as caught:
+        tune(None, None, -1.0)
+    assert describe(caught.value) == "--volume-nl must be a positive number, got -1.0"
+    with pytest.raises(ParameterError) as caught:
+        load_rig("nosuch")
+    assert describe(caught.value).startswith("--rig nosuch: unknown rig")

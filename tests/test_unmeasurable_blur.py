@@ -54,16 +54,17 @@ def test_photometry_of_a_frame_without_edges(root):
     with open_sequence(root / "seq") as seq:
         _, _, ctx = calibrate_sequence(seq)
         good = seq.read(0).image
-    assert ctx.wall_rows is not None  # the walls judge the frames' blur
+    walls = ctx.photometry.walls
+    assert walls is not None  # the walls judge the frames' blur
     ok = measure_photometry(good, ctx)
     assert ok.flags == () and ok.gain == pytest.approx(1.0, abs=0.02)
-    assert ok.blur_px == pytest.approx(ctx.blur_ref_px, rel=0.05) and ok.wall_contrast > ctx.min_wall_contrast
+    assert ok.blur_px == pytest.approx(walls.blur_sigma_px, rel=0.05) and ok.wall_contrast > walls.min_wall_contrast
     black = measure_photometry(np.zeros_like(good), ctx)
     assert np.isnan(black.blur_px) and "blurred" in black.flags
     # a flat grey frame keeps a trace of the background's shading at the walls: a blur far over
     # the limit, finite, flagged
     flat = measure_photometry(np.full_like(good, int(np.median(good))), ctx)
-    assert ctx.max_frame_blur_px < flat.blur_px < np.inf and "blurred" in flat.flags
+    assert walls.max_frame_blur_px < flat.blur_px < np.inf and "blurred" in flat.flags
 
 
 def test_black_frame_blur_is_nan_and_flagged(root, tmp_path):

@@ -70,8 +70,8 @@ MUTANTS: tuple[Mutant, ...] = (
            "half = edges.chord_px[at] / (2.0 * math.sqrt(2.0))", "half = edges.chord_px[at] / 2.0",
            STAGE, "split_at_row: the waist row's whole slice counted in both halves"),
     Mutant("attached_x1005", "dropvision/bodies.py",
-           "return AttachedLiquid(volume_nl=bv.volume_px3 * ctx.nl_per_px3,",
-           "return AttachedLiquid(volume_nl=1.005 * bv.volume_px3 * ctx.nl_per_px3,",
+           "return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3,",
+           "return AttachedLiquid(volume_nl=1.005 * bv.volume_px3 * geo.nl_per_px3,",
            STAGE, "attached volume x1.005"),
     Mutant("blur_sign", "dropvision/volume.py",
            "vol += c_vol * cos_t", "vol -= c_vol * cos_t",
@@ -282,6 +282,20 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("line_se_dof", "dropvision/tracking.py",
            "np.sqrt(np.sum(res**2) / (n - 2) / sxx)", "np.sqrt(np.sum(res**2) / n / sxx)",
            ("tests/test_tracking.py",), "jetting velocity standard error with n instead of n - 2 degrees of freedom"),
+    # --- issue 34: the seams of decisions that no longer read a message -------------------------
+    Mutant("edge_slope_without_sqrt_2pi", "dropvision/edges.py",
+           "return float(transmission_error * _SQRT_2PI * sig / depth)",
+           "return float(transmission_error * sig / depth)",
+           ("tests/test_clipped_background.py::test_backlight_under_the_clip_is_extrapolated_from_what_is_seen",),
+           "the one edge slope (edges.edge_shift_px) loses its sqrt(2 pi)"),
+    Mutant("same_view_flag_dropped", "dropvision/shot_rig.py",
+           'f"{MAX_SHIFT_PX:g} px)", same_view=True)', 'f"{MAX_SHIFT_PX:g} px)")',
+           ("tests/test_shots_shared.py::test_fingerprints_tell_a_moved_camera_and_another_light",),
+           "a shifted shot is no longer known as the same view (the flag, not the words, decides)"),
+    Mutant("touching_body_rule", "dropvision/bodies.py",
+           "    if body.touching:\n        return DetachedClass.TOUCHING", "    if False:\n        return DetachedClass.TOUCHING",
+           ("tests/test_rerun.py::test_class_image_rejected_and_touching_bodies",),
+           "the one body-class rule (bodies.detached_class) forgets a body split off the main drop"),
 )
 
 

@@ -109,6 +109,7 @@ def pd_to_float(values: Any) -> np.ndarray:
 
 # --- segmentation classes --------------------------------------------------------------------
 
+from dropvision.bodies import DetachedClass, detached_class  # noqa: E402
 from dropvision.segmentation import (  # noqa: E402  (one set of class ids, defined with the segmentation)
     CLASS_ATTACHED,
     CLASS_BACKGROUND,
@@ -430,17 +431,11 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         per part, each around its own pixels.
     """
     parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
+    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
+           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
+           DetachedClass.SATELLITE: CLASS_SATELLITE}
     for j, d in enumerate(bodies):
-        if d.leaves or d.out_of_band:
-            cls = CLASS_BORDER
-        elif j == 0:
-            cls = CLASS_DROP
-        elif d.touching:
-            cls = CLASS_TOUCHING
-        elif d.elongated(compact_ratio):
-            cls = CLASS_TAIL
-        else:
-            cls = CLASS_SATELLITE
+        cls = ids[detached_class(d, j, compact_ratio)]
         parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
     for d in rejected:
         parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))

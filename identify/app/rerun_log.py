@@ -977,13 +977,16 @@ def log_tuning(rec: rr.RecordingStream, result: Any, *, model: Any = None) -> No
     """
     import rerun as rr
 
+    from identify.tuning import OUTPUT_COLUMNS
+
     df = result.to_pandas()
     shots = df["shot"].to_numpy(dtype=np.int64)
     targets = {"volume": result.target_volume_nl, "velocity": result.target_velocity_m_s}
     for o, u, title in _TUNING_OUTPUTS:
         base = f"/identify/tuning/{o}_{u}"
-        series = {"measured": df[f"measured_{o}_{u}"], "corrected": df[f"corrected_{o}_{u}"],
-                  "one_drop_low": df[f"{o}_one_drop_low_{u}"], "one_drop_high": df[f"{o}_one_drop_high_{u}"]}
+        col = OUTPUT_COLUMNS[o]
+        series = {"measured": df[col.measured], "corrected": df[col.corrected],
+                  "one_drop_low": df[col.one_drop_low], "one_drop_high": df[col.one_drop_high]}
         if targets[o] is not None:
             series["target"] = np.full(len(df), float(targets[o]))
         for name, values in series.items():
