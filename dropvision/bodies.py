@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -35,6 +35,7 @@ from dropvision.segmentation import (
 )
 from dropvision.edges import RowEdges, body_edges
 from dropvision.nozzle import Protrusion, protruding_columns
+from dropvision.outline import body_outline
 from dropvision.volume import (
     equivalent_diameter_um,
     BodyVolume,
@@ -81,6 +82,8 @@ class DetachedBody:
     touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
     volume_uncertainty_nl: float = float("nan")  # standard uncertainty (`volume.volume_uncertainty_px3`)
     off_path: bool = False  # beside the jet's path (`off_path_reason`): a speck, not liquid of this firing
+    #: outer boundary, (row, col) pixel centres of the canonical frame (`dropvision.outline.body_outline`)
+    outline: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
@@ -427,6 +430,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         on_dust=on_dust, bbox=(b.x0, b.y0, b.x1, b.y1), area_px=int(b.area_px),
         row_px=volume.centroid_row + ctx.r0, col_px=volume.centroid_col + ctx.c0,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
+        outline=body_outline(seg.labels, b.label, (b.x0, b.y0, b.x1, b.y1), ctx.r0, ctx.c0),
     )
 
 

@@ -37,6 +37,7 @@ from dropvision.bodies import (
 )
 from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
+from dropvision.outline import body_outline, mask_centroid
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
 from dropvision.edges import RowEdges
@@ -66,6 +67,7 @@ class FrameRecord:
     bodies: list[DetachedBody] = field(default_factory=list)
     rejected: list[DetachedBody] = field(default_factory=list)  # out of focus (mist, dust): never liquid
     attached_body: dict | None = None  # area of the attached body (bodies.parquet; appearance not computed)
+    attached_outline: np.ndarray | None = field(default=None, repr=False)  # its outline (`dropvision.outline`)
     flags: list[str] = field(default_factory=list)
     gain: float = 1.0
     blur_px: float = float("nan")
@@ -110,8 +112,11 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     else:
         att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
         # its appearance is not needed for any decision: not computed per frame (speed)
+        box = (nozzle_body.x0, nozzle_body.y0, nozzle_body.x1, nozzle_body.y1)
+        row_px, col_px = mask_centroid(seg.labels, nozzle_body.label, box, ctx.r0, ctx.c0)
         rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": float("nan"),
-                             "edge_blur_px": float("nan")}
+                             "edge_blur_px": float("nan"), "row_px": row_px, "col_px": col_px}
+        rec.attached_outline = body_outline(seg.labels, nozzle_body.label, box, ctx.r0, ctx.c0)
         edges.append(att.edges)
         if att.leaves:
             rec.flags.append(q.ATTACHED_LEAVES)

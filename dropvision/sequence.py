@@ -41,7 +41,8 @@ from dropvision.discovery import (is_regular_file, list_from_folder, list_from_f
                                   parse_delay_from_name, read_frame_rate, refusal_reason)
 from dropvision.labels import check_one_series
 from dropvision.orientation import ORIENTATIONS, original_to_canonical, swaps_axes, to_canonical
-from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none,
+from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none, how_to_give,
+                                  merged_keywords,
                                   merge_overrides, ranged_value, validate_diameters, validate_ink, validate_waveform)
 import dropvision.readers.base as readers_base
 from dropvision.readers.base import ColourLuma, is_number
@@ -305,7 +306,7 @@ def _where(ref: FrameRef) -> str:
 
 def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | None = None,
                   labels: dict | None = None, ignore_sequence_json: bool = False,
-                  require_pixel_size: bool = True, only_files=None) -> Sequence:
+                  require_pixel_size: bool = True, only_files=None, **metadata) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
@@ -337,6 +338,9 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         List only these files (paths relative to the folder): the frames of a folder that a
         writer is still filling (``dropvision watch``). A frames-list entry or an image of the
         folder not among them is left out, not an error. None: every file.
+    **metadata
+        Keys of sequence.json (``OVERRIDE_KEYS``: ``pixel_size_um=3``, ``orientation="up"``, ...),
+        as `dropvision.measure` takes them: the same as ``overrides`` (not both for one key).
 
     Returns
     -------
@@ -359,6 +363,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     stated in ``sources["delay"]``.
     """
     labels = dict(labels or {})
+    overrides = merged_keywords(overrides, metadata, f"open_sequence({str(path)!r})")
     given = check_overrides(overrides, labels)
     folder = Path(path)
     if folder.name == SEQUENCE_JSON and folder.is_file():
@@ -448,7 +453,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
         listed[0].delay_us = 0.0
         sources["delay"] = ("assumed 0 us: one frame without a delay in its name or metadata "
-                            "(give it with --delay-us or sequence.json frames)")
+                            f"(give it with {how_to_give('delay_us', labels)} or sequence.json frames)")
 
     # pixel size: option, sequence.json, else the metadata of the first listed file of a type
     # that may store it (scientific TIFF), else the nozzle's outer diameter (after the probe)
@@ -472,8 +477,8 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         elif not require_pixel_size:
             pixel_size_um, source = math.nan, None
         elif d_out is None:
-            hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
-                    "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")
+            hint = (f"; give it with {how_to_give('pixel_size_um', labels)}, or the nozzle's outer diameter with "
+                    f"{how_to_give('nozzle_outer_diameter_um', labels)} (dropvision init writes a sequence.json)")
             if file_doc is None:
                 raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
                                     f"the images carry no pixel size{hint}")

@@ -67,7 +67,7 @@ def add_metadata_args(p: argparse.ArgumentParser) -> None:
 
 def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
     """(overrides, labels) for `dropvision.sequence.open_sequence` from the parsed options."""
-    overrides, labels = {}, {}
+    overrides, labels = {}, {"_caller": "command line"}  # dropvision.overrides.CALLER_KEY: messages name options
     for opt, key, _, _ in (*_METADATA_OPTIONS, ("--orientation", "orientation", str, "")):
         value = getattr(args, f"meta_{key}", None)
         if value is not None:
