@@ -139,7 +139,7 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         "delay_source": src.get("delay"),
         "bit_depth_source": src.get("bit_depth"),
         "pixel_size_source": src.get("pixel_size"),
-        "nozzle_outer_width_px": width_px,
+        "nozzle_outer_width_px": None if width_px is None else round(float(width_px), 2),  # a measured width: 0.01 px
         "to_give": to_give,
     }
     # the one-screen summary

@@ -288,7 +288,7 @@ def check_scale_in_focus(cal, meta) -> None:
     out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.sequence.SequenceError`."""
     if cal.nozzle_out_of_focus and pixel_size_from_nozzle(meta):
         # the diameter came from an option or an argument: the message names what that caller gives
-        labels = {"_caller": "command line"} if "command line" in str(meta.pixel_size_source) else {}
+        labels = {"_caller": (meta.sources or {}).get("caller")}
         raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
                             f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
                             f"sharper): give the pixel size ({how_to_give('pixel_size_um', labels)} or sequence.json pixel_size_um)")

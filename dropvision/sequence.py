@@ -385,7 +385,9 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     file_doc = load_json_hardened(json_path, SequenceError) if json_exists else None
     doc, wheres = merge_overrides(file_doc, given, labels, json_path)
     sources = {"pixel_size": None, "orientation": None, "nozzle_outer_diameter": None,
-               "nozzle_inner_diameter": None, "delay": None, "waveform": None, "bit_depth": None}
+               "nozzle_inner_diameter": None, "delay": None, "waveform": None, "bit_depth": None,
+               # who opened it (`dropvision.overrides.how_to_give`): later messages name its options or arguments
+               "caller": labels.get("_caller")}
 
     def where_of(*keys: str) -> str:
         return next((wheres[k] for k in keys if k in wheres), str(json_path))

@@ -96,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
         finally:
             if logger is not None:
                 logger.close()
-            print_warnings("dropvision measure", warning_lines(caught), args)
+            print_warnings("dropvision measure", warning_lines(caught, args), args)
     s = res.summary
     if args.quiet:
         return 0
@@ -143,7 +143,7 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
             res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
                                 overwrite=args.overwrite, strobe_interval_us=args.strobe_interval_us)
         finally:
-            print_warnings("dropvision measure", grouped_warnings(warning_lines(caught), {p.name for p in shots.paths}),
+            print_warnings("dropvision measure", grouped_warnings(warning_lines(caught, args), {p.name for p in shots.paths}),
                            args)
     s = res.summary
     if args.quiet:
