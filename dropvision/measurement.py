@@ -271,7 +271,7 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
     cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
     check_scale_in_focus(cal, meta)
     if logger is not None:
-        logger.log_calibration(cal, shape=cal.shape)
+        logger.log_calibration(cal, shape=cal.shape, orientation=meta.orientation, n_frames=len(seq))
     seq_flags = calibration_flags(cal, sigma, config)
     records: list[FrameRecord] = []
     for rec in stream_frames(seq, range(len(seq)), ctx, max(1, config.workers), logger, progress, decoded):

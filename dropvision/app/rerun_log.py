@@ -209,37 +209,61 @@ _SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
 # --- blueprint -------------------------------------------------------------------------------
 
 
-def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
-    """Default layout: frame (normalised | raw tabs) left, time series stacked right.
+#: the overlays of the frame views, in canonical coordinates under ``/frame`` (its static transform
+#: places them on the camera's frame)
+FRAME_OVERLAYS = ("/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
+                  "/frame/bodies", "/frame/labels", "/frame/track", "/frame/drop")
 
-    ``Horizontal(Tabs(Spatial2DView normalised[, Spatial2DView raw]),
-    Vertical(TimeSeriesView volume, velocity, position, TextDocumentView summary))``, with the
-    ``delay`` timeline selected in the time panel, collapsed to its scrubber; the selection and
-    blueprint panels collapsed (the frame gets the room). The raw tab exists only when ``raw``.
+
+def frame_views(raw: bool = False) -> list:
+    """The frame views: the frame as the camera stored it (``/camera``) with the overlays drawn on it
+    (``/frame``'s transform maps the canonical frame onto the camera's), then the normalised
+    transmission in the canonical frame (nozzle at the top) with the same overlays, then the raw
+    canonical frame when ``raw``."""
+    import rerun.blueprint as rrb
+
+    views = [rrb.Spatial2DView(name="camera frame (as stored)", origin="/",
+                               contents=["/camera", "/frame", *FRAME_OVERLAYS]),
+             rrb.Spatial2DView(name="normalised (transmission, nozzle at the top)", origin="/frame",
+                               contents=["/frame", "/frame/transmission", *FRAME_OVERLAYS])]
+    if raw:
+        views.append(rrb.Spatial2DView(name="raw frame (nozzle at the top)", origin="/frame",
+                                       contents=["/frame", "/frame/raw", *FRAME_OVERLAYS]))
+    return views
+
+
+def measurement_blueprint(raw: bool = False, *, single: bool = False) -> rrb.Blueprint:
+    """Default layout: frame views (camera | normalised | raw tabs) left, time series stacked right.
+
+    ``Horizontal(Tabs(camera frame, normalised[, raw]), Vertical(TimeSeriesView volume, velocity,
+    position, TextDocumentView summary))``, with the ``delay`` timeline selected in the time panel,
+    collapsed to its scrubber; the selection and blueprint panels collapsed (the frame gets the
+    room). The raw tab exists only when ``raw``. ``single`` (one frame, a pendant drop): no time
+    series of one point; the frame's values as a table (``/table``) beside the summary.
     """
     import rerun.blueprint as rrb
 
-    overlays = ["/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
-                "/frame/bodies", "/frame/labels", "/frame/track", "/frame/drop"]
-    views = [rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
-                               contents=["/frame", "/frame/transmission", *overlays])]
-    if raw:
-        views.append(rrb.Spatial2DView(name="raw frame", origin="/frame",
-                                       contents=["/frame", "/frame/raw", *overlays]))
+    views = frame_views(raw)
+    texts = rrb.Tabs(
+        rrb.TextDocumentView(name="summary", origin="/summary"),
+        rrb.TextDocumentView(name="calibration", origin="/calibration"),
+        rrb.TextLogView(name="frames", origin="/log"),
+    )
+    if single:
+        right = rrb.Vertical(rrb.TextDocumentView(name="the frame's values", origin="/table"), texts,
+                             row_shares=[3, 2])
+    else:
+        right = rrb.Vertical(
+            rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
+            rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
+            rrb.TimeSeriesView(name="drop position [um]", origin="/series/position_um"),
+            texts,
+            row_shares=[3, 2, 2, 2],
+        )
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Tabs(*views) if len(views) > 1 else views[0],
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
-                rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
-                rrb.TimeSeriesView(name="drop position [um]", origin="/series/position_um"),
-                rrb.Tabs(
-                    rrb.TextDocumentView(name="summary", origin="/summary"),
-                    rrb.TextDocumentView(name="calibration", origin="/calibration"),
-                    rrb.TextLogView(name="frames", origin="/log"),
-                ),
-                row_shares=[3, 2, 2, 2],
-            ),
+            rrb.Tabs(*views),
+            right,
             column_shares=[3, 2],
         ),
         rrb.TimePanel(timeline="delay", state="collapsed"),  # the scrubber only
@@ -247,6 +271,25 @@ def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
         rrb.BlueprintPanel(state="collapsed"),
         collapse_panels=False,
     )
+
+
+def camera_transform(orientation: str, canonical_shape) -> tuple[float, tuple[float, float]]:
+    """(rotation in degrees about the view's z axis, translation (x, y)) taking Rerun's pixel space of
+    the canonical frame (``/frame``) onto the frame as the camera stored it (``/camera``): the quarter
+    turns of `dropvision.orientation` (pixel ``(r, c)`` spans ``[c, c + 1] x [r, r + 1]``)."""
+    hc, wc = float(canonical_shape[0]), float(canonical_shape[1])
+    return {"down": (0.0, (0.0, 0.0)), "up": (180.0, (wc, hc)), "left": (90.0, (hc, 0.0)),
+            "right": (-90.0, (0.0, wc))}[orientation]
+
+
+def camera_preview(image: np.ndarray) -> np.ndarray:
+    """8-bit grey of a stored frame for the camera view: 8-bit as it is; 16-bit scaled so that its
+    99.9th percentile is white (a 12-bit camera's frame is not drawn black)."""
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return np.ascontiguousarray(image)
+    top = float(np.percentile(image, 99.9)) or 1.0
+    return np.round(np.clip(image.astype(np.float32) * (255.0 / top), 0, 255)).astype(np.uint8)
 
 
 # --- duck-typed accessors --------------------------------------------------------------------
@@ -433,6 +476,10 @@ class RerunLogger:
         self._lines_logged = False
         self._track_px: list[tuple[float, float]] = []
         self._closed = False
+        self._orientation = "down"  # of the stored frames (log_calibration): /frame placed on /camera
+        self._transform_logged = False
+        self._single = False  # one frame (log_calibration n_frames=1): a table, no time series
+        self._own_blueprint = blueprint is None
         self._log_static_layout()
 
     # pickling a live stream makes no sense: give the worker the options instead
@@ -458,7 +505,8 @@ class RerunLogger:
 
     # -- calibration ---------------------------------------------------------------------------
 
-    def log_calibration(self, calib: Any, *, shape: tuple[int, int] | None = None) -> None:
+    def log_calibration(self, calib: Any, *, shape: tuple[int, int] | None = None, orientation: str | None = None,
+                        n_frames: int | None = None) -> None:
         """Log the nozzle axis and tip plane (static) and a calibration table.
 
         Parameters
@@ -469,8 +517,24 @@ class RerunLogger:
             ``pixel_size_um`` and ``shape``; ``to_dict()`` (if present) fills the table.
         shape : (rows, cols), optional
             Image shape for the line extents; default ``calib.shape``, else the first frame's.
+        orientation : str, optional
+            How the camera stored the frames (`dropvision.orientation`; default ``calib.orientation``,
+            else ``"down"``): ``/frame`` (canonical) is placed on ``/camera`` (as stored) by a static
+            transform (`camera_transform`).
+        n_frames : int, optional
+            Frames of the sequence: one (a single frame, a pendant drop) gets the frame's values as
+            a table and no time series of one point (`measurement_blueprint` ``single``).
         """
         self._check_open()
+        orientation = orientation or _get(calib, ("orientation",))
+        if isinstance(orientation, str) and orientation in ("down", "up", "left", "right"):
+            self._orientation = orientation
+            self._transform_logged = False
+        if n_frames is not None and int(n_frames) == 1 and not self._single:
+            self._single = True
+            if self._own_blueprint:
+                self.stream.send_blueprint(measurement_blueprint(raw=self.options.raw, single=True),
+                                           make_active=True, make_default=True)
         tip_row = _finite(_get(calib, ("tip_row", "nozzle_tip_row")))  # None: no nozzle, no tip plane
         axis_col = _finite(_get(calib, ("axis_col",)))
         tilt_deg = _get(calib, ("tilt_deg",))
@@ -509,7 +573,20 @@ class RerunLogger:
         self.stream.log("/calibration", self._rr.TextDocument(
             "## Calibration\n\n" + _markdown_table(items), media_type="text/markdown"), static=True)
 
+    def _log_camera_transform(self) -> None:
+        """The static transform of ``/frame`` (canonical) onto ``/camera`` (as stored), once the
+        canonical shape is known."""
+        if self._transform_logged or self._shape is None:
+            return
+        rr = self._rr
+        degrees, (tx, ty) = camera_transform(self._orientation, self._shape)
+        self.stream.log("/frame", rr.Transform3D(translation=[tx, ty, 0.0],
+                                                 rotation=rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0],
+                                                                               degrees=degrees)), static=True)
+        self._transform_logged = True
+
     def _log_calibration_lines(self) -> None:
+        self._log_camera_transform()
         cal, shape = self._calibration, self._shape
         if cal is None or shape is None or self._lines_logged:
             return
@@ -579,6 +656,11 @@ class RerunLogger:
             shape = image.shape
             if self.options.raw:
                 rec.log("/frame/raw", rr.Image(image))
+            # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
+            from dropvision.orientation import from_canonical
+            rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
+                                        color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+            rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
         if transmission is not None:
             transmission = np.asarray(transmission)
             if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
@@ -614,6 +696,7 @@ class RerunLogger:
         if shape is not None and self._shape is None:
             self._shape = (int(shape[0]), int(shape[1]))
             self._log_calibration_lines()
+        self._log_camera_transform()
 
         if edges is not None:
             pts = np.asarray(edges, dtype=float)
@@ -640,7 +723,7 @@ class RerunLogger:
                                                     colors=CLASSES[CLASS_DROP][1]))
         for column, (path, _name) in ROW_SERIES.items():
             value = _finite(row.get(column))
-            if value is not None:
+            if value is not None and not self._single:  # one frame: its values go to /table (log_table)
                 rec.log(path, rr.Scalars(value))
         file = _get(ref, ("file",), "")
         quality = row.get("quality")
@@ -706,6 +789,13 @@ class RerunLogger:
         self._check_open()
         rr, rec = self._rr, self.stream
         delays = np.asarray(frames["delay_us"], dtype=float)
+        if self._single or len(delays) == 1:  # no time series of one point: the frame's values as a table
+            row = frames.iloc[0] if hasattr(frames, "iloc") else {k: v[0] for k, v in frames.items()}
+            items = [(k, row[k]) for k in (frames.columns if hasattr(frames, "columns") else frames)
+                     if np.ndim(row[k]) == 0]
+            rec.log("/table", rr.TextDocument("## The frame's values\n\n" + _markdown_table(items, ("column", "value")),
+                                              media_type="text/markdown"), static=True)
+            return
         for column, (path, _name) in ROW_SERIES.items():
             if column not in frames:
                 continue
