@@ -32,3 +32,22 @@ def test_suggestion_rules():
     assert suggestion("--Delay_US", options) == "--delay-us"
     assert suggestion("--pixel-size-mm", options) == "--pixel-size-um"
     assert suggestion("--frobnicate", options) is None
+
+
+def test_numbers_are_printed_to_meaningful_digits(tmp_path, capsys):
+    """issue 33: a pixel size from the nozzle's width was printed with 16 digits (-v)."""
+    import re
+    import shutil
+    from pathlib import Path
+
+    src = Path(__file__).resolve().parents[1] / "sample_frames" / "u55_u30"
+    folder = tmp_path / "seq"
+    folder.mkdir()
+    for f in sorted(src.glob("f_*.png"))[::6]:
+        shutil.copy(f, folder / f.name)
+    # no pixel size: it comes from the nozzle's measured outer width (many digits)
+    assert main(["measure", str(folder), "--out", str(tmp_path / "r"), "--nozzle-outer-diameter-um", "361",
+                 "--nozzle-inner-diameter-um", "200", "-v", "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "pixel_size " in out
+    assert not re.search(r"\d\.\d{6,}", out), out  # at most 4-5 significant digits anywhere

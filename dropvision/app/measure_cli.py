@@ -115,14 +115,16 @@ def _run(args: argparse.Namespace) -> int:
     if args.verbose:
         for key in _SOURCES:
             value = s.get("orientation") if key == "orientation" else s["calibration"].get("pixel_size_um")
-            shown = f" {value}" if key in ("orientation", "pixel_size") else ""
+            # a measured pixel size to 4 significant digits (a nozzle's width gives 0.9395483127...)
+            shown = (f" {value:.4g}" if isinstance(value, float) else f" {value}") if key in ("orientation", "pixel_size") else ""
             print(f"{key}{shown}: {s.get(f'{key}_source') or 'not given'}")
         for note in s.get("notes") or []:
             print(f"note: {note}")
     if s["n_frames"] == 1 and len(res.frames):  # one frame: what it shows, not a time series' NaNs
         what = _one_frame(res.frames.iloc[0])
     else:
-        what = (f"pinch-off {s['pinchoff_us']} us, in-flight volume {s['inflight_volume_nl']:.4g} +- "
+        pinch = s.get("pinchoff_us")
+        what = (f"pinch-off {pinch if pinch is None else format(float(pinch), '.4g')} us, in-flight volume {s['inflight_volume_nl']:.4g} +- "
                 f"{s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} nl, "
                 f"jetting velocity {s['jetting_velocity_m_s']:.4g} m/s")
     print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; {what}"
