@@ -863,3 +863,47 @@ def test_a_single_frame_gets_a_table_not_time_series_of_one_point(tmp_path):
     assert len(single) == 1
     kinds = [k for k, _ in single[0]]
     assert "TimeSeries" not in kinds and kinds.count("2D") == 2 and ("2D", "/") in single[0]
+
+
+def test_a_folder_of_shots_gets_its_frames_bars_and_table(tmp_path):
+    """issue 33: a shot table gets a table and per-shot plots (bars), each shot as the camera stored it
+    with its bodies' outlines; no time series (shots have no time between them)."""
+    import cv2
+
+    from dropvision.app.cli import main
+    from dropvision.orientation import from_canonical
+    from dropvision.synth import SynthConfig, synthesize
+
+    cfg = SynthConfig(u1_um_per_ms=62, u2_um=30, satellites=1, width_px=240, height_px=700,
+                      delays_us=(1300.0, 1400.0), seed=3, dust=0)
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for name, (img, _) in zip(("a.png", "b.png"), synthesize(cfg, progress=False)):
+        cv2.imwrite(str(folder / name), from_canonical(img, "left"))
+    path = tmp_path / "shots.rrd"
+    assert main(["measure", str(folder), "--out", str(tmp_path / "r"), "--pixel-size-um", str(cfg.pixel_size_um),
+                 "--orientation", "left", "--rerun", str(path), "-q"]) == 0
+    shots = pd.read_parquet(tmp_path / "r" / "shots.parquet")
+    bodies = pd.read_parquet(tmp_path / "r" / "bodies.parquet")
+    rrd = Rrd(path)
+    batches = rrd.temporal["/camera/image"]
+    shot_index = [v for b in batches for v in b.column("shot").to_pylist()]
+    assert sorted(shot_index) == [0, 1]
+    stored = cv2.imread(str(folder / "a.png"), cv2.IMREAD_GRAYSCALE)
+    blob = [v for b in batches for v in b.column("EncodedImage:blob").to_pylist()][shot_index.index(0)]
+    assert _decode_jpeg(blob[0]).shape == stored.shape  # the shot as stored (drops travel left)
+    strips = [v for b in rrd.temporal["/camera/bodies"] for v in b.column("LineStrips2D:strips").to_pylist()]
+    assert sorted(len(s) for s in strips) == sorted(bodies.groupby("file").size().tolist())
+    bars = rrd.static["/shots/drop_volume_nl"]["BarChart:values"][0]["buffer"]
+    np.testing.assert_allclose(bars, shots["drop_volume_nl"].fillna(0.0), rtol=1e-6)
+    table = rrd.static["/shots/table"]["TextDocument:text"][0]
+    assert "| 0 | a.png |" in table and "| 1 | b.png |" in table
+    layouts = []
+    for store in rrd.reader.blueprints():
+        kinds = []
+        for chunk in rrd.reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in batch.schema.names:
+                kinds += [k[0] for k in batch.column("ViewBlueprint:class_identifier").to_pylist()]
+        layouts.append(kinds)
+    assert any(k.count("BarChart") == 3 and "TimeSeries" not in k and "2D" in k for k in layouts)

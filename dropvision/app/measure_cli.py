@@ -137,13 +137,20 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
     """A folder of shots (images with no delay to tell) or several image files: one row per image."""
     from dropvision.shots import measure_shots, one_line
 
-    if args.rerun is not None or args.rerun_spawn or args.rerun_connect is not None:
-        raise UsageError("--rerun/--rerun-spawn/--rerun-connect: not available for a folder of shots yet (give one "
-                         "image file to see it)")
+    from dropvision.app.rerun_log import logger_from_args
+
+    check_side_file(getattr(args, "rerun", None), replaced=[args.out], inputs=list(shots.inputs))
     with captured_warnings() as caught:
         try:
             res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
                                 overwrite=args.overwrite, strobe_interval_us=args.strobe_interval_us)
+            # the shots' view (issue 33): each shot as stored with its bodies, a bar per shot, the table
+            logger = logger_from_args(args, "dropvision", recording_name=Path(shots.inputs[0]).resolve().name)
+            if logger is not None:
+                try:
+                    logger.log_shots(res)
+                finally:
+                    logger.close()
         finally:
             print_warnings("dropvision measure", grouped_warnings(warning_lines(caught, args), {p.name for p in shots.paths}),
                            args)

@@ -292,6 +292,35 @@ def camera_preview(image: np.ndarray) -> np.ndarray:
     return np.round(np.clip(image.astype(np.float32) * (255.0 / top), 0, 255)).astype(np.uint8)
 
 
+#: shots.parquet columns drawn as one bar per shot (`RerunLogger.log_shots`)
+SHOT_BARS: dict[str, str] = {"drop_volume_nl": "main drop volume [nl]", "n_satellites": "satellites",
+                             "drop_z_um": "main drop from the tip [um]"}
+#: shots.parquet columns of the shots' table (``/shots/table``), those present
+SHOT_TABLE_COLUMNS = ("file", "delay_us", "drop_volume_nl", "drop_volume_uncertainty_nl", "n_satellites",
+                      "drop_z_um", "attached_volume_nl", "quality")
+
+
+def shots_blueprint() -> rrb.Blueprint:
+    """A folder of shots: the shot as the camera stored it with its bodies' outlines (``/camera``, the
+    ``shot`` timeline picks the shot), one bar per shot for each of `SHOT_BARS`, and the shots' table."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(name="shot (as stored) and its bodies", origin="/camera"),
+            rrb.Vertical(*[rrb.BarChartView(name=name, origin=f"/shots/{col}") for col, name in SHOT_BARS.items()],
+                         rrb.Tabs(rrb.TextDocumentView(name="shots", origin="/shots/table"),
+                                  rrb.TextDocumentView(name="summary", origin="/summary")),
+                         row_shares=[2] * len(SHOT_BARS) + [3]),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="shot", state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        collapse_panels=False,
+    )
+
+
 # --- duck-typed accessors --------------------------------------------------------------------
 
 
@@ -809,6 +838,65 @@ class RerunLogger:
                          rr.TimeColumn("frame", sequence=np.flatnonzero(ok))],
                 columns=rr.Scalars.columns(scalars=values[ok]),
             )
+
+    def log_shots(self, result: Any, *, images: bool = True) -> None:
+        """Log a folder of shots (`dropvision.shots.ShotsResult`): per shot (``shot`` timeline, its
+        position in ``result.frames``) the frame as the camera stored it (``/camera``, read again
+        from the folder) with every body's outline in its class colour and the liquid's volumes
+        (``/camera/bodies``); static, one bar per shot for each column of `SHOT_BARS`
+        (``/shots/<column>``), the shots' table (``/shots/table``) and the summary; the layout
+        `shots_blueprint` (no time series: shots have no time between them)."""
+        self._check_open()
+        from dropvision.annotate import camera_image, frame_bodies, _frame_geometry
+
+        rr, rec = self._rr, self.stream
+        if self._own_blueprint:
+            rec.send_blueprint(shots_blueprint(), make_active=True, make_default=True)
+        rec.log("/camera", rr.AnnotationContext(
+            [(cid, label, colour) for cid, (label, colour) in CLASSES.items()]), static=True)
+        frames, bodies = result.frames, result.bodies
+        outlines = getattr(result, "outlines_camera", None) or []
+        for i in range(len(frames) if images else 0):
+            row = frames.iloc[i]
+            rec.set_time("shot", sequence=i)
+            orientation, _calib, path = _frame_geometry(result, row)
+            try:
+                image = camera_image(path, orientation) if path is not None else None
+            except Exception as exc:  # noqa: BLE001 - a shot that cannot be read again: said, not fatal
+                rec.log("/log", rr.TextLog(f"shot {i} {row['file']}: not shown ({exc})", level="WARN"))
+                image = None
+            if image is not None:
+                rec.log("/camera/image", rr.Image(camera_preview(image), color_model="L").compress(
+                    jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+            strips, ids, texts = [], [], []
+            for j in frame_bodies(result, row):
+                pts = np.asarray(outlines[j]) if j < len(outlines) else np.zeros((0, 2))
+                if len(pts) < 2:
+                    continue
+                b = bodies.iloc[int(j)]
+                xy = np.vstack([pts, pts[:1]])[:, ::-1] + PIXEL_CENTRE_OFFSET  # (row, col) -> (x, y), closed
+                strips.append(xy)
+                ids.append(_CLASS_NAMES.get(str(b["body_class"]), CLASS_OUT_OF_FOCUS))
+                vol = _finite(b.get("volume_nl"))
+                texts.append(f"{b['body_class']}" + ("" if vol is None else f" {vol:.3g} nl"))
+            if strips:
+                rec.log("/camera/bodies", rr.LineStrips2D(strips, class_ids=ids, labels=texts, radii=-1.5,
+                                                          show_labels=False))
+            else:
+                rec.log("/camera/bodies", rr.Clear(recursive=False))
+            rec.log("/log", rr.TextLog(f"shot {i} {row['file']}: quality {row.get('quality')}", level="INFO"))
+        table = result.shots
+        for col in SHOT_BARS:
+            if col in table:
+                rec.log(f"/shots/{col}", rr.BarChart(np.nan_to_num(pd_to_float(table[col]), nan=0.0)), static=True)
+        cols = [c for c in SHOT_TABLE_COLUMNS if c in table]
+        lines = ["| shot | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        for i, (_, r) in enumerate(table.iterrows()):
+            cells = [(f"{float(r[c]):.4g}" if isinstance(r[c], (float, np.floating)) else str(r[c])) for c in cols]
+            lines.append(f"| {i} | " + " | ".join(x.replace("|", "/") for x in cells) + " |")
+        rec.log("/shots/table", rr.TextDocument("## Shots\n\n" + "\n".join(lines), media_type="text/markdown"),
+                static=True)
+        self.log_summary({k: v for k, v in result.summary.items() if k not in ("shots", "config", "software")})
 
     def log_summary(self, summary: Mapping[str, Any]) -> None:
         """Log the sequence summary (``summary.json`` content) as a static markdown table."""
