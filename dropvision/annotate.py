@@ -170,6 +170,7 @@ def annotate(result, frame=0, image=None, *, ax=None, labels: bool = True):
     outlines = getattr(result, "outlines_camera", None)
     idx = frame_bodies(result, row)
     bodies = result.bodies
+    n_text = 0
     for i in idx:
         b = bodies.iloc[int(i)]
         cls = str(b["body_class"])
@@ -181,9 +182,13 @@ def annotate(result, frame=0, image=None, *, ax=None, labels: bool = True):
         if labels and cls in _LABELLED and np.isfinite(float(b.get("row_camera_px", np.nan))):
             vol = b["volume_nl"]
             text = f"{cls.replace('_', ' ')} {_fmt(vol, 'nl')}" if cls != "border" else "border (cut)"
-            ax.annotate(text, (float(b["col_camera_px"]), float(b["row_camera_px"])), xytext=(8, 0),
-                        textcoords="offset points", color="white", fontsize=8, va="bottom",
-                        bbox={"boxstyle": "round,pad=0.2", "fc": colour, "alpha": 0.75, "lw": 0})
+            # the labels in a column at the top right (never on top of each other), a line to each body
+            ax.annotate(text, (float(b["col_camera_px"]), float(b["row_camera_px"])),
+                        xytext=(0.98, 0.96 - 0.07 * n_text), textcoords="axes fraction", ha="right", va="top",
+                        color="white", fontsize=8,
+                        bbox={"boxstyle": "round,pad=0.2", "fc": colour, "alpha": 0.8, "lw": 0},
+                        arrowprops={"arrowstyle": "-", "color": colour, "lw": 0.8})
+            n_text += 1
     tip, col = calib.get("tip_row"), calib.get("axis_col")
     tilt = math.radians(float(calib.get("tilt_deg") or 0.0))
     if col is not None and np.isfinite(float(col)):

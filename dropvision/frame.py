@@ -37,7 +37,7 @@ from dropvision.bodies import (
 )
 from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import FrameContext, smooth_roi
-from dropvision.outline import body_outline, mask_centroid
+from dropvision.outline import body_outline, clip_rows, mask_centroid
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
 from dropvision.edges import RowEdges
@@ -190,6 +190,8 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
             return
         d = describe_detached(ctx, seg, body, part, vol)
         d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
+        # each lobe's outline: the silhouette's between the lobe's rows (cut at the waist)
+        d.outline = clip_rows(d.outline, ctx.r0 + d.top_row - 0.5, ctx.r0 + d.bottom_row + 0.5)
         parts.append(d)
     parts.sort(key=lambda d: -d.volume_nl)
     if parts[1].elongated(ctx.compact_ratio):  # a tail (with a bulb), not a satellite

@@ -66,3 +66,16 @@ def from_camera(points, orientation: str, camera_shape_) -> np.ndarray:
     p = np.asarray(points, np.float64).reshape(-1, 2)
     r, c = original_to_canonical(p[:, 0], p[:, 1], orientation, camera_shape_)
     return np.column_stack([r, c]).astype(np.float32 if np.asarray(points).dtype == np.float32 else np.float64)
+
+
+def clip_rows(outline: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """The part of a closed outline between rows ``lo`` and ``hi`` (inclusive), as one run of points:
+    the outline of one lobe of a silhouette split at a waist row (its closing segment is the cut)."""
+    if outline is None or not len(outline):
+        return outline
+    keep = (outline[:, 0] >= lo) & (outline[:, 0] <= hi)
+    if keep.all() or not keep.any():
+        return outline[keep]
+    start = int(np.argmin(keep))  # a point outside the band: the kept points are then one run
+    rolled, kept = np.roll(outline, -start, axis=0), np.roll(keep, -start)
+    return rolled[kept]

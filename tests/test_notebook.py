@@ -151,3 +151,17 @@ def test_annotate_a_shot_reads_the_image_as_stored(tmp_path, synthetic):
     outlines = [ln for ln in ax.lines if ln.get_label().startswith("body ")]
     assert len(outlines) == len(mine) >= 2
     assert [ln.get_label().split(": ")[1] for ln in outlines] == list(mine["body_class"])
+
+
+def test_clip_rows_gives_one_run_of_a_lobe():
+    """A silhouette split at a waist: each lobe's outline is the silhouette's between its rows, one run
+    of points whatever point the contour started at."""
+    from dropvision.outline import clip_rows
+    t = np.linspace(0, 2 * np.pi, 80, endpoint=False)
+    circle = np.column_stack([50 + 20 * np.sin(t), 30 + 20 * np.cos(t)]).astype(np.float32)
+    for shift in (0, 17, 45):
+        ring = np.roll(circle, shift, axis=0)
+        top = clip_rows(ring, 0, 50)
+        assert (top[:, 0] <= 50).all() and len(top) == int((circle[:, 0] <= 50).sum())
+        steps = np.hypot(*np.diff(top, axis=0).T)
+        assert steps.max() < 2.0  # contiguous: no jump across the cut
