@@ -76,7 +76,7 @@ def _frame_row(result, frame):
     return frames.iloc[int(frame)], int(frame) % len(frames)
 
 
-def _frame_geometry(result, row) -> tuple[str, dict, Path | None]:
+def frame_geometry(result, row) -> tuple[str, dict, Path | None]:
     """(orientation, calibration dict, folder holding the image) of a frames-table row."""
     s = result.summary
     if s.get("kind") == "shots":
@@ -152,7 +152,7 @@ def annotate(result, frame=0, image=None, *, ax=None, labels: bool = True):
     import matplotlib.pyplot as plt
 
     row, pos = _frame_row(result, frame)
-    orientation, calib, path = _frame_geometry(result, row)
+    orientation, calib, path = frame_geometry(result, row)
     if image is None:
         if path is None:
             raise ValueError("annotate: frames measured in memory: give the image (annotate(i, image=frames[i]))")

@@ -847,7 +847,7 @@ class RerunLogger:
         (``/shots/<column>``), the shots' table (``/shots/table``) and the summary; the layout
         `shots_blueprint` (no time series: shots have no time between them)."""
         self._check_open()
-        from dropvision.annotate import camera_image, frame_bodies, _frame_geometry
+        from dropvision.annotate import camera_image, frame_bodies, frame_geometry
 
         rr, rec = self._rr, self.stream
         if self._own_blueprint:
@@ -859,7 +859,7 @@ class RerunLogger:
         for i in range(len(frames) if images else 0):
             row = frames.iloc[i]
             rec.set_time("shot", sequence=i)
-            orientation, _calib, path = _frame_geometry(result, row)
+            orientation, _calib, path = frame_geometry(result, row)
             try:
                 image = camera_image(path, orientation) if path is not None else None
             except Exception as exc:  # noqa: BLE001 - a shot that cannot be read again: said, not fatal
