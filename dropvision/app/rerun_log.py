@@ -14,9 +14,13 @@ Timelines
 ``delay``  duration timeline, integer nanoseconds: ``round(delay_us * 1000)`` ns after the trigger.
 ``frame``  sequence timeline: ``FrameRef.index`` (processing order, 0..n-1).
 
-Entity paths (all coordinates in the Rerun 2-D image space of the canonical frame, see below)
+Entity paths (``/frame/...`` in the Rerun 2-D image space of the canonical frame, see below)
 ---------------------------------------------------------------------------------------------
-``/frame``                      static :class:`rerun.AnnotationContext` (classes below)
+``/camera``                     :class:`rerun.EncodedImage`, JPEG of the frame as the camera stored it
+                                (orientation as stored, 16-bit scaled to 8): the main view
+``/frame``                      static :class:`rerun.AnnotationContext` (classes below) and static
+                                :class:`rerun.Transform3D` placing the canonical frame (every
+                                ``/frame/...`` entity) on ``/camera`` (`camera_transform`)
 ``/frame/transmission``         :class:`rerun.EncodedImage`, JPEG (quality
                                 :data:`TRANSMISSION_JPEG_QUALITY`) of the uint8 image
                                 ``round(255 * clip(T, 0, 1))``: what a person looks at
@@ -39,6 +43,11 @@ Entity paths (all coordinates in the Rerun 2-D image space of the canonical fram
 ``/log``                        :class:`rerun.TextLog`, one line per frame (file, quality)
 ``/calibration``                static :class:`rerun.TextDocument` (markdown)
 ``/summary``                    static :class:`rerun.TextDocument` (markdown of summary.json)
+``/table``                      static :class:`rerun.TextDocument`: the values of a single frame
+                                (no time series of one point; ``log_calibration(n_frames=1)``)
+``/camera/image``, ``/camera/bodies``, ``/shots/<column>``, ``/shots/table``
+                                a folder of shots (`RerunLogger.log_shots`, ``shot`` timeline):
+                                each shot as stored with its bodies' outlines, one bar per shot
 
 Pixel convention: dropvision uses integer pixel centres (pixel ``(r, c)`` spans
 ``[c - 0.5, c + 0.5] x [r - 0.5, r + 0.5]``); Rerun draws pixel ``(r, c)`` over
