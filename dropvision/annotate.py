@@ -32,7 +32,10 @@ def _fmt(v, unit: str = "") -> str:
         v = float(v)
     except (TypeError, ValueError):
         return "n/a"
-    return "n/a" if not math.isfinite(v) else f"{v:.3g}{(' ' + unit) if unit else ''}"
+    if not math.isfinite(v):
+        return "n/a"
+    text = f"{v:.0f}" if abs(v) >= 1000 else f"{v:.3g}"  # 7785 nl, not 7.78e+03 nl
+    return text + (f" {unit}" if unit else "")
 
 
 def short_repr(result) -> str:
@@ -48,10 +51,17 @@ def short_repr(result) -> str:
                  "  .shots (a row per image), .frames, .bodies, .summary; .annotate(i) draws shot i"]
         return "\n".join(lines)
     seq = s.get("sequence", "frames in memory")
+    frames = getattr(result, "frames", None)
+    if s.get("n_frames") == 1 and frames is not None and len(frames):  # one frame: what it shows
+        row = frames.iloc[0]
+        what = (f"  main drop {_fmt(row.get('drop_volume_nl'), 'nl')}, {_fmt(row.get('n_satellites'))} satellite(s), "
+                f"attached {_fmt(row.get('attached_volume_nl'), 'nl')}")
+    else:
+        what = (f"  pinch-off {_fmt(s.get('pinchoff_us'), 'us')}, in-flight volume "
+                f"{_fmt(s.get('inflight_volume_nl'), 'nl')}, velocity {_fmt(s.get('jetting_velocity_m_s'), 'm/s')}")
     lines = [f"<{name}: {Path(seq).name if seq else '?'}, {s.get('n_measured')} of {s.get('n_frames')} "
              f"frame(s) measured>",
-             f"  pinch-off {_fmt(s.get('pinchoff_us'), 'us')}, in-flight volume "
-             f"{_fmt(s.get('inflight_volume_nl'), 'nl')}, velocity {_fmt(s.get('jetting_velocity_m_s'), 'm/s')}",
+             what,
              f"  quality {s.get('quality_counts')}",
              "  .frames, .bodies, .summary, .per_delay(); .annotate(i) draws frame i"]
     if getattr(result, "nozzles", None) is not None:
