@@ -28,6 +28,7 @@ from dropvision.bodies import hanging_columns, measure_attached
 from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
+from dropvision.overrides import how_to_give
 from dropvision.context import FrameContext, smooth_roi, smoothing_kernel_sigma_px
 from dropvision.edges import body_edges, edge_threshold
 from dropvision.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
@@ -125,7 +126,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
-        seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
+        give = how_to_give("orientation", {"_caller": (meta.sources or {}).get("caller")})  # the caller's words
+        seen = (f"; orientation {meta.orientation} ({how}; {give} or sequence.json orientation sets it)"
                 if how and str(exc).startswith("no nozzle") else "")
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background

@@ -195,12 +195,13 @@ def init_sequence(folder, overrides: dict | None = None, labels: dict | None = N
         The folder holds a sequence.json (without ``overwrite``), or `describe_folder` fails.
     """
     json_path = Path(folder) / SEQUENCE_JSON
+    give = "--overwrite" if how_to_give("x", labels).startswith("--") else "overwrite=True"  # the caller's words
     if not overwrite and (json_path.exists() or json_path.is_symlink()):
         raise SequenceError(f"{json_path}: exists; dropvision init never replaces a sequence.json "
-                            "(--overwrite replaces it)")
+                            f"({give} replaces it)")
     desc = describe_folder(folder, overrides, labels)
     if not overwrite and (json_path.exists() or json_path.is_symlink()):  # appeared meanwhile
         raise SequenceError(f"{json_path}: exists; dropvision init never replaces a sequence.json "
-                            "(--overwrite replaces it)")
+                            f"({give} replaces it)")
     write_sequence_json(folder, desc.doc)
     return desc

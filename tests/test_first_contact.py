@@ -155,6 +155,12 @@ def test_a_frame_that_does_not_tell_names_each_edge(tmp_path, capsys):
     assert "no nozzle" in err and "default (down): not detected" in err
     for edge in ("top: nothing dark", "bottom: nothing dark", "left: nothing dark", "right: nothing dark"):
         assert edge in err
+    assert "--orientation or sequence.json orientation sets it" in err
+    # in Python the same refusal names the keyword (issue 33)
+    import dropvision
+    from dropvision.sequence import SequenceError
+    with pytest.raises(SequenceError, match="orientation= or sequence.json orientation sets it"):
+        dropvision.measure(folder, pixel_size_um=3)
 
 
 def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, realdata_dir):

@@ -165,3 +165,12 @@ def test_clip_rows_gives_one_run_of_a_lobe():
         assert (top[:, 0] <= 50).all() and len(top) == int((circle[:, 0] <= 50).sum())
         steps = np.hypot(*np.diff(top, axis=0).T)
         assert steps.max() < 2.0  # contiguous: no jump across the cut
+
+
+def test_init_refusal_in_the_callers_words(tmp_path):
+    (tmp_path / "sequence.json").write_text('{"pixel_size_um": 2.5}')
+    with pytest.raises(SequenceError, match=r"overwrite=True replaces it") as info:
+        dropvision.init_sequence(tmp_path)
+    assert "--overwrite" not in str(info.value)
+    with pytest.raises(SequenceError, match=r"--overwrite replaces it"):
+        dropvision.init_sequence(tmp_path, labels={"_caller": "command line"})
