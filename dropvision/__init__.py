@@ -5,8 +5,9 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
     import dropvision
     res = dropvision.measure("sample_frames/colour_ink_u70_u25")    # a sequence folder
     res.frames, res.summary                                          # DataFrame, dict
+    res.annotate(0)                       # frame 0 as the camera took it, bodies outlined (matplotlib Axes)
     res = dropvision.measure(stack, delays_us=d, pixel_size_um=4.73) # frames in memory
-    seq = dropvision.open_sequence(folder)                           # validate, read lazily
+    seq = dropvision.open_sequence(folder, pixel_size_um=3.0)        # validate, read lazily (measure's keywords)
     shots = dropvision.measure_shots("small_samples", overrides={"pixel_size_um": 3.0})  # .shots: a row per image
     dropvision.write_synthetic_sequence(dropvision.SynthConfig(u1_um_per_ms=70, u2_um=25), "synthetic_seq")
     dropvision.run_campaign("campaign_root", "dataset")              # many sequences -> dataset

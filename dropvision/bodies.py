@@ -15,7 +15,8 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -28,6 +29,7 @@ from dropvision.segmentation import (
 )
 from dropvision.edges import RowEdges, body_edges, edge_shift_px
 from dropvision.nozzle import Protrusion, protruding_columns
+from dropvision.outline import body_outline
 from dropvision.volume import (
     equivalent_diameter_um,
     BodyVolume,
@@ -74,6 +76,8 @@ class DetachedBody:
     touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
     volume_uncertainty_nl: float = float("nan")  # standard uncertainty (`volume.volume_uncertainty_px3`)
     off_path: bool = False  # beside the jet's path (`off_path_reason`): a speck, not liquid of this firing
+    #: outer boundary, (row, col) pixel centres of the canonical frame (`dropvision.outline.body_outline`)
+    outline: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def elongated(self, compact_ratio: float) -> bool:
         """Longer than ``compact_ratio`` equivalent-sphere diameters (a tail, a ligament)."""
@@ -453,4 +457,5 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
         row_px=volume.centroid_row + geo.row0_px, col_px=volume.centroid_col + geo.col0_px,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
+        outline=body_outline(seg.labels, b.label, b.bbox, ctx.geometry.row0_px, ctx.geometry.col0_px),
     )

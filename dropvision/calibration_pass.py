@@ -29,6 +29,7 @@ from dropvision.bodies import hanging_columns, measure_attached
 from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
+from dropvision.overrides import how_to_give
 from dropvision.context import (BlurModel, BlurReference, FrameContext, Geometry, PhotometricReference, WallReference,
                                 smoothing_kernel_sigma_px)
 from dropvision.edges import body_edges, edge_shift_px, edge_threshold
@@ -133,7 +134,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         )
     except CalibrationError as exc:
         how = (meta.sources or {}).get("orientation")
-        seen = (f"; orientation {meta.orientation} ({how}; --orientation or sequence.json orientation sets it)"
+        give = how_to_give("orientation", {"_caller": (meta.sources or {}).get("caller")})  # the caller's words
+        seen = (f"; orientation {meta.orientation} ({how}; {give} or sequence.json orientation sets it)"
                 if how and isinstance(exc, NoNozzleError) else "")
         raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
     t_first = np.asarray(first, np.float32) / cal.background.background

@@ -21,6 +21,7 @@ import numpy as np
 from dvcore import __version__
 from dropvision.calibration import CalibrationError
 from dropvision.inspection import nozzle_outer_width_px
+from dropvision.overrides import how_to_give
 from dropvision.sequence import SEQUENCE_JSON, SequenceError, check_overrides, open_sequence
 from dropvision.sequence_writer import write_sequence_json
 
@@ -100,8 +101,9 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
     elif math.isnan(meta.pixel_size_um) and "nozzle_outer_diameter_um" not in given:
         doc["pixel_size_um"] = None
         implied = "" if width_px is None else f" (the nozzle is {width_px:.1f} px wide)"
-        to_give.append("pixel_size_um (--pixel-size-um), or the nozzle's outer diameter "
-                       f"(--nozzle-outer-diameter-um: the pixel size is then that diameter over its width in px){implied}")
+        to_give.append(f"pixel_size_um ({how_to_give('pixel_size_um', labels)}), or the nozzle's outer diameter "
+                       f"({how_to_give('nozzle_outer_diameter_um', labels)}: the pixel size is then that diameter over "
+                       f"its width in px){implied}")
     for key in ("nozzle_outer_diameter_um", "nozzle_inner_diameter_um"):
         doc[key] = given.get(key)
     doc["orientation"] = meta.orientation
@@ -110,7 +112,9 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         doc["waveform"] = meta.waveform
     else:
         doc["waveform"] = None
-        to_give.append("waveform: u1_um_per_ms and u2_um at least (--u1-um-per-ms, --u2-um; needed by "
+        to_give.append("waveform: u1_um_per_ms and u2_um at least (" + (
+            "--u1-um-per-ms, --u2-um" if how_to_give("x", labels).startswith("--") else "waveform={...}")
+            + "; needed by "
                        "dropvision campaign and identify, not by measure)")
     if "ink" in given:
         doc["ink"] = given["ink"]
@@ -122,18 +126,20 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         doc.update({k: given[k] for k in rate_keys if k in given})
     else:
         listed = sorted(meta.frames, key=lambda f: f.listed_index)
-        doc["frames"] = [{"file": f.file, **({} if f.page is None else {"page": f.page}), "delay_us": f.delay_us}
-                         for f in listed]
-        if (src.get("delay") or "").startswith("assumed"):
-            to_give.append(f"delay_us of {listed[0].file} (assumed 0 us: nothing in its name or metadata "
-                           "states the strobe delay; --delay-us)")
+        assumed = (src.get("delay") or "").startswith("assumed")
+        # a value TO GIVE is written null (measure then assumes 0 us and says so), never a made-up 0.0
+        doc["frames"] = [{"file": f.file, **({} if f.page is None else {"page": f.page}),
+                          "delay_us": None if assumed else f.delay_us} for f in listed]
+        if assumed:
+            to_give.append(f"delay_us of {listed[0].file} (null: nothing in its name or metadata "
+                           f"states the strobe delay; {how_to_give('delay_us', labels)})")
     doc["dropvision_init"] = {
         "written_by": f"dropvision init {__version__}",
         "orientation_source": src.get("orientation"),
         "delay_source": src.get("delay"),
         "bit_depth_source": src.get("bit_depth"),
         "pixel_size_source": src.get("pixel_size"),
-        "nozzle_outer_width_px": width_px,
+        "nozzle_outer_width_px": None if width_px is None else round(float(width_px), 2),  # a measured width: 0.01 px
         "to_give": to_give,
     }
     # the one-screen summary
@@ -189,12 +195,13 @@ def init_sequence(folder, overrides: dict | None = None, labels: dict | None = N
         The folder holds a sequence.json (without ``overwrite``), or `describe_folder` fails.
     """
     json_path = Path(folder) / SEQUENCE_JSON
+    give = "--overwrite" if how_to_give("x", labels).startswith("--") else "overwrite=True"  # the caller's words
     if not overwrite and (json_path.exists() or json_path.is_symlink()):
         raise SequenceError(f"{json_path}: exists; dropvision init never replaces a sequence.json "
-                            "(--overwrite replaces it)")
+                            f"({give} replaces it)")
     desc = describe_folder(folder, overrides, labels)
     if not overwrite and (json_path.exists() or json_path.is_symlink()):  # appeared meanwhile
         raise SequenceError(f"{json_path}: exists; dropvision init never replaces a sequence.json "
-                            "(--overwrite replaces it)")
+                            f"({give} replaces it)")
     write_sequence_json(folder, desc.doc)
     return desc

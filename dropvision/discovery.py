@@ -374,6 +374,9 @@ def list_from_frames(folder: Path, frames, json_path: Path, folder_real: str,
                     stored_delays[rel] = _probe(reader, path).page_delays
                 d = stored_delays[rel].get(0 if page is None else page)
                 delay = None if d is None else delay_value(d, where)
+            if delay is None and len(frames) == 1:  # one frame (dropvision init's null): assumed 0 as in a folder
+                out.append(ListedFrame(rel, page, None))
+                continue
             if delay is None:
                 raise SequenceError(f"{where}: frames[{i}] has no delay_us and none can be "
                                     "parsed from the file name or TIFF page")

@@ -36,6 +36,7 @@ from dropvision.bodies import (
 )
 from dropvision.classify import appearance, out_of_focus_reason
 from dropvision.context import BlurReference, FrameContext
+from dropvision.outline import body_outline, clip_rows, mask_centroid
 from dropvision.pinchoff import thread_joined_labels
 from dropvision.segmentation import DarkBody, Segmentation, dark_mask, segment, threshold_image
 from dropvision.edges import RowEdges
@@ -65,6 +66,7 @@ class FrameRecord:
     bodies: list[DetachedBody] = field(default_factory=list)
     rejected: list[DetachedBody] = field(default_factory=list)  # out of focus (mist, dust): never liquid
     attached_body: dict | None = None  # area of the attached body (bodies.parquet; appearance not computed)
+    attached_outline: np.ndarray | None = field(default=None, repr=False)  # its outline (`dropvision.outline`)
     flags: list[str] = field(default_factory=list)
     gain: float = 1.0
     blur_px: float = float("nan")
@@ -109,8 +111,11 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
     else:
         att = measure_attached(roi, ctx, seg, nozzle_body, rec.gain)
         # its appearance is not needed for any decision: not computed per frame (speed)
+        box, row0_px, col0_px = nozzle_body.bbox, ctx.geometry.row0_px, ctx.geometry.col0_px
+        row_px, col_px = mask_centroid(seg.labels, nozzle_body.label, box, row0_px, col0_px)
         rec.attached_body = {"area_px": int(nozzle_body.area_px), "min_transmission": float("nan"),
-                             "edge_blur_px": float("nan")}
+                             "edge_blur_px": float("nan"), "row_px": row_px, "col_px": col_px}
+        rec.attached_outline = body_outline(seg.labels, nozzle_body.label, box, row0_px, col0_px)
         edges.append(att.edges)
         if att.leaves:
             rec.flags.append(q.ATTACHED_LEAVES)
@@ -186,6 +191,8 @@ def _split_touching(ctx: FrameContext, seg: Segmentation, rec: FrameRecord, body
             return
         d = describe_detached(ctx, seg, body, part, vol)
         d.min_transmission, d.edge_blur_px = main.min_transmission, main.edge_blur_px
+        # each lobe's outline: the silhouette's between the lobe's rows (cut at the waist)
+        d.outline = clip_rows(d.outline, ctx.geometry.row0_px + d.top_row - 0.5, ctx.geometry.row0_px + d.bottom_row + 0.5)
         parts.append(d)
     parts.sort(key=lambda d: -d.volume_nl)
     if parts[1].elongated(ctx.config.compact_ratio):  # a tail (with a bulb), not a satellite

@@ -22,16 +22,18 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 import dropvision.quality as q
+from dropvision.annotate import short_repr
 from dropvision.config import MeasureConfig
 from dropvision.bodies_table import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
 from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
+from dropvision.overrides import how_to_give
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
 from dropvision.result_writer import write_result
 from dropvision.summary import assemble, per_delay
@@ -51,6 +53,20 @@ class MeasureResult:
     bodies: pd.DataFrame | None = None
     #: a printhead row's nozzles.parquet (`dropvision.nozzle_row`); None for one nozzle
     nozzles: pd.DataFrame | None = None
+    #: outline of each row of ``bodies``: (N, 2) float arrays of (row, col) pixel centres of the
+    #: canonical frame (nozzle at the top; `dropvision.outline`); None where not traced (a printhead row)
+    outlines: list | None = field(default=None, repr=False)
+    #: the same outlines in the frame as the camera stored it (``summary["orientation"]`` undone)
+    outlines_camera: list | None = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        return short_repr(self)
+
+    def annotate(self, frame=0, image=None, *, ax=None, labels: bool = True):
+        """Draw a frame as the camera took it with the outline of every body coloured by class, the
+        jetting axis and the volumes (`dropvision.annotate.annotate`); returns the matplotlib Axes."""
+        from dropvision.annotate import annotate
+        return annotate(self, frame, image, ax=ax, labels=labels)
 
     def per_delay(self) -> pd.DataFrame:
         """Mean, std and count of the numeric columns per delay (columns ``<name>_mean`` ...)."""
@@ -259,7 +275,7 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
     cal, sigma, ctx = calibrate_sequence(seq, config, decoded=decoded)
     check_scale_in_focus(cal, meta)
     if logger is not None:
-        logger.log_calibration(cal, shape=cal.shape)
+        logger.log_calibration(cal, shape=cal.shape, orientation=meta.orientation, n_frames=len(seq))
     seq_flags = calibration_flags(cal, sigma, config)
     records: list[FrameRecord] = []
     for rec in stream_frames(seq, range(len(seq)), ctx, max(1, config.workers), logger, progress, decoded):
@@ -275,9 +291,11 @@ def check_scale_in_focus(cal, meta) -> None:
     """Refuse a pixel size taken from the nozzle's outer width when the calibration found its walls
     out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.sequence.SequenceError`."""
     if cal.nozzle_out_of_focus and pixel_size_from_nozzle(meta):
+        # the diameter came from an option or an argument: the message names what that caller gives
+        labels = {"_caller": (meta.sources or {}).get("caller")}
         raise SequenceError(f"{meta.path}: the pixel size was to come from the nozzle's outer width "
                             f"({meta.pixel_size_source}), but the nozzle walls are out of focus (the drops are "
-                            "sharper): give the pixel size (--pixel-size-um or sequence.json pixel_size_um)")
+                            f"sharper): give the pixel size ({how_to_give('pixel_size_um', labels)} or sequence.json pixel_size_um)")
 
 
 def calibration_flags(cal, sigma_px: float, config: MeasureConfig) -> list[str]:
@@ -302,4 +320,25 @@ def result_from_records(records: list[FrameRecord], cal, sigma_px: float, refere
     bodies = bodies_table(records, frames, edge_blur_ref_px=reference_spread_px, compact_ratio=config.compact_ratio)
     summary["calibration"]["edge_blur_ref_px"] = float(reference_spread_px)
     summary["calibration"]["edge_blur_ref_source"] = blur_reference.value
-    return MeasureResult(frames, summary, bodies)
+    outlines, outlines_camera = body_outlines(records, bodies, meta.orientation, cal.shape)
+    return MeasureResult(frames, summary, bodies, outlines=outlines, outlines_camera=outlines_camera)
+
+
+def body_outlines(records, bodies, orientation: str, canonical_shape) -> tuple[list, list]:
+    """The outline of every row of ``bodies`` (`dropvision.bodies_table.bodies_table`'s order: the attached
+    body, the in-focus detached bodies, the rejected ones, frame by frame) in the canonical frame and
+    in the camera's (`dropvision.outline`); fills ``bodies``' ``row_camera_px`` / ``col_camera_px``."""
+    from dropvision.outline import EMPTY, to_camera
+
+    canonical = []
+    for r in records:
+        if r.attached_body is not None:
+            canonical.append(EMPTY if r.attached_outline is None else r.attached_outline)
+        canonical += [EMPTY if b.outline is None else b.outline for b in (*r.bodies, *r.rejected)]
+    if len(canonical) != len(bodies):  # the tables' rule changed without this one: no outlines rather than wrong ones
+        canonical = [EMPTY] * len(bodies)
+    camera = [to_camera(o, orientation, canonical_shape) for o in canonical]
+    if len(bodies):
+        centre = to_camera(bodies[["row_px", "col_px"]].to_numpy(float), orientation, canonical_shape)
+        bodies["row_camera_px"], bodies["col_camera_px"] = centre[:, 0], centre[:, 1]
+    return canonical, camera

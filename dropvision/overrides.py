@@ -174,6 +174,36 @@ def validate_diameters(d_in, d_out, where: str) -> tuple[float | None, float | N
     return d_in, d_out
 
 
+#: key of an option labels dict (`check_overrides`) saying who asked: ``"command line"`` (the options of
+#: `dropvision.app.options`) or absent (a Python call); messages then name ``--pixel-size-um`` or
+#: ``pixel_size_um=``.
+CALLER_KEY = "_caller"
+
+
+def how_to_give(key: str, labels: dict | None) -> str:
+    """How the caller gives sequence.json key ``key``: the option (``--pixel-size-um``) on the command
+    line, the keyword argument (``pixel_size_um=``) in Python."""
+    if (labels or {}).get(CALLER_KEY) == "command line":
+        return "--" + key.replace("_", "-")
+    return f"{key}="
+
+
+def merged_keywords(overrides: dict | None, metadata: dict, call: str) -> dict | None:
+    """``overrides`` with sequence.json keys given as keyword arguments (`dropvision.sequence.open_sequence`
+    takes ``pixel_size_um=3`` as `dropvision.measure` does); an unknown keyword or a key given both ways is
+    a TypeError naming it."""
+    if not metadata:
+        return overrides
+    unknown = sorted(set(metadata) - set(OVERRIDE_KEYS))
+    if unknown:
+        raise TypeError(f"{call}: unknown keyword argument {', '.join(unknown)} (keys of sequence.json: "
+                        f"{', '.join(OVERRIDE_KEYS)})")
+    both = sorted(set(metadata) & {k for k, v in (overrides or {}).items() if v is not None})
+    if both:
+        raise TypeError(f"{call}: {', '.join(both)} given both as a keyword and in overrides")
+    return {**(overrides or {}), **{k: v for k, v in metadata.items() if v is not None}}
+
+
 def check_overrides(overrides, labels=None) -> dict:
     """Validate values given for sequence.json keys outside the file (options, arguments).
 

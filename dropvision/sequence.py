@@ -42,7 +42,8 @@ from dropvision.discovery import (is_regular_file, list_from_folder, list_from_f
 from dropvision.labels import check_one_series
 from dropvision.orientation import (ORIENTATIONS, orientation_of_stored_frame, original_to_canonical, swaps_axes,
                                     to_canonical)
-from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none,
+from dropvision.overrides import (OVERRIDE_KEYS, check_in_image, check_overrides, finite_or_none, how_to_give,
+                                  merged_keywords,
                                   merge_overrides, ranged_value, validate_diameters, validate_ink, validate_waveform)
 import dropvision.readers.base as readers_base
 from dropvision.readers.base import ColourLuma, is_number
@@ -436,8 +437,8 @@ def _document_keys(d: _Document) -> _Keys:
                  waveform, ink, extra)
 
 
-def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: bool, only_files
-                 ) -> tuple[list, str]:
+def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: bool, only_files,
+                 labels: dict) -> tuple[list, str]:
     """The listed frames (a recording at frame_rate_hz, sequence.json's frames, or the folder's
     images) with their delays, and where the delays come from (``sources["delay"]``)."""
     doc, folder = d.doc, d.folder
@@ -467,12 +468,12 @@ def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: 
     elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
         listed[0].delay_us = 0.0
         delay_source = ("assumed 0 us: one frame without a delay in its name or metadata "
-                        "(give it with --delay-us or sequence.json frames)")
+                        f"(give it with {how_to_give('delay_us', labels)} or sequence.json frames)")
     return listed, delay_source
 
 
-def _given_pixel_size(d: _Document, listed: list, refused: dict, d_out: float | None, require_pixel_size: bool
-                      ) -> tuple[float | None, str | None]:
+def _given_pixel_size(d: _Document, listed: list, refused: dict, d_out: float | None, require_pixel_size: bool,
+                      labels: dict) -> tuple[float | None, str | None]:
     """The pixel size and its source: option, sequence.json, else the metadata of the first
     listed file of a type that may store it (scientific TIFF); None when it is to come from the
     nozzle's outer diameter (after the probe), NaN when not required; else SequenceError."""
@@ -496,8 +497,8 @@ def _given_pixel_size(d: _Document, listed: list, refused: dict, d_out: float | 
     elif not require_pixel_size:
         pixel_size_um, source = math.nan, None
     elif d_out is None:
-        hint = ("; give it with --pixel-size-um, or the nozzle's outer diameter with "
-                "--nozzle-outer-diameter-um (dropvision init writes a sequence.json)")
+        hint = (f"; give it with {how_to_give('pixel_size_um', labels)}, or the nozzle's outer diameter with "
+                f"{how_to_give('nozzle_outer_diameter_um', labels)} (dropvision init writes a sequence.json)")
         if d.file_doc is None:
             raise SequenceError(f"{folder}: sequence.json (pixel_size_um) is missing and "
                                 f"the images carry no pixel size{hint}")
@@ -562,7 +563,7 @@ def _bit_depth(d: _Document, bit_depth_key: int | None, first_img: np.ndarray, f
 
 def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | None = None,
                   labels: dict | None = None, ignore_sequence_json: bool = False,
-                  require_pixel_size: bool = True, only_files=None) -> Sequence:
+                  require_pixel_size: bool = True, only_files=None, **metadata) -> Sequence:
     """Open a strobe-sequence folder: read and validate its metadata, probe the first frame.
 
     Parameters
@@ -594,6 +595,9 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
         List only these files (paths relative to the folder): the frames of a folder that a
         writer is still filling (``dropvision watch``). A frames-list entry or an image of the
         folder not among them is left out, not an error. None: every file.
+    **metadata
+        Keys of sequence.json (``OVERRIDE_KEYS``: ``pixel_size_um=3``, ``orientation="up"``, ...),
+        as `dropvision.measure` takes them: the same as ``overrides`` (not both for one key).
 
     Returns
     -------
@@ -616,16 +620,19 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
     stated in ``sources["delay"]``.
     """
     labels = dict(labels or {})
+    overrides = merged_keywords(overrides, metadata, f"open_sequence({str(path)!r})")
     given = check_overrides(overrides, labels)
     d = _read_document(_sequence_folder(path), given, labels, ignore_sequence_json, allow_outside_links)
     keys = _document_keys(d)
     sources = {"pixel_size": None, "orientation": d.source_of("orientation"),
                "nozzle_outer_diameter": d.source_of("nozzle_outer_diameter_um"),
                "nozzle_inner_diameter": d.source_of("nozzle_inner_diameter_um"), "delay": None,
-               "waveform": d.source_of("waveform"), "bit_depth": d.source_of("bit_depth")}
+               "waveform": d.source_of("waveform"), "bit_depth": d.source_of("bit_depth"),
+               # who opened it (`dropvision.overrides.how_to_give`): later messages name its options or arguments
+               "caller": labels.get("_caller")}
     refused: dict[str, str] = {}
-    listed, sources["delay"] = _list_frames(d, given, refused, allow_outside_links, only_files)
-    pixel_size_um, source = _given_pixel_size(d, listed, refused, keys.d_out, require_pixel_size)
+    listed, sources["delay"] = _list_frames(d, given, refused, allow_outside_links, only_files, labels)
+    pixel_size_um, source = _given_pixel_size(d, listed, refused, keys.d_out, require_pixel_size, labels)
     refs, reordered = _frame_refs(listed)
 
     # probe: first readable frame (processing order) gives shape, type, bit depth; without a

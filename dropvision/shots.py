@@ -107,6 +107,20 @@ class ShotsResult:
     frames: pd.DataFrame
     summary: dict
     bodies: pd.DataFrame | None = None
+    #: outline of each row of ``bodies`` in the canonical frame and in the camera's
+    #: (`dropvision.measurement.MeasureResult.outlines`)
+    outlines: list | None = field(default=None, repr=False)
+    outlines_camera: list | None = field(default=None, repr=False)
+
+    def __repr__(self) -> str:
+        from dropvision.annotate import short_repr
+        return short_repr(self)
+
+    def annotate(self, shot=0, image=None, *, ax=None, labels: bool = True):
+        """Draw shot ``shot`` (a position in ``.frames`` or a file name) as the camera took it, with
+        its bodies, axis and volumes (`dropvision.annotate.annotate`); returns the matplotlib Axes."""
+        from dropvision.annotate import annotate
+        return annotate(self, shot, image, ax=ax, labels=labels)
 
 
 def _sequence_doc(folder: Path) -> dict | None:
@@ -563,6 +577,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
     frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
+    outline_parts: list = []
     # pandas (with pyarrow's allocator thread) only after the worker processes are forked
     outcomes, rigs, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
                                          shared=shared_calibration, workers=workers)
@@ -583,6 +598,7 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         frames_parts.append(res.frames.assign(file=name))
         if res.bodies is not None and len(res.bodies):
             bodies_parts.append(res.bodies.assign(file=name))
+            outline_parts.append((res.outlines, res.outlines_camera, len(res.bodies)))
         cal = dict(s["calibration"])
         per_shot.append({"file": name, "labels": shots.labels.get(name, {}),
                          **{k: s.get(k) for k in ("orientation", "orientation_source", "pixel_size_source",
@@ -633,7 +649,9 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
         "software": software_versions(),
         "config": asdict(config),
     }
-    result = ShotsResult(table, frames, summary, bodies)
+    outlines = [o for part, _, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    outlines_camera = [o for _, part, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    result = ShotsResult(table, frames, summary, bodies, outlines, outlines_camera)
     if out_dir is not None:
         from dropvision.result_writer import check_shots_result, write_shots_result
 

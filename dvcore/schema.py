@@ -141,6 +141,8 @@ BODIES = Table("bodies", "bodies.parquet", "dropvision.bodies/1", (
     F("volume_nl", "float", "nl", "disc-integrated volume (attached: below the tip plane; null for nozzle)"),
     F("row_px", "float", "px", "centroid row in the canonical frame (nozzle at the top)"),
     F("col_px", "float", "px", "centroid column in the canonical frame"),
+    F("row_camera_px", "float", "px", "centroid row in the frame as the camera stored it (orientation undone)"),
+    F("col_camera_px", "float", "px", "centroid column in the frame as the camera stored it"),
     F("z_um", "float", "um", "centroid along the jetting axis from the tip plane"),
     F("x_um", "float", "um", "centroid across the axis"),
     F("min_transmission", "float", "", "darkest transmission inside the body (background = 1)"),

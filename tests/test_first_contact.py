@@ -155,6 +155,12 @@ def test_a_frame_that_does_not_tell_names_each_edge(tmp_path, capsys):
     assert "no nozzle" in err and "default (down): not detected" in err
     for edge in ("top: nothing dark", "bottom: nothing dark", "left: nothing dark", "right: nothing dark"):
         assert edge in err
+    assert "--orientation or sequence.json orientation sets it" in err
+    # in Python the same refusal names the keyword (issue 33)
+    import dropvision
+    from dropvision.sequence import SequenceError
+    with pytest.raises(SequenceError, match="orientation= or sequence.json orientation sets it"):
+        dropvision.measure(folder, pixel_size_um=3)
 
 
 def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, realdata_dir):
@@ -163,8 +169,11 @@ def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, r
     out, err = capsys.readouterr()
     assert "measured 1 of 1 frames" in out
     assert "main drop " in out and " nl, " in out and "nan" not in out  # what one frame shows (issue 30)
-    # item 4: the colour note is one line, without its source line
-    assert err.strip().splitlines() == [
+    # issue 33: the colour note (the documented grey rule) is not repeated on every run: --verbose shows it,
+    # one line without its source line
+    assert err.strip() == ""
+    assert main(["measure", str(folder), "--out", str(tmp_path / "r1v"), "--pixel-size-um", "3", "-v"]) == 0
+    assert [ln for ln in capsys.readouterr().err.strip().splitlines() if "warning" in ln] == [
         "dropvision measure: warning: frame.jpg: 3-channel image converted to grey (ITU-R BT.601 luminance; noted "
         "once per sequence, further colour frames are converted alike)"]
     s = json.loads((tmp_path / "r1" / "summary.json").read_text())
@@ -181,8 +190,14 @@ def test_init_writes_what_the_images_tell_and_never_overwrites(tmp_path, capsys,
     assert "orientation right" in out and "TO GIVE    pixel_size_um" in out and "outer width" in out
     doc = json.loads((folder / "sequence.json").read_text())
     assert doc["orientation"] == "right" and doc["bit_depth"] == 8 and doc["pixel_size_um"] is None
-    assert doc["frames"] == [{"file": "frame.jpg", "delay_us": 0.0}] and doc["waveform"] is None
+    # every value TO GIVE is null in the file, the assumed delay too (issue 33: it wrote 0.0)
+    assert doc["frames"] == [{"file": "frame.jpg", "delay_us": None}] and doc["waveform"] is None
     assert doc["dropvision_init"]["nozzle_outer_width_px"] > 0 and len(doc["dropvision_init"]["to_give"]) == 3
+    assert round(doc["dropvision_init"]["nozzle_outer_width_px"], 2) == doc["dropvision_init"]["nozzle_outer_width_px"]
+    from dropvision.sequence import open_sequence
+    with open_sequence(folder, pixel_size_um=3) as seq:  # the null delay of one frame: 0 assumed, and said
+        assert seq.meta.frames[0].delay_us == 0.0 and seq.meta.sources["delay"].startswith("assumed 0 us")
+        assert "delay_us=" in seq.meta.sources["delay"]  # a Python caller is told its keyword
     # a user's file is sacred: refused without --overwrite, untouched
     (folder / "sequence.json").write_text('{"pixel_size_um": 2.5}')
     assert main(["init", str(folder), "--pixel-size-um", "3"]) == 2
@@ -260,7 +275,10 @@ def test_campaign_warnings_are_one_line_once_per_sequence(tmp_path, capsys):
     for name in ("a", "b"):
         write_synthetic_sequence(cfg, root / name, progress=False)
     assert main(["campaign", str(root), "--out", str(tmp_path / "ds"), "--workers", "1", "--no-progress"]) == 0
-    err = capsys.readouterr().err.strip().splitlines()
+    assert capsys.readouterr().err.strip() == ""  # the colour note only with --verbose (issue 33)
+    assert main(["campaign", str(root), "--out", str(tmp_path / "ds-v"), "--workers", "1", "--no-progress",
+                 "-v"]) == 0
+    err = [ln for ln in capsys.readouterr().err.strip().splitlines() if "warning" in ln]
     assert len(err) == 2, err
     for name, line in zip("ab", err):
         assert line.startswith(f"dropvision campaign: warning: {name}: ") and "converted to grey" in line

@@ -451,7 +451,6 @@ def test_error_invalid_keys(tmp_path, meta, fragments):
     ([{"file": "a.png", "delay_us": "soon"}], ["a.png", "unparsable delay"]),
     ([{"file": "a.png", "delay_us": "Infinity"}], ["a.png", "unparsable delay"]),
     ([{"file": "a.png", "delay_us": [5]}], ["a.png", "unparsable delay"]),
-    ([{"file": "a.png"}], ["a.png", "no delay_us"]),
     ([{"file": "a.png", "delay_us": 0, "page": 1}], ["a.png", "not a TIFF"]),
     ([{"file": "a.png", "delay_us": 0}, {"file": "a.png", "delay_us": 5}], ["a.png", "twice"]),
     ([{"file": "notes.txt", "delay_us": 0}], ["notes.txt", "unsupported image type"]),
@@ -462,6 +461,19 @@ def test_error_frames_entries(tmp_path, frames, fragments):
     (tmp_path / "notes.txt").write_text("x")
     write_sequence_json(tmp_path, {"pixel_size_um": 1.0, "frames": frames})
     _raises(tmp_path, *fragments)
+
+
+def test_frames_entry_without_delay(tmp_path):
+    """A frames list of several entries needs each one's delay; a list of ONE frame without it (what
+    dropvision init writes for a delay TO GIVE: null, issue 33) is a single frame: 0 us assumed, and said."""
+    write_image(tmp_path / "a.png", _img())
+    write_image(tmp_path / "b.png", _img())
+    write_sequence_json(tmp_path, {"pixel_size_um": 1.0, "frames": [{"file": "a.png", "delay_us": 0},
+                                                                    {"file": "b.png"}]})
+    _raises(tmp_path, "b.png", "no delay_us")
+    write_sequence_json(tmp_path, {"pixel_size_um": 1.0, "frames": [{"file": "a.png", "delay_us": None}]})
+    with open_sequence(tmp_path) as seq:
+        assert seq.meta.frames[0].delay_us == 0.0 and seq.meta.sources["delay"].startswith("assumed 0 us")
 
 
 def test_error_size_differs_raised_when_met(tmp_path):

@@ -8,6 +8,8 @@ import math
 from html.parser import HTMLParser
 from pathlib import Path
 
+import numpy as np
+import pandas as pd
 import pytest
 
 import identify
@@ -95,6 +97,20 @@ def test_report_links_existing_figures_and_holds_the_models_numbers(fitted, tmp_
         f = res.index.parent / name
         assert f.is_file() and f.stat().st_size > 1000
         assert f.read_bytes()[:8] == PNG_MAGIC
+    # issue 33: self-contained means the figures are in the page (base64 PNG), the CV tables shown once
+    import base64
+    assert page.images and all(src.startswith("data:image/png;base64,") for src in page.images)
+    assert all(base64.b64decode(src.split(",", 1)[1])[:8] == PNG_MAGIC for src in page.images)
+    assert len(page.images) == len(pngs) - 1  # cv_tables.png is linked, not shown beside its own tables
+    assert '<div class="scroll"><table id="intervals">' in res.index.read_text()  # a wide table scrolls
+    # the ECM physical parameters with the fit's intervals (were n/a)
+    params = model.to_dict()["ecm"]["parameters"]
+    assert params and any(p["ci95_low"] is not None for p in params.values())
+    rows = page.tables["ecm-parameters"]
+    assert _column(rows, "parameter") == list(params)
+    for name, lo, hi in zip(_column(rows, "parameter"), _column(rows, "low"), _column(rows, "high")):
+        assert _close(lo, params[name]["ci95_low"]) and _close(hi, params[name]["ci95_high"])
+    assert any(lo not in ("n/a", "nan") for lo in _column(rows, "low"))
 
     # ECM coefficients with their 95 % intervals
     d = model.to_dict()["ecm"]
@@ -142,7 +158,7 @@ def test_report_cli(fitted, tmp_path, capsys):
             "--samples", "500", "--at", "60,25", "--at", "70,30"]
     assert main(argv) == 0
     page = _parse(out / "index.html")
-    assert {"fig7_u1_60_u2_25.png", "fig7_u1_70_u2_30.png"} <= set(page.images)
+    assert {"fig7_u1_60_u2_25.png", "fig7_u1_70_u2_30.png"} <= set(page.links)
     assert main(argv) == 0  # our own earlier report is replaced
     # a folder holding the user's files is refused (exit 2) and left as it was
     mine = tmp_path / "mine"
@@ -167,4 +183,21 @@ def test_fit_report_flag(fitted, tmp_path):
     assert main(["fit", str(root / "dataset"), "--out", str(model), "--no-arx", "--report", str(rep_dir)]) == 0
     assert model.is_file() and (rep_dir / "index.html").is_file()
     page = _parse(rep_dir / "index.html")
-    assert all((rep_dir / x).is_file() for x in page.images)
+    assert all((rep_dir / x).is_file() for x in page.links if x.endswith(".png"))
+
+
+def test_arx_table_shows_the_best_sane_structures():
+    """issue 33: the page showed the first 40 of 1148 ARX rows, a fit of -1.2e6 % among them."""
+    from identify.app.report import ARX_PAGE_ROWS, _arx_rows
+    n = 200
+    rng = np.random.default_rng(0)
+    df = pd.DataFrame({"na": np.arange(n), "nb": 1, "nk": 1, "train_rmse_nl": rng.uniform(0.1, 1, n),
+                       "train_fit_percent": rng.uniform(50, 90, n), "val_rmse_nl": rng.uniform(0.1, 1, n),
+                       "val_fit_percent": rng.uniform(40, 90, n)})
+    df.loc[df["val_rmse_nl"].idxmin(), "val_fit_percent"] = -1.2e6  # the best RMSE, a diverged fit
+    shown, caption = _arx_rows(df)
+    assert len(shown) == ARX_PAGE_ROWS and (shown["val_fit_percent"] >= 0).all() and (shown["train_fit_percent"] >= 0).all()
+    assert list(shown["val_rmse_nl"]) == sorted(shown["val_rmse_nl"])
+    sane = df[df["val_fit_percent"] >= 0]
+    assert shown["val_rmse_nl"].iloc[0] == sane["val_rmse_nl"].min()
+    assert f"of {n} structures" in caption

@@ -201,7 +201,7 @@ def test_images(measured_rrd, tmp_path):
     raw = Rrd(raw_path).series("/frame/raw", "Image:buffer")["value"]
     for i in range(len(frames)):
         np.testing.assert_array_equal(np.asarray(raw[i][0], np.uint8).reshape(ROWS, COLS), frames[i][1])
-    assert [k[0] for k in _view_kinds(Rrd(raw_path))].count("2D") == 2  # normalised | raw tabs
+    assert [k[0] for k in _view_kinds(Rrd(raw_path))].count("2D") == 3  # camera | normalised | raw tabs
 
 
 def test_geometry_overlays(measured_rrd):
@@ -256,8 +256,8 @@ def test_texts_and_blueprint(measured_rrd):
             kinds += batch.column("ViewBlueprint:class_identifier").to_pylist()
             origins += batch.column("ViewBlueprint:space_origin").to_pylist()
     kinds = [k[0] for k in kinds]
-    assert kinds.count("2D") == 1 and kinds.count("TimeSeries") == 3  # no raw tab without raw
-    assert ["/series/volume_nl"] in origins and ["/frame"] in origins
+    assert kinds.count("2D") == 2 and kinds.count("TimeSeries") == 3  # camera | normalised; no raw tab without raw
+    assert ["/series/volume_nl"] in origins and ["/frame"] in origins and ["/"] in origins  # / : the camera's frame
     # the frame gets the room: selection and blueprint panels collapsed, the time panel on the
     # delay timeline collapsed to its scrubber (PanelState 2 = collapsed)
     panels = {}
@@ -798,3 +798,112 @@ def test_out_of_focus_body_logs_its_class(misty_rrd):
     texts = rrd.series("/frame/labels", "Points2D:labels")
     shown = texts["value"][texts["delay_ns"] == 1_350_000].iloc[0]
     assert [t.split(" ")[0] for t in shown] == ["satellite", "satellite", "main"]  # top to bottom
+
+
+# --- issue 33: the frame as the camera took it is the main view; one frame gets a table ------------
+
+
+@pytest.mark.parametrize("orientation", ["left", "up", "right"])
+def test_camera_frame_is_the_stored_one_and_overlays_are_placed_on_it(tmp_path, orientation):
+    """/camera holds the frame as stored (the canonical one turned back); the static transform of /frame
+    maps every canonical pixel onto the same pixel of the stored frame (checked on the pixel corners)."""
+    from dropvision.orientation import canonical_to_original, from_canonical
+
+    path = tmp_path / "cam.rrd"
+    frames = [_frame(i) for i in range(2)]
+    with RerunLogger(path=path) as logger:
+        logger.log_calibration({"tip_row": TIP_ROW, "axis_col": AXIS_COL, "tilt_deg": 0.0,
+                                "pixel_size_um": PIXEL_UM}, shape=(ROWS, COLS), orientation=orientation)
+        for frame in frames:
+            logger.log_frame(*frame)
+    rrd = Rrd(path)
+    blobs = rrd.series("/camera", "EncodedImage:blob")["value"]
+    assert len(blobs) == len(frames)
+    for blob, frame in zip(blobs, frames):
+        decoded = _decode_jpeg(blob[0])
+        stored = from_canonical(frame[1], orientation)
+        assert decoded.shape == stored.shape == ((ROWS, COLS) if orientation == "up" else (COLS, ROWS))
+        assert np.abs(decoded.astype(int) - stored.astype(int)).mean() < 12  # JPEG of noise: lossy, same image
+    tf = rrd.static["/frame"]
+    angle = tf["Transform3D:rotation_axis_angle"][0]
+    t = np.asarray(tf["Transform3D:translation"][0], float)
+    a = float(angle["angle"]) * np.sign(angle["axis"][2])  # stored in radians
+    rot = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    for r, c in [(0, 0), (ROWS - 1, 0), (5, COLS - 1), (ROWS - 1, COLS - 1)]:
+        x, y = rot @ np.array([c + 0.5, r + 0.5]) + t[:2]  # Rerun: pixel (r, c) centred at (c + .5, r + .5)
+        rs, cs = canonical_to_original(r, c, orientation, (ROWS, COLS))
+        assert (x, y) == pytest.approx((cs + 0.5, rs + 0.5), abs=1e-4)
+    # the main view is the camera's (origin /), with the overlays
+    assert [k[0] for k in _view_kinds(rrd)].count("2D") == 2
+
+
+def test_a_single_frame_gets_a_table_not_time_series_of_one_point(tmp_path):
+    path = tmp_path / "one.rrd"
+    ref, image, transmission, labels, edges, bodies, row = _frame(1)
+    with RerunLogger(path=path) as logger:
+        logger.log_calibration({"tip_row": TIP_ROW, "axis_col": AXIS_COL, "tilt_deg": 0.0,
+                                "pixel_size_um": PIXEL_UM}, shape=(ROWS, COLS), n_frames=1)
+        logger.log_frame(ref, image, transmission, labels, edges, bodies, row)
+        logger.log_table(pd.DataFrame([{**row, "delay_us": ref.delay_us}]))
+    rrd = Rrd(path)
+    assert not any(e.startswith("/series/") and e in rrd.temporal for e in rrd.entities())
+    table = rrd.static["/table"]["TextDocument:text"][0]
+    assert "| grown_volume_nl | 1.75 |" in table and "| drop_volume_nl | 11 |" in table
+    # the layout sent once the logger knows the sequence is one frame (made active): the table, no time series
+    layouts = []
+    for store in rrd.reader.blueprints():
+        views = []
+        for chunk in rrd.reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in batch.schema.names:
+                views += zip([k[0] for k in batch.column("ViewBlueprint:class_identifier").to_pylist()],
+                             [o[0] for o in batch.column("ViewBlueprint:space_origin").to_pylist()])
+        layouts.append(views)
+    single = [v for v in layouts if ("TextDocument", "/table") in v]
+    assert len(single) == 1
+    kinds = [k for k, _ in single[0]]
+    assert "TimeSeries" not in kinds and kinds.count("2D") == 2 and ("2D", "/") in single[0]
+
+
+def test_a_folder_of_shots_gets_its_frames_bars_and_table(tmp_path):
+    """issue 33: a shot table gets a table and per-shot plots (bars), each shot as the camera stored it
+    with its bodies' outlines; no time series (shots have no time between them)."""
+    import cv2
+
+    from dropvision.app.cli import main
+    from dropvision.orientation import from_canonical
+    from dropvision.synth import SynthConfig, synthesize
+
+    cfg = SynthConfig(u1_um_per_ms=62, u2_um=30, satellites=1, width_px=240, height_px=700,
+                      delays_us=(1300.0, 1400.0), seed=3, dust=0)
+    folder = tmp_path / "shots"
+    folder.mkdir()
+    for name, (img, _) in zip(("a.png", "b.png"), synthesize(cfg, progress=False)):
+        cv2.imwrite(str(folder / name), from_canonical(img, "left"))
+    path = tmp_path / "shots.rrd"
+    assert main(["measure", str(folder), "--out", str(tmp_path / "r"), "--pixel-size-um", str(cfg.pixel_size_um),
+                 "--orientation", "left", "--rerun", str(path), "-q"]) == 0
+    shots = pd.read_parquet(tmp_path / "r" / "shots.parquet")
+    bodies = pd.read_parquet(tmp_path / "r" / "bodies.parquet")
+    rrd = Rrd(path)
+    batches = rrd.temporal["/camera/image"]
+    shot_index = [v for b in batches for v in b.column("shot").to_pylist()]
+    assert sorted(shot_index) == [0, 1]
+    stored = cv2.imread(str(folder / "a.png"), cv2.IMREAD_GRAYSCALE)
+    blob = [v for b in batches for v in b.column("EncodedImage:blob").to_pylist()][shot_index.index(0)]
+    assert _decode_jpeg(blob[0]).shape == stored.shape  # the shot as stored (drops travel left)
+    strips = [v for b in rrd.temporal["/camera/bodies"] for v in b.column("LineStrips2D:strips").to_pylist()]
+    assert sorted(len(s) for s in strips) == sorted(bodies.groupby("file").size().tolist())
+    bars = rrd.static["/shots/drop_volume_nl"]["BarChart:values"][0]["buffer"]
+    np.testing.assert_allclose(bars, shots["drop_volume_nl"].fillna(0.0), rtol=1e-6)
+    table = rrd.static["/shots/table"]["TextDocument:text"][0]
+    assert "| 0 | a.png |" in table and "| 1 | b.png |" in table
+    layouts = []
+    for store in rrd.reader.blueprints():
+        kinds = []
+        for chunk in rrd.reader.stream(store=store):
+            batch = chunk.to_record_batch()
+            if "ViewBlueprint:class_identifier" in batch.schema.names:
+                kinds += [k[0] for k in batch.column("ViewBlueprint:class_identifier").to_pylist()]
+        layouts.append(kinds)
+    assert any(k.count("BarChart") == 3 and "TimeSeries" not in k and "2D" in k for k in layouts)

@@ -168,11 +168,11 @@ def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
         shutil.copy(frame, folder / f"images_{frame.parent.name}.jpg")
     assert len(WATCHER) == 8
     out = tmp_path / "out"
-    assert main(["measure", str(folder), "--out", str(out), "--pixel-size-um", "3"]) == 0
+    assert main(["measure", str(folder), "--out", str(out), "--pixel-size-um", "3", "-v"]) == 0
     captured = capsys.readouterr()
     assert "of 8 shots" in captured.out or "measured 8 shots" in captured.out
     assert "8 labelled from file names (V1, V2, V3, w1, ...)" in captured.out
-    # one colour warning for the folder, not one per image
+    # one colour warning for the folder, not one per image (and only with --verbose: issue 33)
     assert len(captured.err.strip().splitlines()) == 1 and "and 7 other image(s)" in captured.err
     table = pd.read_parquet(out / "shots.parquet")
     assert len(table) == 8

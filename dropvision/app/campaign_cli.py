@@ -10,7 +10,7 @@ import argparse
 import sys
 
 from dropvision.app.options import (
-    add_metadata_args, add_output_args, captured_warnings, overrides_from_args, print_warnings, progress_wanted,
+    add_metadata_args, add_output_args, captured_warnings, is_colour_note, overrides_from_args, print_warnings, progress_wanted,
     warning_lines,
 )
 from dvcore.errors import UsageError
@@ -38,10 +38,10 @@ def _run_campaign_cmd(args) -> int:
         except (FileNotFoundError, ValueError, RuntimeError) as exc:
             raise UsageError(str(exc)) from exc
         finally:
-            print_warnings("dropvision campaign", warning_lines(caught), args)
+            print_warnings("dropvision campaign", warning_lines(caught, args), args)
     # the sequences' own warnings (measured in workers): one line each, once per sequence
     print_warnings("dropvision campaign", [f"{sid}: {text}" for sid, texts in sorted(res.warnings.items())
-                                           for text in texts], args)
+                                           for text in texts if args.verbose or not is_colour_note(text)], args)
     if args.quiet:
         return 0
     print(

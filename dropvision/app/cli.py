@@ -30,8 +30,15 @@ COMMAND_MODULES = (
 )
 
 
+#: What ``dropvision --help`` says above the commands (the module's docstring is for its readers).
+DESCRIPTION = ("Measure drop formation in images of drop-on-demand printing: drop volumes, pinch-off, velocities "
+               "and satellites from a strobe sequence, a drop watcher's shots or a live folder. Start with "
+               "'dropvision init FOLDER' (what the images say, what to give), then 'dropvision measure FOLDER "
+               "--out RESULT'; 'dropvision COMMAND --help' lists a command's options.")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dropvision", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="dropvision", description=DESCRIPTION)
     sub = parser.add_subparsers(dest="command", required=True)
     for name in COMMAND_MODULES:
         try:
@@ -57,7 +64,9 @@ def _quiet_opencv() -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        unknown_options(parser, args, extra)
     from dropvision.sequence import SequenceError  # after parsing: --help does not pay for the readers
 
     _quiet_opencv()
@@ -66,6 +75,34 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = _one_line_warning
         # one error boundary: input/environment failures exit 2 with one line, bugs exit 1
         return run_command("dropvision", args, expected=(SequenceError, OutputError))
+
+
+def suggestion(token: str, options) -> str | None:
+    """The option a mistyped ``token`` meant: underscores for hyphens (``--pixel_size_um``), other case,
+    or the closest spelling; None when nothing is close."""
+    import difflib
+
+    name = token.split("=", 1)[0]
+    fixed = name.replace("_", "-").lower()
+    if fixed in options:
+        return fixed
+    close = difflib.get_close_matches(fixed, list(options), n=1, cutoff=0.8)
+    return close[0] if close else None
+
+
+def unknown_options(parser: argparse.ArgumentParser, args, extra: list[str]) -> None:
+    """Refuse arguments no parser took with the usage of the command they were given to and, for a
+    mistyped option, the option meant (argparse alone shows the top-level usage and no hint)."""
+    sub = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+    target = sub.choices.get(getattr(args, "command", None), parser) if sub is not None else parser
+    options = [o for a in target._actions for o in a.option_strings if o.startswith("--")]
+    hints = []
+    for token in extra:
+        if token.startswith("-"):
+            meant = suggestion(token, options)
+            if meant is not None:
+                hints.append(f"{token.split('=', 1)[0]}: did you mean {meant}?")
+    target.error(f"unrecognized arguments: {' '.join(extra)}" + (f" ({'; '.join(hints)})" if hints else ""))
 
 
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:

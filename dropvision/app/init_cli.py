@@ -20,7 +20,7 @@ def _run(args: argparse.Namespace) -> int:
         try:
             desc = init_sequence(args.folder, overrides, labels, overwrite=args.overwrite)
         finally:
-            print_warnings("dropvision init", warning_lines(caught), args)
+            print_warnings("dropvision init", warning_lines(caught, args), args)
     if args.quiet:
         return 0
     print("\n".join(desc.lines))

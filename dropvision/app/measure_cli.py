@@ -96,7 +96,7 @@ def _run(args: argparse.Namespace) -> int:
         finally:
             if logger is not None:
                 logger.close()
-            print_warnings("dropvision measure", warning_lines(caught), args)
+            print_warnings("dropvision measure", warning_lines(caught, args), args)
     s = res.summary
     if args.quiet:
         return 0
@@ -115,14 +115,16 @@ def _run(args: argparse.Namespace) -> int:
     if args.verbose:
         for key in _SOURCES:
             value = s.get("orientation") if key == "orientation" else s["calibration"].get("pixel_size_um")
-            shown = f" {value}" if key in ("orientation", "pixel_size") else ""
+            # a measured pixel size to 4 significant digits (a nozzle's width gives 0.9395483127...)
+            shown = (f" {value:.4g}" if isinstance(value, float) else f" {value}") if key in ("orientation", "pixel_size") else ""
             print(f"{key}{shown}: {s.get(f'{key}_source') or 'not given'}")
         for note in s.get("notes") or []:
             print(f"note: {note}")
     if s["n_frames"] == 1 and len(res.frames):  # one frame: what it shows, not a time series' NaNs
         what = _one_frame(res.frames.iloc[0])
     else:
-        what = (f"pinch-off {s['pinchoff_us']} us, in-flight volume {s['inflight_volume_nl']:.4g} +- "
+        pinch = s.get("pinchoff_us")
+        what = (f"pinch-off {pinch if pinch is None else format(float(pinch), '.4g')} us, in-flight volume {s['inflight_volume_nl']:.4g} +- "
                 f"{s.get('inflight_volume_uncertainty_nl', float('nan')):.2g} nl, "
                 f"jetting velocity {s['jetting_velocity_m_s']:.4g} m/s")
     print(f"measured {s['n_measured']} of {s['n_frames']} frames -> {args.out}; {what}"
@@ -135,15 +137,22 @@ def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> in
     """A folder of shots (images with no delay to tell) or several image files: one row per image."""
     from dropvision.shots import measure_shots, one_line
 
-    if args.rerun is not None or args.rerun_spawn or args.rerun_connect is not None:
-        raise UsageError("--rerun/--rerun-spawn/--rerun-connect: not available for a folder of shots yet (give one "
-                         "image file to see it)")
+    from dropvision.app.rerun_log import logger_from_args
+
+    check_side_file(getattr(args, "rerun", None), replaced=[args.out], inputs=list(shots.inputs))
     with captured_warnings() as caught:
         try:
             res = measure_shots(shots, args.out, config, overrides=overrides, option_labels=labels, csv=args.csv,
                                 overwrite=args.overwrite, strobe_interval_us=args.strobe_interval_us)
+            # the shots' view (issue 33): each shot as stored with its bodies, a bar per shot, the table
+            logger = logger_from_args(args, "dropvision", recording_name=Path(shots.inputs[0]).resolve().name)
+            if logger is not None:
+                try:
+                    logger.log_shots(res)
+                finally:
+                    logger.close()
         finally:
-            print_warnings("dropvision measure", grouped_warnings(warning_lines(caught), {p.name for p in shots.paths}),
+            print_warnings("dropvision measure", grouped_warnings(warning_lines(caught, args), {p.name for p in shots.paths}),
                            args)
     s = res.summary
     if args.quiet:

@@ -67,7 +67,7 @@ def add_metadata_args(p: argparse.ArgumentParser) -> None:
 
 def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
     """(overrides, labels) for `dropvision.sequence.open_sequence` from the parsed options."""
-    overrides, labels = {}, {}
+    overrides, labels = {}, {"_caller": "command line"}  # dropvision.overrides.CALLER_KEY: messages name options
     for opt, key, _, _ in (*_METADATA_OPTIONS, ("--orientation", "orientation", str, "")):
         value = getattr(args, f"meta_{key}", None)
         if value is not None:
@@ -113,14 +113,28 @@ def captured_warnings():
         yield caught
 
 
-def warning_lines(caught) -> list[str]:
-    """The distinct messages of captured warnings, in order (one line each)."""
+def warning_lines(caught, args: argparse.Namespace | None = None) -> list[str]:
+    """The distinct messages of captured warnings, in order (one line each).
+
+    The note that colour images were made grey (`dropvision.sequence.RGBConvertedWarning`: the documented
+    BT.601 rule, which changes no measurement of a backlit frame) is shown with ``--verbose`` only: a
+    drop watcher's colour files would otherwise repeat it on every run."""
     out = []
+    verbose = args is None or bool(getattr(args, "verbose", False))  # no args: kept (the command decides later)
     for w in caught:
+        if not verbose and is_colour_note(w):
+            continue
         text = " ".join(str(getattr(w, "message", w)).split())
         if text not in out:
             out.append(text)
     return out
+
+
+def is_colour_note(w) -> bool:
+    """A captured warning (or its line) that colour images were made grey (`RGBConvertedWarning`)."""
+    if getattr(getattr(w, "category", None), "__name__", "") == "RGBConvertedWarning":
+        return True
+    return isinstance(w, str) and "-channel image converted to grey (ITU-R BT.601" in w
 
 
 def grouped_warnings(lines: list[str], names: set[str]) -> list[str]:

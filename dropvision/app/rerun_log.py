@@ -14,9 +14,13 @@ Timelines
 ``delay``  duration timeline, integer nanoseconds: ``round(delay_us * 1000)`` ns after the trigger.
 ``frame``  sequence timeline: ``FrameRef.index`` (processing order, 0..n-1).
 
-Entity paths (all coordinates in the Rerun 2-D image space of the canonical frame, see below)
+Entity paths (``/frame/...`` in the Rerun 2-D image space of the canonical frame, see below)
 ---------------------------------------------------------------------------------------------
-``/frame``                      static :class:`rerun.AnnotationContext` (classes below)
+``/camera``                     :class:`rerun.EncodedImage`, JPEG of the frame as the camera stored it
+                                (orientation as stored, 16-bit scaled to 8): the main view
+``/frame``                      static :class:`rerun.AnnotationContext` (classes below) and static
+                                :class:`rerun.Transform3D` placing the canonical frame (every
+                                ``/frame/...`` entity) on ``/camera`` (`camera_transform`)
 ``/frame/transmission``         :class:`rerun.EncodedImage`, JPEG (quality
                                 :data:`TRANSMISSION_JPEG_QUALITY`) of the uint8 image
                                 ``round(255 * clip(T, 0, 1))``: what a person looks at
@@ -39,6 +43,11 @@ Entity paths (all coordinates in the Rerun 2-D image space of the canonical fram
 ``/log``                        :class:`rerun.TextLog`, one line per frame (file, quality)
 ``/calibration``                static :class:`rerun.TextDocument` (markdown)
 ``/summary``                    static :class:`rerun.TextDocument` (markdown of summary.json)
+``/table``                      static :class:`rerun.TextDocument`: the values of a single frame
+                                (no time series of one point; ``log_calibration(n_frames=1)``)
+``/camera/image``, ``/camera/bodies``, ``/shots/<column>``, ``/shots/table``
+                                a folder of shots (`RerunLogger.log_shots`, ``shot`` timeline):
+                                each shot as stored with its bodies' outlines, one bar per shot
 
 Pixel convention: dropvision uses integer pixel centres (pixel ``(r, c)`` spans
 ``[c - 0.5, c + 0.5] x [r - 0.5, r + 0.5]``); Rerun draws pixel ``(r, c)`` over
@@ -214,40 +223,112 @@ _SERIES_COLOURS: dict[str, tuple[int, int, int]] = {
 # --- blueprint -------------------------------------------------------------------------------
 
 
-def measurement_blueprint(raw: bool = False) -> rrb.Blueprint:
-    """Default layout: frame (normalised | raw tabs) left, time series stacked right.
+#: the overlays of the frame views, in canonical coordinates under ``/frame`` (its static transform
+#: places them on the camera's frame)
+FRAME_OVERLAYS = ("/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
+                  "/frame/bodies", "/frame/labels", "/frame/track", "/frame/drop")
 
-    ``Horizontal(Tabs(Spatial2DView normalised[, Spatial2DView raw]),
-    Vertical(TimeSeriesView volume, velocity, position, TextDocumentView summary))``, with the
-    ``delay`` timeline selected in the time panel, collapsed to its scrubber; the selection and
-    blueprint panels collapsed (the frame gets the room). The raw tab exists only when ``raw``.
+
+def frame_views(raw: bool = False) -> list:
+    """The frame views: the frame as the camera stored it (``/camera``) with the overlays drawn on it
+    (``/frame``'s transform maps the canonical frame onto the camera's), then the normalised
+    transmission in the canonical frame (nozzle at the top) with the same overlays, then the raw
+    canonical frame when ``raw``."""
+    import rerun.blueprint as rrb
+
+    views = [rrb.Spatial2DView(name="camera frame (as stored)", origin="/",
+                               contents=["/camera", "/frame", *FRAME_OVERLAYS]),
+             rrb.Spatial2DView(name="normalised (transmission, nozzle at the top)", origin="/frame",
+                               contents=["/frame", "/frame/transmission", *FRAME_OVERLAYS])]
+    if raw:
+        views.append(rrb.Spatial2DView(name="raw frame (nozzle at the top)", origin="/frame",
+                                       contents=["/frame", "/frame/raw", *FRAME_OVERLAYS]))
+    return views
+
+
+def measurement_blueprint(raw: bool = False, *, single: bool = False) -> rrb.Blueprint:
+    """Default layout: frame views (camera | normalised | raw tabs) left, time series stacked right.
+
+    ``Horizontal(Tabs(camera frame, normalised[, raw]), Vertical(TimeSeriesView volume, velocity,
+    position, TextDocumentView summary))``, with the ``delay`` timeline selected in the time panel,
+    collapsed to its scrubber; the selection and blueprint panels collapsed (the frame gets the
+    room). The raw tab exists only when ``raw``. ``single`` (one frame, a pendant drop): no time
+    series of one point; the frame's values as a table (``/table``) beside the summary.
     """
     import rerun.blueprint as rrb
 
-    overlays = ["/frame/segmentation", "/frame/axis", "/frame/tip_plane", "/frame/edges",
-                "/frame/bodies", "/frame/labels", "/frame/track", "/frame/drop"]
-    views = [rrb.Spatial2DView(name="normalised (transmission)", origin="/frame",
-                               contents=["/frame", "/frame/transmission", *overlays])]
-    if raw:
-        views.append(rrb.Spatial2DView(name="raw frame", origin="/frame",
-                                       contents=["/frame", "/frame/raw", *overlays]))
+    views = frame_views(raw)
+    texts = rrb.Tabs(
+        rrb.TextDocumentView(name="summary", origin="/summary"),
+        rrb.TextDocumentView(name="calibration", origin="/calibration"),
+        rrb.TextLogView(name="frames", origin="/log"),
+    )
+    if single:
+        right = rrb.Vertical(rrb.TextDocumentView(name="the frame's values", origin="/table"), texts,
+                             row_shares=[3, 2])
+    else:
+        right = rrb.Vertical(
+            rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
+            rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
+            rrb.TimeSeriesView(name="drop position [um]", origin="/series/position_um"),
+            texts,
+            row_shares=[3, 2, 2, 2],
+        )
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Tabs(*views) if len(views) > 1 else views[0],
-            rrb.Vertical(
-                rrb.TimeSeriesView(name="volume [nl]", origin="/series/volume_nl"),
-                rrb.TimeSeriesView(name="flow velocity [m/s]", origin="/series/velocity_m_s"),
-                rrb.TimeSeriesView(name="drop position [um]", origin="/series/position_um"),
-                rrb.Tabs(
-                    rrb.TextDocumentView(name="summary", origin="/summary"),
-                    rrb.TextDocumentView(name="calibration", origin="/calibration"),
-                    rrb.TextLogView(name="frames", origin="/log"),
-                ),
-                row_shares=[3, 2, 2, 2],
-            ),
+            rrb.Tabs(*views),
+            right,
             column_shares=[3, 2],
         ),
         rrb.TimePanel(timeline="delay", state="collapsed"),  # the scrubber only
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.BlueprintPanel(state="collapsed"),
+        collapse_panels=False,
+    )
+
+
+def camera_transform(orientation: str, canonical_shape) -> tuple[float, tuple[float, float]]:
+    """(rotation in degrees about the view's z axis, translation (x, y)) taking Rerun's pixel space of
+    the canonical frame (``/frame``) onto the frame as the camera stored it (``/camera``): the quarter
+    turns of `dropvision.orientation` (pixel ``(r, c)`` spans ``[c, c + 1] x [r, r + 1]``)."""
+    hc, wc = float(canonical_shape[0]), float(canonical_shape[1])
+    return {"down": (0.0, (0.0, 0.0)), "up": (180.0, (wc, hc)), "left": (90.0, (hc, 0.0)),
+            "right": (-90.0, (0.0, wc))}[orientation]
+
+
+def camera_preview(image: np.ndarray) -> np.ndarray:
+    """8-bit grey of a stored frame for the camera view: 8-bit as it is; 16-bit scaled so that its
+    99.9th percentile is white (a 12-bit camera's frame is not drawn black)."""
+    image = np.asarray(image)
+    if image.dtype == np.uint8:
+        return np.ascontiguousarray(image)
+    top = float(np.percentile(image, 99.9)) or 1.0
+    return np.round(np.clip(image.astype(np.float32) * (255.0 / top), 0, 255)).astype(np.uint8)
+
+
+#: shots.parquet columns drawn as one bar per shot (`RerunLogger.log_shots`)
+SHOT_BARS: dict[str, str] = {"drop_volume_nl": "main drop volume [nl]", "n_satellites": "satellites",
+                             "drop_z_um": "main drop from the tip [um]"}
+#: shots.parquet columns of the shots' table (``/shots/table``), those present
+SHOT_TABLE_COLUMNS = ("file", "delay_us", "drop_volume_nl", "drop_volume_uncertainty_nl", "n_satellites",
+                      "drop_z_um", "attached_volume_nl", "quality")
+
+
+def shots_blueprint() -> rrb.Blueprint:
+    """A folder of shots: the shot as the camera stored it with its bodies' outlines (``/camera``, the
+    ``shot`` timeline picks the shot), one bar per shot for each of `SHOT_BARS`, and the shots' table."""
+    import rerun.blueprint as rrb
+
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial2DView(name="shot (as stored) and its bodies", origin="/camera"),
+            rrb.Vertical(*[rrb.BarChartView(name=name, origin=f"/shots/{col}") for col, name in SHOT_BARS.items()],
+                         rrb.Tabs(rrb.TextDocumentView(name="shots", origin="/shots/table"),
+                                  rrb.TextDocumentView(name="summary", origin="/summary")),
+                         row_shares=[2] * len(SHOT_BARS) + [3]),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(timeline="shot", state="collapsed"),
         rrb.SelectionPanel(state="collapsed"),
         rrb.BlueprintPanel(state="collapsed"),
         collapse_panels=False,
@@ -531,6 +612,10 @@ class RerunLogger:
         self._lines_logged = False
         self._track_px: list[tuple[float, float]] = []
         self._closed = False
+        self._orientation = "down"  # of the stored frames (log_calibration): /frame placed on /camera
+        self._transform_logged = False
+        self._single = False  # one frame (log_calibration n_frames=1): a table, no time series
+        self._own_blueprint = blueprint is None
         self._log_static_layout()
 
     # pickling a live stream makes no sense: give the worker the options instead
@@ -556,7 +641,8 @@ class RerunLogger:
 
     # -- calibration ---------------------------------------------------------------------------
 
-    def log_calibration(self, calib: Any, *, shape: tuple[int, int] | None = None) -> None:
+    def log_calibration(self, calib: Any, *, shape: tuple[int, int] | None = None, orientation: str | None = None,
+                        n_frames: int | None = None) -> None:
         """Log the nozzle axis and tip plane (static) and a calibration table.
 
         Parameters
@@ -567,8 +653,24 @@ class RerunLogger:
             ``pixel_size_um`` and ``shape``; ``to_dict()`` (if present) fills the table.
         shape : (rows, cols), optional
             Image shape for the line extents; default ``calib.shape``, else the first frame's.
+        orientation : str, optional
+            How the camera stored the frames (`dropvision.orientation`; default ``calib.orientation``,
+            else ``"down"``): ``/frame`` (canonical) is placed on ``/camera`` (as stored) by a static
+            transform (`camera_transform`).
+        n_frames : int, optional
+            Frames of the sequence: one (a single frame, a pendant drop) gets the frame's values as
+            a table and no time series of one point (`measurement_blueprint` ``single``).
         """
         self._check_open()
+        orientation = orientation or _get(calib, ("orientation",))
+        if isinstance(orientation, str) and orientation in ("down", "up", "left", "right"):
+            self._orientation = orientation
+            self._transform_logged = False
+        if n_frames is not None and int(n_frames) == 1 and not self._single:
+            self._single = True
+            if self._own_blueprint:
+                self.stream.send_blueprint(measurement_blueprint(raw=self.options.raw, single=True),
+                                           make_active=True, make_default=True)
         tip_row = _finite(_get(calib, ("tip_row", "nozzle_tip_row")))  # None: no nozzle, no tip plane
         axis_col = _finite(_get(calib, ("axis_col",)))
         tilt_deg = _get(calib, ("tilt_deg",))
@@ -607,7 +709,20 @@ class RerunLogger:
         self.stream.log("/calibration", self._rr.TextDocument(
             "## Calibration\n\n" + _markdown_table(items), media_type="text/markdown"), static=True)
 
+    def _log_camera_transform(self) -> None:
+        """The static transform of ``/frame`` (canonical) onto ``/camera`` (as stored), once the
+        canonical shape is known."""
+        if self._transform_logged or self._shape is None:
+            return
+        rr = self._rr
+        degrees, (tx, ty) = camera_transform(self._orientation, self._shape)
+        self.stream.log("/frame", rr.Transform3D(translation=[tx, ty, 0.0],
+                                                 rotation=rr.RotationAxisAngle(axis=[0.0, 0.0, 1.0],
+                                                                               degrees=degrees)), static=True)
+        self._transform_logged = True
+
     def _log_calibration_lines(self) -> None:
+        self._log_camera_transform()
         cal, shape = self._calibration, self._shape
         if cal is None or shape is None or self._lines_logged:
             return
@@ -677,6 +792,11 @@ class RerunLogger:
             shape = image.shape
             if self.options.raw:
                 rec.log("/frame/raw", rr.Image(image))
+            # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
+            from dropvision.orientation import from_canonical
+            rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
+                                        color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+            rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
         if transmission is not None:
             transmission = np.asarray(transmission)
             if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
@@ -712,6 +832,7 @@ class RerunLogger:
         if shape is not None and self._shape is None:
             self._shape = (int(shape[0]), int(shape[1]))
             self._log_calibration_lines()
+        self._log_camera_transform()
 
         if edges is not None:
             pts = np.asarray(edges, dtype=float)
@@ -738,7 +859,7 @@ class RerunLogger:
                                                     colors=CLASSES[CLASS_DROP][1]))
         for column, (path, _name) in ROW_SERIES.items():
             value = _finite(row.get(column))
-            if value is not None:
+            if value is not None and not self._single:  # one frame: its values go to /table (log_table)
                 rec.log(path, rr.Scalars(value))
         file = _get(ref, ("file",), "")
         quality = row.get("quality")
@@ -814,6 +935,13 @@ class RerunLogger:
         self._check_open()
         rr, rec = self._rr, self.stream
         delays = np.asarray(frames["delay_us"], dtype=float)
+        if self._single or len(delays) == 1:  # no time series of one point: the frame's values as a table
+            row = frames.iloc[0] if hasattr(frames, "iloc") else {k: v[0] for k, v in frames.items()}
+            items = [(k, row[k]) for k in (frames.columns if hasattr(frames, "columns") else frames)
+                     if np.ndim(row[k]) == 0]
+            rec.log("/table", rr.TextDocument("## The frame's values\n\n" + _markdown_table(items, ("column", "value")),
+                                              media_type="text/markdown"), static=True)
+            return
         for column, (path, _name) in ROW_SERIES.items():
             if column not in frames:
                 continue
@@ -827,6 +955,65 @@ class RerunLogger:
                          rr.TimeColumn("frame", sequence=np.flatnonzero(ok))],
                 columns=rr.Scalars.columns(scalars=values[ok]),
             )
+
+    def log_shots(self, result: Any, *, images: bool = True) -> None:
+        """Log a folder of shots (`dropvision.shots.ShotsResult`): per shot (``shot`` timeline, its
+        position in ``result.frames``) the frame as the camera stored it (``/camera``, read again
+        from the folder) with every body's outline in its class colour and the liquid's volumes
+        (``/camera/bodies``); static, one bar per shot for each column of `SHOT_BARS`
+        (``/shots/<column>``), the shots' table (``/shots/table``) and the summary; the layout
+        `shots_blueprint` (no time series: shots have no time between them)."""
+        self._check_open()
+        from dropvision.annotate import camera_image, frame_bodies, frame_geometry
+
+        rr, rec = self._rr, self.stream
+        if self._own_blueprint:
+            rec.send_blueprint(shots_blueprint(), make_active=True, make_default=True)
+        rec.log("/camera", rr.AnnotationContext(
+            [(cid, label, colour) for cid, (label, colour) in CLASSES.items()]), static=True)
+        frames, bodies = result.frames, result.bodies
+        outlines = getattr(result, "outlines_camera", None) or []
+        for i in range(len(frames) if images else 0):
+            row = frames.iloc[i]
+            rec.set_time("shot", sequence=i)
+            orientation, _calib, path = frame_geometry(result, row)
+            try:
+                image = camera_image(path, orientation) if path is not None else None
+            except Exception as exc:  # noqa: BLE001 - a shot that cannot be read again: said, not fatal
+                rec.log("/log", rr.TextLog(f"shot {i} {row['file']}: not shown ({exc})", level="WARN"))
+                image = None
+            if image is not None:
+                rec.log("/camera/image", rr.Image(camera_preview(image), color_model="L").compress(
+                    jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+            strips, ids, texts = [], [], []
+            for j in frame_bodies(result, row):
+                pts = np.asarray(outlines[j]) if j < len(outlines) else np.zeros((0, 2))
+                if len(pts) < 2:
+                    continue
+                b = bodies.iloc[int(j)]
+                xy = np.vstack([pts, pts[:1]])[:, ::-1] + PIXEL_CENTRE_OFFSET  # (row, col) -> (x, y), closed
+                strips.append(xy)
+                ids.append(_CLASS_NAMES.get(str(b["body_class"]), CLASS_OUT_OF_FOCUS))
+                vol = _finite(b.get("volume_nl"))
+                texts.append(f"{b['body_class']}" + ("" if vol is None else f" {vol:.3g} nl"))
+            if strips:
+                rec.log("/camera/bodies", rr.LineStrips2D(strips, class_ids=ids, labels=texts, radii=-1.5,
+                                                          show_labels=False))
+            else:
+                rec.log("/camera/bodies", rr.Clear(recursive=False))
+            rec.log("/log", rr.TextLog(f"shot {i} {row['file']}: quality {row.get('quality')}", level="INFO"))
+        table = result.shots
+        for col in SHOT_BARS:
+            if col in table:
+                rec.log(f"/shots/{col}", rr.BarChart(np.nan_to_num(pd_to_float(table[col]), nan=0.0)), static=True)
+        cols = [c for c in SHOT_TABLE_COLUMNS if c in table]
+        lines = ["| shot | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+        for i, (_, r) in enumerate(table.iterrows()):
+            cells = [(f"{float(r[c]):.4g}" if isinstance(r[c], (float, np.floating)) else str(r[c])) for c in cols]
+            lines.append(f"| {i} | " + " | ".join(x.replace("|", "/") for x in cells) + " |")
+        rec.log("/shots/table", rr.TextDocument("## Shots\n\n" + "\n".join(lines), media_type="text/markdown"),
+                static=True)
+        self.log_summary({k: v for k, v in result.summary.items() if k not in ("shots", "config", "software")})
 
     def log_summary(self, summary: Mapping[str, Any]) -> None:
         """Log the sequence summary (``summary.json`` content) as a static markdown table."""

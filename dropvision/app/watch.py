@@ -563,7 +563,7 @@ class _LiveState:
             self.cal_frames *= 2
             return
         self.ctx, self.cal_frames = ctx, n
-        if self.logger is not None:
+        if self.logger is not None:  # the orientation given in the first calibration stays
             self.logger.log_calibration(cal, shape=cal.shape)
 
     def measure(self, ready: list[str], done: dict, pending: dict):
@@ -634,7 +634,7 @@ class _LiveState:
             return
         self.ctx, self.cal_frames = ctx, len(seq)
         if self.logger is not None:
-            self.logger.log_calibration(cal, shape=cal.shape)
+            self.logger.log_calibration(cal, shape=cal.shape, orientation=seq.meta.orientation)
 
 
 def _finish(folder: Path, out: Path, opts: WatchOptions, logger, done: dict, left_out: list[str],

@@ -69,7 +69,7 @@ def _run(args: argparse.Namespace) -> int:
                     if logger is not None:
                         logger.close()
             finally:
-                print_warnings("dropvision watch", warning_lines(caught), args)
+                print_warnings("dropvision watch", warning_lines(caught, args), args)
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)

@@ -17,8 +17,8 @@
 * ``fig7_u1_<U1>_u2_<U2>.png`` per chosen point: the Monte Carlo band of the grown volume and
   flow velocity and the confidence (mean drop) and prediction (one drop) intervals of the
   in-flight volume and jetting velocity, like Fig. 7;
-* ``index.html``: one self-contained page (no scripts, no external resources) linking every
-  figure, with the numbers as tables: model summary, ECM coefficients and physical parameters
+* ``index.html``: one self-contained page (no scripts, no external resources: the figures are
+  embedded as base64 PNG data, each linked to its file beside the page), with the numbers as tables: model summary, ECM coefficients and physical parameters
   with their 95 % intervals, polynomial coefficients with intervals, CV tables, intervals at
   the chosen points, residual statistics, notes and versions.
 
@@ -29,6 +29,7 @@ targets and the same order selection as the fit).
 
 from __future__ import annotations
 
+import base64
 import html
 import math
 from dataclasses import dataclass, field
@@ -312,18 +313,43 @@ def _html_table(df: pd.DataFrame, table_id: str, caption: str) -> str:
     rows = []
     for r in df.itertuples(index=False):
         rows.append("<tr>" + "".join(f"<td>{html.escape(_cell(v))}</td>" for v in r) + "</tr>")
-    return (f'<table id="{html.escape(table_id)}"><caption>{html.escape(caption)}</caption>'
-            f"<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table>")
+    # in a scrolling box: a wide table (the intervals) scrolls instead of running off the page
+    return (f'<div class="scroll"><table id="{html.escape(table_id)}"><caption>{html.escape(caption)}</caption>'
+            f"<thead><tr>{head}</tr></thead><tbody>{''.join(rows)}</tbody></table></div>")
 
 
-def _figure(name: str, caption: str) -> str:
+def _embedded_figure(name: str, caption: str, folder: Path | None = None) -> str:
+    """A figure of the page: the PNG embedded (a data URI: the page is self-contained) when ``folder``
+    holds it, with a link to the file beside the page."""
     n = html.escape(name)
-    return (f'<figure><a href="{n}"><img src="{n}" alt="{html.escape(caption)}"></a>'
+    src = n
+    if folder is not None and (Path(folder) / name).is_file():
+        src = "data:image/png;base64," + base64.b64encode((Path(folder) / name).read_bytes()).decode("ascii")
+    return (f'<figure><a href="{n}"><img src="{src}" alt="{html.escape(caption)}"></a>'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
 
 
+#: rows of the ARX structure table on the page: the best by validation RMSE among the sane fits
+ARX_PAGE_ROWS = 15
+
+
+def _arx_rows(df: pd.DataFrame) -> tuple[pd.DataFrame, str]:
+    """The ARX structure table's best rows: by validation RMSE, among fits that beat the mean (fit >= 0 %
+    on training and validation: a fit of -1e6 % is a diverged simulation, not a candidate)."""
+    fits = [c for c in ("train_fit_percent", "val_fit_percent") if c in df]
+    sane = df
+    for c in fits:
+        sane = sane[np.isfinite(sane[c].to_numpy(float)) & (sane[c].to_numpy(float) >= 0.0)]
+    if "val_rmse_nl" in sane:
+        sane = sane.sort_values("val_rmse_nl", kind="stable")
+    shown = sane.head(ARX_PAGE_ROWS)
+    return shown, (f" (best {len(shown)} of {len(df)} structures by validation RMSE, among the {len(sane)} whose "
+                   "fits beat the mean, fit >= 0 %)")
+
+
 _CSS = """body{font-family:sans-serif;max-width:1200px;margin:1em auto;padding:0 1em;color:#222}
-table{border-collapse:collapse;margin:0.5em 0 1.5em 0;font-size:0.9em}
+.scroll{overflow-x:auto;max-width:100%}
+table{border-collapse:collapse;margin:0.5em 0 1.5em 0;font-size:0.85em}
 caption{text-align:left;font-weight:bold;padding:0.3em 0}
 th,td{border:1px solid #bbb;padding:0.2em 0.6em;text-align:right}th{background:#eee}
 img{max-width:100%;border:1px solid #ddd}figure{margin:1em 0}figcaption{font-size:0.9em;color:#555}
@@ -356,11 +382,12 @@ def _model_tables(model) -> list[tuple[str, str, pd.DataFrame]]:
     params = e.get("parameters") or {}
     if params:
         rows = []
-        for k, v in params.items():
+        for k, v in params.items():  # {"value", "ci95_low", "ci95_high"} (identify.hybrid_fit; was read as "ci95": n/a)
             if isinstance(v, dict):
-                rows.append({"parameter": k, "value": v.get("value"), "ci95": v.get("ci95")})
+                rows.append({"parameter": k, "value": v.get("value"), "low": v.get("ci95_low"),
+                             "high": v.get("ci95_high")})
             else:
-                rows.append({"parameter": k, "value": v, "ci95": None})
+                rows.append({"parameter": k, "value": v, "low": None, "high": None})
         out.append(("ecm-parameters", "ECM physical parameters (SI) with 95 % intervals", pd.DataFrame(rows)))
     for attr, _, label, unit in SURFACES:
         poly = getattr(model, attr)
@@ -488,15 +515,20 @@ def write_report(out, model, ds, *, fit_report=None, at=None, samples: int = 10_
         _residuals_fig(plt, tmp / figures[4][0], residuals)
         for (u1, u2) in points:
             _fig7(plt, tmp / _point_name(u1, u2), ds, model, mcs[(u1, u2)], intervals[(u1, u2)], u1, u2, truth_fn)
-        page = _page(title, model, ds, figures, tables, cv_source, intervals, residuals, notes, samples, level)
+        page = _page(title, model, ds, figures, tables, cv_source, intervals, residuals, notes, samples, level, tmp)
         (tmp / "index.html").write_text(page, encoding="utf-8")
     out = Path(out)
     return ReportResult(out=out, index=out / "index.html", figures=[out / n for n, _ in figures], points=points,
                         intervals=intervals)
 
 
-def _page(title, model, ds, figures, tables, cv_source, intervals, residuals, notes, samples, level) -> str:
+def _page(title, model, ds, figures, tables, cv_source, intervals, residuals, notes, samples, level,
+          folder: Path | None = None) -> str:
     e = html.escape
+
+    def _figure(name, caption):  # embedded from the folder being written
+        return _embedded_figure(name, caption, folder)
+
     parts = [f"<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>{e(title)}</title>"
              f"<style>{_CSS}</style></head><body>", f"<h1>{e(title)}</h1>",
              f"<p>Hybrid drop-formation model (Wang &amp; Chiu, Eq. 8) trained on "
@@ -518,9 +550,10 @@ def _page(title, model, ds, figures, tables, cv_source, intervals, residuals, no
     parts += ["<h2>Pinch-off and adjuster surfaces</h2>", _figure(*figures[2]),
               f"<h2>Cross-validation</h2><p>CV tables {e(cv_source)}; RMSEs averaged over the folds.</p>"]
     for name, df in tables.items():
-        df, more = _head(df, PAGE_ROWS)
+        df, more = _arx_rows(df) if name == "arx" else _head(df, PAGE_ROWS)
         parts.append(_html_table(df, f"cv-{name}", f"{name}: cross-validation{more}"))
-    parts += [_figure(*figures[3]), "<h2>Residuals</h2>",
+    # the tables above are the CV tables; cv_tables.png (the same, as a picture) is linked, not shown again
+    parts += ["<h2>Residuals</h2>",
               _html_table(_residual_stats(residuals), "residual-stats", "residuals: measured - predicted"),
               _figure(*figures[4]), "<h2>Notes</h2>",
               ("<ul>" + "".join(f"<li>{e(str(n))}</li>" for n in notes) + "</ul>") if notes else "<p>none</p>",
