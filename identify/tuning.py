@@ -517,22 +517,14 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     """
     from dvcore.versions import software_versions
 
-    for name, v in (("volume_nl", volume_nl), ("volume_tolerance_percent", volume_tolerance_percent),
-                    ("velocity_tolerance_percent", velocity_tolerance_percent),
-                    ("prior_bias_percent", prior_bias_percent)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise ParameterError(name, f"must be a positive number, got {v!r}")
-    if velocity_m_s is not None and not (math.isfinite(velocity_m_s) and velocity_m_s > 0):
-        raise ParameterError("velocity_m_s", f"must be a positive number, got {velocity_m_s!r}")
-    if int(shots) != shots or shots < 1:
-        raise ParameterError("shots", f"must be an integer >= 1, got {shots!r}")
-    if bias_lengthscale is not None and not (math.isfinite(bias_lengthscale) and bias_lengthscale > 0):
-        raise ParameterError("bias_lengthscale", f"must be a positive number, got {bias_lengthscale!r}")
+    _check_tune_arguments(volume_nl, velocity_m_s, shots, volume_tolerance_percent, velocity_tolerance_percent,
+                          prior_bias_percent, bias_lengthscale)
     if not isinstance(rig, Rig):
         rig = CallableRig(rig)
     if model.controls is None or len(model.controls) < 3:
         raise ValueError("the model has no training region (training_controls) to tune in")
-    span = Region(model.controls).span
+    region = Region(model.controls)
+    span = region.span
     positions: list = []
     outputs = {"volume": ("inflight_volume_nl", volume_nl, volume_tolerance_percent),
                "velocity": ("jetting_velocity_m_s", velocity_m_s, velocity_tolerance_percent)}
@@ -541,7 +533,6 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
     bias = {k: BiasEstimate(0.0, float("nan"), 0) for k in outputs}
     records: list[dict] = []
     converged = False
-    what = f"{volume_nl:g} nl" + ("" if velocity_m_s is None else f" at {velocity_m_s:g} m/s")
     meta = {"seed": int(seed), "shot_budget": int(shots), "prior_bias_percent": float(prior_bias_percent),
             "bias_lengthscale": bias_lengthscale, "prior_std_percent": {}, "samples": int(samples),
             "level": float(level), "rig": str(getattr(rig, "name", type(rig).__name__)),
@@ -551,46 +542,20 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
             "versions": software_versions()}
 
     def result(records: list, converged: bool, final: bool) -> TuningResult:
-        last = records[-1]
-        measured = (f"u1 = {last['u1_um_per_ms']:.2f} um/ms, u2 = {last['u2_um']:.2f} um measured "
-                    f"{last['measured_volume_nl']:.3f} nl ({last['volume_error_percent']:+.2f} %)")
-        if converged:
-            msg = f"target {what} met in {len(records)} shot(s): {measured}"
-        elif not final:
-            msg = f"in progress: {len(records)} of at most {int(shots)} shot(s) fired; last: {measured}"
-        else:
-            msg = f"target {what} not met within {volume_tolerance_percent:g} % in {len(records)} shot(s); last: {measured}"
-            if not last["feasible"]:
-                msg += "; the corrected target lies outside the printable region"
-                if stuck(records):
-                    msg += f" (the nearest point was proposed again: stopped after {len(records)} of {int(shots)} shots)"
         meta["prior_std_percent"] = {o: 100.0 * v for o, v in prior.items()}
         return TuningResult(shots=list(records), target_volume_nl=float(volume_nl),
                             target_velocity_m_s=None if velocity_m_s is None else float(velocity_m_s),
                             volume_tolerance_percent=float(volume_tolerance_percent),
                             velocity_tolerance_percent=float(velocity_tolerance_percent),
-                            converged=converged, message=msg, meta=dict(meta))
+                            converged=converged, message=_tuning_message(records, converged, final, volume_nl,
+                                                                         velocity_m_s, volume_tolerance_percent,
+                                                                         int(shots)),
+                            meta=dict(meta))
 
-    region = Region(model.controls)
     two = velocity_m_s is not None
     trust = {"radius": TRUST_RADIUS_START, "predicted": float("nan")}
     for k in range(1, int(shots) + 1):
-        goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
-        last = (records[-1]["u1_um_per_ms"], records[-1]["u2_um"]) if records else None  # move as little as needed
-        if two and records:  # both outputs: a damped step on the corrected model, from the best shot
-            u1, u2, feasible, goal = _trust_region_step(model, region, records, obs, outputs, trust)
-            if not feasible and trust["step"] < RESTART_STEP:
-                # a local minimum off target (e.g. on the region's edge): the corrected targets solved anew
-                # over the whole region, as for shot 1
-                goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
-                d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
-                u1, u2, feasible = d.u1_um_per_ms, d.u2_um, d.feasible
-                trust.update(radius=TRUST_RADIUS_START, predicted=float("nan"), from_cost=math.inf,
-                             since=len(records))  # the next steps start from this shot
-        else:
-            # design's own default tolerance: shot 1 is exactly what `identify design` proposes
-            d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
-            u1, u2, feasible = d.u1_um_per_ms, d.u2_um, d.feasible
+        u1, u2, feasible, goal = _propose(model, region, records, obs, outputs, bias, trust, two)
         iv = model.interval_prediction(u1, u2, samples=samples, seed=seed + k, level=level)
         positions.append((u1 / span[0], u2 / span[1]))
         if not prior:
@@ -601,34 +566,18 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
         rec: dict = {"shot": k, "u1_um_per_ms": u1, "u2_um": u2, "feasible": bool(feasible)}
         within = True
         for o, (key, target, tol) in outputs.items():
-            e = iv[key]
-            pred = float(e["nominal"])
-            b_before = bias[o]
-            corrected = pred * (1.0 + b_before.mean)
-            se_b = 0.0 if not math.isfinite(b_before.se) else b_before.se
-            s = math.hypot(e["one_drop_std"] * (1.0 + b_before.mean), pred * se_b)
-            q = (e["one_drop_high"] - e["mean"]) / e["one_drop_std"] if e["one_drop_std"] > 0 else 0.0
-            value = measured.inflight_volume_nl if o == "volume" else measured.jetting_velocity_m_s
-            unc = measured.inflight_volume_uncertainty_nl if o == "volume" else measured.jetting_velocity_se_m_s
-            drop_rel = (e.get("drop_std") or 0.0) / abs(e["mean"])
+            value, unc = ((measured.inflight_volume_nl, measured.inflight_volume_uncertainty_nl) if o == "volume"
+                          else (measured.jetting_velocity_m_s, measured.jetting_velocity_se_m_s))
+            col = OUTPUT_COLUMNS[o]
+            columns, pred = _output_columns(iv[key], bias[o], goal[o], value, unc, target, col)
+            drop_rel = (iv[key].get("drop_std") or 0.0) / abs(iv[key]["mean"])
             obs[o].append((value / pred - 1.0 if math.isfinite(value) else float("nan"),
                            _shot_std_rel(unc, value, drop_rel)))
             bias[o] = update_bias([r for r, _ in obs[o]], [s_ for _, s_ in obs[o]], prior[o], positions=positions,
                                   lengthscale=bias_lengthscale)
-            col = OUTPUT_COLUMNS[o]
-            err = _rel(value, target) if target is not None else float("nan")
-            rec.update({
-                col.design_target: goal[o] if goal[o] is not None else float("nan"),
-                col.predicted: pred,
-                col.corrected: corrected,
-                col.one_drop_low: corrected - q * s,
-                col.one_drop_high: corrected + q * s,
-                col.measured: value,
-                col.measured_uncertainty: unc,
-                col.error_percent: err,
-                col.bias_percent: 100.0 * bias[o].mean,
-                col.bias_se_percent: 100.0 * bias[o].se,
-            })
+            rec.update(columns)
+            rec.update({col.bias_percent: 100.0 * bias[o].mean, col.bias_se_percent: 100.0 * bias[o].se})
+            err = columns[col.error_percent]
             if target is not None:
                 within = within and math.isfinite(err) and abs(err) <= tol
         rec["within_tolerance"] = bool(within)
@@ -644,6 +593,84 @@ def tune(model, rig, volume_nl: float, velocity_m_s: float | None = None, *, sho
         if stuck(records):
             break
     return result(records, converged, final=True)
+
+
+def _check_tune_arguments(volume_nl, velocity_m_s, shots, volume_tolerance_percent, velocity_tolerance_percent,
+                          prior_bias_percent, bias_lengthscale) -> None:
+    """`tune`'s numbers, checked before any shot (ParameterError names the parameter)."""
+    for name, v in (("volume_nl", volume_nl), ("volume_tolerance_percent", volume_tolerance_percent),
+                    ("velocity_tolerance_percent", velocity_tolerance_percent),
+                    ("prior_bias_percent", prior_bias_percent)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise ParameterError(name, f"must be a positive number, got {v!r}")
+    if velocity_m_s is not None and not (math.isfinite(velocity_m_s) and velocity_m_s > 0):
+        raise ParameterError("velocity_m_s", f"must be a positive number, got {velocity_m_s!r}")
+    if int(shots) != shots or shots < 1:
+        raise ParameterError("shots", f"must be an integer >= 1, got {shots!r}")
+    if bias_lengthscale is not None and not (math.isfinite(bias_lengthscale) and bias_lengthscale > 0):
+        raise ParameterError("bias_lengthscale", f"must be a positive number, got {bias_lengthscale!r}")
+
+
+def _propose(model, region, records, obs, outputs, bias, trust, two: bool):
+    """The next shot's (u1, u2, feasible, goal): the targets corrected by the bias so far, designed
+    near the last shot; with both outputs after the first shot, a damped trust-region step from the
+    best shot (restarted over the whole region from a local minimum off target)."""
+    goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
+    last = (records[-1]["u1_um_per_ms"], records[-1]["u2_um"]) if records else None  # move as little as needed
+    if two and records:  # both outputs: a damped step on the corrected model, from the best shot
+        u1, u2, feasible, goal = _trust_region_step(model, region, records, obs, outputs, trust)
+        if not feasible and trust["step"] < RESTART_STEP:
+            # a local minimum off target (e.g. on the region's edge): the corrected targets solved anew
+            # over the whole region, as for shot 1
+            goal = {o: (t / (1.0 + bias[o].mean) if t is not None else None) for o, (_, t, _) in outputs.items()}
+            d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
+            u1, u2, feasible = d.u1_um_per_ms, d.u2_um, d.feasible
+            trust.update(radius=TRUST_RADIUS_START, predicted=float("nan"), from_cost=math.inf,
+                         since=len(records))  # the next steps start from this shot
+        return u1, u2, feasible, goal
+    # design's own default tolerance: shot 1 is exactly what `identify design` proposes
+    d = design(model, goal["volume"], goal["velocity"], samples=0, near=last)
+    return d.u1_um_per_ms, d.u2_um, d.feasible, goal
+
+
+def _output_columns(e: dict, b_before: BiasEstimate, goal, value: float, unc: float, target,
+                    col: OutputColumns):
+    """One output's columns of a shot (before its bias update) and the model's nominal prediction:
+    the prediction corrected by the bias so far, its one-drop interval, the measured value."""
+    pred = float(e["nominal"])
+    corrected = pred * (1.0 + b_before.mean)
+    se_b = 0.0 if not math.isfinite(b_before.se) else b_before.se
+    s = math.hypot(e["one_drop_std"] * (1.0 + b_before.mean), pred * se_b)
+    q = (e["one_drop_high"] - e["mean"]) / e["one_drop_std"] if e["one_drop_std"] > 0 else 0.0
+    return {
+        col.design_target: goal if goal is not None else float("nan"),
+        col.predicted: pred,
+        col.corrected: corrected,
+        col.one_drop_low: corrected - q * s,
+        col.one_drop_high: corrected + q * s,
+        col.measured: value,
+        col.measured_uncertainty: unc,
+        col.error_percent: _rel(value, target) if target is not None else float("nan"),
+    }, pred
+
+
+def _tuning_message(records, converged: bool, final: bool, volume_nl, velocity_m_s, volume_tolerance_percent,
+                    shots: int) -> str:
+    """The one-line outcome of a tuning run so far."""
+    what = f"{volume_nl:g} nl" + ("" if velocity_m_s is None else f" at {velocity_m_s:g} m/s")
+    last = records[-1]
+    measured = (f"u1 = {last['u1_um_per_ms']:.2f} um/ms, u2 = {last['u2_um']:.2f} um measured "
+                f"{last['measured_volume_nl']:.3f} nl ({last['volume_error_percent']:+.2f} %)")
+    if converged:
+        return f"target {what} met in {len(records)} shot(s): {measured}"
+    if not final:
+        return f"in progress: {len(records)} of at most {shots} shot(s) fired; last: {measured}"
+    msg = f"target {what} not met within {volume_tolerance_percent:g} % in {len(records)} shot(s); last: {measured}"
+    if not last["feasible"]:
+        msg += "; the corrected target lies outside the printable region"
+        if stuck(records):
+            msg += f" (the nearest point was proposed again: stopped after {len(records)} of {shots} shots)"
+    return msg
 
 
 def write_tuning(result: TuningResult, out_dir, *, inputs=(), overwrite: bool = False) -> Path:
