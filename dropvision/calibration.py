@@ -25,6 +25,10 @@ from dropvision.edges import DEFAULT_EDGE_THRESHOLD, edge_threshold, first_pass_
 from dropvision.nozzle import find_nozzle, find_tip, outer_diameter_uncertainty_px
 from dropvision.segmentation import fill_holes
 
+#: The key of the fixed edge-position floor among ``Calibration.edge_position_terms_px`` (summary.json
+#: ``calibration.edge_position_terms_px``; text of the output, not a decision made on a message).
+EDGE_FLOOR_TERM = "edge floor"
+
 __all__ = ["Calibration", "CalibrationError", "CalibrationWarning", "calibrate_frames", "interior_level"]
 
 
@@ -164,7 +168,7 @@ class Calibration:
     def volume_uncertainty_source(self) -> str:
         """The largest part of the edge-position uncertainty ("edge floor" when none is known)."""
         terms = self.edge_position_terms_px
-        return max(terms, key=terms.get) if terms else "edge floor"
+        return max(terms, key=terms.get) if terms else EDGE_FLOOR_TERM
 
     @property
     def clipped_level(self) -> float:

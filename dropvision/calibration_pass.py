@@ -26,7 +26,7 @@ import dropvision.quality as q
 from dropvision.background import NoNozzleError, median_by_selection
 from dropvision.blur import edge_sigma_px, esf_sigma_px
 from dropvision.bodies import hanging_columns, measure_attached
-from dropvision.calibration import Calibration, CalibrationError, calibrate_frames, interior_level
+from dropvision.calibration import EDGE_FLOOR_TERM, Calibration, CalibrationError, calibrate_frames, interior_level
 from dropvision.classify import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
 from dropvision.overrides import how_to_give
@@ -418,7 +418,7 @@ def edge_position_terms_px(cal: Calibration, sigma_px: float, config: MeasureCon
     dict
         Term name -> px.
     """
-    terms = {"edge floor": float(config.edge_position_floor_px),
+    terms = {EDGE_FLOOR_TERM: float(config.edge_position_floor_px),
              "background level": edge_shift_px(float(cal.background.residual), sigma_px, cal.liquid_level)}
     clipped = cal.clipped
     if clipped is not None and not clipped.level_known:

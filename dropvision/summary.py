@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 import dropvision.quality as q
-from dropvision.calibration import Calibration
+from dropvision.calibration import EDGE_FLOOR_TERM, Calibration
 from dropvision.config import MeasureConfig
 from dropvision.findings import WITHHELD_FRAME_COLUMNS, WITHHELD_SUMMARY_KEYS, Finding, Withheld, frames_of
 from dropvision.flow import flow_velocity_at, grown_and_flow
@@ -320,25 +320,26 @@ def volume_uncertainties(s: SequenceValues, cal: Calibration) -> VolumeUncertain
     scatter, `frame_scatter_ratio`; grown volumes `grown_uncertainty`), and a pixel size measured
     off the needle, which scales every volume by its cube."""
     delay, attached = s.delay_us, s.attached
-    att_vol, att_u = s.attached_nl, s.attached_u_nl
+    att_vol, attached_u_nl = s.attached_nl, s.attached_u_nl
     att_common, att_plane = s.attached_common_u_nl, s.attached_plane_u_nl
     grown, meniscus = s.grown_nl, s.meniscus_nl
     drop_u, det_u = s.drop.drop_volume_uncertainty_nl, s.drop.detached_volume_uncertainty_nl
     floor_share = 0.0  # volumes carry no fixed floor: their sub-pixel error is in each frame's random part
     # the frames' own scatter, relative to their modelled random part (a scatter in nl read off the
     # large volumes would swamp the small meniscus's)
-    model_rand = np.sqrt(np.maximum(att_u ** 2 - att_common ** 2 - att_plane ** 2, 0.0))
+    model_rand = np.sqrt(np.maximum(attached_u_nl ** 2 - att_common ** 2 - att_plane ** 2, 0.0))
     ratio = frame_scatter_ratio(delay, s.used_nl, model_rand, attached)
-    meniscus_u, grown_u, att_u = grown_uncertainty(delay, s.used_nl, att_u, att_common, att_plane, grown,
-                                                   floor_share, scatter_ratio=ratio)
+    meniscus_u, grown_u, attached_u_nl = grown_uncertainty(delay, s.used_nl, attached_u_nl, att_common, att_plane,
+                                                           grown, floor_share, scatter_ratio=ratio)
     # a pixel size measured off the needle (none given): its uncertainty scales every volume by its cube
     rel3 = 3.0 * float(getattr(cal, "pixel_size_relative_uncertainty", 0.0))
     if rel3 > 0:
-        att_u, grown_u = np.hypot(att_u, rel3 * np.abs(att_vol)), np.hypot(grown_u, rel3 * np.abs(grown))
+        attached_u_nl = np.hypot(attached_u_nl, rel3 * np.abs(att_vol))
+        grown_u = np.hypot(grown_u, rel3 * np.abs(grown))
         meniscus_u = float(np.hypot(meniscus_u, rel3 * abs(meniscus)))
         drop_u = np.hypot(drop_u, rel3 * np.abs(s.drop.drop_volume_nl))
         det_u = np.hypot(det_u, rel3 * np.abs(s.drop.detached_volume_nl))
-    return VolumeUncertainties(att_u, grown_u, meniscus_u, drop_u, det_u)
+    return VolumeUncertainties(attached_u_nl, grown_u, meniscus_u, drop_u, det_u)
 
 
 def jetting_velocity_se(line: LineFit, cal: Calibration) -> float:
@@ -388,7 +389,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
                  errors: list[dict], meniscus_from: str) -> dict:
     """The summary (``schema_version`` `SCHEMA_VERSION`) of the worked-out values, before `withhold`."""
     drop, inflight, pinch = s.drop, s.drop.inflight, s.pinch_us
-    g_pinch = mean_at_last_attached_delay(s.grown_nl, s.delay_us, s.attached, pinch, skip_unmeasured=False)
+    grown_at_pinchoff_nl = mean_at_last_attached_delay(s.grown_nl, s.delay_us, s.attached, pinch, skip_unmeasured=False)
     inf_vol = drop.drop_volume_nl[inflight]
     traj = fit_line(drop.z_um[inflight], drop.x_um[inflight])
     sats = drop.n_satellites[inflight & np.isfinite(drop.n_satellites)]
@@ -404,7 +405,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
         "n_frames": int(len(meta.frames)),
         "n_measured": int(s.delay_us.size),
         "pinchoff_us": pinch,
-        "grown_volume_at_pinchoff_nl": g_pinch,
+        "grown_volume_at_pinchoff_nl": grown_at_pinchoff_nl,
         "initial_meniscus_volume_nl": s.meniscus_nl,
         "initial_meniscus_source": meniscus_from,
         "inflight_volume_nl": float(np.mean(inf_vol)) if inf_vol.size else float("nan"),
@@ -413,7 +414,7 @@ def summary_dict(s: SequenceValues, unc: VolumeUncertainties, frames: pd.DataFra
         "inflight_volume_uncertainty_nl": inflight_uncertainty(inf_vol, unc.drop_u_nl[inflight]),
         "grown_volume_at_pinchoff_uncertainty_nl": (mean_at_last_attached_delay(unc.grown_u_nl, s.delay_us, s.attached,
                                                                                 pinch)
-                                                    if np.isfinite(g_pinch) else float("nan")),
+                                                    if np.isfinite(grown_at_pinchoff_nl) else float("nan")),
         "initial_meniscus_volume_uncertainty_nl": unc.meniscus_u_nl if s.meniscus_at_rest else float("nan"),
         "jetting_velocity_m_s": velocity.slope,
         "jetting_velocity_se_m_s": jetting_velocity_se(velocity, cal),
@@ -434,7 +435,7 @@ def volume_uncertainty_source(cal) -> str:
     """The largest measured part of the edge-position error a volume carries
     (`dropvision.bodies.common_edge_sigma_px`): the calibration's terms less its fixed "edge floor",
     which only the nozzle's diameter uses ("background level" when no other term is known)."""
-    terms = {k: v for k, v in cal.edge_position_terms_px.items() if k != "edge floor"}
+    terms = {k: v for k, v in cal.edge_position_terms_px.items() if k != EDGE_FLOOR_TERM}
     return max(terms, key=terms.get) if terms else "background level"
 
 

@@ -409,27 +409,27 @@ def test_frame_scatter_ratio_is_the_noise_over_its_model():
 def test_grown_uncertainty_hand_values():
     delay = np.array([0.0, 0.0, 10.0])
     attached = np.array([1.0, 1.2, 2.0])
-    att_u = np.array([0.05, 0.05, 0.06])
+    attached_u_nl = np.array([0.05, 0.05, 0.06])
     common = np.array([0.03, 0.03, 0.04])
     plane = np.array([0.02, 0.02, 0.02])
     grown = np.array([0.0, 0.0, 0.9])
     # random parts sqrt(u^2 - c^2 - p^2): 0.034641 (0.0012), 0.04 (0.0016); meniscus: mean u
     # 0.05 with the standard error of 1.0, 1.2 (0.1): 0.111803
-    u0, ug, ua = grown_uncertainty(delay, attached, att_u, common, plane, grown)
+    u0, ug, ua = grown_uncertainty(delay, attached, attached_u_nl, common, plane, grown)
     assert u0 == pytest.approx(0.111803, abs=1e-6)
     # grown: (c - c0)^2 + r^2 + r0^2 / 2 + se^2: frame 0 0 + 0.0012 + 0.0006 + 0.01 = 0.0118,
     # frame 2 0.0001 + 0.0016 + 0.0006 + 0.01 = 0.0123
     assert ug == pytest.approx([0.108628, 0.108628, 0.110905], abs=1e-6)
-    assert ua == pytest.approx(att_u, abs=1e-12)
+    assert ua == pytest.approx(attached_u_nl, abs=1e-12)
     # the edge floor's share counted as independent: c^2 + c0^2 instead of (c - c0)^2
-    _, ug1, _ = grown_uncertainty(delay, attached, att_u, common, plane, grown, floor_share=1.0)
+    _, ug1, _ = grown_uncertainty(delay, attached, attached_u_nl, common, plane, grown, floor_share=1.0)
     assert ug1[2] == pytest.approx(math.sqrt(0.0016 + 0.0009 + 0.0016 + 0.0006 + 0.01), abs=1e-9)
     # a sequence scatter of 0.1 replaces the smaller random parts: u^2 - r^2 + 0.01
-    _, ug2, ua2 = grown_uncertainty(delay, attached, att_u, common, plane, grown, scatter_nl=0.1)
+    _, ug2, ua2 = grown_uncertainty(delay, attached, attached_u_nl, common, plane, grown, scatter_nl=0.1)
     assert ua2 == pytest.approx([math.sqrt(0.0013 + 0.01), math.sqrt(0.0013 + 0.01), math.sqrt(0.002 + 0.01)])
     assert ug2[2] == pytest.approx(math.sqrt(0.0001 + 0.01 + 0.01 / 2 + 0.01), abs=1e-9)
     # no grown volume: NaN; no finite attached volume at the first delay: no meniscus
-    _, ug3, _ = grown_uncertainty(delay, attached, att_u, common, plane, np.array([np.nan, 0.0, 0.9]))
+    _, ug3, _ = grown_uncertainty(delay, attached, attached_u_nl, common, plane, np.array([np.nan, 0.0, 0.9]))
     assert math.isnan(ug3[0]) and ug3[2] == pytest.approx(ug[2])
-    u0n, ugn, _ = grown_uncertainty(delay, np.array([np.nan, np.nan, 2.0]), att_u, common, plane, grown)
+    u0n, ugn, _ = grown_uncertainty(delay, np.array([np.nan, np.nan, 2.0]), attached_u_nl, common, plane, grown)
     assert math.isnan(u0n) and np.isnan(ugn).all()
