@@ -468,7 +468,7 @@ def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: 
     elif listed and listed[0].delay_us is None:  # one frame, no delay anywhere
         listed[0].delay_us = 0.0
         delay_source = ("assumed 0 us: one frame without a delay in its name or metadata "
-                        f"(give it with {how_to_give('delay_us', labels)} or sequence.json frames)")
+                        "(give delay_us: --delay-us on the command line, or sequence.json frames)")
     return listed, delay_source
 
 

@@ -76,5 +76,6 @@ def test_no_scale_from_an_out_of_focus_nozzle(tmp_path):
     (tmp_path / "w" / "frame.jpg").write_bytes(src.read_bytes())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        with pytest.raises(SequenceError, match="nozzle walls are out of focus.*--pixel-size-um"):
+        # a Python caller is told its keyword, the command line its option (`dropvision.overrides.how_to_give`)
+        with pytest.raises(SequenceError, match=r"nozzle walls are out of focus.*give the pixel size \(pixel_size_um="):
             measure_sequence(tmp_path / "w", overrides={"nozzle_outer_diameter_um": 360.0})

@@ -92,7 +92,8 @@ def measurement_rrd(tmp_path_factory) -> Path:
         for i, delay in enumerate(DELAYS_US):
             lab = _labels(i)
             transmission = np.where(lab > 0, 0.1, 1.0)
-            logger.log_frame(_Ref(i, f"f{i}.png", None, delay, 0), None, transmission, lab, None, None,
+            camera = (200.0 * transmission).astype(np.uint8)  # the frame as stored (nozzle at the top already)
+            logger.log_frame(_Ref(i, f"f{i}.png", None, delay, 0), camera, transmission, lab, None, None,
                              row={"grown_volume_nl": 1.0 + i, "flow_velocity_m_s": 1.0 - 0.2 * i})
         logger.log_summary({"inflight_volume_nl": 1.5})
     return path
@@ -281,7 +282,8 @@ def test_measurement_recording_in_the_viewer(viewer_ok, measurement_rrd, tmp_pat
     names = {Path(s.path).name for s in res.shots}
     assert {"measure-tiny.png", "measure-tiny@400us.png", "measure-tiny@900us.png",
             "measure-tiny-oneshot.png"} <= names
-    frame_views = {s.delay_us: s.found for s in res.shots if s.view == "normalised (transmission)"}
+    # the main view: the frame as the camera stored it, with the classes drawn over it
+    frame_views = {s.delay_us: s.found for s in res.shots if s.view == "camera frame (as stored)"}
     # at 400 us: nozzle (grey, not checked), attached liquid and the main drop; at 900 us the
     # satellite instead of the attached liquid
     assert set(frame_views[400.0]) == {"attached liquid", "main drop"}

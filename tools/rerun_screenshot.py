@@ -28,7 +28,8 @@ It asserts, per recording (a failed check is listed, and the exit status is 1):
 * every PNG exists, decodes, has the window / view size and is not empty: more than
   ``MIN_COLOURS`` distinct colours and more than ``MIN_FOREGROUND`` of its pixels differ from its
   most common (background) colour;
-* measurement recordings (with ``/frame/segmentation``): on the frame view at each time, the
+* measurement recordings (with ``/frame/segmentation``): on the frame views (the camera frame as
+  stored, where the canonical layer is placed by a transform, and the normalised layer) at each time, the
   colour of every segmentation class that covers at least ``MIN_CLASS_PIXELS`` image pixels in
   the frame shown (read from the recording) is present: pixels of the class hue (the overlay is
   the class colour blended over a grey image, which keeps the hue) at saturation >= 0.2; every
@@ -643,7 +644,8 @@ def _session(viewer: Viewer, res: Result, path: Path, out_dir: Path, stem: str, 
             _check_png(res, vshot, img, None)
             if img is None:
                 continue
-            if view.origin == "/frame" and shown is not None:
+            # the classes are drawn on the camera frame (the main view, origin "/") and on the normalised layer
+            if view.origin in ("/", "/frame") and shown is not None:
                 name = {cid: facts.class_names.get(cid) or _CLASS_NAMES.get(cid, f"class {cid}")
                         for cid in facts.classes[shown]}
                 expected = {name[cid]: facts.class_colours[cid]
