@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 
-.PHONY: demo test screenshots clean
+.PHONY: demo test test-fast screenshots clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,10 @@ demo: $(STAMP)
 
 test: $(TEST_STAMP)
 	$(BIN)/python -m pytest -n 2 -q
+
+# the quick loop while changing code: every test but those marked slow (pyproject.toml), under 60 s on 2 cores
+test-fast: $(TEST_STAMP)
+	$(BIN)/python -m pytest -n 2 -q -m "not slow"
 
 # needs the demo's out/*.rrd (the tool says so, exit 2, when there are none) and a Vulkan driver
 screenshots: $(STAMP)

@@ -21,6 +21,7 @@ def readme_example() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.slow
 def test_readme_python_example_runs(tmp_path):
     (tmp_path / "sample_frames").symlink_to(ROOT / "sample_frames", target_is_directory=True)
     script = tmp_path / "example.py"
@@ -30,6 +31,7 @@ def test_readme_python_example_runs(tmp_path):
     assert "pinch-off" in run.stdout and (tmp_path / "model.json").is_file()
 
 
+@pytest.mark.slow
 def test_import_is_cheap_and_names_load_lazily():
     code = ("import sys, dropvision, identify; "
             "assert 'pandas' not in sys.modules and 'dropvision.measurement' not in sys.modules; "

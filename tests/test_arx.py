@@ -302,6 +302,7 @@ def ecm_selection():
     return select_structure(seqs), sigma, seqs
 
 
+@pytest.mark.slow
 def test_ecm_structure_selection_recovers_third_order_two_terms_and_delay(ecm_selection):
     sel, sigma, seqs = ecm_selection
     # expected delay for nb = 2 from the exact FOH numerator (corners off-grid change little)
@@ -329,6 +330,7 @@ def test_ecm_structure_selection_recovers_third_order_two_terms_and_delay(ecm_se
     assert sel.model.is_stable  # (its time is a benchmark's figure, not a unit test's: tools/bench_*)
 
 
+@pytest.mark.slow
 def test_ecm_selection_at_half_percent_noise_stays_at_noise_floor():
     """At 0.5 % noise the third pole (effect ~0.02 nl on the simulated volume) is below the
     statistical resolution of 49 sequences: any structure within 5 % of the noise floor is

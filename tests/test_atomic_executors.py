@@ -44,6 +44,7 @@ def test_serial_executor_delivers_exceptions():
         fut.result()
 
 
+@pytest.mark.slow
 def test_process_pool_and_bad_arguments():
     with make_executor(2) as ex:
         assert list(ex.map(_square, range(4))) == [0, 1, 4, 9]

@@ -216,6 +216,7 @@ def test_progress_quiet_and_verbose(synthetic, tmp_path, capsys, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- 6. campaigns
+@pytest.mark.slow
 def test_campaign_of_sequences_with_their_own_pixel_sizes(synthetic, tmp_path):
     root = tmp_path / "root"
     for name, px in (("a", 4.73), ("b", 4.80)):  # refocused between the two: 1.5 % apart

@@ -42,6 +42,7 @@ def _calibrated(name: str):
 
 @linux_only
 @pytest.mark.parametrize("name", ["u55_u30", "satellite_dust_tiff16", "colour_ink_u70_u25"])
+@pytest.mark.slow
 def test_forked_processes_measure_what_threads_measure(name, monkeypatch):
     seq, ctx = _calibrated(name)
     n = len(seq)
@@ -101,6 +102,7 @@ def test_when_processes_are_used(monkeypatch):
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_dead_worker_process_falls_back_to_threads(monkeypatch):
     """A worker process that dies (here: exits at its third chunk) breaks the pool; the frames
     not yet returned are measured with threads, with a warning, and the records are complete
@@ -162,6 +164,7 @@ def _with_colour_frame(tmp_path, index=50):
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_childs_warnings_reach_the_caller_once(tmp_path, monkeypatch):
     folder, name = _with_colour_frame(tmp_path)
     results = {}
@@ -250,6 +253,7 @@ print(json.dumps(seen))
 
 
 @linux_only
+@pytest.mark.slow
 def test_no_fork_once_a_native_pool_has_run(tmp_path):
     """A fresh command-line-like process (one BLAS thread) runs one thread, and keeps it so
     through a calibration with OpenCV's pool held off: it may fork. Once OpenCV's pool has run,
@@ -304,6 +308,7 @@ print(json.dumps({{"same": forked == threads, "n": len(forked),
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_lock_held_at_the_fork_is_caught_and_the_frames_measured(tmp_path):
     """The race provoked on purpose: a lock is held at the instant the workers are forked, and
     every frame needs it. Each child waits for ever (no CPU used); the watchdog sees it within

@@ -123,6 +123,7 @@ def test_pinchoff_and_adjusters_eqs_15_17():
     assert eb["A3"] / M.coefficients.A3 > 100 * M.coefficient_eb["A3"] / M.coefficients.A3  # misprint
 
 
+@pytest.mark.slow
 def test_cli_default_is_the_converged_expectation(capsys):
     """Issue 13 item 3: `identify paper --u1 70 --u2 25` prints 17.6-17.8 nl (paper 17.74), and
     the figure moves by at most 0.05 nl between seeds (one scheme draw moves by ~0.4 nl)."""

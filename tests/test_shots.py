@@ -161,6 +161,7 @@ def test_other_waveforms_are_never_blended_into_one_sequence(synthetic_shots, tm
 WATCHER = sorted((REALDATA / "watcher-dod").glob("V*/frame.jpg"))
 
 
+@pytest.mark.slow
 def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
     folder = tmp_path / "small_samples"
     folder.mkdir()
