@@ -42,6 +42,7 @@ def test_import_is_cheap_and_names_load_lazily():
         dropvision.no_such_name  # noqa: B018
 
 
+@pytest.mark.slow
 def test_measure_from_memory_equals_the_folder():
     folder = ROOT / "sample_frames" / "u55_u30"
     seq = dropvision.open_sequence(folder)

@@ -174,6 +174,7 @@ def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, r
 
 
 # ----------------------------------------------------------------------------- 3. init
+@pytest.mark.slow
 def test_init_writes_what_the_images_tell_and_never_overwrites(tmp_path, capsys, realdata_dir):
     folder = _alone(WATCHER[1], tmp_path / "watcher")
     assert main(["init", str(folder)]) == 0
@@ -254,6 +255,7 @@ def test_campaign_options_apply_to_every_sequence(synthetic, tmp_path, capsys):
     assert not (tmp_path / "ds2").exists()
 
 
+@pytest.mark.slow
 def test_campaign_warnings_are_one_line_once_per_sequence(tmp_path, capsys):
     root = tmp_path / "root"
     cfg = SynthConfig(**{**SMALL, "delays_us": tuple(float(d) for d in range(0, 1501, 100))}, format="jpeg",

@@ -177,6 +177,7 @@ def test_pinchoff_thread_rule_small_gap(u1, u2, seed, every_10_us, tmp_path):
     assert measure_sequence(seq).summary["pinchoff_us"] == truth["pinchoff_us"]
 
 
+@pytest.mark.slow
 def test_per_frame_blur_and_contrast_flags(tmp_path):
     """A defocused frame and a washed-out frame are flagged (their numbers NaN); the others not."""
     from dropvision.synth import SynthConfig, write_synthetic_sequence

@@ -200,6 +200,7 @@ def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- 6. not a drop image
+@pytest.mark.slow
 def test_photographs_are_never_measured_as_ok(tmp_path, capsys):
     """Photographs (scikit-image's bundled test images: a man with a camera, an astronaut, a cat, coins, a
     rocket, grass) in a shot folder: each refused (a row not_measured, its reason) or flagged, none 'ok'."""

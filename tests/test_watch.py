@@ -65,6 +65,7 @@ def _start_cli(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_live_rows_and_final_tables_equal_batch(rendered, tmp_path):
     watched, out = tmp_path / "watched", tmp_path / "out"
     watched.mkdir()
