@@ -9,7 +9,7 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 DOCS_STAMP := $(VENV)/.installed-docs
 
-.PHONY: demo test docs screenshots clean
+.PHONY: demo test test-fast docs screenshots clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -36,6 +36,10 @@ test: $(TEST_STAMP)
 docs: $(DOCS_STAMP)
 	PYTHONPATH=$(CURDIR) $(BIN)/python -m mkdocs build --strict --quiet --site-dir site
 	$(BIN)/python -m pytest -n 2 -q -m docs
+
+# the quick loop while changing code: every test but those marked slow (pyproject.toml), under 60 s on 2 cores
+test-fast: $(TEST_STAMP)
+	$(BIN)/python -m pytest -n 2 -q -m "not slow"
 
 # needs the demo's out/*.rrd (the tool says so, exit 2, when there are none) and a Vulkan driver
 screenshots: $(STAMP)

@@ -8,23 +8,21 @@
 4. `dropvision.pinchoff.thread_joined_labels`: bodies still joined to it by a thin thread;
 5. `dropvision.bodies.measure_body` / `describe_detached`: the detached bodies.
 
-`stream_frames` measures a sequence's frames in order with a few forked processes (Linux, a
-long sequence, see `processes_usable`) or threads, decoding at most ``2 * workers`` frames (or
-chunks of frames) at once, so memory does not grow with the sequence length.
+`stream_frames` measures a sequence's frames in order through the engine `dvcore.parallel`
+(a few forked processes on Linux for a long sequence, see `processes_usable`, or threads),
+decoding at most ``2 * workers`` frames (or chunks of frames) at once, so memory does not grow
+with the sequence length.
 """
 
 from __future__ import annotations
 
 import sys
-from collections import deque
-from contextlib import contextmanager
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
 import dropvision.quality as q
-import dvcore.process as _process
+import dvcore.parallel as _parallel
 from dropvision.bodies import (
     DetachedBody,
     body_volume_uncertainty_nl,
@@ -333,12 +331,6 @@ MIN_FRAMES_FOR_PROCESSES = 32
 #: Most frames in one chunk sent to a forked worker (chunks are ~1/4 of a worker's share, at most
 #: this: few messages, and little work in flight when the caller stops).
 MAX_CHUNK_FRAMES = 32
-#: Set to 1 to keep `stream_frames` on threads (no forked processes).
-NO_FORK_ENV = "DROPVISION_NO_FORK"
-
-# what a forked worker measures: (sequence, context, calibration frames), set just before the
-# pool forks its processes (they inherit it: nothing is pickled on the way in)
-_FORK_STATE: tuple | None = None
 
 
 def _measure_index(seq, ctx: FrameContext, decoded: dict, i: int, logger=None) -> FrameRecord:
@@ -350,34 +342,6 @@ def _measure_index(seq, ctx: FrameContext, decoded: dict, i: int, logger=None) -
     if fr.image is None:
         return FrameRecord(fr.ref.index, fr.ref.file, fr.ref.page, fr.ref.delay_us, fr.ref.repeat, error=fr.error)
     return measure_frame(fr.image, ctx, fr.ref, logger)
-
-
-def _forked_worker_init(parent_pid: int) -> None:
-    """In a forked worker: die with the parent (``kill -9`` of it leaves no worker behind),
-    leave Ctrl-C to the parent (it ends the workers), and give the sequence a lock and open
-    multi-frame files of its own (the parent's lock may have been held at the fork, and an
-    inherited file's offset is shared with the parent)."""
-    import signal
-
-    from dvcore.process import die_with_parent
-
-    die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    reset = getattr(_FORK_STATE[0], "after_fork", None)
-    if reset is not None:
-        reset()
-
-
-def _measure_chunk(indices) -> tuple[list, list]:
-    """In a forked worker: the records of ``indices`` and the warnings they raised (category,
-    message), for the parent to give in order (a child's own would be lost or printed)."""
-    import warnings
-
-    seq, ctx, decoded = _FORK_STATE
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        recs = [_measure_index(seq, ctx, decoded, i) for i in indices]
-    return recs, [(w.category, str(w.message)) for w in caught]
 
 
 def _give_warnings(seq, caught) -> None:
@@ -396,87 +360,14 @@ def _give_warnings(seq, caught) -> None:
 
 def processes_usable(n_frames: int, workers: int, logger=None, *,
                      min_frames: int = MIN_FRAMES_FOR_PROCESSES) -> bool:
-    """Whether `stream_frames` measures in forked processes: on Linux, with at least two workers
-    and :data:`MIN_FRAMES_FOR_PROCESSES` frames, no Rerun logger (it lives in this process), only
-    from a top-level process (not inside a pool's or a campaign's worker: no nested pools), unless
-    :data:`NO_FORK_ENV` is set, and only while this process runs **one thread at the operating
-    system's level** (`dvcore.process.os_thread_count`). Any other thread -- a notebook's, a
-    viewer's, or a native pool's (OpenBLAS started with NumPy, OpenCV's after its first parallel
-    call) -- may hold a lock at the instant of the fork, and the child that needs it waits for
-    ever (issue 29: a worker blocked in ``pthread_mutex_lock`` inside ``cv2.findContours`` after
-    the calibration had used OpenCV's pool). With one thread there is no such lock; the command
-    line keeps it so (OpenBLAS on one thread, OpenCV's pool never started: :func:`serial_native_pools`).
-    The per-frame work holds the GIL for much of its time, so two threads measure hardly faster
-    than one; two processes nearly twice as fast. ``min_frames``: another least count, for work
-    whose items cost more than a frame (a shot of `dropvision.shots`: its own decoding and
-    assembly)."""
-    import multiprocessing
-    import os
-    import threading
-
-    from dvcore.process import os_thread_count
-
-    return (sys.platform == "linux" and workers >= 2 and n_frames >= min_frames
-            and logger is None and not os.environ.get(NO_FORK_ENV)
-            and multiprocessing.parent_process() is None and threading.active_count() == 1
-            and os_thread_count() == 1)
-
-
-@contextmanager
-def serial_native_pools(active: bool = True):
-    """While ``active``: OpenCV runs its functions on the calling thread, so that its thread pool
-    is never started and the process stays single-threaded up to the fork of the frame workers
-    (:func:`processes_usable`). Its thread count is given back afterwards (setting it starts no
-    thread). `dropvision.measurement.measure_sequence` wraps a measurement that will fork in it."""
-    if not active:
-        yield
-        return
-    import cv2
-
-    before = cv2.getNumThreads()
-    cv2.setNumThreads(0)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(before)
-
-
-class WorkerProcessDied(RuntimeWarning):
-    """A forked worker process of `stream_frames` died (killed, out of memory, a crash in a
-    decoder); the frames it had not returned are measured again with threads."""
-
-
-class WorkerProcessStalled(WorkerProcessDied):
-    """The forked workers of `stream_frames` used no CPU for :data:`STALL_S` seconds while a
-    result was awaited (a worker blocked for ever, e.g. on a lock held at the fork); they are
-    killed and the frames not yet returned are measured with threads."""
-
-
-#: Seconds without CPU progress of every worker process, while their result is awaited, after
-#: which `stream_frames` takes them for stalled (:class:`WorkerProcessStalled`). A busy worker
-#: uses CPU even on a loaded machine; one blocked on a lock uses none. The environment variable
-#: :data:`STALL_ENV` sets another value.
-STALL_S = 10.0
-STALL_ENV = _process.STALL_ENV
-
-
-class _Watchdog:
-    """A future's result, waited for with a bound (`dvcore.process.wait_working`): while it is
-    awaited, the worker processes ``pids`` must use CPU at least once every ``stall_s`` seconds,
-    or `dvcore.process.WorkersStalled` is raised: never an endless wait."""
-
-    def __init__(self, pids, stall_s: float, poll_s: float = 0.2):
-        self.pids, self.stall_s, self.poll_s = list(pids), stall_s, poll_s
-
-    def result(self, future):
-        from dvcore.process import wait_working
-
-        wait_working([future], lambda: self.pids, self.stall_s, poll_s=self.poll_s)
-        return future.result()
-
-
-def _stall_s() -> float:
-    return _process.stall_s(STALL_S)
+    """Whether `stream_frames` measures in forked processes: no Rerun logger (it lives in this
+    process) and the engine's rules (`dvcore.parallel.processes_usable`: Linux, two workers,
+    ``min_frames`` frames, a top-level process running one thread at the operating system's
+    level, :data:`dvcore.parallel.NO_FORK_ENV` unset). The command line keeps one thread up to the fork
+    (OpenBLAS on one thread, OpenCV's pool never started: :func:`dvcore.parallel.serial_native_pools`). The
+    per-frame work holds the GIL for much of its time, so two threads measure hardly faster
+    than one; two processes nearly twice as fast."""
+    return logger is None and _parallel.processes_usable(n_frames, workers, min_items=min_frames)
 
 
 def _progress_bar(n: int, progress: bool):
@@ -487,102 +378,20 @@ def _progress_bar(n: int, progress: bool):
     return tqdm(total=n, desc="measure", unit="frame", file=sys.stderr)
 
 
-def _in_order(pool, fn, items, depth: int, result=None):
-    """``fn(item)`` for every item, run on ``pool``, yielded in the items' order, with at most
-    ``depth`` submitted and not yet yielded (memory stays bounded, whatever the length);
-    ``result(future)`` waits for each (default ``future.result()``; the forked workers' watchdog
-    bounds the wait)."""
-    result = result or (lambda f: f.result())
-    pending: deque = deque()
-    it = iter(items)
-    for item in it:
-        pending.append(pool.submit(fn, item))
-        if len(pending) >= depth:
-            break
-    while pending:
-        value = result(pending.popleft())
-        for item in it:  # one more, if any
-            pending.append(pool.submit(fn, item))
-            break
-        yield value
-
-
-def _stream_forked(seq, indices, ctx: FrameContext, workers: int, decoded: dict, progress: bool = False):
-    """`stream_frames` in ``workers`` forked processes: contiguous chunks of frames (at most
-    :data:`MAX_CHUNK_FRAMES`), at most ``2 * workers`` chunks in flight, records in order; the
-    workers' warnings given here, in order. The processes are forked before the progress bar
-    starts its monitor thread. If the caller stops early or is interrupted, the workers are
-    terminated at once; if a worker dies, or the workers use no CPU for :data:`STALL_S` seconds
-    while a result is awaited (`_Watchdog`), they are ended and the frames not yet returned are
-    measured with threads (a :class:`WorkerProcessDied` or :class:`WorkerProcessStalled` warning
-    says so) instead of losing the sequence or waiting for ever. Every wait on a worker is bounded."""
-    import multiprocessing
-    import os
-    import warnings
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
-
-    from dvcore.process import WorkersStalled, close_pool, end_pool, pool_pids
-
-    global _FORK_STATE
-    indices = list(indices)
-    size = min(MAX_CHUNK_FRAMES, max(4, -(-len(indices) // (4 * workers))))
-    chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
-    done, bar, finished, stalled = 0, None, False, False
-    _FORK_STATE = (seq, ctx, dict(decoded))
-    decoded.clear()
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_worker_init,
-                               initargs=(os.getpid(),), mp_context=multiprocessing.get_context("fork"))
-    try:
-        with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
-            warnings.simplefilter("ignore", DeprecationWarning)
-            first = pool.submit(int)  # the first submit forks every worker: now, before the bar's thread
-        watchdog = _Watchdog(pool_pids(pool), _stall_s())
-        watchdog.result(first)
-        bar = _progress_bar(len(indices), progress)
-        for recs, caught in _in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
-            _give_warnings(seq, caught)
-            for rec in recs:
-                yield rec
-                done += 1
-                if bar is not None:
-                    bar.update()
-        finished = True
-    except (BrokenProcessPool, WorkersStalled) as exc:
-        stalled = isinstance(exc, WorkersStalled)
-        end_pool(pool, kill=True)  # before measuring on: a stalled worker holds no CPU, but memory
-        rest = indices[done:]
-        what = "the worker processes stalled" if stalled else "a worker process died"
-        warnings.warn(f"{seq.meta.path}: {what} ({exc}); measuring the remaining {len(rest)} frame(s) with threads",
-                      WorkerProcessStalled if stalled else WorkerProcessDied, stacklevel=3)
-        bar = bar if bar is not None else _progress_bar(len(indices), progress)
-        with ThreadPoolExecutor(max_workers=workers) as tpool:
-            for rec in _in_order(tpool, lambda i: _measure_index(seq, ctx, {}, i), rest, 2 * workers):
-                yield rec
-                if bar is not None:
-                    bar.update()
-    finally:
-        if finished:
-            close_pool(pool)
-        else:  # stopped early, interrupted, an error, a dead or stalled worker: no waiting for chunks in flight
-            end_pool(pool)
-        _FORK_STATE = None
-        if bar is not None:
-            bar.close()
-
-
 def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, progress: bool = False,
-                  decoded: dict | None = None):
+                  decoded: dict | None = None, *, processes: bool | None = None):
     """Measure frames of an open sequence, yielding their `FrameRecord` in order.
 
-    Where :func:`processes_usable` says so, ``workers`` forked processes measure contiguous
-    chunks of frames; otherwise ``workers`` threads, at most ``2 * workers`` frames decoded at
-    once (one thread when logging). The records are the same either way.
+    The engine `dvcore.parallel.map_in_order` runs them: in ``workers`` forked processes
+    (contiguous chunks of frames) where its rules allow it (:func:`processes_usable`), otherwise
+    on ``workers`` threads, at most ``2 * workers`` frames (or chunks) decoded at once; with a
+    logger, here, one after the other. The records are the same either way; a forked worker's
+    warnings are given here, in order (the colour note once per sequence).
 
     Parameters
     ----------
     seq : dropvision.sequence.Sequence
-        Open sequence (``meta``, ``read``).
+        Open sequence (``meta``, ``read``; ``after_fork`` runs in each forked worker).
     indices : sequence of int
         Frames to measure.
     ctx : FrameContext
@@ -591,10 +400,12 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
     logger : object, optional
         Rerun logger.
     progress : bool
-        Progress bar on stderr.
+        Progress bar on stderr (started after the workers are forked).
     decoded : dict, optional
         Images already decoded by the calibration pass (index -> image, a few): used once and
         dropped instead of being decoded again.
+    processes : bool, optional
+        As for `dvcore.parallel.map_in_order` (True: fork whatever the rules say; tests only).
 
     Yields
     ------
@@ -602,33 +413,14 @@ def stream_frames(seq, indices, ctx: FrameContext, workers: int, logger=None, pr
         With ``error`` set (and nothing measured) for an unreadable frame.
     """
     decoded = {} if decoded is None else decoded
-    if processes_usable(len(indices), workers, logger):  # before any progress bar starts its thread
-        yield from _stream_forked(seq, indices, ctx, workers, decoded, progress)
-        return
-    bar = _progress_bar(len(indices), progress)
-    try:
-        if workers <= 1 or logger is not None:
-            for i in indices:
-                yield _measure_index(seq, ctx, decoded, i, logger)
-                if bar is not None:
-                    bar.update()
-            return
-        with ThreadPoolExecutor(max_workers=workers) as pool:
-            for rec in _in_order(pool, lambda i: _measure_index(seq, ctx, decoded, i), indices, 2 * workers):
-                yield rec
-                if bar is not None:
-                    bar.update()
-    finally:
-        if bar is not None:
-            bar.close()
+    if logger is not None:  # the Rerun logger lives in this process: one frame after the other
+        workers, processes = 1, False
 
+    def measure(i):
+        return _measure_index(seq, ctx, decoded, i, logger)
 
-#: The forked-worker machinery under public names, for other work measured alike
-#: (`dropvision.shot_rig`: the shots of a folder).
-in_order, Watchdog, give_warnings = _in_order, _Watchdog, _give_warnings
-
-
-def stall_seconds() -> float:
-    """Seconds without CPU progress after which forked workers are taken for stalled (:data:`STALL_S`,
-    or the environment variable :data:`STALL_ENV`)."""
-    return _stall_s()
+    yield from _parallel.map_in_order(
+        measure, indices, workers, processes=processes, min_items=MIN_FRAMES_FOR_PROCESSES,
+        min_chunk=4, max_chunk=MAX_CHUNK_FRAMES, after_fork=getattr(seq, "after_fork", None),
+        relay=lambda caught: _give_warnings(seq, caught), progress=lambda n: _progress_bar(n, progress),
+        label=str(seq.meta.path), unit="frame")

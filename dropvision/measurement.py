@@ -32,7 +32,8 @@ from dropvision.annotate import short_repr
 from dropvision.config import MeasureConfig
 from dropvision.bodies_table import bodies_table
 from dropvision.calibration_pass import calibrate_sequence
-from dropvision.frame import FrameRecord, processes_usable, serial_native_pools, stream_frames
+from dropvision.frame import FrameRecord, processes_usable, stream_frames
+from dvcore.parallel import serial_native_pools
 from dropvision.overrides import how_to_give
 from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
 from dropvision.result_writer import write_result

@@ -3,9 +3,9 @@
 A drop watcher's shots differ by their waveform; what does not change between them -- the background
 (illumination), the holder's place and orientation, the blur reference, the pixel size -- is computed
 once (`calibrate_rig`) and every shot is measured with it (`measure_each`), in forked worker
-processes where `dropvision.frame.processes_usable` allows it (the fork-safety rules of issue 29:
+processes where the engine `dvcore.parallel.map_in_order` allows it (its fork-safety rules, issue 29:
 this process runs one thread when it forks, OpenCV's pool is never started before,
-`dropvision.frame.serial_native_pools`; every wait on a worker is bounded by the watchdog).
+`dvcore.parallel.serial_native_pools`; every wait on a worker is bounded by the watchdog).
 
 Robustness: the calibration shots (up to ``config.calibration_frames``, spread over the folder, the
 first included) are compared with each other by their fingerprint (`fingerprint`: the frame reduced
@@ -580,72 +580,6 @@ def _measure_one(i: int, state) -> ShotOutcome:
     return out
 
 
-# what a forked worker measures: (shots, rig, config, overrides, option_labels), set just before the pool
-# forks its processes (inherited: nothing is pickled on the way in)
-_FORK_STATE: tuple | None = None
-
-
-def _forked_init(parent_pid: int) -> None:
-    """In a forked worker: die with the parent, leave Ctrl-C to it (as the frame workers do)."""
-    import signal
-
-    from dvcore.process import die_with_parent
-
-    die_with_parent(parent_pid)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-
-
-def _measure_chunk(indices) -> list[ShotOutcome]:
-    return [_measure_one(i, _FORK_STATE) for i in indices]
-
-
-def _each_forked(state, indices: list[int], workers: int):
-    """`measure_each` in ``workers`` forked processes (the machinery of `dropvision.frame.stream_frames`:
-    chunks in order, at most ``2 * workers`` in flight, the watchdog bounding every wait; a dead or
-    stalled worker: the shots not yet returned are measured here, a `dropvision.frame.WorkerProcessDied`
-    or ``WorkerProcessStalled`` warning says so)."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-    from concurrent.futures.process import BrokenProcessPool
-
-    from dropvision.frame import WorkerProcessDied, WorkerProcessStalled, Watchdog, in_order, stall_seconds
-    from dvcore.process import WorkersStalled, close_pool, end_pool, pool_pids
-
-    global _FORK_STATE
-    size = max(1, min(8, len(indices) // (4 * workers)))
-    chunks = [indices[a:a + size] for a in range(0, len(indices), size)]
-    done, finished = 0, False
-    _FORK_STATE = state
-    pool = ProcessPoolExecutor(max_workers=min(workers, len(chunks)), initializer=_forked_init,
-                               initargs=(os.getpid(),), mp_context=multiprocessing.get_context("fork"))
-    try:
-        with warnings.catch_warnings():  # Python >= 3.12 warns of every fork once native threads exist
-            warnings.simplefilter("ignore", DeprecationWarning)
-            first = pool.submit(int)  # forks every worker now
-        watchdog = Watchdog(pool_pids(pool), stall_seconds())
-        watchdog.result(first)
-        for outcomes in in_order(pool, _measure_chunk, chunks, 2 * workers, watchdog.result):
-            for out in outcomes:
-                yield out
-                done += 1
-        finished = True
-    except (BrokenProcessPool, WorkersStalled) as exc:
-        stalled = isinstance(exc, WorkersStalled)
-        end_pool(pool, kill=True)
-        rest = indices[done:]
-        what = "the worker processes stalled" if stalled else "a worker process died"
-        warnings.warn(f"{state[0].inputs[0]}: {what} ({exc}); measuring the remaining {len(rest)} shot(s) here",
-                      WorkerProcessStalled if stalled else WorkerProcessDied, stacklevel=3)
-        for i in rest:
-            yield _measure_one(i, state)
-    finally:
-        if finished:
-            close_pool(pool)
-        else:
-            end_pool(pool)
-        _FORK_STATE = None
-
-
 def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                  option_labels: dict | None = None, shared: bool = True, workers: int | None = None
                  ) -> tuple[list[ShotOutcome], list[RigCalibration], str | None]:
@@ -670,36 +604,30 @@ def measure_each(shots, config: MeasureConfig = MeasureConfig(), *, overrides: d
     (outcomes in the shots' order, the shared calibrations (the largest group's first; empty
     when none), why there is none or None)
     """
-    from dropvision.frame import processes_usable, serial_native_pools
+    from dvcore.parallel import map_in_order, processes_usable, relay_warnings, serial_native_pools
 
     workers = max(1, config.workers if workers is None else workers)
     n = len(shots.paths)
-    forked = processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES)
+    forked = processes_usable(n, workers, min_items=MIN_SHOTS_FOR_PROCESSES)
     rigs, known_alone, why = [], {}, "not asked for" if not shared else None
     with serial_native_pools(forked):  # this process still runs one thread when it forks (issue 29)
         if shared:
             rigs, why, known_alone = calibrate_rigs(shots, config, overrides=overrides, option_labels=option_labels)
         state = (shots, rigs, known_alone, config, overrides, option_labels)
-        indices = list(range(n))
-        if forked and processes_usable(n, workers, min_frames=MIN_SHOTS_FOR_PROCESSES):
-            # each shot's tables made here as it comes back, while the workers measure the next ones (the
-            # workers are forked before: `_each_forked` forks them all at once, and never again)
-            outcomes = []
-            each = _each_forked(state, indices, workers)
-            try:
-                for out in each:
-                    outcomes.append(_tables(out, config))
-            finally:
-                each.close()
-        else:
-            outcomes = [_tables(_measure_one(i, state), config) for i in indices]
-    from dropvision.frame import give_warnings
-
-    class _Names:  # the colour note of every shot is its own (each shot is a sequence of one frame)
-        first_colour_note = None
-
-    for out in outcomes:
-        give_warnings(_Names, out.warnings)
+        # the engine decides again at the fork (the calibration started no thread: it forks); each shot's
+        # tables made here as it comes back, while the workers measure the next ones. A shot records its
+        # own warnings (`_measure_one`): never on threads (catch_warnings is not thread-safe)
+        outcomes = []
+        each = map_in_order(lambda i: _measure_one(i, state), range(n), workers if forked else 1, threads=False,
+                            min_items=MIN_SHOTS_FOR_PROCESSES, max_chunk=8,
+                            label=str(shots.inputs[0]) if shots.inputs else "", unit="shot")
+        try:
+            for out in each:
+                outcomes.append(_tables(out, config))
+        finally:
+            each.close()
+    for out in outcomes:  # the colour note of every shot is its own (each shot is a sequence of one frame)
+        relay_warnings(out.warnings)
     return outcomes, rigs, why
 
 

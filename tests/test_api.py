@@ -22,6 +22,7 @@ def api_example() -> str:
     return re.search(r"```python\n(.*?)```", section, re.S).group(1)
 
 
+@pytest.mark.slow
 def test_api_page_python_example_runs(tmp_path):
     (tmp_path / "sample_frames").symlink_to(ROOT / "sample_frames", target_is_directory=True)
     script = tmp_path / "example.py"
@@ -31,6 +32,7 @@ def test_api_page_python_example_runs(tmp_path):
     assert "pinch-off" in run.stdout and (tmp_path / "model.json").is_file()
 
 
+@pytest.mark.slow
 def test_import_is_cheap_and_names_load_lazily():
     code = ("import sys, dropvision, identify; "
             "assert 'pandas' not in sys.modules and 'dropvision.measurement' not in sys.modules; "
@@ -41,6 +43,7 @@ def test_import_is_cheap_and_names_load_lazily():
         dropvision.no_such_name  # noqa: B018
 
 
+@pytest.mark.slow
 def test_measure_from_memory_equals_the_folder():
     folder = ROOT / "sample_frames" / "u55_u30"
     seq = dropvision.open_sequence(folder)

@@ -44,6 +44,7 @@ def test_serial_executor_delivers_exceptions():
         fut.result()
 
 
+@pytest.mark.slow
 def test_process_pool_and_bad_arguments():
     with make_executor(2) as ex:
         assert list(ex.map(_square, range(4))) == [0, 1, 4, 9]
@@ -83,6 +84,7 @@ def test_the_local_pool_forks_only_a_single_threaded_process(monkeypatch):
         assert pool.submit(pow, 3, 4).result(timeout=120) == 81
 
 
+@pytest.mark.slow
 def test_a_stalled_campaign_worker_stops_the_campaign_with_a_bound(monkeypatch):
     """A local worker that uses no CPU (here asleep: as blocked on a lock) while its sequence is
     awaited: after the stall time the workers are killed and `CampaignStalled` names the sequence;

@@ -92,6 +92,7 @@ def test_bench_decoders_corpus_tiny(tmp_path):
     assert "vs best other" in out
 
 
+@pytest.mark.slow
 def test_bench_watch_tiny():
     out, _ = _run("bench_watch.py", "--frames", "6", "--rate-hz", "50")
     assert "completion to row on disk: median" in out and "equal to dropvision measure: yes" in out

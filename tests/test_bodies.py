@@ -48,6 +48,7 @@ def misty():
     return measure_sequence(seq), truths, mist
 
 
+@pytest.mark.slow
 def test_bodies_table_follows_its_schema(misty):
     result, _, _ = misty
     schema.check_table(result.bodies, schema.BODIES, "bodies.parquet")

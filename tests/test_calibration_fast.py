@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from dropvision.background import _block_means, background_residual, estimate_background, median_by_selection
 from dropvision.calibration_pass import attached_half_width_px, transmission_noise
@@ -179,6 +180,7 @@ def test_the_straight_walls_running_median_is_numpy_s():
     assert _straight_walls(width, cand, 60.0) == (0, 30)
 
 
+@pytest.mark.slow
 def test_the_block_means_are_numpy_s_to_the_bit():
     rng = np.random.default_rng(8)
     shapes = [(384, 512, 4), (512, 384, 4), (120, 160, 4), (16, 16, 2), (33, 250, 7), (17, 99, 3)]

@@ -26,6 +26,7 @@ def _measure(tmp_path, **kw):
 
 
 @pytest.mark.parametrize("tilt_deg", [0.0, 1.5, -2.0])
+@pytest.mark.slow
 def test_nozzle_in_a_holder_block(tmp_path, tilt_deg):
     r, truth = _measure(tmp_path, tilt_deg=tilt_deg, delays_us=(0.0, 100.0, 200.0), seed=3)
     cal = r.summary["calibration"]
@@ -38,6 +39,7 @@ def test_nozzle_in_a_holder_block(tmp_path, tilt_deg):
 
 
 @pytest.mark.filterwarnings("ignore::dropvision.calibration.CalibrationWarning")
+@pytest.mark.slow
 def test_nozzle_barely_protruding_is_flagged_not_guessed(tmp_path):
     r, truth = _measure(tmp_path, nozzle_protrusion_um=15.0, tilt_deg=1.5,
                         delays_us=tuple(float(d) for d in range(0, 1501, 100)), seed=3)

@@ -11,6 +11,9 @@ from dropvision.app.campaign import find_sequences, run_campaign, synth_campaign
 from dropvision.app.cli import main as dropvision_main
 from identify.dataset_checks import load_dataset
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 SMALL = {"width_px": 128, "height_px": 448, "tip_row": 30.3, "axis_col": 63.6,
          "delays_us": tuple(float(d) for d in range(0, 1501, 10)), "noise": 0.3, "dust": 1}
 

@@ -28,6 +28,7 @@ def test_calibration_columns_are_declared():
     assert set(CALIBRATION_COLUMNS) <= declared
 
 
+@pytest.mark.slow
 def test_campaign_writes_the_checks_into_the_dataset(tmp_path):
     synth_campaign(tmp_path / "grid", [70.0], [25.0, 30.0], workers=1, progress=False, overrides=SMALL)
     run_campaign(tmp_path / "grid", tmp_path / "ds", workers=1, progress=False)

@@ -67,6 +67,7 @@ def test_clipped_synthetic_sequence_is_measured(soft, exposure):
     assert (f.loc[view, "n_satellites"].astype(int) == truth.loc[view, "n_satellites"]).all()
 
 
+@pytest.mark.slow
 def test_sharp_edges_against_a_clipped_background_are_measured_with_a_wider_uncertainty():
     """The level of a background clipped at 255 cannot be read off sharp edges: the sensor
     maximum is its lower bound, the volumes are measured and their uncertainty says why."""

@@ -5,7 +5,10 @@ written to out/report/."""
 import subprocess
 import sys
 
+import pytest
 
+
+@pytest.mark.slow
 def test_quick_demo_runs(tmp_path):
     out = tmp_path / "out"
     run = subprocess.run([sys.executable, "-m", "dropvision.app.demo", "--quick", "--no-rerun", "--workers", "1",

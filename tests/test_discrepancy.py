@@ -18,6 +18,7 @@ def _bump(x1, x2):
     return np.exp(-((x1 - 0.5) ** 2 + (x2 + 0.5) ** 2) / 0.5)
 
 
+@pytest.mark.slow
 def test_no_structure_no_discrepancy():
     """Independent scatter alone: the likelihood ratio stays below the threshold in most draws,
     and then no local term is kept (variance exactly 0 everywhere)."""
@@ -50,6 +51,7 @@ def test_local_discrepancy_where_the_misfit_is():
     assert np.median(far) < 1.0 and np.median(at_bump) > 5 * np.median(far), (at_bump, far)
 
 
+@pytest.mark.slow
 def test_smooth_scatter_sets_the_misfit_apart():
     """A linear polynomial fitted to linear + bump + noise (sd 1): its residual variance holds
     the bump; the REML scatter about polynomial + smooth departure is near the true 1."""

@@ -110,6 +110,7 @@ def study():
     return noise_study(noise_fractions=(0.0, 0.01, 0.02), methods=("oe", "delta"))
 
 
+@pytest.mark.slow
 def test_noise_study_default_estimator_meets_1pct(study):
     oe = study[study.method == "oe"].set_index("noise_pct")
     assert oe.loc[0.0, "max_ratio_err_pct"] < 0.2  # FOH of 10 µs samples cuts the waveform corners
@@ -122,6 +123,7 @@ def test_noise_study_default_estimator_meets_1pct(study):
     assert oe.loc[1.0, "rmse_nl"] == pytest.approx(0.01 * 18.5, rel=0.15)  # residual ~ noise
 
 
+@pytest.mark.slow
 def test_noise_study_delta_operator_is_biased(study):
     de = study[study.method == "delta"].set_index("noise_pct")
     assert de.loc[0.0, "max_ratio_err_pct"] > 10.0  # Euler + Eq. (13) bias without noise
@@ -154,6 +156,7 @@ def test_bad_input_errors():
         fit_ecm([], HYD)
 
 
+@pytest.mark.slow
 def test_coefficient_level_without_hydraulics():
     """Issue 13 item 2: with no hydraulics the coefficients A3..B0 are fitted directly (output
     error, A3 = 1); the volume response matches the truth, physical parameters are None."""

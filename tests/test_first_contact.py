@@ -183,6 +183,7 @@ def test_a_real_watcher_frame_alone_measures_with_one_option(tmp_path, capsys, r
 
 
 # ----------------------------------------------------------------------------- 3. init
+@pytest.mark.slow
 def test_init_writes_what_the_images_tell_and_never_overwrites(tmp_path, capsys, realdata_dir):
     folder = _alone(WATCHER[1], tmp_path / "watcher")
     assert main(["init", str(folder)]) == 0
@@ -231,6 +232,7 @@ def test_progress_quiet_and_verbose(synthetic, tmp_path, capsys, monkeypatch):
 
 
 # ----------------------------------------------------------------------------- 6. campaigns
+@pytest.mark.slow
 def test_campaign_of_sequences_with_their_own_pixel_sizes(synthetic, tmp_path):
     root = tmp_path / "root"
     for name, px in (("a", 4.73), ("b", 4.80)):  # refocused between the two: 1.5 % apart
@@ -268,6 +270,7 @@ def test_campaign_options_apply_to_every_sequence(synthetic, tmp_path, capsys):
     assert not (tmp_path / "ds2").exists()
 
 
+@pytest.mark.slow
 def test_campaign_warnings_are_one_line_once_per_sequence(tmp_path, capsys):
     root = tmp_path / "root"
     cfg = SynthConfig(**{**SMALL, "delays_us": tuple(float(d) for d in range(0, 1501, 100))}, format="jpeg",

@@ -13,6 +13,9 @@ from identify.hybrid_fit import fit_hybrid
 from identify.physics import drop_history
 from identify.dataset import default_physics
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 GRID = [(float(a), float(b)) for a in (50, 57.5, 65, 72.5, 80) for b in (20, 23.75, 27.5, 31.25, 35)]
 HELD_OUT = [(53.0, 21.0), (61.0, 26.0), (68.0, 30.0), (76.0, 33.0), (66.0, 24.0)]
 

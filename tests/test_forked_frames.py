@@ -1,25 +1,28 @@
 """`dropvision.frame.stream_frames` in forked processes measures exactly what threads measure.
 
 The per-frame work holds the GIL much of its time, so on a long sequence `stream_frames` forks
-``workers`` processes (`dropvision.frame.processes_usable`). Checked here on the shipped samples:
+``workers`` processes through the engine `dvcore.parallel.map_in_order` (its own rules and
+failure modes on plain items: tests/test_parallel.py). Checked here on the shipped samples:
 PNG files (one frame per file), a 16-bit multi-page TIFF stack (one file shared by every frame:
 the forked children must not share its open handle and file offset with the parent,
 `Sequence.after_fork`); a colour frame in a grey sequence (the children's warnings reach the
 caller, the colour note once per sequence, as with threads); that an error raised in a child
-reaches the caller with its message; that a caller stopping early leaves no worker running; and
-that the workers are forked before a progress bar starts its thread.
+reaches the caller with its message; that a dead worker's frames are measured with threads; that
+the workers are forked before a progress bar starts its thread; and the issue-29 race (a native
+pool's threads, a lock held at the fork) on a real sequence.
 """
 
 from __future__ import annotations
 
+import os
 import sys
-import threading
 import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+import dvcore.parallel as P
 from dropvision import frame as F
 from dropvision.calibration_pass import calibrate_sequence
 from dropvision.config import MeasureConfig
@@ -40,14 +43,15 @@ def _calibrated(name: str):
 
 @linux_only
 @pytest.mark.parametrize("name", ["u55_u30", "satellite_dust_tiff16", "colour_ink_u70_u25"])
+@pytest.mark.slow
 def test_forked_processes_measure_what_threads_measure(name, monkeypatch):
     seq, ctx = _calibrated(name)
     n = len(seq)
-    monkeypatch.setenv(F.NO_FORK_ENV, "1")
+    monkeypatch.setenv(P.NO_FORK_ENV, "1")
     threads = list(F.stream_frames(seq, range(n), ctx, 2))
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # nothing to note: the calibration pass saw the sequence
-        forked = list(F._stream_forked(seq, range(n), ctx, 2, {}, None))
+        forked = list(F.stream_frames(seq, range(n), ctx, 2, processes=True))
     assert len(forked) == len(threads) == n
     assert [r.index for r in forked] == list(range(n))
     assert sum(len(r.bodies) for r in forked) > 0 and np.isfinite([r.attached_volume_nl for r in forked]).any()
@@ -61,7 +65,7 @@ def test_the_stack_is_still_readable_in_the_parent_after_the_children():
     seq, ctx = _calibrated("satellite_dust_tiff16")
     before = [seq.read(i).image.copy() for i in (0, len(seq) - 1)]
     assert seq.open_files  # the parent holds the stack open while the children run
-    list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, None))
+    list(F.stream_frames(seq, range(len(seq)), ctx, 2, processes=True))
     after = [seq.read(i).image for i in (0, len(seq) - 1)]
     for a, b in zip(before, after):
         np.testing.assert_array_equal(a, b)
@@ -82,58 +86,49 @@ def test_an_error_in_a_child_reaches_the_caller(tmp_path):
     seq = open_sequence(folder)
     _, _, ctx = calibrate_sequence(seq, MeasureConfig())
     with pytest.raises(SequenceError, match="image size") as err:
-        list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, None))
+        list(F.stream_frames(seq, range(len(seq)), ctx, 2, processes=True))
     assert bad in str(err.value)
 
 
 def test_when_processes_are_used(monkeypatch):
-    import dvcore.process
+    """The engine's rules (tests/test_parallel.py), the frames' least count, and no Rerun logger."""
+    import dvcore.parallel
 
-    monkeypatch.delenv(F.NO_FORK_ENV, raising=False)
-    monkeypatch.setattr(threading, "active_count", lambda: 1)
-    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 1)
+    monkeypatch.setattr(dvcore.parallel, "processes_usable", lambda n, w, min_items: n >= min_items and w >= 2)
     n = F.MIN_FRAMES_FOR_PROCESSES
-    assert F.processes_usable(n, 2) is (sys.platform == "linux")
+    assert F.processes_usable(n, 2)
     assert not F.processes_usable(n - 1, 2)  # short sequence: threads
     assert not F.processes_usable(n, 1)
     assert not F.processes_usable(n, 2, logger=object())  # the Rerun logger lives in this process
-    monkeypatch.setattr(threading, "active_count", lambda: 2)
-    assert not F.processes_usable(n, 2)  # another thread runs: no fork
-    monkeypatch.setattr(threading, "active_count", lambda: 1)
-    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 3)
-    assert not F.processes_usable(n, 2)  # a native pool's threads (OpenBLAS, OpenCV): no fork
-    monkeypatch.setattr(dvcore.process, "os_thread_count", lambda: 1)
-    monkeypatch.setenv(F.NO_FORK_ENV, "1")
-    assert not F.processes_usable(n, 2)
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_dead_worker_process_falls_back_to_threads(monkeypatch):
     """A worker process that dies (here: exits at its third chunk) breaks the pool; the frames
     not yet returned are measured with threads, with a warning, and the records are complete
     and the same."""
     seq, ctx = _calibrated("u55_u30")
     n = len(seq)
-    monkeypatch.setenv(F.NO_FORK_ENV, "1")
+    monkeypatch.setenv(P.NO_FORK_ENV, "1")
     threads = list(F.stream_frames(seq, range(n), ctx, 2))
-    monkeypatch.setattr(F, "_measure_chunk", _dying_chunk)
-    with pytest.warns(F.WorkerProcessDied, match="remaining"):
-        forked = list(F._stream_forked(seq, range(n), ctx, 2, {}, None))
+    monkeypatch.setattr(F, "_measure_index", _dying_measure(os.getpid()))
+    with pytest.warns(P.WorkerProcessDied, match="remaining .* frame.* with threads"):
+        forked = list(F.stream_frames(seq, range(n), ctx, 2, processes=True))
     assert [r.index for r in forked] == list(range(n))
     assert [repr(r) for r in forked] == [repr(r) for r in threads]
 
 
-_REAL_CHUNK = F._measure_chunk
+_REAL_MEASURE = F._measure_index
 
 
-def _dying_chunk(indices):
-    """`dropvision.frame._measure_chunk`, but the worker process exits at its third chunk (module
-    level: the pool sends it to the children by name)."""
-    import os
-
-    if indices[0] >= 2 * len(indices):
-        os._exit(3)
-    return _REAL_CHUNK(indices)
+def _dying_measure(parent_pid):
+    """`dropvision.frame._measure_index`, but a worker process exits at frame 40."""
+    def measure(seq, ctx, decoded, i, logger=None):
+        if i == 40 and os.getpid() != parent_pid:
+            os._exit(3)
+        return _REAL_MEASURE(seq, ctx, decoded, i, logger)
+    return measure
 
 
 def test_processes_are_decided_before_the_progress_bar_starts(monkeypatch):
@@ -141,14 +136,16 @@ def test_processes_are_decided_before_the_progress_bar_starts(monkeypatch):
     does not fork: the decision must come first, or a terminal (bar shown) never gets processes."""
     from tqdm import tqdm
 
+    import dvcore.parallel
+
     seq, ctx = _calibrated("u55_u30")
     seen = []
 
-    def spy(n_frames, workers, logger=None):
+    def spy(n_items, workers, min_items):
         seen.append(len(tqdm._instances))
         return False
 
-    monkeypatch.setattr(F, "processes_usable", spy)
+    monkeypatch.setattr(dvcore.parallel, "processes_usable", spy)
     recs = list(F.stream_frames(seq, range(5), ctx, 2, progress=True))
     assert len(recs) == 5 and seen == [0]
 
@@ -168,6 +165,7 @@ def _with_colour_frame(tmp_path, index=50):
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_childs_warnings_reach_the_caller_once(tmp_path, monkeypatch):
     folder, name = _with_colour_frame(tmp_path)
     results = {}
@@ -177,35 +175,15 @@ def test_a_childs_warnings_reach_the_caller_once(tmp_path, monkeypatch):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             if mode == "threads":
-                monkeypatch.setenv(F.NO_FORK_ENV, "1")
+                monkeypatch.setenv(P.NO_FORK_ENV, "1")
                 recs = list(F.stream_frames(seq, range(len(seq)), ctx, 2))
             else:
-                recs = list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}))
+                recs = list(F.stream_frames(seq, range(len(seq)), ctx, 2, processes=True))
         notes = [w for w in caught if issubclass(w.category, RGBConvertedWarning)]
         assert len(notes) == 1 and name in str(notes[0].message), (mode, [str(w.message) for w in caught])
         assert not seq.first_colour_note()  # noted for the sequence, in this process
         results[mode] = [repr(r) for r in recs]
     assert results["forked"] == results["threads"]
-
-
-@linux_only
-def test_stopping_early_ends_the_workers_at_once():
-    import multiprocessing
-    import time
-
-    seq, ctx = _calibrated("u55_u30")
-    gen = F._stream_forked(seq, range(len(seq)), ctx, 2, {})
-    first = [next(gen) for _ in range(3)]
-    assert [r.index for r in first] == [0, 1, 2] and multiprocessing.active_children()
-    t = time.perf_counter()
-    gen.close()
-    assert time.perf_counter() - t < 2.0
-    assert F._FORK_STATE is None
-    # terminated; the pool's own thread may reap a child first, and for a moment the Process
-    # object then still reads alive (both wait for the same pid): poll briefly
-    while multiprocessing.active_children() and time.perf_counter() - t < 3.0:
-        time.sleep(0.02)
-    assert not multiprocessing.active_children()
 
 
 @linux_only
@@ -215,64 +193,21 @@ def test_workers_are_forked_before_the_progress_bar(monkeypatch):
     seq, ctx = _calibrated("u55_u30")
     seen = []
     monkeypatch.setattr(F, "_progress_bar", lambda n, progress: seen.append(len(multiprocessing.active_children())))
-    assert len(list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}, True))) == len(seq)
+    assert len(list(F.stream_frames(seq, range(len(seq)), ctx, 2, progress=True, processes=True))) == len(seq)
     assert seen == [2]
 
 
-_KILLED_PARENT = """
-import multiprocessing, sys
-sys.path.insert(0, {tests!r})
-from test_forked_frames import _calibrated, F
-seq, ctx = _calibrated("u55_u30")
-for k, rec in enumerate(F._stream_forked(seq, list(range(len(seq))) * 50, ctx, 2, {{}})):
-    if k == 0:
-        print(" ".join(str(p.pid) for p in multiprocessing.active_children()), flush=True)
-"""
-
-
-@linux_only
-def test_workers_die_with_a_killed_parent(tmp_path):
-    """kill -9 of the measuring process: its forked workers do not go on measuring (the kernel
-    kills them, PR_SET_PDEATHSIG, `dvcore.process.die_with_parent`)."""
-    import signal
-    import subprocess
-    import time
-
-    script = tmp_path / "parent.py"
-    script.write_text(_KILLED_PARENT.format(tests=str(Path(__file__).resolve().parent)))
-    p = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
-    try:
-        kids = [int(k) for k in p.stdout.readline().split()]
-    finally:
-        p.send_signal(signal.SIGKILL)
-        p.wait()
-        p.stdout.close()
-    assert len(kids) == 2
-
-    def running(pid):
-        try:
-            state = Path(f"/proc/{pid}/status").read_text().split("State:")[1].split()[0]
-        except (FileNotFoundError, IndexError):
-            return False
-        return state not in ("Z", "X")  # a zombie is dead, waiting to be reaped
-
-    t = time.perf_counter()
-    while any(running(k) for k in kids) and time.perf_counter() - t < 5.0:
-        time.sleep(0.02)
-    assert not any(running(k) for k in kids)
-
-
 class _InheritedHandle(UserWarning):
-    """Reported by `_chunk_checking_handles`: a worker found the parent's open file in its cache."""
+    """Reported by `_measure_checking_handles`: a worker found the parent's open file in its cache."""
 
 
-def _chunk_checking_handles(indices):
-    """`dropvision.frame._measure_chunk`, reporting (as a warning) a handle the parent had open
-    (tagged ``_dv_parent``) still in the worker's cache when the chunk starts."""
-    seq = F._FORK_STATE[0]
+def _measure_checking_handles(seq, ctx, decoded, i, logger=None):
+    """`dropvision.frame._measure_index`, reporting (as a warning) a handle the parent had open
+    (tagged ``_dv_parent``) still in the worker's cache when the frame is read."""
     inherited = [f for f, h in seq._open_files.items() if getattr(h, "_dv_parent", False)]
-    recs, caught = _REAL_CHUNK(indices)
-    return recs, caught + [(_InheritedHandle, f"chunk at {indices[0]}: {inherited}")] * bool(inherited)
+    if inherited:
+        warnings.warn(f"frame {i}: {inherited}", _InheritedHandle)
+    return _REAL_MEASURE(seq, ctx, decoded, i, logger)
 
 
 @linux_only
@@ -284,10 +219,10 @@ def test_workers_do_not_read_through_the_parents_open_file(monkeypatch):
     assert seq.open_files == ("stack.tif",)
     for handle in seq._open_files.values():
         handle._dv_parent = True
-    monkeypatch.setattr(F, "_measure_chunk", _chunk_checking_handles)
+    monkeypatch.setattr(F, "_measure_index", _measure_checking_handles)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        recs = list(F._stream_forked(seq, range(len(seq)), ctx, 2, {}))
+        recs = list(F.stream_frames(seq, range(len(seq)), ctx, 2, processes=True))
     assert len(recs) == len(seq)
     assert not [str(w.message) for w in caught if issubclass(w.category, _InheritedHandle)]
     assert seq.open_files == ("stack.tif",)  # the parent's own is still open
@@ -301,11 +236,12 @@ os.environ["OPENBLAS_NUM_THREADS"] = "1"  # as the command line sets it
 sys.path.insert(0, {tests!r})
 import cv2, numpy as np
 from dvcore.process import os_thread_count
+import dvcore.parallel as P
 from dropvision import frame as F
 n = F.MIN_FRAMES_FOR_PROCESSES
 seen = {{"start": [os_thread_count(), F.processes_usable(n, 2)]}}
 from test_forked_frames import _calibrated
-with F.serial_native_pools():
+with P.serial_native_pools():
     seq, ctx = _calibrated("u55_u30")  # the calibration pass, OpenCV's pool held off
     seen["after_calibration_serial"] = [os_thread_count(), F.processes_usable(n, 2)]
 cv2.setNumThreads(4)
@@ -319,6 +255,7 @@ print(json.dumps(seen))
 
 
 @linux_only
+@pytest.mark.slow
 def test_no_fork_once_a_native_pool_has_run(tmp_path):
     """A fresh command-line-like process (one BLAS thread) runs one thread, and keeps it so
     through a calibration with OpenCV's pool held off: it may fork. Once OpenCV's pool has run,
@@ -342,11 +279,12 @@ _HELD_AT_FORK = """
 import json, os, sys, threading, warnings
 sys.path.insert(0, {tests!r})
 from test_forked_frames import _calibrated, F
-os.environ[F.STALL_ENV] = "1"
+import dvcore.parallel as P
+os.environ[P.STALL_ENV] = "1"
 seq, ctx = _calibrated("u55_u30")
-os.environ[F.NO_FORK_ENV] = "1"
+os.environ[P.NO_FORK_ENV] = "1"
 threads = [repr(r) for r in F.stream_frames(seq, range(len(seq)), ctx, 2)]
-del os.environ[F.NO_FORK_ENV]
+del os.environ[P.NO_FORK_ENV]
 held = threading.Lock()
 real_measure, real_bar = F.measure_frame, F._progress_bar
 
@@ -364,7 +302,7 @@ F.measure_frame, F._progress_bar = measure_needing_the_lock, bar_after_the_fork
 held.acquire()  # held at the instant of the fork: every child inherits it locked, with no owner
 with warnings.catch_warnings(record=True) as caught:
     warnings.simplefilter("always")
-    forked = [repr(r) for r in F._stream_forked(seq, range(len(seq)), ctx, 2, {{}})]
+    forked = [repr(r) for r in F.stream_frames(seq, range(len(seq)), ctx, 2, processes=True)]
 import multiprocessing
 print(json.dumps({{"same": forked == threads, "n": len(forked),
                   "warnings": [(w.category.__name__, str(w.message)) for w in caught],
@@ -373,6 +311,7 @@ print(json.dumps({{"same": forked == threads, "n": len(forked),
 
 
 @linux_only
+@pytest.mark.slow
 def test_a_lock_held_at_the_fork_is_caught_and_the_frames_measured(tmp_path):
     """The race provoked on purpose: a lock is held at the instant the workers are forked, and
     every frame needs it. Each child waits for ever (no CPU used); the watchdog sees it within
@@ -391,32 +330,3 @@ def test_a_lock_held_at_the_fork_is_caught_and_the_frames_measured(tmp_path):
     stalls = [m for c, m in seen["warnings"] if c == "WorkerProcessStalled"]
     assert len(stalls) == 1 and "stalled" in stalls[0] and "with threads" in stalls[0], seen["warnings"]
     assert seen["children_left"] == 0
-
-
-@linux_only
-def test_the_watchdog_bounds_a_wait_on_a_blocked_process(monkeypatch):
-    """A result awaited from a process that uses no CPU (here: `sleep`) raises after the stall
-    time instead of waiting; a process that works keeps the wait going."""
-    import subprocess
-    from concurrent.futures import Future
-
-    from dvcore.process import WorkersStalled
-
-    sleeper = subprocess.Popen(["sleep", "30"])
-    try:
-        with pytest.raises(WorkersStalled, match="no CPU"):
-            F._Watchdog([sleeper.pid], stall_s=0.5, poll_s=0.05).result(Future())
-    finally:
-        sleeper.kill()
-        sleeper.wait()
-    done = Future()
-    done.set_result(7)
-    assert F._Watchdog([sleeper.pid], stall_s=0.5).result(done) == 7
-
-
-def test_stall_time_from_the_environment(monkeypatch):
-    monkeypatch.setenv(F.STALL_ENV, "2.5")
-    assert F._stall_s() == 2.5
-    for bad in ("x", "-1", "0"):
-        monkeypatch.setenv(F.STALL_ENV, bad)
-        assert F._stall_s() == F.STALL_S

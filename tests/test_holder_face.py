@@ -106,6 +106,7 @@ def test_a_frame_without_a_nozzle_measures_its_drop(tmp_path):
     assert any("no nozzle found" in n for n in r.summary["calibration"]["notes"])
 
 
+@pytest.mark.slow
 def test_out_of_focus_holder_single_frame_against_truth(tmp_path):
     """A synthetic drop watcher with its holder out of focus (capillary face inside it), one frame: the
     jet's axis from the drops (their offset from it is the truth's), the attached volume what hangs below

@@ -9,9 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
+@pytest.mark.slow
 def test_quick_corpus_has_no_bad_outcome(tmp_path):
     run = subprocess.run([sys.executable, str(ROOT / "tools" / "hostile_corpus.py"), "--quick", "--jobs", "1",
                           "--out", str(tmp_path / "table.csv")], capture_output=True, text=True, timeout=600)

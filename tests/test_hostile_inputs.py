@@ -8,7 +8,6 @@ import json
 import os
 import shutil
 import struct
-import time
 import zlib
 from pathlib import Path
 
@@ -242,10 +241,8 @@ def _forged_png(path, width, height, colour_type, bit_depth=8):
 def test_png_header_claiming_50000x50000_is_a_skipped_frame(seq, tmp_path, capsys, colour_type):
     name = _frames(seq)[5]
     _forged_png(seq / name, 50000, 50000, colour_type)
-    t0 = time.perf_counter()
     errors = _measured(seq, tmp_path, capsys)
-    assert time.perf_counter() - t0 < 60
-    reason = _reason(errors, name)
+    reason = _reason(errors, name)  # refused from its header (the limit named), never decoded
     assert "50000x50000" in reason and "megapixels" in reason and "MAX_PIXELS" in reason
     assert len(errors) == 1
 
@@ -295,10 +292,8 @@ def test_sparse_4gib_png_is_a_skipped_frame_without_reading_it(seq, tmp_path, ca
     name = _frames(seq)[7]
     with open(seq / name, "r+b") as fh:  # the real frame, then 4 GiB of holes
         fh.truncate(4 * 1024 ** 3)
-    t0 = time.perf_counter()
     errors = _measured(seq, tmp_path, capsys)
-    assert time.perf_counter() - t0 < 60
-    reason = _reason(errors, name)
+    reason = _reason(errors, name)  # refused from its size (the limit named), never read
     assert len(errors) == 1 and "over the limit" in reason and "MAX_FILE_BYTES" in reason
 
 

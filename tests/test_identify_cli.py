@@ -29,6 +29,7 @@ def fitted(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow
 def test_fit_predict_design(fitted, capsys):
     model = fitted / "model.json"
     assert main(["fit", str(fitted / "ds"), "--out", str(model), "--folds", "5"]) == 0
@@ -120,6 +121,7 @@ def test_paper_command_text_output(capsys):
     assert "estimate: ONE draw of the paper's Monte Carlo scheme" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):
     from rrdtools import Rrd
 
@@ -144,6 +146,7 @@ def test_fit_and_predict_write_rerun_recordings(fitted, tmp_path, capsys):
     assert np.all(np.concatenate(hi["value"]) >= np.concatenate(lo["value"]) - 1e-12)
 
 
+@pytest.mark.slow
 def test_fit_searches_the_whole_structure_grid(fitted):
     """Structure selection covers na 1-7, nb 1-4, nk 0..40 (the issue's grid), not a prior."""
     from identify.dataset_checks import load_dataset

@@ -18,6 +18,7 @@ def model(tmp_path_factory):
     return fit_hybrid(load_dataset(d), arx=False, orders=[(1, 1)]).model
 
 
+@pytest.mark.slow
 def test_volume_and_velocity_target_recovers_controls(model):
     p = model.predict(62.0, 31.0)
     r = design(model, p["inflight_volume_nl"], p["jetting_velocity_m_s"], tolerance_percent=0.2, samples=500)

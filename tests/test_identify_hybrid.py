@@ -52,6 +52,7 @@ def test_held_out_accuracy(report):
     assert g["inflight_volume_nl"].iloc[1] == pytest.approx(m.predict(70.0, 30.0)["inflight_volume_nl"], rel=1e-12)
 
 
+@pytest.mark.slow
 def test_polynomial_laws_recovered_within_intervals(dataset):
     rep = fit_hybrid(dataset, arx=False, orders=[(1, 1)], adjuster_reference="measured")
     laws = {

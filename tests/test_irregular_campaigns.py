@@ -14,6 +14,9 @@ from identify.synthetic_dataset import make_synthetic_dataset
 from identify.hybrid_fit import fit_hybrid
 from identify.physics import drop_history
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 GRID = [(float(a), float(b)) for a in (50, 60, 70, 80) for b in (20, 25, 30, 35)]
 
 

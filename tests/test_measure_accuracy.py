@@ -255,6 +255,7 @@ def test_interpolation_error_is_the_rms_of_linear_crossings(sigma_px):
 
 
 @pytest.mark.filterwarnings("ignore::dropvision.sequence.RGBConvertedWarning")
+@pytest.mark.slow
 def test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide(tmp_path):
     """On two sweep cases (one tilted 1.5 deg), shortened to their in-flight frames, the main drop's
     median |error| / stated uncertainty lies in [0.3, 1.0] (0.67 for a calibrated Gaussian; the

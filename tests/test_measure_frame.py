@@ -27,6 +27,7 @@ def _detached_volumes(img, level, bg, sigma, tilt_rad=0.0):
 
 @pytest.mark.parametrize("blur", [0.0, 0.8, 1.5, 2.0])
 @pytest.mark.parametrize("body", [sphere(90.37, 25), spheroid(90.37, 25, 35), spheroid(90.37, 25, 18)])
+@pytest.mark.slow
 def test_detached_volume_with_blur_correction(blur, body):
     img = render(bodies=[body], blur_px=blur, bits=16)
     (v,) = _detached_volumes(img, 0.12, 0.8 * 65535, np.sqrt(blur**2 + 1 / 12))
@@ -79,6 +80,7 @@ def test_row_weights_at_the_tip_plane():
 
 
 @pytest.mark.parametrize("tilt", [0.0, 1.5, -1.0])
+@pytest.mark.slow
 def test_calibration_recovers_tip_axis_tilt(tilt):
     kw = dict(tilt_deg=tilt, noise=0.01, falloff=0.3, nozzle_r_in=12)
     rest = render(bodies=[cap(12, 3)], **kw)

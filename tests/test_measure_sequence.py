@@ -131,6 +131,7 @@ def test_no_frame_at_rest_gives_no_grown_volume():
     assert abs(s["inflight_volume_nl"] / truth["inflight_volume_nl"] - 1) < 3e-3
 
 
+@pytest.mark.slow
 def test_measure_cli_writes_rerun_recording(tmp_path):
     """`dropvision measure --rerun` logs every stage; the values read back equal frames.parquet."""
     from rrdtools import Rrd
@@ -158,6 +159,7 @@ def test_measure_cli_writes_rerun_recording(tmp_path):
     (80.0, 25.0, 3, True),  # tapered ends darken the gap rows next to them beyond a straight edge's tail
     (50.0, 30.0, 4, True),  # a thread whose waist sits in the gap row next to the meniscus
 ])
+@pytest.mark.slow
 def test_pinchoff_thread_rule_small_gap(u1, u2, seed, every_10_us, tmp_path):
     """The first detached frame is pinch-off; blurred ends close together are no thread."""
     from dropvision.synth import SynthConfig, write_synthetic_sequence
@@ -175,6 +177,7 @@ def test_pinchoff_thread_rule_small_gap(u1, u2, seed, every_10_us, tmp_path):
     assert measure_sequence(seq).summary["pinchoff_us"] == truth["pinchoff_us"]
 
 
+@pytest.mark.slow
 def test_per_frame_blur_and_contrast_flags(tmp_path):
     """A defocused frame and a washed-out frame are flagged (their numbers NaN); the others not."""
     from dropvision.synth import SynthConfig, write_synthetic_sequence

@@ -167,6 +167,7 @@ def test_velocity_from_a_double_exposure(tmp_path):
     assert not (tmp_path / "bad").exists()
 
 
+@pytest.mark.slow
 def test_pendant_drops_of_realdata_in_one_folder_with_only_the_needle_diameter(realdata_dir, tmp_path):
     """The five real pendant drops in one folder, no pixel size: each within 3 % of its reference, its
     pixel size from its own needle (shots.csv gives each its needle's diameter: two needles)."""

@@ -45,6 +45,7 @@ def test_poles_lightly_damped_100khz_mode_and_aliasing():
     assert abs(np.angle(z)) / (2 * np.pi * 10e-6) == pytest.approx(733.8, abs=1.0)
 
 
+@pytest.mark.slow
 def test_exact_response_matches_lsim_fine_step():
     w = Waveform(70.0, 25.0)
     dt = 1.0 / 70.0  # every corner of the waveform (and 910 µs) on the grid
@@ -83,6 +84,7 @@ def test_sampled_view_matches_cont2discrete_foh():
     assert y[69] == pytest.approx(16.474, abs=2e-3)
 
 
+@pytest.mark.slow
 def test_paper_prediction_structure_and_figures():
     r = paper_prediction(70, 25, samples=10000, seed=0, simulation="sampled")
     assert r["pinchoff_us"] == 910.0  # ceil(90.6) x 10 µs from the trigger
@@ -123,6 +125,7 @@ def test_pinchoff_and_adjusters_eqs_15_17():
     assert eb["A3"] / M.coefficients.A3 > 100 * M.coefficient_eb["A3"] / M.coefficients.A3  # misprint
 
 
+@pytest.mark.slow
 def test_cli_default_is_the_converged_expectation(capsys):
     """Issue 13 item 3: `identify paper --u1 70 --u2 25` prints 17.6-17.8 nl (paper 17.74), and
     the figure moves by at most 0.05 nl between seeds (one scheme draw moves by ~0.4 nl)."""

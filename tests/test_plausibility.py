@@ -94,6 +94,7 @@ def test_pixel_size_unchecked_without_outer_diameter(honest, tmp_path):
 
 @pytest.mark.parametrize("name, fn", [("ms", lambda t: 0.001 * t), ("shift", lambda t: t - 1000.0),
                                       ("x10", lambda t: 10.0 * t), ("half", lambda t: 0.5 * t)])
+@pytest.mark.slow
 def test_delays_in_another_unit_or_shifted(honest, tmp_path, name, fn):
     res = measure_sequence(lie(honest, tmp_path, set_delays(fn)))
     s = res.summary

@@ -266,6 +266,7 @@ def _write_video(synth, path: Path, fourcc: str) -> None:
     vw.release()
 
 
+@pytest.mark.slow
 def test_ffv1_avi_with_frame_rate_identical_to_png(synth, tmp_path):
     folder = tmp_path / "avi"
     folder.mkdir()

@@ -36,6 +36,7 @@ NO_NOZZLE = {"watcher-dod/V1--86_V2-14_V3--5_w1-23_w2-11_w3-1_d1-6_d2-7"}
 
 
 @pytest.mark.parametrize("folder", FOLDERS, ids=[p.name if p.parent == REALDATA else str(p.relative_to(REALDATA)) for p in FOLDERS])
+@pytest.mark.slow
 def test_real_frame_meets_its_rules(folder):
     truth = json.loads((folder / "truth.json").read_text())
     with warnings.catch_warnings():

@@ -85,6 +85,7 @@ def fitted(tmp_path_factory):
     return root, ds, rep, model
 
 
+@pytest.mark.slow
 def test_report_links_existing_figures_and_holds_the_models_numbers(fitted, tmp_path):
     _, ds, rep, model = fitted
     assert identify.fit(ds, arx=False).to_dict()["ecm"]["coefficients"] == model.to_dict()["ecm"]["coefficients"]
@@ -140,6 +141,7 @@ def test_report_links_existing_figures_and_holds_the_models_numbers(fitted, tmp_
     assert "versions" in page.tables
 
 
+@pytest.mark.slow
 def test_report_from_model_file_recomputes_the_fits_cv_tables(fitted, tmp_path):
     _, ds, rep, model = fitted
     res = write_report(tmp_path / "rep", model, ds, samples=500, at=[(60.0, 25.0), (70.0, 30.0)])
@@ -151,6 +153,7 @@ def test_report_from_model_file_recomputes_the_fits_cv_tables(fitted, tmp_path):
     assert all(p.is_file() for p in res.figures)
 
 
+@pytest.mark.slow
 def test_report_cli(fitted, tmp_path, capsys):
     root, _, _, model = fitted
     out = tmp_path / "rep"
@@ -177,6 +180,7 @@ def test_report_cli(fitted, tmp_path, capsys):
     assert exc.value.code == 2
 
 
+@pytest.mark.slow
 def test_fit_report_flag(fitted, tmp_path):
     root = fitted[0]
     model, rep_dir = tmp_path / "model.json", tmp_path / "rep"

@@ -357,6 +357,7 @@ def _worker_writes(path: str) -> str:
     return path
 
 
+@pytest.mark.slow
 def test_logger_in_worker_process(tmp_path):
     options = RerunOptions(path=tmp_path / "w.rrd")
     assert pickle.loads(pickle.dumps(options)) == options

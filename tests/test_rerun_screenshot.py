@@ -35,6 +35,9 @@ from dropvision.app.rerun_log import (
 from identify.app import rerun_log as irl
 from dvcore.rerun_options import RerunOptions
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

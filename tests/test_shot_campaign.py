@@ -24,6 +24,9 @@ from dropvision.shots import measure_shots
 from dropvision.synth import SynthConfig, write_synthetic_sequence
 from dvcore import schema
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 SMALL = dict(width_px=128, height_px=448, tip_row=30.3, axis_col=63.6, noise=0.3)
 PIXEL = {"pixel_size_um": 4.73}
 

@@ -66,6 +66,7 @@ def dataset(tmp_path):
     return ds
 
 
+@pytest.mark.slow
 def test_identify_fit_of_a_campaign_dataset_models_its_shot_rows(dataset, tmp_path, capsys):
     out = tmp_path / "model.json"
     assert main(["fit", str(dataset), "--inputs", "V1,w1", "--outputs", "drop_volume_nl", "--out", str(out),

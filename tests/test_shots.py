@@ -161,6 +161,7 @@ def test_other_waveforms_are_never_blended_into_one_sequence(synthetic_shots, tm
 WATCHER = sorted((REALDATA / "watcher-dod").glob("V*/frame.jpg"))
 
 
+@pytest.mark.slow
 def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
     folder = tmp_path / "small_samples"
     folder.mkdir()
@@ -199,6 +200,7 @@ def test_the_real_watcher_frames_as_published(realdata_dir, tmp_path, capsys):
 
 
 # ----------------------------------------------------------------------------- 6. not a drop image
+@pytest.mark.slow
 def test_photographs_are_never_measured_as_ok(tmp_path, capsys):
     """Photographs (scikit-image's bundled test images: a man with a camera, an astronaut, a cat, coins, a
     rocket, grass) in a shot folder: each refused (a row not_measured, its reason) or flagged, none 'ok'."""

@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-import dropvision.frame as frame
+import dvcore.parallel as engine
 import dropvision.shot_rig as shot_rig
 from dropvision.shot_rig import disagreement, fingerprint
 from dropvision.shots import measure_shots
@@ -135,18 +135,18 @@ def test_fingerprints_tell_a_moved_camera_and_another_light(rig_shots):
 def test_parallel_and_serial_give_identical_rows(rig_shots, tmp_path, monkeypatch):
     folder, _ = rig_shots
     forked = []
-    each_forked = shot_rig._each_forked
+    map_forked = engine._map_forked
 
     def spy(*args, **kwargs):
         forked.append(True)
-        yield from each_forked(*args, **kwargs)
+        yield from map_forked(*args, **kwargs)
 
-    monkeypatch.setattr(shot_rig, "_each_forked", spy)
+    monkeypatch.setattr(engine, "_map_forked", spy)
     serial = measure_shots(folder, overrides=PIXEL, workers=1)
     assert not forked
     # the pytest process runs other threads (processes_usable says no): forked here as the tests of
     # the frame workers do (conftest: OpenBLAS on one thread, OpenCV's pool never started)
-    monkeypatch.setattr(frame, "processes_usable", lambda *args, **kwargs: True)
+    monkeypatch.setattr(engine, "processes_usable", lambda *args, **kwargs: True)
     parallel = measure_shots(folder, overrides=PIXEL, workers=2)
     assert forked  # the shots were measured in forked worker processes
     pd.testing.assert_frame_equal(parallel.shots, serial.shots)
@@ -166,12 +166,12 @@ def test_the_command_line_forks_the_shot_workers(rig_shots, tmp_path):
     code = (
         "import os, sys\n"
         "from dropvision.app.cli import main\n"
-        "import dropvision.shot_rig as rig\n"
-        "each = rig._each_forked\n"
+        "import dvcore.parallel as engine\n"
+        "each = engine._map_forked\n"
         "def spy(*a, **k):\n"
         "    print('forked from', len(os.listdir('/proc/self/task')), 'thread(s)')\n"
         "    yield from each(*a, **k)\n"
-        "rig._each_forked = spy\n"
+        "engine._map_forked = spy\n"
         f"sys.exit(main(['measure', {str(folder)!r}, '--out', {str(tmp_path / 'out')!r}, '--pixel-size-um', '4.73']))\n"
     )
     env = {k: v for k, v in __import__("os").environ.items() if k != "OPENBLAS_NUM_THREADS"}

@@ -19,6 +19,9 @@ from dvcore import schema
 from identify.app.cli import main
 from identify.tabular import RefitMismatchWarning, TabularError, TabularModel, fit_table
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 T_SCALE = 0.01  # scatter of log volume: 1 % times a Student t(3)
 
 

@@ -189,6 +189,7 @@ def _cli(*args, cwd=None):
                           timeout=300, cwd=cwd)
 
 
+@pytest.mark.slow
 def test_cli_design_and_tune_with_a_table_model(model_path, tmp_path, capsys):
     target = _volume(5.0, 2.0, 4.0)
     r = _cli("design", model_path, "--target", f"volume_px3={target}", "--target", "n_drops=1", "--json")

@@ -50,6 +50,7 @@ def _truth(ph, values):
     return drive_history(ph, Drive(ThreePulseTemplate(), {**THREE_PULSE_CENTRE, **values}, 220.0), THREE_PULSE_LAWS)
 
 
+@pytest.mark.slow
 def test_predict_a_table_of_settings(model_file, tmp_path, capsys):
     path, ph = model_file
     m = TemplateModel.from_json(path)

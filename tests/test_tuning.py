@@ -21,6 +21,9 @@ from identify.hybrid_fit import fit_hybrid
 from dvcore.schema import TUNING, SchemaError
 from identify.tuning import CallableRig, load_rig, read_tuning, tune, update_bias, write_tuning
 
+#: seconds per test (fitted models, campaigns, subprocesses): left out of `make test-fast`
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def demo_model_path(tmp_path_factory):

@@ -41,6 +41,7 @@ TILT = (lambda a, b: 1.03 + 0.05 * a + 0.06 * b * b, lambda a, b: 1.02 - 0.03 * 
 
 
 @pytest.mark.parametrize("plant, at", [(BOWL, (53.0, 21.3)), (BOWL, (75.0, 33.0)), (TILT, (58.0, 24.0))])
+@pytest.mark.slow
 def test_two_output_target_closes_on_a_curved_plant(model, plant, at):
     truth = _plant(model, *plant)
     v, w = truth(*at)

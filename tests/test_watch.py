@@ -65,6 +65,7 @@ def _start_cli(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_live_rows_and_final_tables_equal_batch(rendered, tmp_path):
     watched, out = tmp_path / "watched", tmp_path / "out"
     watched.mkdir()
@@ -195,6 +196,7 @@ def test_refuses_outputs_it_does_not_own(rendered, tmp_path, capsys):
     assert "no such folder" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_sequences_one_after_the_other(rendered, tmp_path, capsys):
     """--sequences: a sub-folder per sequence; each ends when the next one appears (or idle)."""
     root, out = tmp_path / "root", tmp_path / "out"

@@ -201,6 +201,7 @@ def _noise_free_campaign(settings, ph):
     return pd.DataFrame(rows), pd.concat(series, ignore_index=True)
 
 
+@pytest.mark.slow
 def test_template_model_recovers_a_noise_free_head_and_round_trips(tmp_path):
     ph = SynthPhysics()
     c = THREE_PULSE_CENTRE

@@ -35,12 +35,12 @@ ROOT = Path(__file__).resolve().parents[1]
 _CHILD = """
 import sys
 import dropvision.app.cli as cli
-import dropvision.frame as F
-real = F._stream_forked
+import dvcore.parallel as engine
+real = engine._map_forked
 def spy(*a, **k):
     print("engine: processes", file=sys.stderr, flush=True)
     yield from real(*a, **k)
-F._stream_forked = spy
+engine._map_forked = spy
 sys.exit(cli.main(sys.argv[1:]))
 """
 
