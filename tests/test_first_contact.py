@@ -198,7 +198,7 @@ def test_init_writes_what_the_images_tell_and_never_overwrites(tmp_path, capsys,
     from dropvision.sequence import open_sequence
     with open_sequence(folder, pixel_size_um=3) as seq:  # the null delay of one frame: 0 assumed, and said
         assert seq.meta.frames[0].delay_us == 0.0 and seq.meta.sources["delay"].startswith("assumed 0 us")
-        assert "delay_us=" in seq.meta.sources["delay"]  # a Python caller is told its keyword
+        assert "delay_us" in seq.meta.sources["delay"]  # how to give it (a stored text: both ways named)
     # a user's file is sacred: refused without --overwrite, untouched
     (folder / "sequence.json").write_text('{"pixel_size_um": 2.5}')
     assert main(["init", str(folder), "--pixel-size-um", "3"]) == 2
