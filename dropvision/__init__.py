@@ -16,27 +16,27 @@ The public API (loaded on first use, so ``import dropvision`` stays cheap)::
 Layers: `dvcore` (foundations) < `identify` (models, no images) < `dropvision` (measurement) <
 `dropvision.app` / `identify.app` (command lines, campaigns, demo, Rerun views); this package's
 namespace is the facade on top (``run_campaign`` comes from the application layer) and nothing in
-the project imports it. See docs/ARCHITECTURE.md and tests/test_layers.py.
+the project imports it. See docs/ARCHITECTURE.md and tests/project/test_layers.py.
 """
 
 from dvcore import __version__
 from dvcore.lazy import lazy_exports
 
-# public name -> "module:attribute" that defines it (tests/test_layers.py reads this map)
+# public name -> "module:attribute" that defines it (tests/project/test_layers.py reads this map)
 _LAZY = {
     "measure": "dropvision.api:measure",
     "MeasureConfig": "dropvision.config:MeasureConfig",
     "MeasureResult": "dropvision.measurement:MeasureResult",
     "measure_sequence": "dropvision.measurement:measure_sequence",
-    "measure_shots": "dropvision.shots:measure_shots",
-    "open_sequence": "dropvision.sequence:open_sequence",
-    "sequence_from_arrays": "dropvision.sequence:sequence_from_arrays",
-    "SequenceError": "dropvision.sequence:SequenceError",
+    "measure_shots": "dropvision.analysis.shots:measure_shots",
+    "open_sequence": "dropvision.io.sequence:open_sequence",
+    "sequence_from_arrays": "dropvision.io.sequence:sequence_from_arrays",
+    "SequenceError": "dropvision.io.sequence:SequenceError",
     "SynthConfig": "dropvision.synth.sequence:SynthConfig",
     "write_synthetic_sequence": "dropvision.synth.writer:write_synthetic_sequence",
     "run_campaign": "dropvision.app.campaign:run_campaign",
-    "describe_folder": "dropvision.describe:describe_folder",
-    "init_sequence": "dropvision.describe:init_sequence",
+    "describe_folder": "dropvision.io.describe:describe_folder",
+    "init_sequence": "dropvision.io.describe:init_sequence",
 }
 __all__ = ["__version__", *_LAZY]
 __getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)

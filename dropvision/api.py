@@ -6,7 +6,7 @@ import os
 
 from dropvision.config import MeasureConfig
 from dropvision.measurement import MeasureResult, measure_sequence
-from dropvision.sequence import OVERRIDE_KEYS, sequence_from_arrays
+from dropvision.io.sequence import OVERRIDE_KEYS, sequence_from_arrays
 
 
 def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = None,
@@ -36,10 +36,10 @@ def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = N
         Keys of sequence.json: ``orientation``, ``nozzle_inner_diameter_um``,
         ``nozzle_outer_diameter_um``, ``nozzle_tip_row``, ``axis_col``, ``waveform``, ``ink``,
         ``bit_depth``; for frames in memory also ``name`` (see
-        `dropvision.sequence.sequence_from_arrays`); for a folder also ``delay_us`` (a folder
+        `dropvision.io.sequence.sequence_from_arrays`); for a folder also ``delay_us`` (a folder
         of one frame), ``frame_rate_hz``, ``first_frame_delay_us``, ``trigger_frame``. For a
         folder they override sequence.json, pass its validation, and are named in
-        summary.json's ``*_source`` keys (`dropvision.sequence.open_sequence` ``overrides``);
+        summary.json's ``*_source`` keys (`dropvision.io.sequence.open_sequence` ``overrides``);
         ``nozzle_outer_diameter_um`` without a pixel size gives the pixel size from the
         nozzle's measured outer width.
 
@@ -52,7 +52,7 @@ def measure(source, out=None, *, delays_us=None, pixel_size_um: float | None = N
 
     Raises
     ------
-    dropvision.sequence.SequenceError
+    dropvision.io.sequence.SequenceError
         Unusable input (the message names the file or the argument and the problem).
     dvcore.atomic.OutputError
         ``out`` would destroy something we did not write.

@@ -47,7 +47,7 @@ class MeasureConfig:
     mist_blur_factor, mist_blur_offset_px : float
         A detached body whose edge spread exceeds ``mist_blur_factor`` x the in-focus nozzle
         walls' plus ``mist_blur_offset_px`` is out of focus (mist, dust on the optics): listed in
-        bodies.parquet, never a drop or a satellite (`dropvision.classify`; chosen on synthetic
+        bodies.parquet, never a drop or a satellite (`dropvision.frame.body_classes`; chosen on synthetic
         frames: in-focus bodies 0.98-1.1x the walls', bodies blurred a further 3 px or more >= 1.2x).
     mist_blur_factor_bodies : float
         ``mist_blur_factor`` when the nozzle walls are out of focus and the reference is the
@@ -61,8 +61,8 @@ class MeasureConfig:
         over the edge slope, so noisy low-contrast frames need it to stay within 1 %.
     workers : int
         Decoding/measuring workers: forked processes on Linux for a sequence of at least
-        `dropvision.frame.MIN_FRAMES_FOR_PROCESSES` frames measured from a top-level process
-        running no other thread, native ones included (`dropvision.frame.processes_usable`: the
+        `dropvision.frame.measure_frame.MIN_FRAMES_FOR_PROCESSES` frames measured from a top-level process
+        running no other thread, native ones included (`dropvision.frame.measure_frame.processes_usable`: the
         command line runs one BLAS thread and holds OpenCV's pool off; in Python, set
         ``OPENBLAS_NUM_THREADS=1`` before NumPy is imported; the environment variable
         ``DROPVISION_NO_FORK=1`` keeps threads), threads otherwise. Same results either way.
@@ -84,8 +84,8 @@ class MeasureConfig:
         Systematic uncertainty of one sub-pixel wall edge (px) added in quadrature to the fit
         scatter of the nozzle's outer diameter (threshold and blur model; synthetic sequences show
         < 0.05 px).  Volumes do not use it: their edges' errors are measured terms
-        (`dropvision.bodies.common_edge_sigma_px`, `dropvision.bodies.edge_noise_total_px`, the
-        tip plane's `dropvision.bodies._plane_sigma_px`); at 0.05 px it made the main drop's stated
+        (`dropvision.frame.bodies.common_edge_sigma_px`, `dropvision.frame.bodies.edge_noise_total_px`, the
+        tip plane's `dropvision.frame.bodies._plane_sigma_px`); at 0.05 px it made the main drop's stated
         uncertainty 5-20x its true error on synthetic frames.
     min_pinchoff_frames : int
         Fewer measured frames never define a pinch-off.

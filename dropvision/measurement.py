@@ -2,15 +2,15 @@
 
 The orchestration: open -> calibrate -> stream frames -> assemble -> write.  One module per stage:
 
-1. `dropvision.calibration_pass`: calibration pass (`dropvision.calibration`: background, nozzle,
-   axis, tilt, tip plane, liquid level; edge blur) giving the per-frame `dropvision.context.FrameContext`.
-2. `dropvision.frame`: the per-frame pipeline (`measure_frame`) and the frame stream:
+1. `dropvision.calibrate.calibration_pass`: calibration pass (`dropvision.calibrate.calibration`: background, nozzle,
+   axis, tilt, tip plane, liquid level; edge blur) giving the per-frame `dropvision.calibrate.frame_context.FrameContext`.
+2. `dropvision.frame.measure_frame`: the per-frame pipeline (`measure_frame`) and the frame stream:
    photometry and quality (`dropvision.quality`), dark mask and bodies
-   (`dropvision.segmentation`), attached and detached liquid (`dropvision.bodies`), volumes by
-   disc integration (`dropvision.volume`), the thin-thread rule (`dropvision.pinchoff`).
-3. `dropvision.summary`: the frames table and the summary (pinch-off, grown volume and flow
-   velocity `dropvision.flow`, main drop and velocity `dropvision.tracking`), `per_delay`.
-4. `dropvision.result_writer`: ``frames.parquet`` (+ ``frames.csv``), ``per_delay.parquet``,
+   (`dropvision.frame.segmentation`), attached and detached liquid (`dropvision.frame.bodies`), volumes by
+   disc integration (`dropvision.frame.volume`), the thin-thread rule (`dropvision.analysis.pinchoff`).
+3. `dropvision.analysis.sequence_summary`: the frames table and the summary (pinch-off, grown volume and flow
+   velocity `dropvision.analysis.flow`, main drop and velocity `dropvision.analysis.tracking`), `per_delay`.
+4. `dropvision.output.result_writer`: ``frames.parquet`` (+ ``frames.csv``), ``per_delay.parquet``,
    ``summary.json``, written atomically.
 
 Frames are streamed (one decoded frame per worker at a time); only small per-frame records are
@@ -28,16 +28,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 import dropvision.quality as q
-from dropvision.annotate import short_repr
+from dropvision.output.annotate import short_repr
 from dropvision.config import MeasureConfig
-from dropvision.bodies_table import bodies_table
-from dropvision.calibration_pass import calibrate_sequence
-from dropvision.frame import FrameRecord, processes_usable, stream_frames
+from dropvision.output.bodies_table import bodies_table
+from dropvision.calibrate.calibration_pass import calibrate_sequence
+from dropvision.frame.measure_frame import FrameRecord, processes_usable, stream_frames
 from dvcore.parallel import serial_native_pools
-from dropvision.overrides import how_to_give
-from dropvision.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
-from dropvision.result_writer import write_result
-from dropvision.summary import assemble, per_delay
+from dropvision.io.overrides import how_to_give
+from dropvision.io.sequence import ArraySequence, Sequence, SequenceError, open_sequence, pixel_size_from_nozzle
+from dropvision.output.result_writer import write_result
+from dropvision.analysis.sequence_summary import assemble, per_delay
 from dvcore.atomic import atomic_dir, check_output_dir, output_lock
 
 if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
@@ -46,16 +46,16 @@ if TYPE_CHECKING:  # pandas loads where a table is made, not at start-up
 
 @dataclass
 class MeasureResult:
-    """Frame table, body table and summary of one sequence (see `dropvision.summary`,
-    `dropvision.bodies_table`)."""
+    """Frame table, body table and summary of one sequence (see `dropvision.analysis.sequence_summary`,
+    `dropvision.output.bodies_table`)."""
 
     frames: pd.DataFrame
     summary: dict
     bodies: pd.DataFrame | None = None
-    #: a printhead row's nozzles.parquet (`dropvision.nozzle_row`); None for one nozzle
+    #: a printhead row's nozzles.parquet (`dropvision.analysis.nozzle_row`); None for one nozzle
     nozzles: pd.DataFrame | None = None
     #: outline of each row of ``bodies``: (N, 2) float arrays of (row, col) pixel centres of the
-    #: canonical frame (nozzle at the top; `dropvision.outline`); None where not traced (a printhead row)
+    #: canonical frame (nozzle at the top; `dropvision.frame.outline`); None where not traced (a printhead row)
     outlines: list | None = field(default=None, repr=False)
     #: the same outlines in the frame as the camera stored it (``summary["orientation"]`` undone)
     outlines_camera: list | None = field(default=None, repr=False)
@@ -65,8 +65,8 @@ class MeasureResult:
 
     def annotate(self, frame=0, image=None, *, ax=None, labels: bool = True):
         """Draw a frame as the camera took it with the outline of every body coloured by class, the
-        jetting axis and the volumes (`dropvision.annotate.annotate`); returns the matplotlib Axes."""
-        from dropvision.annotate import annotate
+        jetting axis and the volumes (`dropvision.output.annotate.annotate`); returns the matplotlib Axes."""
+        from dropvision.output.annotate import annotate
         return annotate(self, frame, image, ax=ax, labels=labels)
 
     def per_delay(self) -> pd.DataFrame:
@@ -80,7 +80,7 @@ class MeasureResult:
 
 def source_keys(meta) -> dict:
     """summary.json's orientation and ``*_source`` keys: where each value of the sequence's
-    metadata came from (`dropvision.sequence.SequenceMeta.sources`)."""
+    metadata came from (`dropvision.io.sequence.SequenceMeta.sources`)."""
     src = meta.sources or {}
     return {
         "orientation": meta.orientation,
@@ -103,8 +103,8 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
     Parameters
     ----------
     seq_dir : str or Path or Sequence
-        Sequence folder (see docs/FORMAT.md), or an open `dropvision.sequence.Sequence` (e.g.
-        frames in memory from `dropvision.sequence.sequence_from_arrays`).
+        Sequence folder (see docs/FORMAT.md), or an open `dropvision.io.sequence.Sequence` (e.g.
+        frames in memory from `dropvision.io.sequence.sequence_from_arrays`).
     out_dir : str or Path, optional
         Write the result there (atomically): frames.parquet, bodies.parquet, per_delay.parquet, summary.json.
         It may not be the sequence folder, lie inside it or contain it; an existing folder is
@@ -121,13 +121,13 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
         Write into an existing ``out_dir`` that holds files we did not write (they are kept).
     overrides, labels : dict, optional
         Values of sequence.json keys given outside the file (options), and how they were given;
-        see `dropvision.sequence.open_sequence`. They are named in summary.json's ``*_source``
+        see `dropvision.io.sequence.open_sequence`. They are named in summary.json's ``*_source``
         keys.
     nozzle_pitch_um : float, optional
         A printhead row's nozzle pitch (overrides sequence.json's ``nozzle_pitch_um``).
     row_limits : dict, optional
         A printhead row's pass/fail limits and reference table (keys of
-        `dropvision.nozzle_row.LIMIT_KEYS` and ``reference_nozzles``; override sequence.json's).
+        `dropvision.analysis.nozzle_row.LIMIT_KEYS` and ``reference_nozzles``; override sequence.json's).
 
     Returns
     -------
@@ -136,15 +136,15 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
 
     Raises
     ------
-    dropvision.sequence.SequenceError
+    dropvision.io.sequence.SequenceError
         Unusable sequence (missing metadata, other frame size, no readable frame, no nozzle).
     dvcore.atomic.OutputError
         ``out_dir`` overlaps the input or holds files we did not write.
 
     Notes
     -----
-    A frame of several nozzles under one flat plate (`dropvision.nozzle_row.row_layout`) is a
-    printhead row: measured per nozzle by `dropvision.nozzle_row.measure_row_sequence`
+    A frame of several nozzles under one flat plate (`dropvision.analysis.nozzle_row.row_layout`) is a
+    printhead row: measured per nozzle by `dropvision.analysis.nozzle_row.measure_row_sequence`
     (nozzles.parquet; the result carries ``nozzles``).
     """
     if isinstance(seq_dir, Sequence) and overrides:
@@ -166,7 +166,7 @@ def measure_sequence(seq_dir, out_dir=None, config: MeasureConfig = MeasureConfi
 def row_plate(seq: Sequence):
     """(plate, scan labels or None) of a printhead row when the first frame shows one, or of a
     scan (frames named by nozzle under a plate); else None."""
-    from dropvision.nozzle_row import row_layout, scan_layout
+    from dropvision.analysis.nozzle_row import row_layout, scan_layout
 
     fr = seq.read(0)
     plate = None if fr.error is not None else row_layout(fr.image)
@@ -182,7 +182,7 @@ def _measure(seq: Sequence, out_dir, inputs: list, config: MeasureConfig, progre
         with serial_native_pools(forking):  # the row check before a fork starts no native pool either
             row = row_plate(seq)
         if row is not None:  # several nozzles under one plate, or a scan of them (issue 32)
-            from dropvision.nozzle_row import measure_row_sequence
+            from dropvision.analysis.nozzle_row import measure_row_sequence
 
             try:
                 nozzles, frames, bodies, summary = measure_row_sequence(
@@ -236,13 +236,13 @@ def _calibrated_records(seq: Sequence, config: MeasureConfig, logger=None, progr
 class MeasuredParts:
     """What `result_from_records` takes of a measured sequence, without pandas and without the
     frame-sized arrays (`light_calibration`): what a forked worker sends back, the tables being made
-    where pandas may load (`dropvision.shot_rig`: after the fork, in the calling process)."""
+    where pandas may load (`dropvision.analysis.shot_rig`: after the fork, in the calling process)."""
 
     records: list
     cal: object
-    sigma_px: float  # the calibrated blur (`dropvision.context.BlurModel.calibrated_sigma_px`)
+    sigma_px: float  # the calibrated blur (`dropvision.calibrate.frame_context.BlurModel.calibrated_sigma_px`)
     reference_spread_px: float  # the in-focus reference's edge spread (summary ``edge_blur_ref_px``)
-    blur_reference: object  # dropvision.context.BlurReference
+    blur_reference: object  # dropvision.calibrate.frame_context.BlurReference
     meta: object
     errors: list
 
@@ -253,7 +253,7 @@ class MeasuredParts:
 
 
 def light_calibration(cal):
-    """A copy of a `dropvision.calibration.Calibration` without its frame-sized arrays (background
+    """A copy of a `dropvision.calibrate.calibration.Calibration` without its frame-sized arrays (background
     model, opaque specks): what its summary needs, and cheap to send between processes."""
     bg = dataclasses.replace(cal.background, background=np.zeros((0, 0), np.float32), opaque=None)
     out = dataclasses.replace(cal, background=bg)
@@ -290,7 +290,7 @@ def _measure_frames(seq, config: MeasureConfig, logger, progress: bool, errors: 
 
 def check_scale_in_focus(cal, meta) -> None:
     """Refuse a pixel size taken from the nozzle's outer width when the calibration found its walls
-    out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.sequence.SequenceError`."""
+    out of focus (the width is a blurred holder's, not the nozzle's): `dropvision.io.sequence.SequenceError`."""
     if cal.nozzle_out_of_focus and pixel_size_from_nozzle(meta):
         # the diameter came from an option or an argument: the message names what that caller gives
         labels = {"_caller": (meta.sources or {}).get("caller")}
@@ -312,9 +312,9 @@ def calibration_flags(cal, sigma_px: float, config: MeasureConfig) -> list[str]:
 
 def result_from_records(records: list[FrameRecord], cal, sigma_px: float, reference_spread_px: float,
                         blur_reference, meta, config: MeasureConfig, errors: list) -> MeasureResult:
-    """The frames table, bodies table and summary of measured records (`dropvision.summary.assemble`,
+    """The frames table, bodies table and summary of measured records (`dropvision.analysis.sequence_summary.assemble`,
     the sources of ``meta``, the in-focus reference: its edge spread ``reference_spread_px`` and its
-    `dropvision.context.BlurReference`): what `measure_sequence` returns."""
+    `dropvision.calibrate.frame_context.BlurReference`): what `measure_sequence` returns."""
     frames, summary = assemble(records, cal, sigma_px, meta, config, errors)
     summary.update(source_keys(meta))
     summary["calibration"]["pixel_size_source"] = summary["pixel_size_source"]
@@ -326,10 +326,10 @@ def result_from_records(records: list[FrameRecord], cal, sigma_px: float, refere
 
 
 def body_outlines(records, bodies, orientation: str, canonical_shape) -> tuple[list, list]:
-    """The outline of every row of ``bodies`` (`dropvision.bodies_table.bodies_table`'s order: the attached
+    """The outline of every row of ``bodies`` (`dropvision.output.bodies_table.bodies_table`'s order: the attached
     body, the in-focus detached bodies, the rejected ones, frame by frame) in the canonical frame and
-    in the camera's (`dropvision.outline`); fills ``bodies``' ``row_camera_px`` / ``col_camera_px``."""
-    from dropvision.outline import EMPTY, to_camera
+    in the camera's (`dropvision.frame.outline`); fills ``bodies``' ``row_camera_px`` / ``col_camera_px``."""
+    from dropvision.frame.outline import EMPTY, to_camera
 
     canonical = []
     for r in records:

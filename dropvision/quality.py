@@ -36,8 +36,8 @@ NOZZLE_OUT_OF_FOCUS = Quality.NOZZLE_OUT_OF_FOCUS
 UNREADABLE = Quality.UNREADABLE
 NOT_DROP_IMAGE = Quality.NOT_DROP_IMAGE
 
-#: Flags of a frame whose intensities are not trusted: no number from it (`dropvision.summary`), and
-#: its drop's tail does not hold later frames out of flight (`dropvision.tracking.track_main_drop`).
+#: Flags of a frame whose intensities are not trusted: no number from it (`dropvision.analysis.sequence_summary`), and
+#: its drop's tail does not hold later frames out of flight (`dropvision.analysis.tracking.track_main_drop`).
 UNTRUSTED_INTENSITY_FLAGS = (BLURRED, LOW_CONTRAST, SATURATED, ILLUMINATION, NOT_DROP_IMAGE)
 
 #: A backlit drop image is mostly lit background: at least this fraction of it (`background_fraction`), else

@@ -8,7 +8,7 @@ codes), :mod:`~dvcore.atomic` (atomic, non-destructive writes), :mod:`~dvcore.ve
 :mod:`~dvcore.waveform` (a printhead's drive: the paper's trapezoid, the waveform templates, the
 nozzle's flow formulas; re-exported by :mod:`identify.waveform` and :mod:`identify.ecm`).
 
-Layers (docs/ARCHITECTURE.md, enforced by tests/test_layers.py): ``dvcore`` < ``identify`` <
+Layers (docs/ARCHITECTURE.md, enforced by tests/project/test_layers.py): ``dvcore`` < ``identify`` <
 ``dropvision`` < ``dropvision.app`` / ``identify.app``. Nothing here imports a layer above.
 """
 

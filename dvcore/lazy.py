@@ -6,7 +6,7 @@ A package that keeps ``import package`` cheap declares its public names as a lit
     _LAZY = {"measure": "dropvision.api:measure"}
     __getattr__, __dir__ = lazy_exports(__name__, globals(), _LAZY)
 
-tests/test_layers.py reads such maps (the literal dict given to ``lazy_exports``) and counts each
+tests/project/test_layers.py reads such maps (the literal dict given to ``lazy_exports``) and counts each
 target module as an import of the declaring package, so laziness hides no edge from the layer test.
 """
 

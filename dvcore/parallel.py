@@ -32,7 +32,7 @@ of OpenCV's pool) keeps these rules, all here:
 - a caller that stops early (or Ctrl-C) ends the workers at once, without waiting for chunks in
   flight.
 
-Users: `dropvision.frame.stream_frames` (a sequence's frames), `dropvision.shot_rig.measure_each`
+Users: `dropvision.frame.measure_frame.stream_frames` (a sequence's frames), `dropvision.analysis.shot_rig.measure_each`
 (a folder's shots).
 """
 

@@ -115,8 +115,8 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
       "where the walls show no edge)"),
     F("wall_contrast", "float", "", "contrast of the nozzle walls against the background"),
     F("attached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of attached_volume_nl (edge position, "
-      "the body's edge definition, blur correction; dropvision.volume.volume_uncertainty_px3, "
-      "dropvision.volume.edge_definition_px)"),
+      "the body's edge definition, blur correction; dropvision.frame.volume.volume_uncertainty_px3, "
+      "dropvision.frame.volume.edge_definition_px)"),
     F("grown_volume_uncertainty_nl", "float", "nl", "standard uncertainty of grown_volume_nl"),
     F("drop_volume_uncertainty_nl", "float", "nl", "standard uncertainty of drop_volume_nl"),
     F("detached_volume_uncertainty_nl", "float", "nl", "standard uncertainty of detached_volume_nl"),
@@ -124,7 +124,7 @@ FRAMES = Table("frames", "frames.parquet", "dropvision.frames/1", (
       "volumes: background level, clipped background", nullable=False),
 ), "One row per frame, in delay order (repeats kept).")
 
-#: Classes of the bodies table (`dropvision.bodies_table`), in the order the rules are tried.
+#: Classes of the bodies table (`dropvision.output.bodies_table`), in the order the rules are tried.
 BODY_CLASSES = ("nozzle", "attached", "mist", "dust", "border", "noise", "main_drop", "satellite", "tail")
 
 BODIES = Table("bodies", "bodies.parquet", "dropvision.bodies/1", (
@@ -260,7 +260,7 @@ SUMMARY = Document("summary", "summary.json", "dropvision.measure/1", (
     F("bit_depth_source", "str", "", "where the bit depth came from", required=False),
 ), "One per measured sequence; with the versions and the configuration the result is reproducible.")
 
-SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summary/1", (
+SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.analysis.shots-summary/1", (
     F("schema_version", "str", "", "document id"),
     F("kind", "str", "", "\"shots\": a folder of independent shots (a sequence's summary.json has no kind)"),
     F("inputs", "list", "", "the folder (or the image files) measured"),
@@ -283,10 +283,10 @@ SHOTS_SUMMARY = Document("shots_summary", "summary.json", "dropvision.shots-summ
     F("shots", "list", "", "per image: file, its labels, then orientation, the *_source keys of a sequence's "
       "summary.json, shared_calibration (true: measured with the calibration the shots share), notes and "
       "calibration, or error (why it could not be measured)"),
-    F("shared_calibration", "object", "", "the calibration the shots of one rig share (dropvision.shot_rig): "
+    F("shared_calibration", "object", "", "the calibration the shots of one rig share (dropvision.analysis.shot_rig): "
       "reference (the shot the others are checked against), calibrated_from (the shots it comes from), left_out "
       "(calibration shots that agree with no group: file, reason), others (the same for each further group of "
-      "agreeing calibration shots, up to dropvision.shot_rig.MAX_GROUPS: another rig, or the holder at another "
+      "agreeing calibration shots, up to dropvision.analysis.shot_rig.MAX_GROUPS: another rig, or the holder at another "
       "place; a shot takes the first that holds for it); reference null and a reason where every shot was calibrated alone"),
     F("waveform", "object", "", "the waveform template whose parameters are each shot's labels (sequence.json "
       "`waveform` or --waveform-template without parameters): {template, <constant>, dead_time_us, "
@@ -749,7 +749,7 @@ NOZZLES = Table("nozzles", "nozzles.parquet", "dropvision.nozzles/1", (
     F("nozzle", "int", "", "nozzle index from 0, left to right in the canonical frame (missing nozzles included); "
       "a scan: the label in the file name", nullable=False),
     F("state", "str", "", "one of " + ", ".join(NOZZLE_STATES) + " (the first that applies in that order; "
-      "rules in dropvision.nozzle_row)", nullable=False),
+      "rules in dropvision.analysis.nozzle_row)", nullable=False),
     F("reason", "str", "", "every rule the nozzle met, with the figures compared (empty for ok)", nullable=False),
     F("col_px", "float", "px", "column where the nozzle's trajectory meets the plate (the pitch grid's position)",
       nullable=False),
@@ -828,9 +828,9 @@ ROW_SUMMARY = Document("row_summary", "summary.json", "dropvision.row-summary/1"
     F("notes", "list", "", "what the measurement could not settle"),
     F("orientation", "str", "", "direction the drops travel in the stored images", required=False),
     F("software", "object", "", "versions of Python and of every package the result depends on"),
-), "summary.json of a printhead row (`dropvision.nozzle_row`); the *_source keys of a sequence's summary.json too.")
+), "summary.json of a printhead row (`dropvision.analysis.nozzle_row`); the *_source keys of a sequence's summary.json too.")
 
-ROW_INPUTS = Document("row_inputs", "sequence.json (printhead row keys)", "dropvision.sequence-row-keys/1", (
+ROW_INPUTS = Document("row_inputs", "sequence.json (printhead row keys)", "dropvision.io.sequence-row-keys/1", (
     F("nozzle_pitch_um", "float", "um", "nozzle pitch of a row (option --nozzle-pitch-um; default: estimated from "
       "the nozzles found)", required=False),
     F("nozzle_count", "int", "", "the row's number of nozzles (option --nozzle-count): a missing nozzle at an end "

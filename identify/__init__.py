@@ -23,7 +23,7 @@ The public API (loaded on first use, so ``import identify`` stays cheap)::
 from dvcore import __version__
 from dvcore.lazy import lazy_exports
 
-# public name -> "module:attribute" that defines it (tests/test_layers.py reads this map)
+# public name -> "module:attribute" that defines it (tests/project/test_layers.py reads this map)
 _LAZY = {
     "load_dataset": "identify.dataset_checks:load_dataset",
     "Dataset": "identify.dataset:Dataset",
@@ -33,10 +33,10 @@ _LAZY = {
     "fit_hybrid": "identify.hybrid_fit:fit_hybrid",
     "HybridModel": "identify.hybrid:HybridModel",
     "FitReport": "identify.hybrid_fit:FitReport",
-    "Waveform": "identify.waveform:Waveform",
-    "ThreePulseTemplate": "identify.waveform:ThreePulseTemplate",
-    "TrapezoidTemplate": "identify.waveform:TrapezoidTemplate",
-    "Drive": "identify.waveform:Drive",
+    "Waveform": "dvcore.waveform:Waveform",
+    "ThreePulseTemplate": "dvcore.waveform:ThreePulseTemplate",
+    "TrapezoidTemplate": "dvcore.waveform:TrapezoidTemplate",
+    "Drive": "dvcore.waveform:Drive",
     "fit_template_model": "identify.template_fit:fit_template_model",
     "TemplateModel": "identify.template_fit:TemplateModel",
     "paper_prediction": "identify.paper:paper_prediction",

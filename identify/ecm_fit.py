@@ -45,7 +45,7 @@ on that choice. ``param_cov`` has a zero La row/column. The remaining three comb
 are well identified from volume sequences truncated at pinch-off (~80 samples after the
 dead time, 91 sequences of the campaign grid): see ``EcmFit.identifiability``.
 
-Accuracy (``noise_study`` of ``tests/ecm_study.py``, run by ``tests/test_ecm_fit.py``;
+Accuracy (``noise_study`` of ``tests/ecm_study.py``, run by ``tests/identify/test_ecm_fit.py``;
 default physics, 91 waveforms, 10 µs, seed 0, white noise of sd = 1 % / 2 % of each
 sequence's peak volume): ``oe`` max ratio error 0.09 % (0 %, the
 first-order hold of the 10 µs input samples cuts the waveform corners), 0.39 % (1 %),
@@ -61,7 +61,7 @@ template's drive (:mod:`identify.waveform`; a voltage is read as µm of equivale
 volt). A drive whose corners fall between the samples (pulse edges of 2 µs, samples every 10 µs)
 is not linear between them: :meth:`EcmData.from_drive` also stores it on a finer grid
 (``u_fine_um``, ``substeps``) and the output-error fits simulate on that grid. Noise-free
-three-pulse campaign (``tests/test_waveform_template.py``): exact on the 1 µs grid; held linear
+three-pulse campaign (``tests/identify/test_waveform_template.py``): exact on the 1 µs grid; held linear
 between the 10 µs samples, Ra +43 %, CN +22 %, Kc +11 %.
 
 Units: SI for the physical parameters and coefficients; µs, µm and nl for the data.

@@ -1,4 +1,4 @@
-"""Synthetic noise study of the ECM estimators (used by tests/test_ecm_fit.py).
+"""Synthetic noise study of the ECM estimators (used by tests/identify/test_ecm_fit.py).
 
 Noisy synthetic growing-volume sequences over the colour-ink campaign grid from the exact
 (closed-form) ECM response of the default synthetic physics, and the accuracy of

@@ -12,7 +12,7 @@ over them: a single-frame case has one frame a seed).
 Renders each case of the sweep (waveforms, noise, blur, tilt, bit depth, fall-off, dust,
 satellites, repeated frames) into a temporary folder, measures it and compares with
 truth.json / truth_frames.csv.  The same cases (smaller frames) run as
-tests/test_measure_accuracy.py.  Metrics (all errors signed unless "abs"):
+tests/analysis/test_measure_accuracy.py.  Metrics (all errors signed unless "abs"):
 
 - grown_max_pct / grown_median_pct: abs grown-volume error in attached frames, % of the peak
   grown volume (targets 0.5 / 0.2);

@@ -10,7 +10,7 @@ the ratio to the fastest maintained decoder): PNGs written by Pillow (adaptive f
 Up, Paeth rows) and by OpenCV (every row Sub), 8- and 16-bit grey and 8-bit colour, of
 640x1024 drop frames at three noise levels; the real JPEGs of ``--realdata`` (colour, decoded to
 grey) and synthetic grey/colour JPEGs; 16-bit TIFF pages. PNG decoders: our reader
-(`dropvision.readers.png`), imagecodecs ``png_decode`` (libpng + zlib-ng) and ``spng_decode``
+(`dropvision.io.readers.png`), imagecodecs ``png_decode`` (libpng + zlib-ng) and ``spng_decode``
 (libspng), pyspng (if installed), ``cv2.imdecode``, Pillow; JPEG: our reader (imagecodecs
 libjpeg-turbo), ``cv2.imdecode``, Pillow; TIFF: our reader, tifffile, imagecodecs
 ``tiff_decode``. Every decoder's array is checked equal to OpenCV's (colour: channel order
@@ -122,7 +122,7 @@ def decoders(jpeg: bytes, colour: bool) -> dict:
 
 def reader_cases(folder: Path, img: np.ndarray) -> dict:
     """Reference: our readers on PNG/TIFF files of the same frame."""
-    from dropvision.readers import reader_for
+    from dropvision.io.readers import reader_for
     cases = {}
     p = folder / "cv2.png"
     cv2.imwrite(str(p), img)
@@ -156,7 +156,7 @@ def video_cases(folder: Path, img: np.ndarray, n: int = 20) -> dict:
     out = {}
 
     def cap():
-        from dropvision.readers.video import OpenVideo, VideoReader
+        from dropvision.io.readers.video import OpenVideo, VideoReader
         handle = OpenVideo(VideoReader(), path)
         try:
             for k in range(n):
@@ -231,7 +231,7 @@ def _corpus_decoders(suffix: str, flags: int, folder: Path) -> dict:
     """name -> (decode(bytes, path) -> array, maintained?) for files of ``suffix``."""
     import imagecodecs
 
-    from dropvision.readers import reader_for
+    from dropvision.io.readers import reader_for
     to_grey = flags != cv2.IMREAD_UNCHANGED
     reader = reader_for("x" + suffix)
     out = {"dropvision reader": (lambda d, p: reader.decode(p, None), False),

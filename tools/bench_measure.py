@@ -7,7 +7,7 @@
 Renders a default synthetic sequence (640 x 1024) and writes it as (a) Pillow-written PNGs
 (adaptive filtering: Sub, Up, Paeth rows), (b) OpenCV-written PNGs (every row Sub), (c) JPEG
 quality 90 (skipped, and marked so, while no JPEG reader is registered in
-``dropvision.readers``), (d) one 16-bit TIFF stack (uncompressed pages). For each kind, on ONE
+``dropvision.io.readers``), (d) one 16-bit TIFF stack (uncompressed pages). For each kind, on ONE
 core (one thread), in one process, ``--rounds`` rounds alternating baseline and ours (medians):
 
 - the file's own properties (size per frame, bit depth, compression, PNG filter types used);
@@ -26,7 +26,7 @@ Realism tiers (issue 12: per-frame cost independent of content): the clean synth
 and the synthesizer's rig presets ``low-contrast`` (weak contrast, shot noise, blur, dust),
 ``tilted-dusty`` (1.5 deg tilt, 12-bit TIFF, dust, vignetting) and ``watcher-side`` (holder block,
 vignetting, colour JPEG, mist, satellites, tail with a bulb, orifice bead; shrunk to 640 x 1024
-canonical), each decoded once into memory (`dropvision.sequence.sequence_from_arrays`) and
+canonical), each decoded once into memory (`dropvision.io.sequence.sequence_from_arrays`) and
 measured pipeline-only (calibration, per-frame pipeline, assembly; one thread), rounds
 alternated over the tiers; reported: frames/s and the extra time per frame against clean
 (goal <= +20 %). ``--profile-tier`` prints a cProfile of one run of that tier.
@@ -113,7 +113,7 @@ def _write_variants(seq: Path, work: Path, kinds: list[str]) -> dict:
     """The rendered (OpenCV-written) sequence rewritten as each file kind: {kind: folder or None}."""
     import cv2
 
-    from dropvision.readers import IMAGE_SUFFIXES
+    from dropvision.io.readers import IMAGE_SUFFIXES
 
     meta = json.loads((seq / "sequence.json").read_text())
     frames = meta["frames"]
@@ -123,7 +123,7 @@ def _write_variants(seq: Path, work: Path, kinds: list[str]) -> dict:
             out[kind] = seq
             continue
         if kind == "jpeg" and ".jpg" not in IMAGE_SUFFIXES:
-            out[kind] = None  # SKIPPED: no JPEG reader registered in dropvision.readers
+            out[kind] = None  # SKIPPED: no JPEG reader registered in dropvision.io.readers
             continue
         folder = work / kind
         if (folder / "sequence.json").exists():
@@ -207,7 +207,7 @@ def bench_kind(kind: str, seq: Path, rounds: int, work: Path, rss: bool = True) 
 
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
-    from dropvision.readers import reader_for
+    from dropvision.io.readers import reader_for
 
     frames = json.loads((seq / "sequence.json").read_text())["frames"]
     n = len(frames)
@@ -265,7 +265,7 @@ def _in_memory(folder: Path):
     measuring it costs the pipeline only, no decoding."""
     import warnings
 
-    from dropvision.sequence import open_sequence, sequence_from_arrays
+    from dropvision.io.sequence import open_sequence, sequence_from_arrays
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # colour JPEGs of the watcher rig: converted to grey, noted once
@@ -282,20 +282,20 @@ def _in_memory(folder: Path):
 
 #: --stages: stage name -> (module file suffix, function name) whose cumulative time is the stage's
 STAGES = {
-    "calibration pass": ("dropvision/calibration_pass.py", "calibrate_sequence"),
-    "  background estimate": ("dropvision/background.py", "estimate_background"),
-    "per-frame pipeline (all)": ("dropvision/frame.py", "measure_frame"),
-    "  photometry": ("dropvision/frame.py", "measure_photometry"),
-    "  ROI smoothing": ("dropvision/context.py", "smooth_roi"),
-    "  segmentation": ("dropvision/frame.py", "segment_frame"),
-    "  attached liquid": ("dropvision/bodies.py", "measure_attached"),
-    "  thin-thread rule": ("dropvision/pinchoff.py", "thread_joined_labels"),
-    "  detached body edges+volume": ("dropvision/bodies.py", "measure_body"),
-    "  detached body appearance": ("dropvision/classify.py", "appearance"),
-    "  detached body description": ("dropvision/bodies.py", "describe_detached"),
-    "  touching-satellite split": ("dropvision/frame.py", "_split_touching"),
-    "assembly (frames, summary)": ("dropvision/summary.py", "assemble"),
-    "bodies table": ("dropvision/bodies_table.py", "bodies_table"),
+    "calibration pass": ("dropvision/calibrate/calibration_pass.py", "calibrate_sequence"),
+    "  background estimate": ("dropvision/calibrate/background.py", "estimate_background"),
+    "per-frame pipeline (all)": ("dropvision/frame/measure_frame.py", "measure_frame"),
+    "  photometry": ("dropvision/frame/measure_frame.py", "measure_photometry"),
+    "  ROI smoothing": ("dropvision/calibrate/frame_context.py", "smooth_roi"),
+    "  segmentation": ("dropvision/frame/measure_frame.py", "segment_frame"),
+    "  attached liquid": ("dropvision/frame/bodies.py", "measure_attached"),
+    "  thin-thread rule": ("dropvision/analysis/pinchoff.py", "thread_joined_labels"),
+    "  detached body edges+volume": ("dropvision/frame/bodies.py", "measure_body"),
+    "  detached body appearance": ("dropvision/frame/body_classes.py", "appearance"),
+    "  detached body description": ("dropvision/frame/bodies.py", "describe_detached"),
+    "  touching-satellite split": ("dropvision/frame/measure_frame.py", "_split_touching"),
+    "assembly (frames, summary)": ("dropvision/analysis/sequence_summary.py", "assemble"),
+    "bodies table": ("dropvision/output/bodies_table.py", "bodies_table"),
 }
 
 
@@ -408,7 +408,7 @@ def main(argv=None) -> int:
     rows = []
     for kind in kinds:
         if folders[kind] is None:
-            print(f"[{kind}] SKIPPED: no JPEG reader registered in dropvision.readers (IMAGE_SUFFIXES has no .jpg)")
+            print(f"[{kind}] SKIPPED: no JPEG reader registered in dropvision.io.readers (IMAGE_SUFFIXES has no .jpg)")
             continue
         rows.append(bench_kind(kind, folders[kind], args.rounds, work, rss=not args.no_rss))
         r = rows[-1]

@@ -40,7 +40,7 @@ sys.path.insert(0, str(ROOT))
 from dropvision.app.live_journal import JOURNAL, read_journal  # noqa: E402
 from dropvision.app.replay import replay_sequence  # noqa: E402
 from dropvision.measurement import measure_sequence  # noqa: E402
-from dropvision.sequence import open_sequence  # noqa: E402
+from dropvision.io.sequence import open_sequence  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -108,8 +108,8 @@ def _bench_shots(args) -> int:
     final shots.parquet against ``measure_shots`` of the folder."""
     import shutil
 
-    from dropvision.discovery import images_without_delay
-    from dropvision.shots import measure_shots
+    from dropvision.io.discovery import images_without_delay
+    from dropvision.analysis.shots import measure_shots
 
     names = images_without_delay(args.shots)
     if names is None:

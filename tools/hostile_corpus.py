@@ -17,7 +17,7 @@ subprocess with a 60 s limit while watching its memory, and sorts each outcome:
   link out of the sequence folder was measured), ``destroyed`` (an input file changed).
 
 Exit status 1 when any bad outcome occurs. ``--quick`` runs one case per family (the test tier
-in `tests/test_hostile_corpus.py`).
+in `tests/project/test_hostile_corpus.py`).
 """
 
 from __future__ import annotations

@@ -97,7 +97,7 @@ MIN_FOREGROUND = 0.02
 #: a segmentation class must cover this many image pixels to be required in the screenshot
 MIN_CLASS_PIXELS = 12
 #: class ids from this one on are the body classes beyond nozzle, attached liquid, main drop,
-#: satellite and static speck (`dropvision.segmentation.CLASS_OUT_OF_FOCUS` ...)
+#: satellite and static speck (`dropvision.frame.segmentation.CLASS_OUT_OF_FOCUS` ...)
 OTHER_CLASSES_FROM = 6
 #: screen pixels of a class hue needed to call the class "present"
 MIN_HUE_PIXELS = 12

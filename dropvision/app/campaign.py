@@ -21,9 +21,9 @@ writes the dataset:
   ``nozzle`` block), sample_interval_us, dead_time_us,
   u3_um_per_ms, hold_us, pixel_size_um, the sequences, software versions;
 - ``shots.parquet`` (where ROOT holds shot folders): every row of every shot folder, a folder
-  of images with no delay to tell (`dropvision.shots`: one image per shot, as a drop watcher
+  of images with no delay to tell (`dropvision.analysis.shots`: one image per shot, as a drop watcher
   exports them), each folder measured as ``dropvision measure`` measures it
-  (`dropvision.shots.measure_shots`), its id in ``shot_folder``, then its labels as numbers;
+  (`dropvision.analysis.shots.measure_shots`), its id in ``shot_folder``, then its labels as numbers;
 - ``shards/<id>/``: each sequence's frames.parquet and summary.json (with its input hash); a
   shot folder's shots.parquet, frames.parquet, bodies.parquet and summary.json;
 - ``manifest.json``: each sequence's (and shot folder's, ``kind`` "shots") path, input hash,
@@ -62,11 +62,11 @@ from dropvision.app.options import grouped_warnings, warning_lines
 from dropvision.app.rerun_log import RerunLogger
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
-from dropvision.readers import IMAGE_SUFFIXES
-from dropvision.result_writer import check_shots_result, write_result, write_shots_result
-from dropvision.sequence import check_overrides, open_sequence
-from dropvision.sequence_meta import SequenceError
-from dropvision.shots import find_shots, is_shot_folder, measure_shots
+from dropvision.io.readers import IMAGE_SUFFIXES
+from dropvision.output.result_writer import check_shots_result, write_result, write_shots_result
+from dropvision.io.sequence import check_overrides, open_sequence
+from dropvision.io.sequence_meta import SequenceError
+from dropvision.analysis.shots import find_shots, is_shot_folder, measure_shots
 from dropvision.synth.sequence import SynthConfig
 from dropvision.synth.writer import write_synthetic_sequence
 from dvcore import schema
@@ -181,7 +181,7 @@ def find_inputs(root, overrides: dict | None = None) -> list[tuple[Path, str]]:
     (folder, ``"sequence"`` or ``"shots"``).
 
     A shot folder is a folder that `dropvision measure` measures as shots
-    (`dropvision.shots.is_shot_folder`: two or more images with no delay to tell, no frames list
+    (`dropvision.analysis.shots.is_shot_folder`: two or more images with no delay to tell, no frames list
     nor frame rate, ``overrides`` included); every other folder holding a sequence.json is a
     sequence. Folders are walked as `find_sequences` walks them.
     """
@@ -278,7 +278,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
     (``input_hash(seq_dir, config_repr)``), so that the client need not read every file of the
     campaign itself (the hashing then runs on the workers, in parallel, next to the data).
     ``overrides`` / ``labels``: values of sequence.json keys given for every sequence (options,
-    see `dropvision.sequence.open_sequence`). ``seq_id``: when given, the worker also reads the
+    see `dropvision.io.sequence.open_sequence`). ``seq_id``: when given, the worker also reads the
     shard it wrote into its share of the dataset (`shard_part`, key ``part``), so that the
     client does not.
 
@@ -336,7 +336,7 @@ def measure_to_shard(seq_dir: str, shard_dir: str, digest: str | None, config=No
 def measure_shots_to_shard(folder: str, shard_dir: str, digest: str | None, config=None, rerun_options=None,
                            overrides: dict | None = None, labels: dict | None = None,
                            config_repr: str = "", seq_id: str | None = None) -> dict:
-    """Measure one shot folder (`dropvision.shots.measure_shots`, as `dropvision measure` measures
+    """Measure one shot folder (`dropvision.analysis.shots.measure_shots`, as `dropvision measure` measures
     it) and write its shard atomically: shots.parquet, frames.parquet, bodies.parquet and
     summary.json (the shot folder's, with its input hash). Runs in a worker process; the same
     arguments and the same small summary as `measure_to_shard` (``meta``: kind, images, measured).
@@ -484,7 +484,7 @@ def run_campaign(
         kept; ours of the same names are replaced).
     overrides, labels : dict, optional
         Values of sequence.json keys for every sequence (options; part of each input hash),
-        and how they were given: see `dropvision.sequence.open_sequence`.
+        and how they were given: see `dropvision.io.sequence.open_sequence`.
 
     Raises
     ------

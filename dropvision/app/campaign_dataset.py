@@ -52,7 +52,7 @@ def sequence_controls(wf) -> tuple[dict | None, dict | None, str | None]:
     -------
     (template, controls, error)
         ``template``: ``{"template": name, <constants>}`` of a waveform template other than the
-        paper's trapezoid (`dropvision.overrides.validate_waveform` gives the trapezoid in the flat
+        paper's trapezoid (`dropvision.io.overrides.validate_waveform` gives the trapezoid in the flat
         form), else None; ``controls``: the parameter columns, name -> value (``u1_um_per_ms``,
         ``u2_um`` for the trapezoid); ``error``: why the sequence cannot enter the dataset (then
         the others are None).

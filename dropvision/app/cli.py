@@ -8,7 +8,7 @@ import os
 # Before NumPy loads OpenBLAS (the commands import it when they run): one BLAS thread. The
 # measurement's solves are small (more threads only slow them on a loaded machine), and a process
 # that runs no thread but its own can fork its frame workers safely
-# (`dropvision.frame.processes_usable`). A value the user set is kept.
+# (`dropvision.frame.measure_frame.processes_usable`). A value the user set is kept.
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     args, extra = parser.parse_known_args(argv)
     if extra:
         unknown_options(parser, args, extra)
-    from dropvision.sequence import SequenceError  # after parsing: --help does not pay for the readers
+    from dropvision.io.sequence import SequenceError  # after parsing: --help does not pay for the readers
 
     _quiet_opencv()
     with warnings.catch_warnings():

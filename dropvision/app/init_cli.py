@@ -1,4 +1,4 @@
-"""`dropvision init FOLDER`: write the sequence.json of a folder of images (`dropvision.describe`).
+"""`dropvision init FOLDER`: write the sequence.json of a folder of images (`dropvision.io.describe`).
 
 The library is imported when the command runs, so that ``dropvision --help`` stays fast.
 """
@@ -13,7 +13,7 @@ from dropvision.app.options import (
 
 
 def _run(args: argparse.Namespace) -> int:
-    from dropvision.describe import init_sequence
+    from dropvision.io.describe import init_sequence
 
     overrides, labels = overrides_from_args(args)
     with captured_warnings() as caught:

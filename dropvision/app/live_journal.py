@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 import dropvision.quality as q
-from dropvision.frame import FrameRecord
+from dropvision.frame.measure_frame import FrameRecord
 from dvcore import schema
 from dvcore.jsonio import loads_strict
 

@@ -29,9 +29,9 @@ def _run(args: argparse.Namespace) -> int:
     from dropvision.app.rerun_log import logger_from_args
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
-    from dropvision.readers import IMAGE_SUFFIXES
-    from dropvision.sequence import open_sequence
-    from dropvision.shots import find_shots
+    from dropvision.io.readers import IMAGE_SUFFIXES
+    from dropvision.io.sequence import open_sequence
+    from dropvision.analysis.shots import find_shots
 
     paths = [Path(p) for p in args.seq_dir]
     for p in paths:
@@ -135,7 +135,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _run_shots(args: argparse.Namespace, shots, config, overrides, labels) -> int:
     """A folder of shots (images with no delay to tell) or several image files: one row per image."""
-    from dropvision.shots import measure_shots, one_line
+    from dropvision.analysis.shots import measure_shots, one_line
 
     from dropvision.app.rerun_log import logger_from_args
 
@@ -228,7 +228,7 @@ def register(subparsers) -> None:
 def _row_views(args, res, folder, overrides, labels, only, logger) -> None:
     """A printhead row's views: its frames and nozzle map in the Rerun recording, its report page."""
     from dropvision.app.row_views import log_row, write_row_report
-    from dropvision.sequence import open_sequence
+    from dropvision.io.sequence import open_sequence
 
     seq = open_sequence(folder, overrides=overrides, labels=labels, only_files=only)
     try:

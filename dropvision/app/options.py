@@ -2,7 +2,7 @@
 
 - `add_metadata_args` / `overrides_from_args`: one option per key of sequence.json
   (docs/FORMAT.md); a given option overrides the file, passes the same validation
-  (`dropvision.sequence.check_overrides`) and is named in summary.json (``*_source``:
+  (`dropvision.io.sequence.check_overrides`) and is named in summary.json (``*_source``:
   "command line --pixel-size-um").
 - `add_output_args` / `progress_wanted`: ``--quiet``, ``--verbose``, ``--progress`` /
   ``--no-progress`` (default: a progress bar when stderr is a terminal).
@@ -66,8 +66,8 @@ def add_metadata_args(p: argparse.ArgumentParser) -> None:
 
 
 def overrides_from_args(args: argparse.Namespace) -> tuple[dict, dict]:
-    """(overrides, labels) for `dropvision.sequence.open_sequence` from the parsed options."""
-    overrides, labels = {}, {"_caller": "command line"}  # dropvision.overrides.CALLER_KEY: messages name options
+    """(overrides, labels) for `dropvision.io.sequence.open_sequence` from the parsed options."""
+    overrides, labels = {}, {"_caller": "command line"}  # dropvision.io.overrides.CALLER_KEY: messages name options
     for opt, key, _, _ in (*_METADATA_OPTIONS, ("--orientation", "orientation", str, "")):
         value = getattr(args, f"meta_{key}", None)
         if value is not None:
@@ -116,7 +116,7 @@ def captured_warnings():
 def warning_lines(caught, args: argparse.Namespace | None = None) -> list[str]:
     """The distinct messages of captured warnings, in order (one line each).
 
-    The note that colour images were made grey (`dropvision.sequence.RGBConvertedWarning`: the documented
+    The note that colour images were made grey (`dropvision.io.sequence.RGBConvertedWarning`: the documented
     BT.601 rule, which changes no measurement of a backlit frame) is shown with ``--verbose`` only: a
     drop watcher's colour files would otherwise repeat it on every run."""
     out = []

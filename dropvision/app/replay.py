@@ -1,6 +1,6 @@
 """A drop watcher, replayed: a sequence folder's frames written into another folder as a camera's
 software would write them (`replay_sequence`), for trying ``dropvision watch`` and measuring it
-(`tools/bench_watch.py`, `tests/test_watch.py`).
+(`tools/bench_watch.py`, `tests/app/test_watch.py`).
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import shutil
 import time
 from pathlib import Path
 
-from dropvision.sequence import SEQUENCE_JSON, open_sequence
+from dropvision.io.sequence import SEQUENCE_JSON, open_sequence
 
 __all__ = ["replay_sequence"]
 

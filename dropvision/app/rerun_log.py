@@ -79,8 +79,8 @@ if TYPE_CHECKING:  # pragma: no cover - typing only
     import rerun as rr
     import rerun.blueprint as rrb
 
-    from dropvision.bodies import DetachedBody
-    from dropvision.segmentation import DarkBody, Segmentation
+    from dropvision.frame.bodies import DetachedBody
+    from dropvision.frame.segmentation import DarkBody, Segmentation
 
 __all__ = [
     "CLASS_BACKGROUND",
@@ -118,8 +118,8 @@ def pd_to_float(values: Any) -> np.ndarray:
 
 # --- segmentation classes --------------------------------------------------------------------
 
-from dropvision.bodies import DetachedClass, detached_class  # noqa: E402
-from dropvision.segmentation import (  # noqa: E402  (one set of class ids, defined with the segmentation)
+from dropvision.frame.bodies import DetachedClass, detached_class  # noqa: E402
+from dropvision.frame.segmentation import (  # noqa: E402  (one set of class ids, defined with the segmentation)
     CLASS_ATTACHED,
     CLASS_BACKGROUND,
     CLASS_BORDER,
@@ -290,7 +290,7 @@ def measurement_blueprint(raw: bool = False, *, single: bool = False) -> rrb.Blu
 def camera_transform(orientation: str, canonical_shape) -> tuple[float, tuple[float, float]]:
     """(rotation in degrees about the view's z axis, translation (x, y)) taking Rerun's pixel space of
     the canonical frame (``/frame``) onto the frame as the camera stored it (``/camera``): the quarter
-    turns of `dropvision.orientation` (pixel ``(r, c)`` spans ``[c, c + 1] x [r, r + 1]``)."""
+    turns of `dropvision.io.orientation` (pixel ``(r, c)`` spans ``[c, c + 1] x [r, r + 1]``)."""
     hc, wc = float(canonical_shape[0]), float(canonical_shape[1])
     return {"down": (0.0, (0.0, 0.0)), "up": (180.0, (wc, hc)), "left": (90.0, (hc, 0.0)),
             "right": (-90.0, (0.0, wc))}[orientation]
@@ -478,9 +478,9 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
                 compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
     """Per-pixel segmentation classes and per-body boxes of one frame (for the Rerun viewer).
 
-    The classes follow the rules of bodies.parquet (`dropvision.bodies_table`) as far as one frame
-    can tell (`dropvision.segmentation` says what each ``CLASS_*`` is). A view of the measured
-    bodies, not a measurement: it lives with the viewer (moved from `dropvision.bodies`).
+    The classes follow the rules of bodies.parquet (`dropvision.output.bodies_table`) as far as one frame
+    can tell (`dropvision.frame.segmentation` says what each ``CLASS_*`` is). A view of the measured
+    bodies, not a measurement: it lives with the viewer (moved from `dropvision.frame.bodies`).
 
     Parameters
     ----------
@@ -654,7 +654,7 @@ class RerunLogger:
         shape : (rows, cols), optional
             Image shape for the line extents; default ``calib.shape``, else the first frame's.
         orientation : str, optional
-            How the camera stored the frames (`dropvision.orientation`; default ``calib.orientation``,
+            How the camera stored the frames (`dropvision.io.orientation`; default ``calib.orientation``,
             else ``"down"``): ``/frame`` (canonical) is placed on ``/camera`` (as stored) by a static
             transform (`camera_transform`).
         n_frames : int, optional
@@ -793,7 +793,7 @@ class RerunLogger:
             if self.options.raw:
                 rec.log("/frame/raw", rr.Image(image))
             # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
-            from dropvision.orientation import from_canonical
+            from dropvision.io.orientation import from_canonical
             rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
                                         color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
             rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
@@ -957,14 +957,14 @@ class RerunLogger:
             )
 
     def log_shots(self, result: Any, *, images: bool = True) -> None:
-        """Log a folder of shots (`dropvision.shots.ShotsResult`): per shot (``shot`` timeline, its
+        """Log a folder of shots (`dropvision.analysis.shots.ShotsResult`): per shot (``shot`` timeline, its
         position in ``result.frames``) the frame as the camera stored it (``/camera``, read again
         from the folder) with every body's outline in its class colour and the liquid's volumes
         (``/camera/bodies``); static, one bar per shot for each column of `SHOT_BARS`
         (``/shots/<column>``), the shots' table (``/shots/table``) and the summary; the layout
         `shots_blueprint` (no time series: shots have no time between them)."""
         self._check_open()
-        from dropvision.annotate import camera_image, frame_bodies, frame_geometry
+        from dropvision.output.annotate import camera_image, frame_bodies, frame_geometry
 
         rr, rec = self._rr, self.stream
         if self._own_blueprint:

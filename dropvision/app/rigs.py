@@ -23,7 +23,7 @@ import numpy as np
 
 from dropvision.config import MeasureConfig
 from dropvision.measurement import measure_sequence
-from dropvision.sequence import sequence_from_arrays
+from dropvision.io.sequence import sequence_from_arrays
 from dropvision.synth.sequence import SynthConfig, synthesize
 from identify.physics import SynthPhysics, drop_history
 from identify.tuning import RigShot

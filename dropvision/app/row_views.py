@@ -85,7 +85,7 @@ def _fmt(v) -> str:
 
 
 def log_row(logger, nozzles, bodies, summary: dict, frames=()) -> None:
-    """Log a measured row (`dropvision.nozzle_row.measure_row`'s tables and summary) and its frames
+    """Log a measured row (`dropvision.analysis.nozzle_row.measure_row`'s tables and summary) and its frames
     (iterable of (index, delay_us, canonical image)) into ``logger`` (a RerunLogger)."""
     import rerun as rr
 

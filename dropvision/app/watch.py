@@ -7,7 +7,7 @@
    closed it), and it decodes. A decode failure of a file that is still changing is "not yet";
    one that stays unreadable and unchanged for ``unreadable_after_s`` is reported, as the batch
    measurement reports it.
-2. The sequence is calibrated (`dropvision.calibration_pass.calibrate_sequence`) on the complete frames
+2. The sequence is calibrated (`dropvision.calibrate.calibration_pass.calibrate_sequence`) on the complete frames
    as soon as there is one, and again each time their number has doubled; every new frame is
    measured with the newest context (`dropvision.frame.measure_frame`) and its row appended to
    the journal ``OUT/live/frames.jsonl`` (one ``write`` of one line per frame, so a kill leaves
@@ -15,13 +15,13 @@
    These rows are provisional: the frame's own measurement, before the sequence-level analysis.
 3. When the sequence ends (the expected number of frames, ``idle_s`` without a new frame, or
    Ctrl-C) the final tables are measured by `dropvision.measurement.measure_sequence` over the
-   complete frames and written by `dropvision.result_writer.write_result`: with every frame complete
+   complete frames and written by `dropvision.output.result_writer.write_result`: with every frame complete
    they equal ``dropvision measure FOLDER`` exactly. The journal is kept in the result.
 
-A folder into which a drop watcher exports one image per shot (`dropvision.shots`: no delay in
+A folder into which a drop watcher exports one image per shot (`dropvision.analysis.shots`: no delay in
 the names, no frames list nor frame rate; ``WatchOptions.shots``, else decided by its first image,
 `_watch_kind`) is watched the same way, each image measured alone once complete
-(`dropvision.shots.measure_shots` of that image), its row appended to ``OUT/shots.parquet``
+(`dropvision.analysis.shots.measure_shots` of that image), its row appended to ``OUT/shots.parquet``
 (rewritten atomically, the columns of ``dropvision measure``) and then to the journal; at the end
 `_finish_shots` writes the tables of ``dropvision measure FOLDER`` over the complete images.
 
@@ -46,13 +46,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from dropvision.config import MeasureConfig
-from dropvision.calibration_pass import calibrate_sequence
+from dropvision.calibrate.calibration_pass import calibrate_sequence
 from dropvision.app.live_journal import JOURNAL, Journal, live_row, read_journal
-from dropvision.frame import FrameRecord, measure_frame
+from dropvision.frame.measure_frame import FrameRecord, measure_frame
 from dropvision.measurement import MeasureResult, measure_sequence
-from dropvision.result_writer import write_result
-from dropvision.readers import IMAGE_SUFFIXES
-from dropvision.sequence import SEQUENCE_JSON, SequenceError, open_sequence
+from dropvision.output.result_writer import write_result
+from dropvision.io.readers import IMAGE_SUFFIXES
+from dropvision.io.sequence import SEQUENCE_JSON, SequenceError, open_sequence
 from dvcore import schema
 from dvcore.jsonio import loads_strict
 from dvcore.atomic import atomic_dir, check_output_dir, foreign_files, output_lock, write_json, write_text
@@ -88,12 +88,12 @@ class WatchOptions:
     overwrite : bool
         Write into an OUT that holds files we did not write (they are kept).
     overrides, labels : dict, optional
-        sequence.json keys given as options (`dropvision.sequence.open_sequence`).
+        sequence.json keys given as options (`dropvision.io.sequence.open_sequence`).
     shots : bool or None
-        True: the folder receives shots (one image per shot, `dropvision.shots`); False: a
+        True: the folder receives shots (one image per shot, `dropvision.analysis.shots`); False: a
         sequence; None: decided by the first image (`_watch_kind`).
     label_pattern : str, optional
-        Shots: the labels' regular expression (`dropvision.labels.labels_from_pattern`).
+        Shots: the labels' regular expression (`dropvision.io.labels.labels_from_pattern`).
     """
 
     frames: int | None = None
@@ -131,7 +131,7 @@ class WatchResult:
     left_out : list of str
         Files still being written when the sequence ended (not in the final tables).
     kind : str
-        ``"sequence"``, or ``"shots"``: ``result`` is then a `dropvision.shots.ShotsResult`.
+        ``"sequence"``, or ``"shots"``: ``result`` is then a `dropvision.analysis.shots.ShotsResult`.
     """
 
     result: MeasureResult
@@ -274,7 +274,7 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
 
     Raises
     ------
-    dropvision.sequence.SequenceError
+    dropvision.io.sequence.SequenceError
         FOLDER missing, or a sequence that cannot be measured (as ``dropvision measure``).
     dvcore.atomic.OutputError
         OUT overlaps FOLDER, holds files we did not write (without ``overwrite``), or another
@@ -301,15 +301,15 @@ def watch_sequence(folder, out_dir, options: WatchOptions = WatchOptions(), *, l
 
 def _watch_kind(folder: Path, opts: WatchOptions, recorded: str | None, stop) -> str:
     """``"shots"`` or ``"sequence"``: ``opts.shots`` when given, else what the earlier watch resumed
-    was, else decided as `dropvision measure` decides (`dropvision.shots`) from what the folder holds,
+    was, else decided as `dropvision measure` decides (`dropvision.analysis.shots`) from what the folder holds,
     waiting for its first image: a sequence when a frames list or a frame rate is given (sequence.json
     or options), or an image tells a delay by its name or is a video; shots when the images tell none.
 
     The wait ends as the watch does (``idle_s`` without an image, ``stop``, Ctrl-C): then no frame
-    arrived, and `dropvision.sequence.SequenceError` says so."""
-    from dropvision.discovery import parse_delay_from_name
-    from dropvision.readers import VIDEO_SUFFIXES
-    from dropvision.shots import sequence_settings_given
+    arrived, and `dropvision.io.sequence.SequenceError` says so."""
+    from dropvision.io.discovery import parse_delay_from_name
+    from dropvision.io.readers import VIDEO_SUFFIXES
+    from dropvision.analysis.shots import sequence_settings_given
 
     if opts.shots is not None:
         return "shots" if opts.shots else "sequence"
@@ -356,7 +356,7 @@ def _watch_kind(folder: Path, opts: WatchOptions, recorded: str | None, stop) ->
 def _tiff_pages(path: Path) -> str | None:
     """``"one"`` or ``"several"`` (pages, or delays stored in the file) for a TIFF that probes whole; ``"one"``
     for other image formats (single frames); None while a TIFF cannot be probed whole (being written)."""
-    from dropvision.readers import reader_for
+    from dropvision.io.readers import reader_for
 
     if path.suffix.lower() not in (".tif", ".tiff"):
         return "one"
@@ -684,17 +684,17 @@ def _live_shots_table(rows: list[dict]):
 
 
 def _shot_rows(folder: Path, name: str, opts: WatchOptions) -> tuple[dict, dict]:
-    """Measure one image as a shot, alone (`dropvision.shots.measure_shots`): its shots row (the
+    """Measure one image as a shot, alone (`dropvision.analysis.shots.measure_shots`): its shots row (the
     shot's own notes with it) and its journal row (`dvcore.schema.LIVE_FRAMES`)."""
     import pandas as pd
 
-    from dropvision.labels import LabelError
-    from dropvision.shots import measure_shots, shots_of, shots_table
+    from dropvision.io.labels import LabelError
+    from dropvision.analysis.shots import measure_shots, shots_of, shots_table
 
     try:
         shots = shots_of(folder, [name], label_pattern=opts.label_pattern)
     except LabelError as exc:  # the final measurement refuses the folder as `dropvision measure` does
-        from dropvision.shots import ShotInput
+        from dropvision.analysis.shots import ShotInput
 
         shots, reason = ShotInput([folder / name], [name], [folder]), str(exc)
     else:
@@ -814,11 +814,11 @@ def _watch_shots_locked(folder: Path, out: Path, opts: WatchOptions, report, sto
 
 
 def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_out: list[str], stats: dict):
-    """The final tables of a shot watch: `dropvision.shots.measure_shots` over the complete images
+    """The final tables of a shot watch: `dropvision.analysis.shots.measure_shots` over the complete images
     (when they are the folder's shots, exactly the input of ``dropvision measure FOLDER``), written
     as ``dropvision measure`` writes them, with the journal kept."""
-    from dropvision.discovery import images_without_delay, natural_key
-    from dropvision.shots import find_shots, measure_shots, shots_of
+    from dropvision.io.discovery import images_without_delay, natural_key
+    from dropvision.analysis.shots import find_shots, measure_shots, shots_of
 
     if not done:
         raise SequenceError(f"{folder}: no complete image arrived (the watch ended by {stats['ended_by']})")
@@ -829,7 +829,7 @@ def _finish_shots(folder: Path, out: Path, opts: WatchOptions, done: dict, left_
     if shots is None or set(shots.names) != set(done):
         shots = shots_of(folder, sorted(done, key=natural_key), label_pattern=opts.label_pattern)
     result = measure_shots(shots, None, opts.config, overrides=opts.overrides, option_labels=opts.labels)
-    from dropvision.result_writer import check_shots_result, write_shots_result
+    from dropvision.output.result_writer import check_shots_result, write_shots_result
 
     checked = check_shots_result(result, out)
     journal = out / JOURNAL

@@ -82,7 +82,7 @@ def _summary_line(res, out) -> str:
     """One line: frames, how the sequence ended, latency, the main results."""
     s = res.result.summary
     if res.kind == "shots":
-        from dropvision.shots import one_line
+        from dropvision.analysis.shots import one_line
 
         lat = (f"row on disk {statistics.median(res.latency_ms):.0f} ms (median), {max(res.latency_ms):.0f} ms (max) "
                f"after each of the {len(res.latency_ms)} images written while watching was complete"

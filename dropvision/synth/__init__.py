@@ -19,7 +19,7 @@ and sequence.json without nozzle diameters; rig presets in :data:`RIGS`
 from dvcore.lazy import lazy_exports
 
 # Imported on first use, so that `dropvision <command>` does not pay for scipy.interpolate etc.
-# public name -> "module:attribute" (tests/test_layers.py reads this map)
+# public name -> "module:attribute" (tests/project/test_layers.py reads this map)
 _LAZY = {
     "DropHistory": "identify.physics:DropHistory",
     "SynthPhysics": "identify.physics:SynthPhysics",

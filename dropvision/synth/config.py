@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass, field, fields
 
 import numpy as np
 
-from dropvision.orientation import ORIENTATIONS
+from dropvision.io.orientation import ORIENTATIONS
 from dropvision.synth.render import PSFS, CameraGeometry, Optics
 from dropvision.synth.shapes import ShapeParams
 from identify.physics import SynthPhysics
@@ -100,7 +100,7 @@ class SynthConfig:
     orientation : str
         Direction the drops travel in the stored frames: "down" (canonical), "up", "left",
         "right". Frames are rendered canonically (``width_px`` x ``height_px``) and stored
-        with :func:`dropvision.orientation.from_canonical`; every truth position stays canonical.
+        with :func:`dropvision.io.orientation.from_canonical`; every truth position stays canonical.
     holder : bool or float
         Dark holder block / nozzle plate around the nozzle at the top: False/0 none, True
         5 x the nozzle outer diameter wide, a number > 0 its width in µm. It reaches from the

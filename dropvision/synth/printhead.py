@@ -258,8 +258,8 @@ def write_row(cfg: RowConfig, out_dir, *, overwrite: bool = False) -> Path:
     """Render ``cfg`` and write the folder (images, sequence.json, truth files) atomically."""
     import pandas as pd
 
-    from dropvision.orientation import from_canonical
-    from dropvision.sequence_writer import write_image, write_sequence_json
+    from dropvision.io.orientation import from_canonical
+    from dropvision.io.sequence_writer import write_image, write_sequence_json
     from dvcore.atomic import atomic_dir, check_output_dir, write_json, write_text
 
     out = Path(out_dir)

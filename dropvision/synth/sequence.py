@@ -14,7 +14,7 @@ from typing import Iterator
 
 import numpy as np
 
-from dropvision.orientation import from_canonical
+from dropvision.io.orientation import from_canonical
 from dropvision.synth.config import (FORMATS, RIGS, SCENES, STACK_FILE, SynthConfig, colour_gains,
                                      parse_delays)
 from dropvision.synth.planning import SynthPlan, plan, renderer_for
@@ -209,7 +209,7 @@ def synthesize(config: SynthConfig, *, progress: bool | None = None,
     ------
     image : ndarray, uint8 or uint16
         The frame as stored: (height_px, width_px) canonically, rotated by
-        :func:`dropvision.orientation.from_canonical` for ``orientation`` (left/right: (width_px,
+        :func:`dropvision.io.orientation.from_canonical` for ``orientation`` (left/right: (width_px,
         height_px)); (..., 3) RGB with ``colour``. JPEG compression happens in the writer.
     truth : FrameTruth
         Canonical-frame truth; ``truth.bodies`` holds the frame's truth_bodies.csv rows.

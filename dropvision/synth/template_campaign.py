@@ -7,7 +7,7 @@ synthesizer's truth: the ECM parameters, and the in-flight volume and jetting ve
 settings.
 
 `tools/template_identification.py` runs it for the figures (three-pulse and the paper's trapezoid
-side by side); `tests/test_template_identification.py` on a small campaign.
+side by side); `tests/identify/test_template_identification.py` on a small campaign.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 import pandas as pd
 
-from dropvision.orientation import canonical_to_original
+from dropvision.io.orientation import canonical_to_original
 from dropvision.synth.config import colour_gains
 from dropvision.synth.planning import SynthPlan, renderer_for
 from dropvision.synth.profiles import bead_segment, cap_volume_um3
@@ -137,7 +137,7 @@ def sequence_truth(synth_plan: SynthPlan) -> dict:
     }
     doc["conventions"].update({
         "truth_positions": "canonical frame; sequence.json orientation rotates the stored frames "
-                           "(dropvision.orientation.from_canonical); stored_tip_row/stored_axis_col "
+                           "(dropvision.io.orientation.from_canonical); stored_tip_row/stored_axis_col "
                            "give the tip centre in the stored image",
         "n_satellites": "detached bodies other than the main drop",
         "n_satellites_visible": "drops other than the main drop as a person counts them: satellites "

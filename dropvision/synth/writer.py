@@ -1,7 +1,7 @@
 """Writing a synthetic sequence folder: images, sequence.json, truth.json, truth_frames.csv,
 truth_bodies.csv.
 
-All files go through the shared writers of :mod:`dropvision.sequence_writer` (images, multi-page TIFF,
+All files go through the shared writers of :mod:`dropvision.io.sequence_writer` (images, multi-page TIFF,
 sequence.json) and :mod:`dvcore.atomic`; the whole folder is built in a temporary sibling
 and renamed into place at the end, so a failure never leaves a half-written sequence.
 """
@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from dvcore.atomic import atomic_dir, check_output_dir, write_bytes, write_json, write_text
-from dropvision.sequence_writer import write_image, write_multipage_tiff, write_sequence_json
+from dropvision.io.sequence_writer import write_image, write_multipage_tiff, write_sequence_json
 from dropvision.synth.sequence import (STACK_FILE, SynthConfig, truth_bodies_table, truth_frames_table, plan, sequence_truth,
                                        synthesize)
 

@@ -1,0 +1,1 @@
+"""Sequence-, shot- and nozzle-level analysis of the per-frame records."""

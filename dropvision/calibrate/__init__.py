@@ -1,0 +1,1 @@
+"""The calibration pass: from a few frames to what every frame is measured with."""

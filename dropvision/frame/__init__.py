@@ -1,0 +1,1 @@
+"""The per-frame stages: edges, segmentation, bodies, volumes, body classes."""

@@ -1,0 +1,1 @@
+"""What a measurement gives to look at: its tables and documents written, its frames drawn (annotate)."""
