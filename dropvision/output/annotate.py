@@ -192,6 +192,10 @@ def annotate(result, frame=0, image=None, *, ax=None, labels: bool = True):
         if labels and cls in _LABELLED and np.isfinite(float(b.get("row_camera_px", np.nan))):
             vol = b["volume_nl"]
             text = f"{cls.replace('_', ' ')} {_fmt(vol, 'nl')}" if cls != "border" else "border (cut)"
+            whole = float(row.get("drop_volume_nl", np.nan)) if cls == "main_drop" else np.nan
+            if np.isfinite(whole) and abs(whole - float(vol)) > 0.005 * abs(whole):
+                # satellites split off at the waist keep their volume in the main drop's (frames, summary)
+                text = f"main drop {_fmt(whole, 'nl')} (this part {_fmt(vol, 'nl')})"
             # the labels in a column at the top right (never on top of each other), a line to each body
             ax.annotate(text, (float(b["col_camera_px"]), float(b["row_camera_px"])),
                         xytext=(0.98, 0.96 - 0.07 * n_text), textcoords="axes fraction", ha="right", va="top",

@@ -174,3 +174,26 @@ def test_init_refusal_in_the_callers_words(tmp_path):
     assert "--overwrite" not in str(info.value)
     with pytest.raises(SequenceError, match=r"--overwrite replaces it"):
         dropvision.init_sequence(tmp_path, labels={"_caller": "command line"})
+
+
+def test_annotate_labels_the_main_drop_with_the_frames_volume(realdata_dir):
+    """A satellite split off the main drop at its waist keeps its volume in the main drop's (frames,
+    summary): the main drop's label gives that volume, and its own part beside it."""
+    import warnings
+
+    from dropvision.io.sequence import RGBConvertedWarning
+    import matplotlib.pyplot
+
+    from dropvision.output.annotate import _fmt
+
+    seq = realdata_dir / "watcher-dod" / "V1--98_V2-12_V3--10_w1-26_w2-10_w3-1_d1-7_d2-5"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RGBConvertedWarning)  # its JPEG is stored as colour
+        res = dropvision.measure(seq)
+    ax = res.annotate(0)
+    whole = float(res.frames["drop_volume_nl"].iloc[0])
+    part = float(res.bodies.loc[res.bodies["body_class"] == "main_drop", "volume_nl"].iloc[0])
+    assert whole > 1.02 * part  # this frame's 1.6 nl satellite touches the main drop
+    texts = [t.get_text() for t in ax.texts if t.get_text().startswith("main drop")]
+    assert texts == [f"main drop {_fmt(whole, 'nl')} (this part {_fmt(part, 'nl')})"]
+    matplotlib.pyplot.close(ax.figure)
