@@ -44,7 +44,7 @@ class CalibrationWarning(UserWarning):
     """A calibration cross-check disagrees (e.g. pixel size vs nozzle width)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class BackgroundModel:
     """Illumination estimate for the whole frame.
 
