@@ -256,9 +256,7 @@ def light_calibration(cal):
     """A copy of a `dropvision.calibrate.calibration.Calibration` without its frame-sized arrays (background
     model, opaque specks): what its summary needs, and cheap to send between processes."""
     bg = dataclasses.replace(cal.background, background=np.zeros((0, 0), np.float32), opaque=None)
-    out = dataclasses.replace(cal, background=bg)
-    out.notes = list(cal.notes)
-    return out
+    return dataclasses.replace(cal, background=bg)
 
 
 def measure_parts(seq: Sequence, config: MeasureConfig = MeasureConfig()) -> MeasuredParts:

@@ -408,13 +408,15 @@ def _calibrate_group(shots, config, overrides, option_labels, first_meta, picks,
         if not cal.nozzle_found:  # whether the nozzle is found differs between shots of one place (real frames)
             return None, ("the reference shot's calibration finds no nozzle (a shot of its place may find one "
                           "alone): no shared calibration")
-        cal.rest_meniscus_delay_us = delay if math.isfinite(cal.rest_meniscus_delay_us) else cal.rest_meniscus_delay_us
+        cal = dataclasses.replace(cal, rest_meniscus_delay_us=(delay if math.isfinite(cal.rest_meniscus_delay_us)
+                                                               else cal.rest_meniscus_delay_us))
         check_scale_in_focus(cal, meta)
     except (SequenceError, ValueError) as exc:
         return None, f"the shared calibration failed ({exc})"
     names = [shots.names[i] for i in members]
-    cal.notes.append(f"calibration shared by the shots of one rig: from {len(members)} shot(s) ("
-                     + ", ".join(names[:3]) + (", ..." if len(names) > 3 else "") + ")")
+    shared = (f"calibration shared by the shots of one rig: from {len(members)} shot(s) ("
+              + ", ".join(names[:3]) + (", ..." if len(names) > 3 else "") + ")")
+    cal = dataclasses.replace(cal, notes=cal.notes + (shared,))
     rig = RigCalibration(meta=meta, dtype=images[0].dtype, cal=cal, sigma_px=float(sigma), ctx=ctx,
                          flags=calibration_flags(cal, sigma, config),
                          reference=fingerprint(to_canonical(stored[reference], meta.orientation)),

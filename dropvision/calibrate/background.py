@@ -44,7 +44,7 @@ class CalibrationWarning(UserWarning):
     """A calibration cross-check disagrees (e.g. pixel size vs nozzle width)."""
 
 
-@dataclass
+@dataclass(frozen=True)
 class BackgroundModel:
     """Illumination estimate for the whole frame.
 
@@ -345,15 +345,24 @@ def unclipped_level(image: np.ndarray, nozzle: Nozzle, max_value: int, half_px: 
         spread of the walls' values, at least half their difference from the level's own middle
         sample (NaN without an estimate).
     """
-    from scipy.optimize import least_squares
-    from scipy.special import ndtr
-
     img = np.asarray(image, np.float64)
-    h, w = img.shape
     clip = 0.98 * max_value
-    offs = np.arange(-half_px, half_px + 1, dtype=float)
-    # 1. the straight walls' profiles, averaged over the rows, fitted one wall at a time
-    walls, fitted, fitted_se = [], [], []
+    walls = _wall_profiles(img, nozzle, half_px)
+    found = _walls_step_level(walls, clip, max_value, half_px)  # 1. the straight walls, one at a time
+    if found is None:
+        found = _outline_step_level(img, nozzle, clip, max_value, half_px)  # 2. the pooled outline
+    if found is None:
+        found = _steepest_point_level(walls, clip)  # 3. the steepest point of the walls' profiles
+    return found
+
+
+def _wall_profiles(img: np.ndarray, nozzle: Nozzle, half_px: int) -> list[tuple[np.ndarray, float]]:
+    """(profile, d) of each straight wall with three rows or more (`unclipped_level`, step 1): the
+    grey levels across its edge (``2 half_px + 1`` samples from the dark side out, aligned on the
+    nearest pixel of each row's edge) averaged over its rows, and its dark level ``d`` (the median
+    of the three innermost samples)."""
+    w = img.shape[1]
+    walls = []
     for edges, sign in ((nozzle.left_px, -1), (nozzle.right_px, 1)):
         profs = []
         for r, e in zip(nozzle.rows, edges):
@@ -364,8 +373,19 @@ def unclipped_level(image: np.ndarray, nozzle: Nozzle, max_value: int, half_px: 
         if len(profs) < 3:
             continue
         prof = np.mean(profs, axis=0)
-        d = float(np.median(prof[:3]))
-        walls.append((prof, d))
+        walls.append((prof, float(np.median(prof[:3]))))
+    return walls
+
+
+def _walls_step_level(walls: list, clip: float, max_value: int, half_px: int) -> tuple[float, float] | None:
+    """Step 1 of `unclipped_level`: each wall's averaged profile fitted by the blurred step below the
+    clip; (median level, its standard uncertainty) over the walls whose fit holds, or None."""
+    from scipy.optimize import least_squares
+    from scipy.special import ndtr
+
+    offs = np.arange(-half_px, half_px + 1, dtype=float)
+    fitted, fitted_se = [], []
+    for prof, d in walls:
         use = prof < clip
         if (use & (prof > d + 0.05 * (clip - d))).sum() < 5:
             continue
@@ -376,50 +396,78 @@ def unclipped_level(image: np.ndarray, nozzle: Nozzle, max_value: int, half_px: 
         if fit.success and 0.5 * (b + d) < clip and np.sqrt(np.mean(fit.fun**2)) < 0.02 * max_value:
             fitted.append(b)
             fitted_se.append(_level_se(fit))
-    if fitted:
-        spread = float(np.std(fitted, ddof=1) / np.sqrt(len(fitted))) if len(fitted) >= 2 else 0.0
-        return float(np.median(fitted)), max(float(np.sqrt(np.mean(np.square(fitted_se)))), spread)
-    # 2. pooled outline
-    if nozzle.outline_rows is not None and nozzle.outline_rows.size >= 5:
-        us, vs, ds, phases = [], [], [], []
-        rows = nozzle.outline_rows
-        for edges, sign in ((nozzle.outline_left, -1.0), (nozzle.outline_right, 1.0)):
-            slope = np.gradient(edges, rows) if rows.size > 1 else np.zeros(rows.size)
-            for r, xe, sl in zip(rows, edges, slope):
-                if not np.isfinite(xe) or abs(sl) > 1.0:
-                    continue
-                c = int(round(xe))
-                if c - half_px < 0 or c + half_px + 1 > w:
-                    continue
-                v = img[int(r), c - half_px:c + half_px + 1]
-                u = sign * (c + offs - xe) / np.hypot(1.0, sl)  # + towards the background
-                inside = u < -6.0
-                if inside.sum() < 2:
-                    continue
-                keep = v < clip
-                us.append(u[keep])
-                vs.append(v[keep])
-                ds.append(np.full(int(keep.sum()), float(np.median(v[inside]))))
-                phases.append(xe - c)
-        # the step is only separable from its level when it is sampled at many sub-pixel phases
-        bins = np.bincount(np.minimum(((np.asarray(phases) + 0.5) * 5).astype(int), 4), minlength=5)
-        if us and (bins >= max(3, 0.05 * len(phases))).sum() >= 4:
-            u, v, d = np.concatenate(us), np.concatenate(vs), np.concatenate(ds)
-            rising = v > d + 0.05 * (clip - d)
-            if rising.sum() >= 20:
-                def resid(x):
-                    return d + (x[0] - d) * ndtr((u - x[1]) / x[2]) - v
+    if not fitted:
+        return None
+    spread = float(np.std(fitted, ddof=1) / np.sqrt(len(fitted))) if len(fitted) >= 2 else 0.0
+    return float(np.median(fitted)), max(float(np.sqrt(np.mean(np.square(fitted_se)))), spread)
 
-                fit = least_squares(resid, (1.2 * max_value, 0.0, 1.5),
-                                    bounds=([0.5 * max_value, -half_px / 2, 0.2], [20 * max_value, half_px / 2,
-                                                                                   half_px / 2]))
-                b = float(fit.x[0])
-                rms = float(np.sqrt(np.mean(fit.fun[rising] ** 2)))
-                b_se = _level_se(fit)  # from the fit's Jacobian: the lower half alone may not fix it
-                if (fit.success and 0.5 * (b + float(np.median(d))) < clip and rms < 0.02 * max_value
-                        and b_se < 0.01 * b):
-                    return b, b_se
-    # 3. steepest point of the averaged wall profiles
+
+def _outline_samples(img: np.ndarray, nozzle: Nozzle, clip: float, half_px: int) -> tuple[list, list, list, list]:
+    """The samples of step 2 of `unclipped_level`: in each outline row steeper than 45 degrees, the
+    samples below the clip at their distance ``u`` along the normal from the row's edge (+ towards
+    the background), their grey levels ``v``, the row's dark level ``d`` (6 px and more inside) and
+    the edge's sub-pixel phase; per row: (us, vs, ds, phases)."""
+    w = img.shape[1]
+    offs = np.arange(-half_px, half_px + 1, dtype=float)
+    us, vs, ds, phases = [], [], [], []
+    rows = nozzle.outline_rows
+    for edges, sign in ((nozzle.outline_left, -1.0), (nozzle.outline_right, 1.0)):
+        slope = np.gradient(edges, rows) if rows.size > 1 else np.zeros(rows.size)
+        for r, xe, sl in zip(rows, edges, slope):
+            if not np.isfinite(xe) or abs(sl) > 1.0:
+                continue
+            c = int(round(xe))
+            if c - half_px < 0 or c + half_px + 1 > w:
+                continue
+            v = img[int(r), c - half_px:c + half_px + 1]
+            u = sign * (c + offs - xe) / np.hypot(1.0, sl)  # + towards the background
+            inside = u < -6.0
+            if inside.sum() < 2:
+                continue
+            keep = v < clip
+            us.append(u[keep])
+            vs.append(v[keep])
+            ds.append(np.full(int(keep.sum()), float(np.median(v[inside]))))
+            phases.append(xe - c)
+    return us, vs, ds, phases
+
+
+def _outline_step_level(img: np.ndarray, nozzle: Nozzle, clip: float, max_value: int,
+                        half_px: int) -> tuple[float, float] | None:
+    """Step 2 of `unclipped_level`: the pooled outline samples (`_outline_samples`) fitted by the
+    blurred step; (level, its standard error) when the samples cover the sub-pixel phases and the
+    fit holds, else None."""
+    from scipy.optimize import least_squares
+    from scipy.special import ndtr
+
+    if nozzle.outline_rows is None or nozzle.outline_rows.size < 5:
+        return None
+    us, vs, ds, phases = _outline_samples(img, nozzle, clip, half_px)
+    # the step is only separable from its level when it is sampled at many sub-pixel phases
+    bins = np.bincount(np.minimum(((np.asarray(phases) + 0.5) * 5).astype(int), 4), minlength=5)
+    if not (us and (bins >= max(3, 0.05 * len(phases))).sum() >= 4):
+        return None
+    u, v, d = np.concatenate(us), np.concatenate(vs), np.concatenate(ds)
+    rising = v > d + 0.05 * (clip - d)
+    if rising.sum() < 20:
+        return None
+
+    def resid(x):
+        return d + (x[0] - d) * ndtr((u - x[1]) / x[2]) - v
+
+    fit = least_squares(resid, (1.2 * max_value, 0.0, 1.5),
+                        bounds=([0.5 * max_value, -half_px / 2, 0.2], [20 * max_value, half_px / 2, half_px / 2]))
+    b = float(fit.x[0])
+    rms = float(np.sqrt(np.mean(fit.fun[rising] ** 2)))
+    b_se = _level_se(fit)  # from the fit's Jacobian: the lower half alone may not fix it
+    if fit.success and 0.5 * (b + float(np.median(d))) < clip and rms < 0.02 * max_value and b_se < 0.01 * b:
+        return b, b_se
+    return None
+
+
+def _steepest_point_level(walls: list, clip: float) -> tuple[float, float]:
+    """Step 3 of `unclipped_level`: the steepest point of each wall's averaged profile taken as the
+    middle ``(d + B) / 2``; (median level, its uncertainty), or (NaN, NaN) without one."""
     found = []
     for prof, d in walls:
         diff = np.diff(prof)

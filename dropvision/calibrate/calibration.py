@@ -12,7 +12,7 @@ sequence.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import ClassVar
 
 import cv2
@@ -30,6 +30,17 @@ from dropvision.frame.segmentation import fill_holes
 EDGE_FLOOR_TERM = "edge floor"
 
 __all__ = ["Calibration", "CalibrationError", "CalibrationWarning", "calibrate_frames", "interior_level"]
+
+
+def quadrature_px(terms: dict) -> float:
+    """Standard uncertainties (px) of independent parts, ``terms`` (name -> px), in quadrature."""
+    return float(np.sqrt(sum(v * v for v in terms.values())))
+
+
+def relative_uncertainty(uncertainty: float, value: float) -> float:
+    """``uncertainty / value``; 0 for no uncertainty (a given value, taken as exact)."""
+    u = float(uncertainty)
+    return u / float(value) if u > 0 and value > 0 else 0.0
 
 
 def interior_level(transmission: np.ndarray, region: np.ndarray, erode_px: int = 4,
@@ -102,9 +113,14 @@ class ClippedBackground:
         return out
 
 
-@dataclass
+@dataclass(frozen=True)
 class Calibration:
-    """Everything the per-frame measurement needs (full-frame canonical coordinates)."""
+    """Everything the per-frame measurement needs (full-frame canonical coordinates).
+
+    Frozen: `calibrate_frames` builds it from its stages' results, and the calibration pass
+    (`dropvision.calibrate.calibration_pass.calibrate_sequence`) gives the new values of its own stages
+    with `dataclasses.replace`; nothing assigns to a calibration once built.
+    """
 
     shape: tuple[int, int]
     pixel_size_um: float
@@ -122,7 +138,7 @@ class Calibration:
     nozzle_outer_diameter_um_measured: float
     pixel_size_disagreement_percent: float
     background: BackgroundModel
-    notes: list[str] = field(default_factory=list)
+    notes: tuple[str, ...] = ()
     #: Pixel size implied by ``nozzle_outer_diameter_um`` over the given one (NaN without it; 1 when the pixel
     #: size is the nozzle's own, ``pixel_size_from_nozzle``).
     pixel_size_ratio: float = float("nan")
@@ -156,13 +172,12 @@ class Calibration:
     @property
     def pixel_size_relative_uncertainty(self) -> float:
         """``pixel_size_uncertainty_um / pixel_size_um`` (0 for a given pixel size)."""
-        u = float(self.pixel_size_uncertainty_um)
-        return u / float(self.pixel_size_um) if u > 0 and self.pixel_size_um > 0 else 0.0
+        return relative_uncertainty(self.pixel_size_uncertainty_um, self.pixel_size_um)
 
     @property
     def edge_position_uncertainty_px(self) -> float:
         """Standard uncertainty (px) of an edge position common to a body: its parts in quadrature."""
-        return float(np.sqrt(sum(v * v for v in self.edge_position_terms_px.values())))
+        return quadrature_px(self.edge_position_terms_px)
 
     @property
     def volume_uncertainty_source(self) -> str:
@@ -203,8 +218,7 @@ class Calibration:
             "pixel_size_from_nozzle": self.pixel_size_from_nozzle,
             "pixel_size_uncertainty_um": self.pixel_size_uncertainty_um,
             "nozzle_outer_diameter_uncertainty_px": (
-                float(np.sqrt(sum(v * v for v in self.nozzle_width_terms_px.values())))
-                if self.nozzle_width_terms_px else float("nan")),
+                quadrature_px(self.nozzle_width_terms_px) if self.nozzle_width_terms_px else float("nan")),
             "nozzle_outer_diameter_terms_px": dict(self.nozzle_width_terms_px),
             "rest_meniscus_width_px": self.rest_meniscus_width_px,
             "background": {
@@ -224,24 +238,18 @@ class Calibration:
         }
 
 
-def calibrate_frames(
-    first: np.ndarray,
-    spread: list[np.ndarray],
-    pixel_size_um: float,
-    *,
-    nozzle_outer_diameter_um: float | None = None,
-    nozzle_inner_diameter_um: float | None = None,
-    tip_row: float | None = None,
-    axis_col: float | None = None,
-    static_dust: bool = True,
-    pixel_size_tolerance: float = 0.02,
-    edge_position_floor_px: float = 0.05,
-    max_value: int | None = None,
-    clipped_limit: float = 0.01,
-    allow_no_nozzle: bool = False,
-    pixel_size_from_nozzle: bool = False,
-) -> Calibration:
+def calibrate_frames(first: np.ndarray, spread: list[np.ndarray], pixel_size_um: float, *,
+                     nozzle_outer_diameter_um: float | None = None, nozzle_inner_diameter_um: float | None = None,
+                     tip_row: float | None = None, axis_col: float | None = None, static_dust: bool = True,
+                     pixel_size_tolerance: float = 0.02, edge_position_floor_px: float = 0.05,
+                     max_value: int | None = None, clipped_limit: float = 0.01, allow_no_nozzle: bool = False,
+                     pixel_size_from_nozzle: bool = False) -> Calibration:
     """Calibrate a sequence from its first (meniscus at rest) frame and frames spread over it.
+
+    Its stages, each returning its own frozen result: the background (`lit_background`), the
+    nozzle (`dropvision.calibrate.nozzle.find_nozzle`), the pixel size (`pixel_scale`), the tip plane
+    and the axis (`tip_and_axis`) and the liquid's level (`liquid_interior_level`); the
+    `Calibration` is assembled from them once.
 
     Parameters
     ----------
@@ -261,16 +269,13 @@ def calibrate_frames(
     edge_position_floor_px : float
         Systematic uncertainty of one wall edge (px), see `outer_diameter_uncertainty_px`.
     max_value : int, optional
-        Sensor maximum; with it, a background clipped there over more than ``clipped_limit`` of
-        the frame gets its unclipped level from the nozzle walls (`unclipped_level`).
-    clipped_limit : float
-        Fraction of the background at the sensor maximum from which it is treated as clipped.
+        Sensor maximum; with it, a background clipped there over more than ``clipped_limit`` (a
+        fraction) of the frame gets its unclipped level from the nozzle walls (`lit_background`).
     allow_no_nozzle : bool
         Where no nozzle is found but the first frame holds detached dark bodies, calibrate
         without it (`_without_nozzle`) instead of raising.
     static_dust : bool
-        Fold static dust seen in three or more of ``spread`` into the background
-        (`dropvision.calibrate.background.estimate_background`).
+        Fold static dust seen in three or more of ``spread`` into the background (`estimate_background`).
     pixel_size_from_nozzle : bool
         No pixel size was given: ``pixel_size_um`` is provisional and the pixel size is
         ``nozzle_outer_diameter_um`` over the outer width measured here, by the one rule of the
@@ -279,40 +284,13 @@ def calibrate_frames(
         nothing is cross-checked against it.  Its uncertainty is set by
         `dropvision.calibrate.calibration_pass.calibrate_sequence` once the edge terms are known.
     """
-    bg = estimate_background(spread, static_dust=static_dust)
-    notes: list[str] = []
-    clipped: ClippedBackground | None = None
     from_nozzle = bool(pixel_size_from_nozzle and nozzle_outer_diameter_um)
     # the width is the pixel size's source: no expected width steers the walls' choice (one rule)
     expected = nozzle_outer_diameter_um / pixel_size_um if nozzle_outer_diameter_um and not from_nozzle else None
-    frac = clipped_fraction(bg.background, max_value)
-    if frac > clipped_limit:
-        level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background,
-                                                             DEFAULT_EDGE_THRESHOLD,
-                                                             expected), max_value)
-        if bool(np.isfinite(level) and level > max_value):
-            clipped = ClippedBackground(fraction=frac, level=level, level_uncertainty=level_se,
-                                        max_value=int(max_value), level_known=True)
-            bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(level),
-                                     bg.background).astype(np.float32)
-            notes.append(f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
-                         f"level {level:.0f} (max {max_value}) estimated from the nozzle walls; edges are taken "
-                         "below the clip")
-        else:
-            # the true level is at or above the clip: the sensor maximum is its lower bound, and the
-            # true edge lies between our crossing and the first clipped pixel outside it
-            bg.background = np.where(bg.background >= 0.99 * max_value, np.float32(max_value),
-                                     bg.background).astype(np.float32)
-            nz = find_nozzle(np.asarray(first, np.float32) / bg.background, DEFAULT_EDGE_THRESHOLD, expected)
-            clipped = ClippedBackground(fraction=frac, level=float(max_value), level_uncertainty=float("nan"),
-                                        max_value=int(max_value), level_known=False,
-                                        edge_range_px=clipped_edge_range_px(first, nz, max_value))
-            notes.append(f"background clipped over {100 * frac:.0f} % of the frame and its level could not be "
-                         f"estimated (the middle of the nozzle walls' edge is clipped too): the sensor maximum "
-                         f"{max_value} is taken as its level (a lower bound); the true edge lies within "
-                         f"{clipped.edge_range_px:.2f} px outside the measured one (in the uncertainty)")
+    lit = lit_background(first, spread, expected, static_dust=static_dust, max_value=max_value,
+                         clipped_limit=clipped_limit)
+    bg = lit.background
     t_first = np.asarray(first, np.float32) / bg.background
-    # first pass with a 50 % threshold, refined with the measured nozzle level
     # first pass at 50 % (half-way to the darkest body in a low-contrast frame, where the nozzle
     # itself may sit near 50 %), refined with the measured nozzle level
     darkest = darkest_level(t_first)
@@ -321,79 +299,189 @@ def calibrate_frames(
     except CalibrationError as exc:
         if not (allow_no_nozzle and isinstance(exc, NoNozzleError)):
             raise
-        return _without_nozzle(exc, t_first, spread, bg, pixel_size_um, first_pass_threshold(darkest), notes, clipped)
+        return _without_nozzle(exc, t_first, spread, bg, pixel_size_um, first_pass_threshold(darkest), lit.notes,
+                               lit.clipped)
     thr_n = edge_threshold(nozzle.interior_level)
     nozzle = find_nozzle(t_first, thr_n, expected)
+    scale = pixel_scale(nozzle, pixel_size_um, nozzle_outer_diameter_um, from_nozzle=from_nozzle,
+                        tolerance=pixel_size_tolerance, edge_position_floor_px=edge_position_floor_px)
+    if scale.note is not None:
+        warnings.warn(scale.note, CalibrationWarning, stacklevel=2)
+    r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / scale.pixel_size_um
+    place = tip_and_axis(t_first, nozzle, thr_n, r_in, tip_row=tip_row, axis_col=axis_col)
+    liquid, liquid_note = liquid_interior_level(spread, bg, place.tip_row, thr_n, nozzle.interior_level)
+    notes = lit.notes + tuple(n for n in (scale.note, liquid_note) if n is not None)
+    return Calibration(
+        shape=t_first.shape, pixel_size_um=float(scale.pixel_size_um), pixel_size_source=scale.source,
+        tip_row=float(place.tip_row), tip_source=place.tip_source, tip_row_given=tip_row is not None,
+        axis_col=float(place.axis_col), axis_source=place.axis_source, axis_col_given=axis_col is not None,
+        tilt_rad=float(place.tilt_rad), tilt_source=place.tilt_source,
+        liquid_level=liquid, nozzle_level=nozzle.interior_level, threshold=edge_threshold(liquid),
+        nozzle_outer_diameter_px=float(scale.outer_diameter_px),
+        nozzle_outer_diameter_um_measured=float(scale.outer_diameter_um),
+        pixel_size_disagreement_percent=scale.disagreement_percent, background=bg, notes=notes,
+        pixel_size_ratio=scale.ratio, pixel_size_ratio_uncertainty=scale.ratio_uncertainty, clipped=lit.clipped,
+        pixel_size_from_nozzle=from_nozzle)
+
+
+@dataclass(frozen=True)
+class LitBackground:
+    """The background model of a sequence, a clipped backlight's level put in where it is clipped
+    (`lit_background`).
+
+    Attributes
+    ----------
+    background : BackgroundModel
+    clipped : ClippedBackground or None
+        None when the background is not clipped.
+    notes : tuple of str
+        The calibration's note on the clip (empty when not clipped).
+    """
+
+    background: BackgroundModel
+    clipped: ClippedBackground | None = None
+    notes: tuple[str, ...] = ()
+
+
+def lit_background(first: np.ndarray, spread: list[np.ndarray], expected_width_px: float | None, *,
+                   static_dust: bool = True, max_value: int | None = None,
+                   clipped_limit: float = 0.01) -> LitBackground:
+    """The background model of ``spread`` (`estimate_background`), and where it is clipped at the
+    sensor maximum over more than ``clipped_limit`` of the frame, its unclipped level: read at the
+    nozzle walls of ``first`` (`unclipped_level`; their expected width ``expected_width_px``), else the
+    sensor maximum as a lower bound (the true edge then lies within `clipped_edge_range_px` outside the
+    measured one)."""
+    bg = estimate_background(spread, static_dust=static_dust)
+    frac = clipped_fraction(bg.background, max_value)
+    if not frac > clipped_limit:
+        return LitBackground(bg)
+    level, level_se = unclipped_level(first, find_nozzle(np.asarray(first, np.float32) / bg.background,
+                                                         DEFAULT_EDGE_THRESHOLD,
+                                                         expected_width_px), max_value)
+    if bool(np.isfinite(level) and level > max_value):
+        clipped = ClippedBackground(fraction=frac, level=level, level_uncertainty=level_se,
+                                    max_value=int(max_value), level_known=True)
+        bg = replace(bg, background=np.where(bg.background >= 0.99 * max_value, np.float32(level),
+                                             bg.background).astype(np.float32))
+        return LitBackground(bg, clipped, (
+            f"background clipped at the sensor maximum over {100 * frac:.0f} % of the frame: its "
+            f"level {level:.0f} (max {max_value}) estimated from the nozzle walls; edges are taken below the clip",))
+    # the true level is at or above the clip: the sensor maximum is its lower bound, and the
+    # true edge lies between our crossing and the first clipped pixel outside it
+    bg = replace(bg, background=np.where(bg.background >= 0.99 * max_value, np.float32(max_value),
+                                         bg.background).astype(np.float32))
+    nz = find_nozzle(np.asarray(first, np.float32) / bg.background, DEFAULT_EDGE_THRESHOLD, expected_width_px)
+    clipped = ClippedBackground(fraction=frac, level=float(max_value), level_uncertainty=float("nan"),
+                                max_value=int(max_value), level_known=False,
+                                edge_range_px=clipped_edge_range_px(first, nz, max_value))
+    return LitBackground(bg, clipped, (
+        f"background clipped over {100 * frac:.0f} % of the frame and its level could not be "
+        f"estimated (the middle of the nozzle walls' edge is clipped too): the sensor maximum "
+        f"{max_value} is taken as its level (a lower bound); the true edge lies within "
+        f"{clipped.edge_range_px:.2f} px outside the measured one (in the uncertainty)",))
+
+
+@dataclass(frozen=True)
+class PixelScale:
+    """The pixel size of a calibration and the nozzle's outer width against it (`pixel_scale`).
+
+    Attributes
+    ----------
+    pixel_size_um : float
+        The given one, or the nozzle's outer diameter over its measured width (``from_nozzle``).
+    source : str
+        Where it comes from (summary.json ``pixel_size_source``).
+    outer_diameter_px, outer_diameter_um : float
+        The nozzle's outer width measured (px) and in µm at that pixel size.
+    disagreement_percent, ratio, ratio_uncertainty : float
+        A given pixel size checked against the outer diameter: the width's disagreement (%), the
+        implied pixel size over the given one and its standard uncertainty (NaN: nothing to check).
+    note : str or None
+        The calibration's note when the disagreement is beyond the tolerance.
+    """
+
+    pixel_size_um: float
+    source: str
+    outer_diameter_px: float
+    outer_diameter_um: float
+    disagreement_percent: float = float("nan")
+    ratio: float = float("nan")
+    ratio_uncertainty: float = float("nan")
+    note: str | None = None
+
+
+def pixel_scale(nozzle, pixel_size_um: float, nozzle_outer_diameter_um: float | None, *, from_nozzle: bool,
+                tolerance: float, edge_position_floor_px: float) -> PixelScale:
+    """The pixel size (given, or the outer diameter over the measured width when ``from_nozzle``)
+    and, for a given one, its check against the outer diameter: a note beyond ``tolerance``
+    (relative); the ratio's uncertainty from `outer_diameter_uncertainty_px` with
+    ``edge_position_floor_px``."""
     source = "sequence.json pixel_size_um"
     if from_nozzle:
         pixel_size_um = float(nozzle_outer_diameter_um) / nozzle.outer_diameter_px
         source = (f"nozzle outer diameter {nozzle_outer_diameter_um:g} um / {nozzle.outer_diameter_px:.2f} px "
                   f"(its straight outer walls, rows {int(nozzle.rows[0])}-{int(nozzle.rows[-1])} of the first frame)")
-    r_in = None if nozzle_inner_diameter_um is None else 0.5 * nozzle_inner_diameter_um / pixel_size_um
-    tip, tip_src = find_tip(t_first, nozzle, thr_n, r_in)
-    tilt = nozzle.tilt_rad
+    d_px = nozzle.outer_diameter_px
+    d_um = d_px * pixel_size_um
+    if not (nozzle_outer_diameter_um and not from_nozzle):
+        return PixelScale(pixel_size_um, source, d_px, d_um)
+    # a given pixel size: checked against the diameter
+    disagree = 100.0 * (d_um / nozzle_outer_diameter_um - 1.0)
+    # implied pixel size (outer diameter / measured px) over the given one
+    ratio = float(nozzle_outer_diameter_um / d_um)
+    ratio_u = float(ratio * outer_diameter_uncertainty_px(nozzle, edge_position_floor_px) / d_px)
+    note = None
+    if abs(disagree) > 100 * tolerance:
+        note = (f"pixel size {pixel_size_um} um disagrees by {disagree:+.1f} % with the nozzle's outer "
+                f"width ({d_px:.1f} px for {nozzle_outer_diameter_um} um)")
+    return PixelScale(pixel_size_um, source, d_px, d_um, disagree, ratio, ratio_u, note)
+
+
+@dataclass(frozen=True)
+class TipAndAxis:
+    """The tip plane's row, the axis' column at it and its tilt, each with its source (`tip_and_axis`)."""
+
+    tip_row: float
+    tip_source: str
+    axis_col: float
+    axis_source: str
+    tilt_rad: float
+    tilt_source: str
+
+
+def tip_and_axis(t_first: np.ndarray, nozzle, threshold: float, inner_radius_px: float | None, *,
+                 tip_row: float | None = None, axis_col: float | None = None) -> TipAndAxis:
+    """The tip plane (`find_tip`) and the axis of the nozzle's outer walls' midline fit; a given
+    ``tip_row`` or ``axis_col`` replaces what was found (the axis then taken at the given tip)."""
+    tip, tip_src = find_tip(t_first, nozzle, threshold, inner_radius_px)
     axis = nozzle.axis_col(tip)
     axis_src = "nozzle outer walls midline fit"
-    tilt_src = "nozzle outer walls midline fit"
     if tip_row is not None:
         tip, tip_src = float(tip_row), "user (sequence.json nozzle_tip_row)"
         axis = nozzle.axis_col(tip)
     if axis_col is not None:
         axis, axis_src = float(axis_col), "user (sequence.json axis_col)"
-    d_px = nozzle.outer_diameter_px
-    d_um = d_px * pixel_size_um
-    disagree = ratio = ratio_u = float("nan")
-    if nozzle_outer_diameter_um and not from_nozzle:  # a given pixel size: checked against the diameter
-        disagree = 100.0 * (d_um / nozzle_outer_diameter_um - 1.0)
-        # implied pixel size (outer diameter / measured px) over the given one
-        ratio = float(nozzle_outer_diameter_um / d_um)
-        ratio_u = float(ratio * outer_diameter_uncertainty_px(nozzle, edge_position_floor_px) / d_px)
-        if abs(disagree) > 100 * pixel_size_tolerance:
-            msg = (
-                f"pixel size {pixel_size_um} um disagrees by {disagree:+.1f} % with the nozzle's outer "
-                f"width ({d_px:.1f} px for {nozzle_outer_diameter_um} um)"
-            )
-            notes.append(msg)
-            warnings.warn(msg, CalibrationWarning, stacklevel=2)
-    # liquid interior level from liquid below the tip in the spread frames
-    h, w = t_first.shape
-    region = np.zeros((h, w), bool)
-    region[int(np.ceil(tip)) + 3:, :] = True
+    return TipAndAxis(tip_row=tip, tip_source=tip_src, axis_col=axis, axis_source=axis_src,
+                      tilt_rad=nozzle.tilt_rad, tilt_source="nozzle outer walls midline fit")
+
+
+def liquid_interior_level(spread: list[np.ndarray], bg: BackgroundModel, tip_row: float, threshold: float,
+                          nozzle_level: float) -> tuple[float, str | None]:
+    """The liquid's interior level: the median of `interior_level` over ``spread``, below the tip
+    plane (3 rows down) and off opaque specks; the nozzle's level ``nozzle_level`` with a note when
+    no liquid body is large enough.  Returns (level, note or None)."""
+    region = np.zeros(bg.background.shape, bool)
+    region[int(np.ceil(tip_row)) + 3:, :] = True
     if bg.opaque is not None:
         region &= ~bg.opaque
     levels = []
     for img in spread:
-        lv = interior_level(np.asarray(img, np.float32) / bg.background, region, threshold=thr_n)
+        lv = interior_level(np.asarray(img, np.float32) / bg.background, region, threshold=threshold)
         if np.isfinite(lv):
             levels.append(lv)
     if levels:
-        liquid = float(np.median(levels))
-    else:
-        liquid = nozzle.interior_level
-        notes.append("no liquid body large enough to measure its interior level: nozzle level used")
-    return Calibration(
-        shape=(h, w),
-        pixel_size_um=float(pixel_size_um),
-        pixel_size_source=source,
-        tip_row=float(tip),
-        tip_source=tip_src, tip_row_given=tip_row is not None,
-        axis_col=float(axis),
-        axis_source=axis_src, axis_col_given=axis_col is not None,
-        tilt_rad=float(tilt),
-        tilt_source=tilt_src,
-        liquid_level=liquid,
-        nozzle_level=nozzle.interior_level,
-        threshold=edge_threshold(liquid),
-        nozzle_outer_diameter_px=float(d_px),
-        nozzle_outer_diameter_um_measured=float(d_um),
-        pixel_size_disagreement_percent=disagree,
-        background=bg,
-        notes=notes,
-        pixel_size_ratio=ratio,
-        pixel_size_ratio_uncertainty=ratio_u,
-        clipped=clipped,
-        pixel_size_from_nozzle=from_nozzle,
-    )
+        return float(np.median(levels)), None
+    return nozzle_level, "no liquid body large enough to measure its interior level: nozzle level used"
 
 
 #: Tilt and its source when no nozzle is found: the image columns (stated, as for an out-of-focus nozzle).
@@ -401,7 +489,8 @@ NO_NOZZLE_TILT_SOURCE = "image columns (assumed: no nozzle found)"
 
 
 def _without_nozzle(exc: CalibrationError, t_first: np.ndarray, spread: list[np.ndarray], bg: BackgroundModel,
-                    pixel_size_um: float, threshold: float, notes: list[str], clipped: ClippedBackground | None) -> Calibration:
+                    pixel_size_um: float, threshold: float, notes: tuple[str, ...],
+                    clipped: ClippedBackground | None) -> Calibration:
     """A calibration without a nozzle, for a frame whose detached drops can still be measured.
 
     Only when the first frame holds a dark body touching no edge of the frame of at least 50 px
@@ -431,9 +520,9 @@ def _without_nozzle(exc: CalibrationError, t_first: np.ndarray, spread: list[np.
         if np.isfinite(lv):
             levels.append(lv)
     liquid = float(np.median(levels)) if levels else float(np.percentile(t_first[inside[lab]], 2))
-    notes.append(f"{exc}: no nozzle found; the detached drops are measured each about its own axis, the jet's axis "
-                 "is their line, and what needs the nozzle (attached volume, tip plane, distance along the axis, "
-                 "pixel-size cross-checks) is not given")
+    notes = notes + (f"{exc}: no nozzle found; the detached drops are measured each about its own axis, the jet's "
+                     "axis is their line, and what needs the nozzle (attached volume, tip plane, distance along the "
+                     "axis, pixel-size cross-checks) is not given",)
     nan = float("nan")
     return Calibration(
         shape=(h, w), pixel_size_um=float(pixel_size_um), pixel_size_source="sequence.json pixel_size_um",

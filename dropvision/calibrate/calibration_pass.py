@@ -1,23 +1,34 @@
 """The calibration pass of a sequence: from a few frames to the `FrameContext` of its measurement.
 
-`calibrate_sequence` decodes a few frames spread over an open sequence, calibrates them
-(`dropvision.calibrate.calibration.calibrate_frames`: background, nozzle, axis, tilt, tip plane, liquid level),
-and then runs the stages below, each taking arrays (or the groups built so far) and returning a
-small frozen result; the context's groups (`dropvision.calibrate.frame_context.Geometry`, `PhotometricReference`,
-`BlurModel`) are built from them, and the `FrameContext` once, at the end:
+`calibrate_sequence` decodes a few frames spread over an open sequence (`calibration_frames`),
+calibrates them (`calibrate_first`: `dropvision.calibrate.calibration.calibrate_frames`, background,
+nozzle, axis, tilt, tip plane, liquid level), and then runs the stages below, each taking arrays (or
+the groups built so far) and returning a small frozen result; the context's groups
+(`dropvision.calibrate.frame_context.Geometry`, `PhotometricReference`, `BlurModel`) are built from them,
+and the `FrameContext` once, at the end.  The `Calibration` is frozen: a stage's values enter it by
+`dataclasses.replace` where the stage ends (`InFocusAxis.applied_to`; the uncertainties, the notes and
+the resting meniscus at the end).
 
+- `nozzle_walls`: the nozzle's walls in the first frame, their blur, and how far the attached
+  liquid reaches sideways;
 - `noise_smoothing`: the transmission noise, and whether noisy frames are smoothed first;
 - `wall_reference`: the nozzle walls' sharpness and contrast, against which a frame's blur and
   contrast are judged;
 - `body_blur_reference` / `focus_reference`: whether the nozzle walls are out of focus, and then
   the sharpest detached body as the blur reference (`detached_appearances` finds the bodies);
-- `edge_position_terms_px`: the edge-position uncertainty common to a body.
+- `in_focus_axis`: with the walls out of focus, the jet's axis, the tip plane and the liquid's
+  level from what is in focus;
+- `calibration_uncertainty`: the edge-position uncertainty common to a body
+  (`edge_position_terms_px`) and a pixel size from the needle's width with its uncertainty;
+- `FocusReference.blur_model`: the one `BlurModel`, from the in-focus reference and those uncertainties;
+- `liquid_seen_hanging`, `rest_meniscus_width_px`: liquid hanging from an out-of-focus face, and
+  the resting meniscus' width, both measured with the finished context.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -26,12 +37,13 @@ import dropvision.quality as q
 from dropvision.calibrate.background import NoNozzleError, median_by_selection
 from dropvision.calibrate.blur import edge_sigma_px, esf_sigma_px
 from dropvision.frame.bodies import hanging_columns, measure_attached
-from dropvision.calibrate.calibration import EDGE_FLOOR_TERM, Calibration, CalibrationError, calibrate_frames, interior_level
+from dropvision.calibrate.calibration import (EDGE_FLOOR_TERM, Calibration, CalibrationError, calibrate_frames,
+                                              interior_level, quadrature_px, relative_uncertainty)
 from dropvision.frame.body_classes import appearance, nozzle_edge_spread_px, out_of_focus_reason
 from dropvision.config import MeasureConfig
 from dropvision.io.overrides import how_to_give
-from dropvision.calibrate.frame_context import (BlurModel, BlurReference, FrameContext, Geometry, PhotometricReference, WallReference,
-                                smoothing_kernel_sigma_px)
+from dropvision.calibrate.frame_context import (BlurModel, BlurReference, FrameContext, Geometry, PhotometricReference,
+                                                WallReference, smooth_roi, smoothing_kernel_sigma_px)
 from dropvision.frame.edges import body_edges, edge_shift_px, edge_threshold
 from dropvision.calibrate.nozzle import (bottom_profile, find_nozzle, fit_face_line, largest_top_body, needle_width_terms_px,
                                top_bodies)
@@ -71,7 +83,7 @@ def calibration_indices(delays_us: np.ndarray, n: int) -> list[int]:
 
 def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded: dict | None = None,
                        static_dust: bool = True) -> tuple[Calibration, float, FrameContext]:
-    """Calibration pass over a few frames spread over an open sequence.
+    """Calibration pass over a few frames spread over an open sequence (its stages: the module's text).
 
     Parameters
     ----------
@@ -99,28 +111,122 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         No readable frame, or the calibration failed.
     """
     meta = seq.meta
-    n = len(seq)
+    frames = calibration_frames(seq, config.calibration_frames)
+    if decoded is not None:
+        decoded.update(frames.decoded)
+    cal = calibrate_first(frames, meta, config, static_dust=static_dust)
+    first, images = frames.first, frames.images
+    t_first = np.asarray(first, np.float32) / cal.background.background
+    max_value = 2 ** int(meta.bit_depth) - 1
+    walls = nozzle_walls(cal, t_first, images, meta.nozzle_outer_diameter_um, max_value)
+    # the walls as the reference: the region, the frames' noise and smoothing, the walls' sharpness
+    geometry = Geometry.from_calibration(cal, config, attached_half_width_px=walls.attached_half_width_px)
+    noise = noise_smoothing(geometry.crop(t_first), walls.sigma_px if config.blur_correction else 0.0, config,
+                            default_noise_transmission=DEFAULT_NOISE_TRANSMISSION)
+    photometry = PhotometricReference.from_calibration(
+        cal, geometry, first.dtype, max_value, noise_transmission=noise.noise_transmission,
+        smoothing_sigma_px=noise.smoothing_sigma_px,
+        walls=None if walls.nozzle is None else wall_reference(walls.nozzle, cal.tip_row, cal.background.background,
+                                                               t_first, walls.sigma_px, cal.liquid_level, config))
+    found = detached_appearances(images, geometry, photometry, config)
+    if walls.nozzle is None and not found.size:
+        raise SequenceError(f"{frames.first_path(meta)}: no nozzle: no dark body touches the top edge "
+                            "of the frame, and no detached drop to measure without it")
+    # the in-focus reference: the walls, or the sharpest detached body when they are out of focus
+    spread_px = _nozzle_edge_spread(first, geometry, photometry, config) if walls.nozzle is not None else float("nan")
+    focus = focus_reference(found, spread_px, walls.sigma_px, noise.correction_sigma_px, noise.smoothing_sigma_px,
+                            config)
+    face = None
+    if focus.nozzle_out_of_focus:
+        # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
+        if walls.nozzle is not None:
+            cal = replace(cal, nozzle_out_of_focus=True, notes=cal.notes + (focus.note,),
+                          tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD, tilt_source=AXIS_ALONG_COLUMNS_SOURCE)
+        axis = in_focus_axis(cal, images, t_first, geometry, photometry, config, focus)
+        cal, face = axis.applied_to(cal), axis.face
+        # the region of interest and its photometric reference (without the walls) anew
+        geometry = Geometry.from_calibration(cal, config, attached_half_width_px=walls.attached_half_width_px,
+                                             face=face)
+        photometry = PhotometricReference.from_calibration(
+            cal, geometry, first.dtype, max_value, noise_transmission=photometry.noise_transmission,
+            smoothing_sigma_px=photometry.smoothing_sigma_px)
+    unc = calibration_uncertainty(cal, walls.nozzle, focus.calibrated_sigma_px, config)
+    ctx = FrameContext(geometry, photometry, focus.blur_model(unc, cal, photometry, first, max_value), config)
+    notes = ()
+    if face is not None and liquid_seen_hanging(images, ctx):
+        ctx = replace(ctx, geometry=replace(geometry, face_liquid_seen=True))
+        notes = (FACE_LIQUID_SEEN_NOTE,)
+    rest = {}
+    if walls.nozzle is not None and not focus.nozzle_out_of_focus:
+        rest = dict(rest_meniscus_width_px=rest_meniscus_width_px(first, ctx),
+                    rest_meniscus_delay_us=float(meta.delays_us[frames.first_index]))
+    cal = replace(cal, **unc.calibration_fields(), notes=cal.notes + notes, **rest)
+    return cal, focus.calibrated_sigma_px, ctx
+
+
+@dataclass(frozen=True)
+class CalibrationFrames:
+    """The frames a sequence is calibrated from (`calibration_frames`).
+
+    Attributes
+    ----------
+    decoded : dict
+        Frame index -> decoded image (canonical orientation).
+    """
+
+    decoded: dict
+
+    @property
+    def first_index(self) -> int:
+        """The first frame's index in the sequence (the meniscus at rest)."""
+        return min(self.decoded)
+
+    @property
+    def first(self) -> np.ndarray:
+        return self.decoded[self.first_index]
+
+    @property
+    def images(self) -> list[np.ndarray]:
+        """The frames in index order (the first included)."""
+        return [self.decoded[i] for i in sorted(self.decoded)]
+
+    def first_path(self, meta):
+        """The first frame's file (the errors name it)."""
+        return meta.path / meta.frames[self.first_index].file
+
+
+def calibration_frames(seq, n: int) -> CalibrationFrames:
+    """Up to ``n`` readable frames spread over ``seq`` (`calibration_indices`), else its first readable one.
+
+    Raises
+    ------
+    dropvision.io.sequence.SequenceError
+        No readable frame.
+    """
+    meta = seq.meta
     cal_frames = {}
-    for i in calibration_indices(meta.delays_us, config.calibration_frames):
+    for i in calibration_indices(meta.delays_us, n):
         fr = seq.read(i)
         if fr.image is not None:
             cal_frames[i] = fr.image
     if not cal_frames:  # the spread frames were unreadable: take the first readable one
-        for i in range(n):
+        for i in range(len(seq)):
             fr = seq.read(i)
             if fr.image is not None:
                 cal_frames[i] = fr.image
                 break
     if not cal_frames:
         raise SequenceError(f"{meta.path}: no readable frame")
-    if decoded is not None:
-        decoded.update(cal_frames)
-    first_idx = min(cal_frames)
-    images = [cal_frames[i] for i in sorted(cal_frames)]
-    first = cal_frames[first_idx]
+    return CalibrationFrames(cal_frames)
+
+
+def calibrate_first(frames: CalibrationFrames, meta, config: MeasureConfig, *, static_dust: bool = True) -> Calibration:
+    """`dropvision.calibrate.calibration.calibrate_frames` of the calibration frames with what ``meta``
+    states; its `CalibrationError` as a `dropvision.io.sequence.SequenceError` naming the first frame
+    (and, for no nozzle, how the orientation was found and how to give it)."""
     try:
-        cal = calibrate_frames(
-            first, images, meta.pixel_size_um,
+        return calibrate_frames(
+            frames.first, frames.images, meta.pixel_size_um,
             nozzle_outer_diameter_um=meta.nozzle_outer_diameter_um,
             nozzle_inner_diameter_um=meta.nozzle_inner_diameter_um,
             tip_row=meta.nozzle_tip_row, axis_col=meta.axis_col, static_dust=static_dust,
@@ -137,74 +243,100 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         give = how_to_give("orientation", {"_caller": (meta.sources or {}).get("caller")})  # the caller's words
         seen = (f"; orientation {meta.orientation} ({how}; {give} or sequence.json orientation sets it)"
                 if how and isinstance(exc, NoNozzleError) else "")
-        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: {exc}{seen}") from exc
-    t_first = np.asarray(first, np.float32) / cal.background.background
-    expected = (meta.nozzle_outer_diameter_um / cal.pixel_size_um
-                if meta.nozzle_outer_diameter_um and not cal.pixel_size_from_nozzle else None)
-    max_value = 2 ** int(meta.bit_depth) - 1
-    nozzle, walls_sigma, reach = None, float("nan"), 0.0
-    if cal.nozzle_found:
-        nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
-        clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
-        walls_sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
-        reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal)
-                    for img in images)
-    # the walls as the reference: the region, the frames' noise and smoothing, the walls' sharpness
-    geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach)
-    noise = noise_smoothing(geometry.crop(t_first), walls_sigma if config.blur_correction else 0.0, config,
-                            default_noise_transmission=DEFAULT_NOISE_TRANSMISSION)
-    walls = None if nozzle is None else wall_reference(nozzle, cal.tip_row, cal.background.background, t_first,
-                                                       walls_sigma, cal.liquid_level, config)
-    photometry = PhotometricReference.from_calibration(
-        cal, geometry, first.dtype, max_value, noise_transmission=noise.noise_transmission,
-        smoothing_sigma_px=noise.smoothing_sigma_px,
-        walls=walls)
-    walls_ctx = FrameContext(geometry, photometry, BlurModel(calibrated_sigma_px=walls_sigma,
-                                                             correction_sigma_px=noise.correction_sigma_px), config)
-    found = detached_appearances(images, walls_ctx)
-    if nozzle is None and not found.size:
-        raise SequenceError(f"{meta.path / meta.frames[first_idx].file}: no nozzle: no dark body touches the top edge "
-                            "of the frame, and no detached drop to measure without it")
-    # the in-focus reference: the walls, or the sharpest detached body when they are out of focus
-    spread_px = _nozzle_edge_spread(first, walls_ctx) if nozzle is not None else float("nan")
-    focus = focus_reference(found, spread_px, walls_sigma, noise.correction_sigma_px, noise.smoothing_sigma_px, config)
-    sigma = focus.calibrated_sigma_px
+        raise SequenceError(f"{frames.first_path(meta)}: {exc}{seen}") from exc
 
-    def blur_model(**uncertainty) -> BlurModel:
-        return BlurModel(calibrated_sigma_px=sigma, correction_sigma_px=focus.correction_sigma_px,
-                         reference=focus.blur_reference, reference_spread_px=focus.reference_spread_px,
-                         mist_blur_factor=focus.mist_blur_factor, nozzle_sigma_px=focus.nozzle_sigma_px, **uncertainty)
 
-    if focus.nozzle_out_of_focus:
-        # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
-        if nozzle is not None:
-            cal.nozzle_out_of_focus = True
-            cal.notes.append(focus.note)
-            cal.tilt_rad, cal.tilt_source = AXIS_ALONG_COLUMNS_TILT_RAD, AXIS_ALONG_COLUMNS_SOURCE
-        geometry, photometry = _in_focus_axis_and_face(cal, FrameContext(geometry, photometry, blur_model(), config),
-                                                       images, t_first, first.dtype, max_value, reach)
-    cal.edge_position_terms_px = edge_position_terms_px(cal, sigma, config)
-    if cal.pixel_size_from_nozzle and nozzle is not None:
-        cal.nozzle_width_terms_px = needle_width_terms_px(nozzle, cal.edge_position_uncertainty_px, sigma)
-        u_width = math.sqrt(sum(v * v for v in cal.nozzle_width_terms_px.values()))
-        cal.pixel_size_uncertainty_um = float(cal.pixel_size_um * u_width / cal.nozzle_outer_diameter_px)
-        # the pixel size is the nozzle's by construction: ratio 1 with the width's uncertainty (what a campaign's
-        # intervals take as the pixel size's part, identify.measurement_uncertainty)
-        cal.pixel_size_ratio, cal.pixel_size_ratio_uncertainty = 1.0, cal.pixel_size_relative_uncertainty
-        cal.pixel_size_source += (f" = {cal.pixel_size_um:.5g} +- {cal.pixel_size_uncertainty_um:.2g} um (width "
-                                  f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
-                                                                     cal.nozzle_width_terms_px.items()) + ")")
-    clip_light = illumination_under_clip(first, cal, max_value)
-    blur = blur_model(edge_position_sigma_px=cal.edge_position_uncertainty_px,
-                      edge_noise_px=edge_shift_px(photometry.noise_transmission, sigma, cal.liquid_level),
-                      clip_light=clip_light,
-                      clip_term_px=(0.0 if clip_light is None else
-                                    float(cal.edge_position_terms_px.get(CLIPPED_BACKGROUND_TERM, 0.0))))
-    ctx = FrameContext(geometry, photometry, blur, config)
-    if nozzle is not None and not focus.nozzle_out_of_focus:
-        cal.rest_meniscus_width_px = rest_meniscus_width_px(first, ctx)
-        cal.rest_meniscus_delay_us = float(meta.delays_us[first_idx])
-    return cal, sigma, ctx
+@dataclass(frozen=True)
+class NozzleWalls:
+    """The nozzle's outer walls in the first calibration frame (`nozzle_walls`).
+
+    Attributes
+    ----------
+    nozzle : dropvision.calibrate.nozzle.Nozzle or None
+        None when the calibration found no nozzle.
+    sigma_px : float
+        The walls' edge blur (Gaussian sigma of their edge-spread fit, px; NaN without a nozzle).
+    attached_half_width_px : float
+        Widest reach of the liquid hanging from the nozzle from the axis over the calibration
+        frames (`attached_half_width_px`; 0 without a nozzle).
+    """
+
+    nozzle: object = None
+    sigma_px: float = float("nan")
+    attached_half_width_px: float = 0.0
+
+
+def nozzle_walls(cal: Calibration, t_first: np.ndarray, images, nozzle_outer_diameter_um: float | None,
+                 max_value: int) -> NozzleWalls:
+    """The walls of ``cal``'s nozzle in the first frame (``t_first``: over the background), their
+    blur (`dropvision.calibrate.blur.edge_sigma_px`, below a clipped background's clip) and how far
+    the attached liquid reaches sideways in ``images``."""
+    if not cal.nozzle_found:
+        return NozzleWalls()
+    expected = (nozzle_outer_diameter_um / cal.pixel_size_um
+                if nozzle_outer_diameter_um and not cal.pixel_size_from_nozzle else None)
+    nozzle = find_nozzle(t_first, edge_threshold(cal.nozzle_level), expected)
+    clip_t = 0.99 * max_value / cal.clipped_level if np.isfinite(cal.clipped_level) else float("inf")
+    sigma = edge_sigma_px(t_first, nozzle, clip_transmission=clip_t)
+    reach = max(attached_half_width_px(np.asarray(img, np.float32) / cal.background.background, cal)
+                for img in images)
+    return NozzleWalls(nozzle, sigma, reach)
+
+
+#: The calibration's note when liquid hangs in focus from an out-of-focus face (`liquid_seen_hanging`).
+FACE_LIQUID_SEEN_NOTE = ("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
+                         "at the axis below the face is taken as its meniscus in every frame")
+
+
+@dataclass(frozen=True)
+class CalibrationUncertainty:
+    """The uncertainties the calibration pass adds to a calibration (`calibration_uncertainty`).
+
+    Attributes
+    ----------
+    edge_position_terms_px : dict
+        `edge_position_terms_px`.
+    nozzle_width_terms_px : dict
+        With the pixel size from the needle's width: the width's parts
+        (`dropvision.calibrate.nozzle.needle_width_terms_px`), else empty.
+    pixel_size : dict
+        With the pixel size from the needle's width: its uncertainty, ratio 1 with the width's relative
+        uncertainty, and its source with them (`Calibration` fields), else empty.
+    """
+
+    edge_position_terms_px: dict
+    nozzle_width_terms_px: dict
+    pixel_size: dict
+
+    @property
+    def edge_position_uncertainty_px(self) -> float:
+        """The edge-position terms in quadrature (`Calibration.edge_position_uncertainty_px`)."""
+        return quadrature_px(self.edge_position_terms_px)
+
+    def calibration_fields(self) -> dict:
+        """The `Calibration` fields it gives."""
+        return dict(edge_position_terms_px=self.edge_position_terms_px,
+                    nozzle_width_terms_px=self.nozzle_width_terms_px, **self.pixel_size)
+
+
+def calibration_uncertainty(cal: Calibration, nozzle, sigma_px: float, config: MeasureConfig) -> CalibrationUncertainty:
+    """The edge-position uncertainty common to a body (`edge_position_terms_px`) and, when the pixel
+    size is the needle's (``cal.pixel_size_from_nozzle``, a ``nozzle`` found), the needle width's
+    parts and the pixel size's uncertainty from them."""
+    terms = edge_position_terms_px(cal, sigma_px, config)
+    if not (cal.pixel_size_from_nozzle and nozzle is not None):
+        return CalibrationUncertainty(terms, {}, {})
+    width_terms = needle_width_terms_px(nozzle, quadrature_px(terms), sigma_px)
+    u_width = math.sqrt(sum(v * v for v in width_terms.values()))
+    u_um = float(cal.pixel_size_um * u_width / cal.nozzle_outer_diameter_px)
+    source = cal.pixel_size_source + (f" = {cal.pixel_size_um:.5g} +- {u_um:.2g} um (width "
+                                      f"+-{u_width:.2f} px: " + ", ".join(f"{k} {v:.2f}" for k, v in
+                                                                         width_terms.items()) + ")")
+    # the pixel size is the nozzle's by construction: ratio 1 with the width's uncertainty (what a campaign's
+    # intervals take as the pixel size's part, identify.measurement_uncertainty)
+    return CalibrationUncertainty(terms, width_terms, dict(
+        pixel_size_uncertainty_um=u_um, pixel_size_ratio=1.0,
+        pixel_size_ratio_uncertainty=relative_uncertainty(u_um, cal.pixel_size_um), pixel_size_source=source))
 
 
 @dataclass(frozen=True)
@@ -347,6 +479,22 @@ class FocusReference:
     nozzle_sigma_px: float
     nozzle_out_of_focus: bool
     note: str | None = None
+
+    def blur_model(self, unc: "CalibrationUncertainty", cal: Calibration, photometry: PhotometricReference,
+                   first: np.ndarray, max_value: int) -> BlurModel:
+        """The sequence's `BlurModel`: this reference with the uncertainties ``unc`` of ``cal``
+        (`calibration_uncertainty`), the edge noise of ``photometry``'s transmission noise, and a
+        clipped backlight's shape under the clip (`illumination_under_clip` of the first frame)."""
+        sigma = self.calibrated_sigma_px
+        clip_light = illumination_under_clip(first, cal, max_value)
+        return BlurModel(calibrated_sigma_px=sigma, correction_sigma_px=self.correction_sigma_px,
+                         reference=self.blur_reference, reference_spread_px=self.reference_spread_px,
+                         mist_blur_factor=self.mist_blur_factor, nozzle_sigma_px=self.nozzle_sigma_px,
+                         edge_position_sigma_px=unc.edge_position_uncertainty_px,
+                         edge_noise_px=edge_shift_px(photometry.noise_transmission, sigma, cal.liquid_level),
+                         clip_light=clip_light,
+                         clip_term_px=(0.0 if clip_light is None else
+                                       float(unc.edge_position_terms_px.get(CLIPPED_BACKGROUND_TERM, 0.0))))
 
 
 def focus_reference(found: np.ndarray, nozzle_edge_spread_px: float, walls_sigma_px: float,
@@ -540,7 +688,8 @@ APPEARANCE_DTYPE = np.dtype([("frame", int), ("area_px", int), ("min_transmissio
                              ("esf_sigma_px", float)])
 
 
-def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np.ndarray:
+def detached_appearances(images, geometry: Geometry, photometry: PhotometricReference, config: MeasureConfig,
+                         min_area_px: int = 50) -> np.ndarray:
     """Detached dark bodies of the calibration frames that look like liquid, with their appearance.
 
     Bodies of at least ``min_area_px`` pixels, not touching the region's edges, as dark as half
@@ -553,7 +702,9 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
     ----------
     images : sequence of ndarray
         Raw calibration frames (canonical orientation).
-    ctx : FrameContext
+    geometry, photometry : Geometry, PhotometricReference
+        The region of interest and its reference (the blur is not needed).
+    config : MeasureConfig
     min_area_px : int
         Smaller bodies are not used (too few boundary pixels for a stable spread).
 
@@ -561,12 +712,11 @@ def detached_appearances(images, ctx: FrameContext, min_area_px: int = 50) -> np
     -------
     ndarray of `APPEARANCE_DTYPE`
     """
-    photo = ctx.photometry
+    photo = photometry
     out = []
     depth_min = 0.5 * (1.0 - photo.liquid_level)
     for i, img in enumerate(images):
-        roi = ctx.region(img)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+        roi, seg = _segmented_region(img, geometry, photo, config)
         hh, ww = seg.labels.shape
         t = None
         for b in seg.bodies:
@@ -594,12 +744,15 @@ AXIS_ALONG_COLUMNS_TILT_RAD = 0.0
 AXIS_ALONG_COLUMNS_SOURCE = "image columns (assumed: the nozzle walls are out of focus)"
 
 
-def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[float, int, float]:
+def in_focus_drops(images, geometry: Geometry, photometry: PhotometricReference, config: MeasureConfig,
+                   reference_spread_px: float, mist_blur_factor: float,
+                   min_area_px: int = 50) -> tuple[float, int, float]:
     """The jet's axis column (full frame, px) from the line of the detached in-focus drops, and the
     liquid's interior level from those bodies.
 
     In each calibration frame the detached bodies in focus (edge spread within the mist limit of
-    the in-focus reference, `dropvision.frame.body_classes.out_of_focus_reason`) and as dark as half the
+    the in-focus reference, ``reference_spread_px`` with ``mist_blur_factor`` (`FocusReference`),
+    `dropvision.frame.body_classes.out_of_focus_reason`) and as dark as half the
     liquid's depth, away from the region's edges; the largest is the main drop, its area
     centroid's column on the axis of a body of revolution.  The axis is the median over the
     frames; the level the median of `dropvision.calibrate.calibration.interior_level` over their bodies
@@ -609,12 +762,11 @@ def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[fl
     -------
     (column, number of frames it comes from, level); (NaN, 0, NaN) without any such body.
     """
-    geo, photo = ctx.geometry, ctx.photometry
+    geo, photo = geometry, photometry
     cols, levels = [], []
     depth_min = 0.5 * (1.0 - photo.liquid_level)
     for img in images:
-        roi = ctx.region(img)
-        seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
+        roi, seg = _segmented_region(img, geo, photo, config)
         hh, ww = seg.labels.shape
         liquid = []
         for b in sorted(seg.bodies, key=lambda b: -b.area_px):
@@ -623,8 +775,8 @@ def in_focus_drops(images, ctx: FrameContext, min_area_px: int = 50) -> tuple[fl
             app = appearance(roi, photo.inv_background, seg.labels, b.label, b.bbox, 1.0,
                              floor=photo.liquid_level)
             if (1.0 - app.min_transmission >= depth_min
-                    and out_of_focus_reason(app, ctx.blur.reference_spread_px, ctx.blur.mist_blur_factor,
-                                            ctx.config.mist_blur_offset_px) is None):
+                    and out_of_focus_reason(app, reference_spread_px, mist_blur_factor,
+                                            config.mist_blur_offset_px) is None):
                 liquid.append(b)
         if not liquid:
             continue
@@ -656,8 +808,42 @@ def holder_face(transmission: np.ndarray, threshold: float, axis_col: float) -> 
     return fit_face_line(cols, bottom)
 
 
-def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first: np.ndarray, dtype, max_value: int,
-                            reach: float) -> tuple[Geometry, PhotometricReference]:
+@dataclass(frozen=True)
+class InFocusAxis:
+    """The jet's axis, the tip plane and the liquid's level from what is in focus, when the nozzle
+    walls are not (`in_focus_axis`): each as the calibration had it where nothing replaces it.
+
+    Attributes
+    ----------
+    axis_col, tip_row : float
+        Full frame (px).
+    axis_source, tip_source : str
+    liquid_level, threshold : float
+        The liquid's interior transmission and the edge threshold from it.
+    face : (float, float) or None
+        The out-of-focus holder's face line ``row = a + b * col`` (`holder_face`); None without one.
+    notes : tuple of str
+        The calibration's notes on what was replaced, and why.
+    """
+
+    axis_col: float
+    axis_source: str
+    tip_row: float
+    tip_source: str
+    liquid_level: float
+    threshold: float
+    face: tuple[float, float] | None
+    notes: tuple[str, ...]
+
+    def applied_to(self, cal: Calibration) -> Calibration:
+        """``cal`` with these values, its notes followed by these."""
+        return replace(cal, axis_col=self.axis_col, axis_source=self.axis_source, tip_row=self.tip_row,
+                       tip_source=self.tip_source, liquid_level=self.liquid_level, threshold=self.threshold,
+                       notes=cal.notes + self.notes)
+
+
+def in_focus_axis(cal: Calibration, images, t_first: np.ndarray, geometry: Geometry,
+                  photometry: PhotometricReference, config: MeasureConfig, focus: FocusReference) -> InFocusAxis:
     """With the nozzle walls out of focus, the jet's axis and the tip plane from what is in focus.
 
     A blurred holder's midline is not the jet's axis (it is no nozzle, and the capillary sits
@@ -666,46 +852,40 @@ def _in_focus_axis_and_face(cal: Calibration, ctx: FrameContext, images, t_first
     below the walls' end is a blurred holder), the tip plane the holder's face (the 50 % line of
     its lower edge, `holder_face`) at that column, and the attached liquid only what hangs
     below that face (`dropvision.calibrate.nozzle.protruding_columns`, with ``Geometry.face_row0_px``/``face_slope``).
-    ``cal`` is updated (axis, tip, their sources, a note); the region of interest and its photometric
-    reference (without the walls) are built anew and returned.
+    A given axis column or tip row is kept.
     """
-    axis, n_frames, level = in_focus_drops(images, ctx)
+    axis, n_frames, level = in_focus_drops(images, geometry, photometry, config, focus.reference_spread_px,
+                                           focus.mist_blur_factor)
+    notes = []
+    axis_col, axis_src = cal.axis_col, cal.axis_source
     if np.isfinite(axis):
-        cal.notes.append(f"the jet's axis is the line of the detached in-focus drops (column {axis:.1f}, "
-                         f"{n_frames} calibration frame(s))" + (
-                             f", not the out-of-focus nozzle's midline ({cal.axis_col:.1f}, "
-                             f"{axis - cal.axis_col:+.1f} px)" if np.isfinite(cal.axis_col) else ""))
+        notes.append(f"the jet's axis is the line of the detached in-focus drops (column {axis:.1f}, "
+                     f"{n_frames} calibration frame(s))" + (
+                         f", not the out-of-focus nozzle's midline ({cal.axis_col:.1f}, "
+                         f"{axis - cal.axis_col:+.1f} px)" if np.isfinite(cal.axis_col) else ""))
         if np.isfinite(cal.axis_col) and abs(axis - cal.axis_col) > 0.25 * cal.nozzle_outer_diameter_px:
-            cal.notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
-                             f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
-                             "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
+            notes.append(f"the drops fly {abs(axis - cal.axis_col):.0f} px beside the middle of the out-of-focus "
+                         f"body taken for the nozzle: its width ({cal.nozzle_outer_diameter_px:.0f} px, "
+                         "nozzle_outer_diameter_px) is a holder's, not the nozzle's")
         if not cal.axis_col_given:
-            cal.axis_col, cal.axis_source = axis, ("line of the detached in-focus drops (the nozzle is out of focus)"
-                                                   if cal.nozzle_found else
-                                                   "line of the detached in-focus drops (no nozzle found)")
+            axis_col, axis_src = axis, "line of the detached in-focus drops " + (
+                "(the nozzle is out of focus)" if cal.nozzle_found else "(no nozzle found)")
+    liquid, threshold = cal.liquid_level, cal.threshold
     if np.isfinite(level) and abs(level - cal.liquid_level) > 0.01:
-        cal.notes.append(f"liquid interior level {level:.3f} from the detached in-focus drops ("
-                         + ("the liquid below the out-of-focus walls' end, a blurred holder, gave "
-                            if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
-        cal.liquid_level, cal.threshold = level, edge_threshold(level)
-    face = holder_face(t_first, cal.threshold, cal.axis_col) if cal.nozzle_found else None
+        notes.append(f"liquid interior level {level:.3f} from the detached in-focus drops ("
+                     + ("the liquid below the out-of-focus walls' end, a blurred holder, gave "
+                        if cal.nozzle_found else "every detached body gave ") + f"{cal.liquid_level:.3f})")
+        liquid, threshold = level, edge_threshold(level)
+    face = holder_face(t_first, threshold, axis_col) if cal.nozzle_found else None
+    tip_row, tip_src = cal.tip_row, cal.tip_source
     if face is not None and not cal.tip_row_given:
-        tip = face[0] + face[1] * cal.axis_col
+        tip = face[0] + face[1] * axis_col
         if abs(tip - cal.tip_row) > 0.5:
-            cal.notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "
-                             f"walls' silhouette ends: row {cal.tip_row:.1f})")
-        cal.tip_row, cal.tip_source = float(tip), "the out-of-focus holder's face (straight fit of its 50 % line)"
-    config = ctx.config
-    geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face)
-    photometry = PhotometricReference.from_calibration(
-        cal, geometry, dtype, max_value, noise_transmission=ctx.photometry.noise_transmission,
-        smoothing_sigma_px=ctx.photometry.smoothing_sigma_px)
-    if face is not None and liquid_seen_hanging(images, FrameContext(geometry, photometry, ctx.blur, config)):
-        geometry = Geometry.from_calibration(cal, config, attached_half_width_px=reach, face=face,
-                                             face_liquid_seen=True)
-        cal.notes.append("liquid hangs from the out-of-focus face in focus in a calibration frame: a dark bump "
-                         "at the axis below the face is taken as its meniscus in every frame")
-    return geometry, photometry
+            notes.append(f"tip plane at the out-of-focus holder's face, row {tip:.1f} at the axis (where its "
+                         f"walls' silhouette ends: row {cal.tip_row:.1f})")
+        tip_row, tip_src = float(tip), "the out-of-focus holder's face (straight fit of its 50 % line)"
+    return InFocusAxis(axis_col=axis_col, axis_source=axis_src, tip_row=tip_row, tip_source=tip_src,
+                       liquid_level=liquid, threshold=threshold, face=face, notes=tuple(notes))
 
 
 def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) -> float:
@@ -786,12 +966,20 @@ def attached_half_width_px(transmission: np.ndarray, cal: Calibration) -> float:
     return best
 
 
-def _nozzle_edge_spread(first: np.ndarray, ctx: FrameContext) -> float:
+def _segmented_region(image: np.ndarray, geometry: Geometry, photometry: PhotometricReference, config: MeasureConfig):
+    """(region, segmentation) of a raw frame: its region of interest smoothed as the frames are
+    (`FrameContext.region`) and its dark bodies (`dropvision.frame.segmentation.segment`)."""
+    roi = smooth_roi(geometry.crop(image), photometry.smoothing_sigma_px)
+    mask = dark_mask(np.ascontiguousarray(roi), photometry.thr_image, photometry.allowed)
+    return roi, segment(mask, config.min_body_area_px)
+
+
+def _nozzle_edge_spread(first: np.ndarray, geometry: Geometry, photometry: PhotometricReference,
+                        config: MeasureConfig) -> float:
     """Edge spread of the nozzle body in the first calibration frame (`dropvision.frame.body_classes`)."""
-    geo, photo = ctx.geometry, ctx.photometry
-    roi = ctx.region(first)
-    seg = segment(dark_mask(np.ascontiguousarray(roi), photo.thr_image, photo.allowed), ctx.config.min_body_area_px)
-    body = find_nozzle_body(seg.bodies, geo.axis_roi)
+    photo = photometry
+    roi, seg = _segmented_region(first, geometry, photo, config)
+    body = find_nozzle_body(seg.bodies, geometry.axis_roi)
     return (float("nan") if body is None
             else nozzle_edge_spread_px(roi, photo.inv_background, seg.labels, body, floor=photo.liquid_level))
 

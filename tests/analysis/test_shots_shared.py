@@ -8,6 +8,7 @@ are pinned to the solo ones (each image measured alone) and to the synthetic tru
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import pickle
 import shutil
@@ -260,7 +261,7 @@ def test_a_reference_without_a_nozzle_shares_nothing(rig_shots, monkeypatch):
     def no_nozzle(seq, config, **kwargs):
         cal, sigma, ctx = plain(seq, config, **kwargs)
         if seq.meta.frames[0].file.startswith("/"):  # the shared calibration's in-memory frames only
-            cal.nozzle_found = False
+            cal = dataclasses.replace(cal, nozzle_found=False)  # a frozen calibration: a new one
         return cal, sigma, ctx
 
     monkeypatch.setattr(calibration_pass, "calibrate_sequence", no_nozzle)

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
 from dropvision.calibrate.blur import edge_sigma_px
-from dropvision.calibrate.calibration import calibrate_frames
+from dropvision.calibrate.calibration import EDGE_FLOOR_TERM, calibrate_frames, pixel_scale
 from dropvision.config import MeasureConfig
-from dropvision.calibrate.calibration_pass import (APPEARANCE_DTYPE, body_blur_reference, focus_reference, noise_smoothing,
-                                         smoothed_sigma_px, wall_reference)
+from dropvision.calibrate.calibration_pass import (APPEARANCE_DTYPE, InFocusAxis, body_blur_reference,
+                                                   calibration_uncertainty, focus_reference, noise_smoothing,
+                                                   smoothed_sigma_px, wall_reference)
 from dropvision.calibrate.frame_context import BlurReference, smoothing_kernel_sigma_px
 from dropvision.frame.edges import edge_threshold
 from dropvision.calibrate.nozzle import find_nozzle
@@ -126,3 +128,49 @@ def test_focus_reference_walls_out_of_focus_take_the_sharpest_body():
         math.hypot(0.9, smoothing_kernel_sigma_px(2.0)))
     off = MeasureConfig(blur_correction=False)
     assert focus_reference(found, 4.0, 1.1, 0.0, 2.0, off).correction_sigma_px == 0.0
+
+
+def test_the_calibration_is_frozen_and_a_stage_gives_a_new_one(first_frame):
+    """No attribute is assigned on a calibration: a stage's result (`InFocusAxis`) gives a new one."""
+    cal = first_frame[0]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cal.tip_row = 0.0
+    stage = InFocusAxis(axis_col=cal.axis_col + 2.0, axis_source="drops", tip_row=cal.tip_row + 1.0, tip_source="face",
+                        liquid_level=0.2, threshold=edge_threshold(0.2), face=(10.0, 0.0), notes=("moved",))
+    new = stage.applied_to(cal)
+    assert (new.axis_col, new.tip_row) == (cal.axis_col + 2.0, cal.tip_row + 1.0)
+    assert (new.axis_source, new.tip_source, new.liquid_level) == ("drops", "face", 0.2)
+    assert new.threshold == pytest.approx(0.6)  # half-way between the liquid's 0.2 and 1
+    assert new.notes == cal.notes + ("moved",) and new.background is cal.background
+    assert cal.axis_source != "drops" and "moved" not in cal.notes  # the input unchanged
+
+
+def test_pixel_scale_against_the_outer_diameter(first_frame):
+    cal, nozzle = first_frame[:2]
+    d_px = nozzle.outer_diameter_px
+    off = pixel_scale(nozzle, 2.0, 1.1 * 2.0 * d_px, from_nozzle=False, tolerance=0.02, edge_position_floor_px=0.05)
+    assert off.ratio == pytest.approx(1.1) and off.disagreement_percent == pytest.approx(100 * (1 / 1.1 - 1))
+    assert off.pixel_size_um == 2.0 and off.note is not None and "disagrees by -9.1 %" in off.note
+    assert off.ratio_uncertainty > 0
+    assert pixel_scale(nozzle, 2.0, 1.01 * 2.0 * d_px, from_nozzle=False, tolerance=0.02,
+                       edge_position_floor_px=0.05).note is None
+    own = pixel_scale(nozzle, 1.0, 500.0, from_nozzle=True, tolerance=0.02, edge_position_floor_px=0.05)
+    assert own.pixel_size_um == pytest.approx(500.0 / d_px) and own.outer_diameter_um == pytest.approx(500.0)
+    assert math.isnan(own.ratio) and own.note is None and own.source.startswith("nozzle outer diameter 500 um / ")
+
+
+def test_calibration_uncertainty_with_a_pixel_size_from_the_needle(first_frame):
+    cal, nozzle, _, sigma = first_frame
+    config = MeasureConfig()
+    given = calibration_uncertainty(cal, nozzle, sigma, config)
+    assert given.pixel_size == {} and given.nozzle_width_terms_px == {}
+    assert given.edge_position_terms_px[EDGE_FLOOR_TERM] == config.edge_position_floor_px
+    assert given.edge_position_uncertainty_px == pytest.approx(math.hypot(*given.edge_position_terms_px.values()))
+    needle = calibration_uncertainty(dataclasses.replace(cal, pixel_size_from_nozzle=True), nozzle, sigma, config)
+    u_width = math.hypot(*needle.nozzle_width_terms_px.values())
+    u = needle.pixel_size["pixel_size_uncertainty_um"]
+    assert u > 0 and u == pytest.approx(cal.pixel_size_um * u_width / cal.nozzle_outer_diameter_px)
+    out = dataclasses.replace(cal, **needle.calibration_fields())
+    assert out.pixel_size_ratio == 1.0 and out.pixel_size_ratio_uncertainty == pytest.approx(u / cal.pixel_size_um)
+    assert out.pixel_size_relative_uncertainty == pytest.approx(u / cal.pixel_size_um)
+    assert out.pixel_size_source.startswith(cal.pixel_size_source + " = ")
