@@ -156,7 +156,8 @@ def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
     orifice in every frame: the error is the same from frame to frame, like the tip plane's
     (`measure_attached` counts it with the plane, which a grown volume cancels; on the synthetic
     out-of-focus holder the grown volume's median |error| / u went from 0.008 to 0.33 with it,
-    every frame still within 2 u).
+    every frame still within 2 u).  Not counted where the holder's face line is known: there the
+    halo's rows are placed against their own background beside the liquid (`edges_in_the_halo`).
     """
     if not (np.isfinite(nozzle_blur_px) and nozzle_blur_px > 0):
         return 0.0
@@ -201,7 +202,10 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     span = plane_span_chord_px(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
     clip_to_tip_plane(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
     bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
-    near = out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3
+    # with the holder's face line known, the halo's rows were placed against their own background
+    # (`edges_in_the_halo`): the halo no longer moves them, and their noise is in the random part
+    near = (0.0 if np.isfinite(geo.face_row0_px)
+            else out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3)
     return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
@@ -284,11 +288,20 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
 TIP_MEDIAN_FACTOR = math.sqrt(math.pi / 2.0) / 2.0
 
 
+#: An out-of-focus holder's face line is fitted to each column's lowest dark row, a whole row
+#: (`dropvision.calibrate.nozzle.bottom_profile`): the face's 50 % crossing lies up to one row
+#: below it, uniformly, a root-mean-square ``1 / sqrt(3)`` px.
+FACE_ROW_RMS_PX = 1.0 / math.sqrt(3.0)
+
+
 def _plane_sigma_px(ctx: FrameContext) -> float:
     """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
-    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`), or
-    to the walls' blur when they are out of focus."""
+    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`); with
+    the walls out of focus, the plane placed on the holder's face line to its whole rows
+    (`FACE_ROW_RMS_PX`), or to the walls' blur where no face line is known."""
     nb = ctx.blur.nozzle_sigma_px if np.isfinite(ctx.blur.nozzle_sigma_px) else 0.0
+    if nb > 0 and np.isfinite(ctx.geometry.face_row0_px):
+        nb = FACE_ROW_RMS_PX
     return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
                            + nb * nb))
 

@@ -19,7 +19,7 @@ import pytest
 from dropvision.frame import segmentation as sg
 from dropvision.frame import edges as edg
 from dropvision.frame import volume as vo
-from dropvision.frame.bodies import DetachedBody, measure_attached, off_path_reason
+from dropvision.frame.bodies import TIP_MEDIAN_FACTOR, DetachedBody, _plane_sigma_px, measure_attached, off_path_reason
 from dropvision.calibrate.blur import esf_sigma_px
 from dropvision.calibrate.calibration_pass import attached_half_width_px
 from dropvision.analysis.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
@@ -288,6 +288,21 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     assert att.bottom_row == 100.0 and not att.leaves
     # its common-edge uncertainty is pi x area x 0.05: area 31 x 60.2
     assert att.common_uncertainty_nl == pytest.approx(math.pi * 31 * 60.2 * 0.05 * 2e-6, rel=1e-3)
+
+
+def test_tip_plane_on_an_out_of_focus_face_placed_to_its_whole_rows():
+    """With the walls out of focus (blur 5.5 px), a tip plane on the holder's face line is placed to
+    that line's whole rows (each column's lowest dark row: the 50 % crossing up to one row below,
+    RMS 1/sqrt(3) px), not to the walls' blur; without a face line, to the blur."""
+    def ctx(face_row0_px):
+        return SimpleNamespace(
+            geometry=SimpleNamespace(face_row0_px=face_row0_px),
+            blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=5.5, edge_position_sigma_px=0.05,
+                                 edge_noise_px=0.04, clip_light=None),
+            config=SimpleNamespace(edge_position_floor_px=0.0))
+    shared = 0.05 ** 2 + (TIP_MEDIAN_FACTOR * 0.04) ** 2
+    assert _plane_sigma_px(ctx(120.0)) == pytest.approx(math.sqrt(shared + 1.0 / 3.0), rel=1e-12)
+    assert _plane_sigma_px(ctx(float("nan"))) == pytest.approx(math.sqrt(shared + 5.5 ** 2), rel=1e-12)
 
 
 # --- bodies beside the path, edge spread, attached half-width -----------------------------------
