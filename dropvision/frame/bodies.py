@@ -145,6 +145,7 @@ class AttachedLiquid:
     volume_uncertainty_nl: float = float("nan")
     common_uncertainty_nl: float = float("nan")
     plane_uncertainty_nl: float = float("nan")
+    face_halo_nl: float = 0.0
 
 
 def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
@@ -162,6 +163,24 @@ def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
     if not (np.isfinite(nozzle_blur_px) and nozzle_blur_px > 0):
         return 0.0
     return float(math.pi * volume.top_chord_px * 3.0 * nozzle_blur_px * 0.5 * nozzle_blur_px)
+
+
+def face_halo_px3(volume: BodyVolume, walls_sigma_px: float) -> float:
+    """How far (px^3) the in-focus walls' halo below their face can widen the attached liquid.
+
+    The walls' face ends at the tip plane; its blur darkens the rows just below it beside the
+    liquid, and the liquid's edges there move out by about half the walls' blur ``sigma``: over the
+    plane's top chord ``c``, as a slab ``pi (c/2)^2 sigma / 2`` (the plane's own term at the walls'
+    half-blur).  The resting meniscus fills the orifice and carries its share in every frame alike;
+    what a frame spreads wider under the face than the rest (`dropvision.analysis.sequence_summary.
+    grown_uncertainty` differences it against the first delay's) is not cancelled.  On the synthetic
+    sweep, the attached volume's error rose by 0.018 nl (u70, top chord 38.2 -> 45.4 px, sigma 0.78 px:
+    0.020 nl of this at its widest) and 0.027 nl (watcher-side, 38.3 -> 46.5 px, sigma 1.22 px:
+    0.035 nl), and fell back as the chord did.  0 with out-of-focus walls (their own terms: `out_of_focus_nozzle_px3`)."""
+    if not (np.isfinite(walls_sigma_px) and walls_sigma_px > 0):
+        return 0.0
+    c = volume.top_chord_px
+    return float(math.pi * 0.25 * c * c * 0.5 * walls_sigma_px)
 
 
 def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody, gain: float) -> AttachedLiquid:
@@ -206,13 +225,16 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     # (`edges_in_the_halo`): the halo no longer moves them, and their noise is in the random part
     near = (0.0 if np.isfinite(geo.face_row0_px)
             else out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3)
+    walls_in_focus = not (np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0)
+    halo = face_halo_px3(bv, ctx.blur.calibrated_sigma_px) * geo.nl_per_px3 if walls_in_focus else 0.0
     return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
                           common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * geo.nl_per_px3,
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                                          geo.tilt_rad) * geo.nl_per_px3,
-                                                              near)))
+                                                              near)),
+                          face_halo_nl=float(halo))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
