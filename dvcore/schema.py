@@ -926,8 +926,9 @@ QUALITY_CODES: dict[str, str] = {
     Quality.IMPLAUSIBLE: "implausible for the nozzle (drop volume over the limit in nozzle volumes, inner "
                          "diameter >= outer): nozzle dimensions wrong",
     Quality.NOZZLE_OUT_OF_FOCUS: "the nozzle walls are out of focus (the drops are sharper): the tip plane and "
-                                 "the liquid next to it are located only to the walls' blur; attached and grown "
-                                 "volumes kept with that in their uncertainty",
+                                 "the liquid next to it are located only to the walls' blur (below a holder's face "
+                                 "line: the plane to that line's whole rows, the liquid against the halo's own "
+                                 "background); attached and grown volumes kept with that in their uncertainty",
     Quality.UNREADABLE: "the frame could not be read or decoded (its error says why): nothing measured; such a "
                         "frame is listed in summary.json errors, and only the live journal has a row of it",
     Quality.NOT_MEASURED: "shots.parquet: the image could not be measured at all (the reason in its notes and in "

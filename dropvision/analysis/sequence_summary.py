@@ -98,6 +98,7 @@ class SequenceValues:
     unmeasured: np.ndarray | None = None  # frames a finding takes every number from
     out_of_growth: np.ndarray | None = None  # attached volumes a finding leaves out of the growth
     withheld: set = field(default_factory=set)
+    attached_halo_nl: np.ndarray | None = None  # the walls' halo below their face (AttachedLiquid.face_halo_nl)
 
     @classmethod
     def of(cls, records: list[FrameRecord]) -> SequenceValues:
@@ -110,7 +111,8 @@ class SequenceValues:
                    attached_common_u_nl=np.array([r.attached_common_uncertainty_nl for r in records], float),
                    attached_plane_u_nl=np.array([r.attached_plane_uncertainty_nl for r in records], float),
                    detached=np.array([bool(r.bodies) for r in records], bool), used_nl=att.copy(),
-                   not_inflight=np.zeros(m, bool), unmeasured=np.zeros(m, bool), out_of_growth=np.zeros(m, bool))
+                   not_inflight=np.zeros(m, bool), unmeasured=np.zeros(m, bool), out_of_growth=np.zeros(m, bool),
+                   attached_halo_nl=np.array([r.attached_face_halo_nl for r in records], float))
 
 
 def apply_findings(s: SequenceValues, findings: list[Finding]) -> None:
@@ -328,9 +330,12 @@ def volume_uncertainties(s: SequenceValues, cal: Calibration) -> VolumeUncertain
     # the frames' own scatter, relative to their modelled random part (a scatter in nl read off the
     # large volumes would swamp the small meniscus's)
     model_rand = np.sqrt(np.maximum(attached_u_nl ** 2 - att_common ** 2 - att_plane ** 2, 0.0))
-    ratio = frame_scatter_ratio(delay, s.used_nl, model_rand, attached)
+    z, _ = _scatter_z(delay, s.used_nl, model_rand, attached)
+    ratio = np.maximum(robust_sigma(z) * student_factor(z.size) if z.size else 0.0,
+                       local_scatter_ratio(delay, s.used_nl, model_rand, attached))
     meniscus_u, grown_u, attached_u_nl = grown_uncertainty(delay, s.used_nl, attached_u_nl, att_common, att_plane,
-                                                           grown, floor_share, scatter_ratio=ratio)
+                                                           grown, floor_share, scatter_ratio=ratio,
+                                                           halo_nl=s.attached_halo_nl)
     # a pixel size measured off the needle (none given): its uncertainty scales every volume by its cube
     rel3 = 3.0 * float(getattr(cal, "pixel_size_relative_uncertainty", 0.0))
     if rel3 > 0:
@@ -442,35 +447,104 @@ def volume_uncertainty_source(cal) -> str:
 def frame_scatter_ratio(delay, volume_nl, random_nl, use) -> float:
     """The frames' own random scatter over what their edge model foresees, read off the sequence.
 
-    The second differences of the volumes in delay order (``v_k - (v_(k-1) + v_(k+1)) / 2``; the
-    smooth growth between neighbouring delays hardly enters at the paper's 10 µs steps, repeats
-    at one delay give pure scatter), each over its expected spread from the frames' modelled
-    random uncertainties ``random_nl``
-    (``sqrt(r_k^2 + (r_(k-1)^2 + r_(k+1)^2) / 4)``): a body's random error grows with its edges,
-    so a scatter in nl read off large volumes would be many times too wide for a small meniscus.
-    The robust spread of these ratios (1 where the model holds); 0 with fewer than 5 frames
-    whose modelled random uncertainty is positive.  The growth's curvature between neighbouring
-    delays stays in; with third differences, which cancel it, the grown
-    volumes' coverage fell to 0.53 on the synthetic sweep: their errors change smoothly with the
-    shape (the attached volume +0.1 % during growth on the u70 sweep case, from its blur
-    correction), and the curvature term, not noise, is what holds them: the ratio is 12-26 on the
-    synthetic sweep's 20 us steps."""
+    Two kinds of differences that a smooth growth does not enter, each over its expected spread
+    from the frames' modelled random uncertainties ``random_nl`` (a body's random error grows with
+    its edges, so a scatter in nl read off large volumes would be many times too wide for a small
+    meniscus): repeats at one delay, each frame's deviation from their mean (expected spread
+    ``sqrt(r_i^2 (1 - 2/n) + sum(r^2) / n^2)``); and the third divided differences of the
+    per-delay means over four neighbouring delays (``sum_i w_i m_i``, ``w_i = 1 / prod_(j != i)
+    (t_i - t_j)``: zero for any quadratic, whatever the spacing; expected spread
+    ``sqrt(sum_i w_i^2 s_i^2)`` with ``s_i`` the means' modelled spread).  The robust spread of
+    these ratios (1 where the model holds); 0 with fewer than 5 frames whose modelled random
+    uncertainty is positive, or nothing to difference.  Second differences left the growth's
+    curvature between delays in, read as scatter: the ratio was 11-34 on the synthetic tiers'
+    20 µs steps (every random part that many times too wide)."""
+    z, _ = _scatter_z(delay, volume_nl, random_nl, use)
+    return robust_sigma(z) if z.size else 0.0
+
+
+#: How many of the differences nearest in delay `local_scatter_ratio` reads.
+LOCAL_SCATTER_DIFFERENCES = 21
+#: Neighbouring third differences share three of their four values (correlations -3/4, 3/10, -1/20
+#: at lags 1 to 3): a spread read off ``k`` of them is as sure as one off ``k / (1 + 2 sum rho^2)
+#: = k / 2.31`` independent values.
+THIRD_DIFFERENCE_SHARE = 1.0 + 2.0 * (0.75 ** 2 + 0.3 ** 2 + 0.05 ** 2)
+#: Asymptotic efficiency of the median absolute deviation against the standard deviation for
+#: Gaussian values (`dropvision.robust.robust_sigma`): a spread read off ``k`` values by it is as
+#: sure as a standard deviation of ``0.37 k``.
+MAD_EFFICIENCY = 0.3675
+
+
+def student_factor(k: int) -> float:
+    """How much wider than 1.96 a 95 % interval must be when its scale is a robust spread of ``k``
+    values: Student's ``t(0.975, nu) / 1.96`` with ``nu = MAD_EFFICIENCY k / THIRD_DIFFERENCE_SHARE``
+    degrees of freedom (at least 1), by its Cornish-Fisher expansion (``nu`` 4: 1.41, the exact 1.42; 1 for ``k``
+    large).  A ratio read off few differences is itself uncertain: used as if exact, the ±2u
+    interval would hold less than 95 % of the frames."""
+    nu = max(MAD_EFFICIENCY * float(k) / THIRD_DIFFERENCE_SHARE, 1.0)
+    z = 1.959964
+    t = (z + (z ** 3 + z) / (4.0 * nu) + (5.0 * z ** 5 + 16.0 * z ** 3 + 3.0 * z) / (96.0 * nu ** 2)
+         + (3.0 * z ** 7 + 19.0 * z ** 5 + 17.0 * z ** 3 - 15.0 * z) / (384.0 * nu ** 3))
+    return t / z
+
+
+def local_scatter_ratio(delay, volume_nl, random_nl, use) -> np.ndarray:
+    """`frame_scatter_ratio` read near each frame: the robust spread of the `LOCAL_SCATTER_DIFFERENCES`
+    differences nearest to its delay, times `student_factor` of their count (0 where there are fewer,
+    or fewer than 5 frames).  The model's random part can be off by a different factor for a small
+    resting meniscus (a few rows at the plane) than for a large drop: on the synthetic out-of-focus
+    holder the resting frames scattered about 0.006 nl against 0.0002 nl modelled, the sequence as a
+    whole 11 times its model."""
+    delay = np.asarray(delay, float)
+    z, at = _scatter_z(delay, volume_nl, random_nl, use)
+    out = np.zeros(delay.size)
+    if z.size < LOCAL_SCATTER_DIFFERENCES:
+        return out
+    for i, t in enumerate(delay):
+        if np.isfinite(t):
+            near = np.argsort(np.abs(at - t), kind="stable")[:LOCAL_SCATTER_DIFFERENCES]
+            out[i] = robust_sigma(z[near]) * student_factor(LOCAL_SCATTER_DIFFERENCES)
+    return out
+
+
+def _scatter_z(delay, volume_nl, random_nl, use) -> tuple[np.ndarray, np.ndarray]:
+    """The differences of `frame_scatter_ratio`, each over its expected spread, and the delay each
+    belongs to (a repeat's own; the middle of a third difference's four delays)."""
     delay = np.asarray(delay, float)
     r = np.asarray(random_nl, float)
     ok = np.asarray(use, bool) & np.isfinite(volume_nl) & np.isfinite(r) & (r > 0)
     if ok.sum() < 5:
-        return 0.0
-    order = np.argsort(delay[ok], kind="stable")
-    v = np.asarray(volume_nl, float)[ok][order]
-    r = r[ok][order]
-    d2 = v[1:-1] - 0.5 * (v[:-2] + v[2:])
-    z = d2 / np.sqrt(r[1:-1] ** 2 + 0.25 * (r[:-2] ** 2 + r[2:] ** 2))
-    return robust_sigma(z)
+        return np.zeros(0), np.zeros(0)
+    d, v, r = delay[ok], np.asarray(volume_nl, float)[ok], r[ok]
+    times, inverse = np.unique(d, return_inverse=True)
+    n = np.bincount(inverse).astype(float)
+    mean = np.bincount(inverse, v) / n
+    r2 = np.bincount(inverse, r * r)
+    spread = np.sqrt(r2) / n
+    z, at = [], []
+    rep = n[inverse] >= 2
+    if rep.any():
+        ni = n[inverse][rep]
+        expected = np.sqrt(r[rep] ** 2 * (1.0 - 2.0 / ni) + r2[inverse][rep] / ni ** 2)
+        z.append((v[rep] - mean[inverse][rep]) / expected)
+        at.append(d[rep])
+    if times.size >= 4:
+        t = np.lib.stride_tricks.sliding_window_view(times, 4)
+        w = 1.0 / np.stack([np.prod([t[:, i] - t[:, j] for j in range(4) if j != i], axis=0) for i in range(4)],
+                           axis=1)
+        m = np.lib.stride_tricks.sliding_window_view(mean, 4)
+        s = np.lib.stride_tricks.sliding_window_view(spread, 4)
+        z.append(np.sum(w * m, axis=1) / np.sqrt(np.sum(w * w * s * s, axis=1)))
+        at.append(0.5 * (t[:, 1] + t[:, 2]))
+    if not z:
+        return np.zeros(0), np.zeros(0)
+    return np.concatenate(z), np.concatenate(at)
 
 
 def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl,
                       grown_nl, floor_share: float = 0.0,
-                      scatter_nl: float = 0.0, scatter_ratio: float = 0.0) -> tuple[float, np.ndarray, np.ndarray]:
+                      scatter_nl: float = 0.0, scatter_ratio: float = 0.0,
+                      halo_nl=None) -> tuple[float, np.ndarray, np.ndarray]:
     """Standard uncertainties (nl) of the initial meniscus, of every frame's grown volume and of
     its attached volume.
 
@@ -483,22 +557,28 @@ def grown_uncertainty(delay, attached_nl, attached_u_nl, common_u_nl, plane_u_nl
     silhouette's shape) is taken as independent between the two frames.  A frame's random part is
     at least the sequence's own scatter ``scatter_nl`` (nl) and at least its
     modelled random part times ``scatter_ratio`` (`frame_scatter_ratio`); the attached volumes'
-    uncertainties are returned with it.
+    uncertainties are returned with it.  The in-focus walls' halo below their face
+    (``halo_nl``, `dropvision.frame.bodies.face_halo_px3`) is cancelled by the rest's as far as a
+    frame's liquid spreads no wider under the face than the first delay's: its excess over their
+    mean is added to the attached and the grown volumes.
     """
     delay = np.asarray(delay, float)
     first = (delay == np.min(delay)) & np.isfinite(attached_nl) if delay.size else np.zeros(0, bool)
     model_rand = np.sqrt(np.maximum(attached_u_nl ** 2 - common_u_nl ** 2 - plane_u_nl ** 2, 0.0))
-    rand = np.maximum(model_rand * max(float(scatter_ratio), 1.0), scatter_nl)
+    rand = np.maximum(model_rand * np.maximum(np.asarray(scatter_ratio, float), 1.0), scatter_nl)
     attached_u_nl = np.sqrt(np.maximum(attached_u_nl ** 2 - model_rand ** 2, 0.0) + rand ** 2)
     if not first.any():
         return float("nan"), np.full(delay.size, np.nan), attached_u_nl
+    halo = np.zeros(delay.size) if halo_nl is None else np.nan_to_num(np.asarray(halo_nl, float))
+    wider = np.maximum(halo - float(np.mean(halo[first])), 0.0)
+    attached_u_nl = np.hypot(attached_u_nl, wider)
     n0 = int(first.sum())
     u0 = float(np.mean(attached_u_nl[first]))
     se = float(np.std(attached_nl[first], ddof=1) / np.sqrt(n0)) if n0 >= 2 else 0.0
     c0, r0 = float(np.mean(common_u_nl[first])), float(np.mean(rand[first]))
     f2 = floor_share ** 2
     u_grown = np.sqrt((1.0 - f2) * (common_u_nl - c0) ** 2 + f2 * (common_u_nl ** 2 + c0 ** 2)
-                      + rand ** 2 + r0 ** 2 / n0 + se ** 2)
+                      + rand ** 2 + r0 ** 2 / n0 + se ** 2 + wider ** 2)
     return float(np.hypot(u0, se)), np.where(np.isfinite(grown_nl), u_grown, np.nan), attached_u_nl
 
 

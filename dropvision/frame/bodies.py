@@ -145,6 +145,7 @@ class AttachedLiquid:
     volume_uncertainty_nl: float = float("nan")
     common_uncertainty_nl: float = float("nan")
     plane_uncertainty_nl: float = float("nan")
+    face_halo_nl: float = 0.0
 
 
 def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
@@ -156,11 +157,30 @@ def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
     orifice in every frame: the error is the same from frame to frame, like the tip plane's
     (`measure_attached` counts it with the plane, which a grown volume cancels; on the synthetic
     out-of-focus holder the grown volume's median |error| / u went from 0.008 to 0.33 with it,
-    every frame still within 2 u).
+    every frame still within 2 u).  Not counted where the holder's face line is known: there the
+    halo's rows are placed against their own background beside the liquid (`edges_in_the_halo`).
     """
     if not (np.isfinite(nozzle_blur_px) and nozzle_blur_px > 0):
         return 0.0
     return float(math.pi * volume.top_chord_px * 3.0 * nozzle_blur_px * 0.5 * nozzle_blur_px)
+
+
+def face_halo_px3(volume: BodyVolume, walls_sigma_px: float) -> float:
+    """How far (px^3) the in-focus walls' halo below their face can widen the attached liquid.
+
+    The walls' face ends at the tip plane; its blur darkens the rows just below it beside the
+    liquid, and the liquid's edges there move out by about half the walls' blur ``sigma``: over the
+    plane's top chord ``c``, as a slab ``pi (c/2)^2 sigma / 2`` (the plane's own term at the walls'
+    half-blur).  The resting meniscus fills the orifice and carries its share in every frame alike;
+    what a frame spreads wider under the face than the rest (`dropvision.analysis.sequence_summary.
+    grown_uncertainty` differences it against the first delay's) is not cancelled.  On the synthetic
+    sweep, the attached volume's error rose by 0.018 nl (u70, top chord 38.2 -> 45.4 px, sigma 0.78 px:
+    0.020 nl of this at its widest) and 0.027 nl (watcher-side, 38.3 -> 46.5 px, sigma 1.22 px:
+    0.035 nl), and fell back as the chord did.  0 with out-of-focus walls (their own terms: `out_of_focus_nozzle_px3`)."""
+    if not (np.isfinite(walls_sigma_px) and walls_sigma_px > 0):
+        return 0.0
+    c = volume.top_chord_px
+    return float(math.pi * 0.25 * c * c * 0.5 * walls_sigma_px)
 
 
 def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody, gain: float) -> AttachedLiquid:
@@ -201,14 +221,20 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     span = plane_span_chord_px(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
     clip_to_tip_plane(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
     bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
-    near = out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3
+    # with the holder's face line known, the halo's rows were placed against their own background
+    # (`edges_in_the_halo`): the halo no longer moves them, and their noise is in the random part
+    near = (0.0 if np.isfinite(geo.face_row0_px)
+            else out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3)
+    walls_in_focus = not (np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0)
+    halo = face_halo_px3(bv, ctx.blur.calibrated_sigma_px) * geo.nl_per_px3 if walls_in_focus else 0.0
     return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,
                           volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(bv, ctx, plane=True), near)),
                           common_uncertainty_nl=_common_px3(bv, ctx, closed=False) * geo.nl_per_px3,
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                                          geo.tilt_rad) * geo.nl_per_px3,
-                                                              near)))
+                                                              near)),
+                          face_halo_nl=float(halo))
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -284,11 +310,20 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
 TIP_MEDIAN_FACTOR = math.sqrt(math.pi / 2.0) / 2.0
 
 
+#: An out-of-focus holder's face line is fitted to each column's lowest dark row, a whole row
+#: (`dropvision.calibrate.nozzle.bottom_profile`): the face's 50 % crossing lies up to one row
+#: below it, uniformly, a root-mean-square ``1 / sqrt(3)`` px.
+FACE_ROW_RMS_PX = 1.0 / math.sqrt(3.0)
+
+
 def _plane_sigma_px(ctx: FrameContext) -> float:
     """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
-    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`), or
-    to the walls' blur when they are out of focus."""
+    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`); with
+    the walls out of focus, the plane placed on the holder's face line to its whole rows
+    (`FACE_ROW_RMS_PX`), or to the walls' blur where no face line is known."""
     nb = ctx.blur.nozzle_sigma_px if np.isfinite(ctx.blur.nozzle_sigma_px) else 0.0
+    if nb > 0 and np.isfinite(ctx.geometry.face_row0_px):
+        nb = FACE_ROW_RMS_PX
     return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
                            + nb * nb))
 

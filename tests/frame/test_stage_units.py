@@ -19,7 +19,7 @@ import pytest
 from dropvision.frame import segmentation as sg
 from dropvision.frame import edges as edg
 from dropvision.frame import volume as vo
-from dropvision.frame.bodies import DetachedBody, measure_attached, off_path_reason
+from dropvision.frame.bodies import TIP_MEDIAN_FACTOR, DetachedBody, _plane_sigma_px, measure_attached, off_path_reason
 from dropvision.calibrate.blur import esf_sigma_px
 from dropvision.calibrate.calibration_pass import attached_half_width_px
 from dropvision.analysis.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
@@ -279,8 +279,8 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
         geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan),
         photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=np.nan,
                                    noise_transmission=0.0, smoothing_sigma_px=0.0),
-        blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=0.0, edge_position_sigma_px=0.05,
-                             edge_noise_px=0.0, clip_light=None),
+        blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
+                             edge_position_sigma_px=0.05, edge_noise_px=0.0, clip_light=None),
         config=SimpleNamespace(edge_position_floor_px=0.0))
     att = measure_attached(img, ctx, seg, body, 1.0)
     expected_nl = math.pi * 15.5**2 * 60.2 * 2e-6
@@ -288,6 +288,21 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     assert att.bottom_row == 100.0 and not att.leaves
     # its common-edge uncertainty is pi x area x 0.05: area 31 x 60.2
     assert att.common_uncertainty_nl == pytest.approx(math.pi * 31 * 60.2 * 0.05 * 2e-6, rel=1e-3)
+
+
+def test_tip_plane_on_an_out_of_focus_face_placed_to_its_whole_rows():
+    """With the walls out of focus (blur 5.5 px), a tip plane on the holder's face line is placed to
+    that line's whole rows (each column's lowest dark row: the 50 % crossing up to one row below,
+    RMS 1/sqrt(3) px), not to the walls' blur; without a face line, to the blur."""
+    def ctx(face_row0_px):
+        return SimpleNamespace(
+            geometry=SimpleNamespace(face_row0_px=face_row0_px),
+            blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=5.5, edge_position_sigma_px=0.05,
+                                 edge_noise_px=0.04, clip_light=None),
+            config=SimpleNamespace(edge_position_floor_px=0.0))
+    shared = 0.05 ** 2 + (TIP_MEDIAN_FACTOR * 0.04) ** 2
+    assert _plane_sigma_px(ctx(120.0)) == pytest.approx(math.sqrt(shared + 1.0 / 3.0), rel=1e-12)
+    assert _plane_sigma_px(ctx(float("nan"))) == pytest.approx(math.sqrt(shared + 5.5 ** 2), rel=1e-12)
 
 
 # --- bodies beside the path, edge spread, attached half-width -----------------------------------
@@ -349,7 +364,9 @@ def test_attached_half_width_hand_case():
 
 def test_frame_scatter_of_gaussian_noise_and_of_a_smooth_trend():
     """With a modelled random part of 1 nl in every frame the ratio is the frames' own scatter in nl:
-    the robust spread of the second differences over sqrt(3/2)."""
+    the robust spread of the repeats' deviations from their delay's mean and of the third
+    differences of the per-delay means, each over its expected spread; a quadratic growth does not
+    enter."""
     rng = np.random.default_rng(7)
     delay = np.repeat(np.arange(400.0), 5)
     noise = 0.02
@@ -358,8 +375,12 @@ def test_frame_scatter_of_gaussian_noise_and_of_a_smooth_trend():
     use = np.ones(delay.size, bool)
     unit = np.ones(delay.size)
     assert frame_scatter_ratio(delay[perm], v[perm], unit, use) == pytest.approx(noise, rel=0.06)
-    smooth = 1.0 + 0.003 * np.arange(10.0)
+    smooth = 1.0 + 0.003 * np.arange(10.0) + 0.02 * np.arange(10.0) ** 2
     assert frame_scatter_ratio(np.arange(10.0), smooth, unit[:10], np.ones(10, bool)) == pytest.approx(0.0, abs=1e-12)
+    # uneven delays: the divided differences still cancel a quadratic
+    uneven = np.array([0.0, 1.0, 3.0, 4.0, 7.0, 8.0, 12.0])
+    assert frame_scatter_ratio(uneven, 2.0 - uneven + 0.5 * uneven ** 2, unit[:7], np.ones(7, bool)) == pytest.approx(
+        0.0, abs=1e-9)
     # frames not used (an outlier, a NaN) are left out; fewer than 5 left: 0
     spoilt = smooth.copy()
     spoilt[4], spoilt[6] = 50.0, np.nan
@@ -367,11 +388,17 @@ def test_frame_scatter_of_gaussian_noise_and_of_a_smooth_trend():
     use[4] = False
     assert frame_scatter_ratio(np.arange(10.0), spoilt, unit[:10], use) == pytest.approx(0.0, abs=1e-12)
     assert frame_scatter_ratio(np.arange(4.0), np.array([0.0, 1.0, 0.0, 1.0]), unit[:4], np.ones(4, bool)) == 0.0
-    # five frames, by hand: second differences v_k - (v_(k-1) + v_(k+1)) / 2 = 0, -0.75, 1.5 (each over
-    # sqrt(1 + 2/4) = sqrt(1.5)); median 0, absolute deviations 0, 0.75, 1.5: MAD 0.75
+    # five frames, by hand: third differences over unit steps, weights (-1, 3, -3, 1) / 6, each over
+    # sqrt(20) / 6: 1.5 / sqrt(20) and -4.5 / sqrt(20); median -1.5 / sqrt(20), MAD 3 / sqrt(20)
     v5 = np.array([0.0, 0.0, 0.0, 1.5, 0.0])
     assert frame_scatter_ratio(np.arange(5.0), v5, unit[:5], np.ones(5, bool)) == pytest.approx(
-        1.4826 * 0.75 / np.sqrt(1.5), rel=1e-12)
+        1.4826 * 3.0 / np.sqrt(20.0), rel=1e-12)
+    # repeats alone: deviations from their delay's mean over r sqrt(1 - 1/n): two frames 0 and 2 at
+    # each of three delays deviate by -+1, over sqrt(1/2): -+1.414, median 0, MAD 1.414
+    rep_d = np.repeat([0.0, 1.0, 2.0], 2)
+    rep_v = np.tile([0.0, 2.0], 3)
+    assert frame_scatter_ratio(rep_d, rep_v, np.ones(6), np.ones(6, bool)) == pytest.approx(
+        1.4826 * np.sqrt(2.0), rel=1e-12)
 
 
 def test_robust_sigma_by_hand():
@@ -404,6 +431,56 @@ def test_frame_scatter_ratio_is_the_noise_over_its_model():
     assert ua == pytest.approx(np.sqrt(c**2 + p**2 + 4.0 * (u**2 - c**2 - p**2)))
     _, _, ua1 = grown_uncertainty(d, att, u, c, p, np.array([0.0, 0.0, 1.0]), scatter_ratio=0.5)
     assert ua1 == pytest.approx(u)
+
+
+def test_local_scatter_ratio_reads_each_part_of_the_sequence():
+    """A resting meniscus scattering 5 times its model, then a growth at 1 time: the ratio read near
+    each frame is about 5 there and 1 here (times Student's factor for its 21 differences); the
+    sequence's one ratio would be about the growth's for all."""
+    from dropvision.analysis.sequence_summary import local_scatter_ratio, student_factor
+    rng = np.random.default_rng(3)
+    delay = np.arange(0.0, 1200.0, 10.0)
+    model = np.full(delay.size, 0.01)
+    k = np.where(delay < 400.0, 5.0, 1.0)
+    v = 0.2 + np.where(delay < 400.0, 0.0, 1e-5 * (delay - 400.0) ** 2) + rng.normal(0.0, k * model)
+    use = np.ones(delay.size, bool)
+    local = local_scatter_ratio(delay, v, model, use) / student_factor(21)
+    assert np.median(local[delay < 300.0]) == pytest.approx(5.0, rel=0.35)
+    assert np.median(local[delay > 500.0]) == pytest.approx(1.0, rel=0.35)
+    assert frame_scatter_ratio(delay, v, model, use) < 2.5
+    # too few differences: nothing read
+    assert not local_scatter_ratio(delay[:20], v[:20], model[:20], use[:20]).any()
+
+
+def test_student_factor_against_the_t_table():
+    """t(0.975, nu) / 1.96 with nu = 0.3675 k / 2.31 for k third differences: k 25 (nu 3.98) against
+    the table's 2.776 / 1.96 at nu 4; k 126 (nu 20.0) against 2.086 / 1.96 at nu 20; 1 for many."""
+    from dropvision.analysis.sequence_summary import student_factor
+    assert student_factor(25) == pytest.approx(2.776 / 1.96, rel=0.005)
+    assert student_factor(126) == pytest.approx(2.086 / 1.96, rel=0.002)
+    assert student_factor(100000) == pytest.approx(1.0, abs=1e-4)
+    assert student_factor(1) == student_factor(6) > student_factor(11) > student_factor(21) > 1.0  # nu at least 1
+
+
+def test_face_halo_counts_what_spreads_wider_than_the_rest():
+    """The walls' halo term of a frame whose liquid spreads wider under the face than the rest
+    (first delay) is added to its attached and grown volumes; as wide or narrower: nothing."""
+    d, att = np.array([0.0, 10.0, 20.0]), np.array([1.0, 2.0, 3.0])
+    u, c, p = np.array([0.05, 0.06, 0.07]), np.array([0.03, 0.04, 0.05]), np.array([0.02, 0.02, 0.02])
+    grown = np.array([0.0, 1.0, 2.0])
+    u0, ug, ua = grown_uncertainty(d, att, u, c, p, grown)
+    u0h, ugh, uah = grown_uncertainty(d, att, u, c, p, grown, halo_nl=np.array([0.010, 0.013, 0.008]))
+    assert u0h == pytest.approx(u0) and ugh[0] == pytest.approx(ug[0]) and ugh[2] == pytest.approx(ug[2])
+    assert ugh[1] == pytest.approx(math.hypot(ug[1], 0.003), rel=1e-9)
+    assert uah == pytest.approx([ua[0], math.hypot(ua[1], 0.003), ua[2]], rel=1e-9)
+
+
+def test_face_halo_px3_by_hand():
+    """pi (c/2)^2 sigma / 2 over the top chord c: 40 px at a blur of 1.2 px: pi 400 0.6; none without a blur."""
+    from dropvision.frame.bodies import face_halo_px3
+    bv = vo.BodyVolume(1000.0, 0.0, 0.0, 0.0, 10.0, 40.0, 10, top_chord_px=40.0)
+    assert face_halo_px3(bv, 1.2) == pytest.approx(math.pi * 400.0 * 0.6, rel=1e-12)
+    assert face_halo_px3(bv, 0.0) == 0.0 and face_halo_px3(bv, float("nan")) == 0.0
 
 
 def test_grown_uncertainty_hand_values():
