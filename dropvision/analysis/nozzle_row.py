@@ -680,22 +680,25 @@ def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
             "a scan: one nozzle per frame, brought to one place by the stage", {}, [])
 
 
-def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
-                scan: dict | None = None, nozzle_count: int | None = None):
-    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
-    ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
-    import pandas as pd
+@dataclass(frozen=True)
+class _Photometry:
+    """A row's photometric reference from its first frame: the inverse background, the first frame's
+    transmission, the plate, the liquid's interior level, the edge threshold, the transmission's
+    noise and the edge blur (px)."""
 
-    from dropvision.calibrate.background import estimate_background
-    from dropvision.calibrate.blur import esf_sigma_px
-    from dropvision.frame.edges import edge_threshold
-    from dropvision.frame.volume import outline
+    inv_bg: np.ndarray
+    t0: np.ndarray
+    plate: Plate
+    level: float
+    thr: float
+    noise_t: float
+    sigma: float
 
-    meta = seq.meta
-    px = float(meta.pixel_size_um)
-    n = len(seq)
+
+def _read_frames(seq) -> tuple[list, list[dict]]:
+    """A row sequence's readable frames ``(index, ref, image)`` and its unreadable ones (error rows)."""
     frames, errors = [], []
-    for k in range(n):
+    for k in range(len(seq)):
         fr = seq.read(k)
         if fr.error is not None:
             errors.append({"file": fr.ref.file, "page": fr.ref.page, "delay_us": fr.ref.delay_us, "reason": fr.error})
@@ -703,7 +706,36 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         frames.append((k, fr.ref, fr.image))
     if not frames:
         from dropvision.io.sequence import SequenceError
-        raise SequenceError(f"{meta.path}: no readable frame of the printhead row")
+        raise SequenceError(f"{seq.meta.path}: no readable frame of the printhead row")
+    return frames, errors
+
+
+def _edge_blur_px(img0, t0, inv_bg, lab, stats, thr: float, level: float) -> float:
+    """Edge blur (px): the median edge-spread sigma of the first frame's six largest bodies (1.0 if none)."""
+    from dropvision.calibrate.blur import esf_sigma_px
+    from dropvision.frame.edges import body_edges
+    from dropvision.frame.volume import outline
+
+    sig = []
+    for j in np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1:
+        x0, y0, bw, bh, area = stats[j]
+        if area < 50:
+            continue
+        ed = body_edges(img0, inv_bg, lab, j, (x0, y0, x0 + bw, y0 + bh), thr)
+        rows, left, right = outline(ed)
+        s = esf_sigma_px(t0, rows, left, right, level)
+        if np.isfinite(s):
+            sig.append(s)
+    return float(np.median(sig)) if sig else 1.0
+
+
+def _row_photometry(frames, plate_hint: Plate, scan) -> _Photometry:
+    """Background from up to five frames spread over the sequence, then the first frame's plate,
+    liquid level, edge threshold, noise and edge blur."""
+    from dropvision.calibrate.background import estimate_background
+    from dropvision.calibrate.calibration_pass import transmission_noise
+    from dropvision.frame.edges import edge_threshold
+
     pick = [frames[i][2] for i in np.unique(np.linspace(0, len(frames) - 1, min(5, len(frames))).astype(int))]
     # a scan's drops sit at one place in every frame: no static dust looked for (it would be the liquid)
     bg = estimate_background(pick, static_dust=len(pick) >= 3 and scan is None).background
@@ -717,49 +749,80 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
     thr = edge_threshold(level)
     # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
     # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
-    from dropvision.calibrate.calibration_pass import transmission_noise
-
     noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
     # edge blur: the edge-spread functions of the first frame's large bodies
-    sig = []
-    for j in np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1:
-        x0, y0, bw, bh, area = stats[j]
-        if area < 50:
-            continue
-        from dropvision.frame.edges import body_edges
-        ed = body_edges(frames[0][2], inv_bg, lab, j, (x0, y0, x0 + bw, y0 + bh), thr)
-        rows, left, right = outline(ed)
-        s = esf_sigma_px(t0, rows, left, right, level)
-        if np.isfinite(s):
-            sig.append(s)
-    sigma = float(np.median(sig)) if sig else 1.0
-    bodies: list[Body] = []
-    lines: list[Line] = []
-    for k, ref, img in frames:
-        bs = _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px)
-        bodies.extend(bs)
-        lines.extend(_lines(bs))
-    notes = []
-    if scan is not None:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
+    sigma = _edge_blur_px(frames[0][2], t0, inv_bg, lab, stats, thr, level)
+    return _Photometry(inv_bg, t0, plate, level, thr, noise_t, sigma)
+
+
+def _angle_note(single: bool, scan, own: dict, seen: dict, pitch_src: str) -> str | None:
+    """The note on how a single frame's angles are measured (None for a sequence of delays or a scan)."""
+    if single and scan is None and own and len(own) == len(seen):
+        return ("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
+                "or a ligament's root) to its drop, from the plate's normal")
+    if single and scan is None:
+        return ("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
+                "a tilt common to the row" + ("" if "estimated" not in pitch_src else
+                                              " (and, with the pitch estimated, a fan linear across it)")
+                + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
+                + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
+                "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
+                "measures each trajectory on its own")
+    return None
+
+
+_MISSING = dict(volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan, velocity_uncertainty_m_s=np.nan,
+                angle_mrad=np.nan, angle_uncertainty_mrad=np.nan, satellites=0.0, satellite_volume_nl=np.nan,
+                n_frames=0)
+
+
+def _single_frame_angle(m: Body, i: int, plate: Plate, own: dict, grid_col: dict, grid_se, tilt: float):
+    """A single frame's angle (mrad) of nozzle ``i``'s main drop ``m`` and its uncertainty: from the
+    nozzle's own place at the plate, else from its grid position."""
+    if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
+        c_i, se_i = own[i]
+        dz = m.row_px - plate.row_at(c_i)
+        ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
     else:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
-            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, t0.shape[1])
-    single = len({ref.delay_us for _, ref, _ in frames}) < 2
+        c_i, se_i = grid_col[i], grid_se(i)
+        dz = m.row_px - plate.row_at(c_i)
+        # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
+        ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
+    return ang, math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
+
+
+def _nozzle_stats(tr: Track, i: int, single: bool, plate: Plate, own: dict, grid_col: dict, grid_se) -> dict:
+    """A live nozzle's volume, velocity, angle (each with its uncertainty), satellites and frame count;
+    its bodies take its id."""
+    for ln in tr.lines:
+        for b in ln.bodies + ln.roots:
+            b.nozzle = i
+    for b in tr.extra_roots:
+        b.nozzle = i
+    mains = [ln.main for ln in tr.lines]
+    vols = np.array([b.volume_nl for b in mains])
+    us = np.array([b.volume_uncertainty_nl for b in mains])
+    vol = float(vols.mean())
+    u_vol = math.hypot(float(us.mean()), float(vols.std(ddof=1)) / math.sqrt(vols.size) if vols.size > 1 else 0.0)
+    nsat = np.array([len(ln.bodies) - 1 for ln in tr.lines], float)
+    sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
     # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
     # rolled) turns its normal by as much
     tilt = math.atan(plate.slope)
-    if single and scan is None and own and len(own) == len(seen):
-        notes.append("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
-                     "or a ligament's root) to its drop, from the plate's normal")
-    elif single and scan is None:
-        notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
-                     "a tilt common to the row" + ("" if "estimated" not in pitch_src else
-                                                   " (and, with the pitch estimated, a fan linear across it)")
-                     + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
-                     + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
-                     "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
-                     "measures each trajectory on its own")
+    if single or not np.isfinite(tr.angle_mrad):
+        ang, ang_u = _single_frame_angle(mains[0], i, plate, own, grid_col, grid_se, tilt)
+    else:
+        ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
+    return dict(volume_nl=vol, volume_uncertainty_nl=u_vol,
+                velocity_m_s=float("nan") if single else tr.velocity_m_s,
+                velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
+                angle_mrad=float(ang), angle_uncertainty_mrad=float(ang_u),
+                satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
+                n_frames=len(tr.lines))
+
+
+def _nozzle_rows(ids, seen, grid_col, grid_se, own, ends, plate: Plate, single: bool, scan) -> list[dict]:
+    """One row per nozzle of the grid: its place, and its statistics or why it is missing."""
     rows = []
     for i in ids:
         tr = seen.get(i)
@@ -767,58 +830,19 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         if tr is None:
             why = ("no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)")
                    if i not in ends else "no drop at the row's end (nozzle_count)")
-            row.update(state="missing", reason=why,
-                       volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan,
-                       velocity_uncertainty_m_s=np.nan, angle_mrad=np.nan, angle_uncertainty_mrad=np.nan,
-                       satellites=0.0, satellite_volume_nl=np.nan, n_frames=0)
-            rows.append(row)
-            continue
-        for ln in tr.lines:
-            for b in ln.bodies + ln.roots:
-                b.nozzle = i
-        for b in tr.extra_roots:
-            b.nozzle = i
-        mains = [ln.main for ln in tr.lines]
-        vols = np.array([b.volume_nl for b in mains])
-        us = np.array([b.volume_uncertainty_nl for b in mains])
-        vol = float(vols.mean())
-        u_vol = math.hypot(float(us.mean()), float(vols.std(ddof=1)) / math.sqrt(vols.size) if vols.size > 1 else 0.0)
-        nsat = np.array([len(ln.bodies) - 1 for ln in tr.lines], float)
-        sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
-        if single or not np.isfinite(tr.angle_mrad):
-            m = mains[0]
-            if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
-                c_i, se_i = own[i]
-                dz = m.row_px - plate.row_at(c_i)
-                ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
-            else:
-                c_i, se_i = grid_col[i], grid_se(i)
-                dz = m.row_px - plate.row_at(c_i)
-                # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
-                ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
-            ang_u = math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
+            row.update(state="missing", reason=why, **_MISSING)
         else:
-            ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
-        row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
-                   velocity_m_s=float("nan") if single else tr.velocity_m_s,
-                   velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
-                   angle_mrad=float(ang), angle_uncertainty_mrad=float(ang_u),
-                   satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
-                   n_frames=len(tr.lines))
+            row.update(_nozzle_stats(tr, i, single, plate, own, grid_col, grid_se))
         rows.append(row)
-    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
-    # neighbour's meniscus): the nearest nozzle's column
-    if scan is None and grid_col:
-        gc = np.array([grid_col[i] for i in ids])
-        for b in bodies:
-            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
-                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
-    _states(rows)
-    nozzles = pd.DataFrame(rows)
-    nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
-    live = nozzles[nozzles.state != "missing"]
-    vcv, vcv_u = _cv(live.volume_nl.to_numpy(float), live.volume_uncertainty_nl.to_numpy(float))
-    ucv, ucv_u = _cv(live.velocity_m_s.to_numpy(float), live.velocity_uncertainty_m_s.to_numpy(float))
+    return rows
+
+
+def _line_and_body_tables(lines, bodies):
+    """The row's frames table (one row per drop line, its main drop) and bodies table."""
+    import pandas as pd
+
+    from dvcore.schema import ROW_BODIES, ROW_FRAMES
+
     frame_rows, body_rows = [], []
     for ln in lines:
         m = ln.main
@@ -830,26 +854,79 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         body_rows.append({"file": b.file, "delay_us": b.delay_us, "nozzle": b.nozzle, "body_class": b.body_class,
                           "area_px": b.area_px, "volume_nl": b.volume_nl, "volume_uncertainty_nl": b.volume_uncertainty_nl,
                           "row_px": b.row_px, "col_px": b.col_px})
-    from dvcore.schema import NOZZLES, ROW_BODIES, ROW_FRAMES
-
-    nozzles = nozzles[NOZZLES.column_names].astype({"nozzle": "int64", "n_frames": "int64"})
     ftab = pd.DataFrame(frame_rows, columns=ROW_FRAMES.column_names).astype({"nozzle": "Int64"})
     ftab = ftab.sort_values(["delay_us", "file", "col_px"], kind="stable").reset_index(drop=True)
     btab = pd.DataFrame(body_rows, columns=ROW_BODIES.column_names).astype({"nozzle": "Int64", "area_px": "int64"})
+    return ftab, btab
+
+
+def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
+                scan: dict | None = None, nozzle_count: int | None = None):
+    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
+    ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
+    import pandas as pd
+
+    from dvcore.schema import NOZZLES
+
+    meta = seq.meta
+    px = float(meta.pixel_size_um)
+    frames, errors = _read_frames(seq)
+    ph = _row_photometry(frames, plate_hint, scan)
+    plate = ph.plate
+    bodies: list[Body] = []
+    lines: list[Line] = []
+    for k, ref, img in frames:
+        bs = _frame_bodies(k, ref, img, ph.inv_bg, plate, ph.thr, ph.sigma, ph.level, ph.noise_t, px)
+        bodies.extend(bs)
+        lines.extend(_lines(bs))
+    notes = []
+    if scan is not None:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
+    else:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
+            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, ph.t0.shape[1])
+    single = len({ref.delay_us for _, ref, _ in frames}) < 2
+    note = _angle_note(single, scan, own, seen, pitch_src)
+    if note is not None:
+        notes.append(note)
+    rows = _nozzle_rows(ids, seen, grid_col, grid_se, own, ends, plate, single, scan)
+    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
+    # neighbour's meniscus): the nearest nozzle's column
+    if scan is None and grid_col:
+        gc = np.array([grid_col[i] for i in ids])
+        for b in bodies:
+            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
+                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
+    _states(rows)
+    nozzles = pd.DataFrame(rows)
+    nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
+    nozzles = nozzles[NOZZLES.column_names].astype({"nozzle": "int64", "n_frames": "int64"})
+    ftab, btab = _line_and_body_tables(lines, bodies)
+    summary = _row_summary(meta, scan, len(seq), len(frames), ids, nozzles, pitch_um, pitch_src, ph, errors, notes)
+    return nozzles, ftab, btab, summary
+
+
+def _row_summary(meta, scan, n: int, n_measured: int, ids, nozzles, pitch_um, pitch_src, ph: _Photometry,
+                 errors, notes) -> dict:
+    """summary.json of a row (`dvcore.schema.ROW_SUMMARY`, less the pass/fail and provenance keys)."""
+    live = nozzles[nozzles.state != "missing"]
+    vcv, vcv_u = _cv(live.volume_nl.to_numpy(float), live.volume_uncertainty_nl.to_numpy(float))
+    ucv, ucv_u = _cv(live.velocity_m_s.to_numpy(float), live.velocity_uncertainty_m_s.to_numpy(float))
     counts = {s: int((nozzles.state == s).sum()) for s in STATES}
-    summary = {
+    plate = ph.plate
+    return {
         "schema_version": "dropvision.row-summary/1", "kind": "printhead-row", "sequence": str(meta.path),
         "layout": "scan" if scan is not None else "row",
-        "n_frames": n, "n_measured": len(frames), "n_nozzles": len(ids), "n_live": int(len(ids) - counts["missing"]),
+        "n_frames": n, "n_measured": n_measured, "n_nozzles": len(ids), "n_live": int(len(ids) - counts["missing"]),
         "state_counts": counts,
         "pitch_um": pitch_um, "pitch_source": pitch_src,
-        "plate_row_px": float(plate.row_at((t0.shape[1] - 1) / 2.0)), "plate_slope_mrad": float(math.atan(plate.slope) * 1e3),
+        "plate_row_px": float(plate.row_at((ph.t0.shape[1] - 1) / 2.0)),
+        "plate_slope_mrad": float(math.atan(plate.slope) * 1e3),
         "volume_cv": vcv, "volume_cv_uncertainty": vcv_u, "velocity_cv": ucv, "velocity_cv_uncertainty": ucv_u,
         "limits": {"weak_k": WEAK_K, "weak_floor": WEAK_FLOOR, "deviated_mrad": DEVIATED_MRAD},
-        "edge_blur_px": sigma, "liquid_level": level, "edge_threshold": thr,
+        "edge_blur_px": ph.sigma, "liquid_level": ph.level, "edge_threshold": ph.thr,
         "errors": errors, "notes": notes,
     }
-    return nozzles, ftab, btab, summary
 
 
 def _states(rows: list[dict]) -> None:
