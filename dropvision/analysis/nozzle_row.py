@@ -538,24 +538,21 @@ def _end_gaps(meta, nozzle_count, c0: float, pitch: float, kmin: int, n_noz: int
     return kmin - a, count, list(range(a)) + list(range(count - (m - a), count))
 
 
-def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
-                 width_px: int = 10**9):
-    """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
-    its standard error (function), nozzle ids, pitch µm, pitch source)."""
-    tracks = _link(lines, _tracks(lines))
-    for tr in tracks:
-        _fit_trajectory(tr, plate, px)
+def _adopt(f: Track, tr: Track) -> None:
+    """``tr``'s liquid at the plate becomes flying track ``f``'s root (in frames where ``f``'s drop left its column)."""
+    f.extra_roots.extend(ln.main for ln in tr.lines)
+    for ln in tr.lines:
+        if not np.isfinite(ln.main.root_col_px):
+            ln.main.root_col_px = ln.main.col_px
+
+
+def _adopt_lone_roots(tracks: list[Track]) -> list[Track]:
+    """The tracks that are nozzles: liquid at the plate alone in its column joins the flying track
+    it belongs to (`_adopt`)."""
     # liquid at the plate alone in its column (its drop flew into a neighbour's column, or left the
     # frame) is that nozzle's root when a drop's trajectory meets the plate there, not a nozzle of its own
     flying = [tr for tr in tracks if any(not ln.main.attached for ln in tr.lines)]
     fly_ids = {id(tr) for tr in flying}
-
-    def adopt(f, tr):
-        f.extra_roots.extend(ln.main for ln in tr.lines)
-        for ln in tr.lines:
-            if not np.isfinite(ln.main.root_col_px):
-                ln.main.root_col_px = ln.main.col_px
-
     kept, alone = [], []
     for tr in tracks:
         if id(tr) in fly_ids or not flying:
@@ -564,7 +561,7 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         col = float(np.median([ln.main.col_px for ln in tr.lines]))
         near = min(flying, key=lambda f: abs(f.plate_col - col))
         if abs(near.plate_col - col) <= max(1.5 * max(ln.main.size_px for ln in tr.lines), 10.0):
-            adopt(near, tr)
+            _adopt(near, tr)
         else:
             alone.append((col, tr))
     # ... and in one frame a drop with no liquid at the plate above it came from the nearest liquid with
@@ -576,33 +573,26 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         f = min(orphans, key=lambda f: abs(f.plate_col - col)) if orphans else None
         room = min((abs(c - col) for c in others), default=float("inf"))
         if f is not None and abs(f.plate_col - col) < 0.5 * room:
-            adopt(f, tr)
+            _adopt(f, tr)
             f.plate_col = float(np.median([b.root_col_px for b in f.extra_roots]))
             orphans = [o for o in orphans if o is not f]
         else:
             kept.append(tr)
-    tracks = kept
+    return kept
+
+
+def _given_pitch(meta, nozzle_pitch_um):
+    """The pitch (µm) given on the command line or in sequence.json (None: not given); a bad one is an error."""
     given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
     if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
         from dropvision.io.sequence import SequenceError
         raise SequenceError(f"{meta.path / 'sequence.json'}: nozzle_pitch_um must be a number > 0, got {given!r}")
-    pitch_src = (pitch_source or "sequence.json") if given is not None else \
-        "estimated from the found nozzles (smallest spacing, least-squares grid)"
-    cols = np.array([tr.plate_col for tr in tracks])
-    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
-    # grid is fitted to those places where two or more nozzles show them
-    roots = [_root_col(tr) for tr in tracks]
-    have = np.array([np.isfinite(r[0]) for r in roots], bool)
-    if have.sum() >= 2:
-        cols = np.where(have, [r[0] for r in roots], cols)
-        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
-    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
-    kmin = int(kk.min()) if kk.size else 0
-    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
-    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
-    for tr, k in zip(tracks, kk):
-        tr.nozzle = int(k - kmin)
-    # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
+    return given
+
+
+def _one_track_per_position(tracks: list[Track], c0: float, pitch: float, kmin: int, notes: list) -> dict:
+    """Nozzle -> track; two tracks on one grid position: the nearer keeps it (the other's bodies
+    counted as that nozzle's, its drops not in its statistics)."""
     seen: dict = {}
     for tr in tracks:
         g = c0 + pitch * (tr.nozzle + kmin)
@@ -621,23 +611,59 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
                          "nozzle's, its drops not in its statistics")
         else:
             seen[tr.nozzle] = tr
-    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
-    # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
-    # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
+    return seen
+
+
+def _grid_se(kk: np.ndarray, inl: np.ndarray, grid_rms: float, pitch_given: bool, kmin: int):
+    """The standard error (px) of each grid position, as a function of the nozzle id."""
+    # the drops' scatter about the grid (their angles' spread times their distance from the plate)
+    # through the fitted offset and, with no pitch given, the fitted pitch
     k_in = kk[inl].astype(float)
     # the residuals' rms has few degrees of freedom (one per nozzle less the fitted offset, and pitch):
     # the standard deviation of the Student-t distribution it implies, sqrt(dof / (dof - 2)) x its
     # value (dof at least 3), is the grid's standard uncertainty
-    dof = max(int(k_in.size) - (2 if given is None else 1), 3)
+    dof = max(int(k_in.size) - (1 if pitch_given else 2), 3)
     s_grid = (grid_rms if np.isfinite(grid_rms) else 0.5) * math.sqrt(dof / (dof - 2))
     sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
 
     def grid_se(i: int) -> float:
         if k_in.size == 0:
             return 0.5
-        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
+        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if not pitch_given and sxx > 0 else 0.0)
         return s_grid * math.sqrt(v)
 
+    return grid_se
+
+
+def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
+                 width_px: int = 10**9):
+    """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
+    its standard error (function), nozzle ids, pitch µm, pitch source, the nozzles' own places at
+    the plate, the nozzles missing at the row's ends)."""
+    tracks = _link(lines, _tracks(lines))
+    for tr in tracks:
+        _fit_trajectory(tr, plate, px)
+    tracks = _adopt_lone_roots(tracks)
+    given = _given_pitch(meta, nozzle_pitch_um)
+    pitch_src = (pitch_source or "sequence.json") if given is not None else \
+        "estimated from the found nozzles (smallest spacing, least-squares grid)"
+    cols = np.array([tr.plate_col for tr in tracks])
+    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
+    # grid is fitted to those places where two or more nozzles show them
+    roots = [_root_col(tr) for tr in tracks]
+    have = np.array([np.isfinite(r[0]) for r in roots], bool)
+    if have.sum() >= 2:
+        cols = np.where(have, [r[0] for r in roots], cols)
+        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
+    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
+    kmin = int(kk.min()) if kk.size else 0
+    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
+    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
+    for tr, k in zip(tracks, kk):
+        tr.nozzle = int(k - kmin)
+    seen = _one_track_per_position(tracks, c0, pitch, kmin, notes)
+    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
+    grid_se = _grid_se(kk, inl, grid_rms, given is not None, kmin)
     own = {tr.nozzle: r for tr, r in zip(tracks, roots) if tr.nozzle is not None and np.isfinite(r[0])}
     return (seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px),
             pitch_src, own, ends)
