@@ -551,6 +551,101 @@ def _extreme(values, fn) -> float | None:
     return float(fn(v)) if v.size else None
 
 
+@dataclass
+class _Collected:
+    """The measured shots' parts, in the shots' order (`_collect`)."""
+
+    frames: list = field(default_factory=list)
+    bodies: list = field(default_factory=list)
+    outlines: list = field(default_factory=list)
+    per_shot: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    measured: list = field(default_factory=list)
+
+
+_SHOT_SOURCES = ("orientation", "orientation_source", "pixel_size_source", "nozzle_outer_diameter_source",
+                 "nozzle_inner_diameter_source", "delay_source", "waveform_source", "bit_depth_source")
+
+
+def _collect(outcomes, shots: ShotInput) -> _Collected:
+    """Each shot's outcome of `measure_each`: its tables' parts and summary entry, or its error."""
+    c = _Collected()
+    for out in outcomes:
+        name = out.name
+        if out.error is not None:
+            c.errors.append({"file": name, "reason": out.error})
+            c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": out.error})
+            continue
+        res = out.result
+        s = res.summary
+        if len(res.frames) != 1:
+            reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
+            c.errors.append({"file": name, "reason": reason})
+            c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": reason})
+            continue
+        c.frames.append(res.frames.assign(file=name))
+        if res.bodies is not None and len(res.bodies):
+            c.bodies.append(res.bodies.assign(file=name))
+            c.outlines.append((res.outlines, res.outlines_camera, len(res.bodies)))
+        cal = dict(s["calibration"])
+        c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}),
+                           **{k: s.get(k) for k in _SHOT_SOURCES},
+                           "shared_calibration": out.shared,
+                           "notes": list(s.get("notes") or []) + list(cal.get("notes") or [])
+                           + ([out.note] if out.note else []),
+                           "calibration": cal})
+        c.measured.append(name)
+    return c
+
+
+def _common_notes(per_shot: list[dict]) -> tuple[list[str], dict[str, list[str]]]:
+    """The notes every measured shot has (the summary's) and each shot's own others."""
+    all_notes = [entry["notes"] for entry in per_shot if "notes" in entry]
+    common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
+    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
+    return common, own
+
+
+def _shots_summary(shots: ShotInput, c: _Collected, table, common, rigs, no_rig, waveform,
+                   config: MeasureConfig) -> dict:
+    """summary.json of a folder of shots (`dvcore.schema.SHOTS_SUMMARY`)."""
+    return {
+        "schema_version": schema.SHOTS_SUMMARY.schema,
+        "kind": "shots",
+        "inputs": [str(p) for p in (shots.inputs if shots.from_folder else shots.paths)],
+        "n_shots": len(shots.paths),
+        "n_measured": len(c.measured),
+        "labels": shots.label_names,
+        "label_sources": shots.label_sources,
+        "label_columns": label_columns(shots.label_names),
+        "drop_volume_median_nl": _median(table["drop_volume_nl"]),
+        "drop_volume_min_nl": _extreme(table["drop_volume_nl"], np.min),
+        "drop_volume_max_nl": _extreme(table["drop_volume_nl"], np.max),
+        "drop_sphere_diameter_median_um": _median(table["drop_sphere_diameter_um"]),
+        "n_satellites_median": _median(table["n_satellites"].astype(float)),
+        "trajectory_angle_median_mrad": _median(table["trajectory_angle_mrad"]),
+        "attached_volume_median_nl": _median(table["attached_volume_nl"]),
+        "quality_counts": dict(Counter(table["quality"])),
+        "errors": c.errors,
+        "notes": common,
+        "shots": c.per_shot,
+        "shared_calibration": ({**rigs[0].to_dict(), "others": [r.to_dict() for r in rigs[1:]]} if rigs
+                               else {"reference": None, "calibrated_from": [], "left_out": [], "others": [],
+                                     "reason": no_rig}),
+        **({"waveform": waveform} if waveform is not None else {}),
+        "software": software_versions(),
+        "config": asdict(config),
+    }
+
+
+def _stacked_outlines(parts: list) -> tuple[list, list]:
+    """The shots' body outlines (canonical and camera frame) in bodies.parquet's order (an empty
+    outline per body of a shot that has none)."""
+    outlines = [o for part, _, n in parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    outlines_camera = [o for _, part, n in parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    return outlines, outlines_camera
+
+
 def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                   option_labels: dict | None = None, label_pattern: str | None = None, csv: bool = False,
                   overwrite: bool = False, shared_calibration: bool = True,
@@ -606,82 +701,24 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     waveform = label_waveform(shots, overrides, option_labels)  # before any image is measured
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
-    frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
-    outline_parts: list = []
     # pandas (with pyarrow's allocator thread) only after the worker processes are forked
     outcomes, rigs, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
                                          shared=shared_calibration, workers=workers)
     import pandas as pd
-    for out in outcomes:
-        name = out.name
-        if out.error is not None:
-            errors.append({"file": name, "reason": out.error})
-            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": out.error})
-            continue
-        res = out.result
-        s = res.summary
-        if len(res.frames) != 1:
-            reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
-            errors.append({"file": name, "reason": reason})
-            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": reason})
-            continue
-        frames_parts.append(res.frames.assign(file=name))
-        if res.bodies is not None and len(res.bodies):
-            bodies_parts.append(res.bodies.assign(file=name))
-            outline_parts.append((res.outlines, res.outlines_camera, len(res.bodies)))
-        cal = dict(s["calibration"])
-        per_shot.append({"file": name, "labels": shots.labels.get(name, {}),
-                         **{k: s.get(k) for k in ("orientation", "orientation_source", "pixel_size_source",
-                                                  "nozzle_outer_diameter_source", "nozzle_inner_diameter_source",
-                                                  "delay_source", "waveform_source", "bit_depth_source")},
-                         "shared_calibration": out.shared,
-                         "notes": list(s.get("notes") or []) + list(cal.get("notes") or [])
-                         + ([out.note] if out.note else []),
-                         "calibration": cal})
-        measured.append(name)
-    if not measured:
-        first = errors[0] if errors else {"file": "?", "reason": "no image"}
-        raise SequenceError(f"{first['file']}: no shot could be measured ({len(errors)} image(s); first problem: "
+    c = _collect(outcomes, shots)
+    if not c.measured:
+        first = c.errors[0] if c.errors else {"file": "?", "reason": "no image"}
+        raise SequenceError(f"{first['file']}: no shot could be measured ({len(c.errors)} image(s); first problem: "
                             f"{first['reason']})")
-    frames = pd.concat(frames_parts, ignore_index=True)
-    bodies = pd.concat(bodies_parts, ignore_index=True) if bodies_parts else None
-    all_notes = [entry["notes"] for entry in per_shot if "notes" in entry]
-    common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
-    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
-    table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in errors},
+    frames = pd.concat(c.frames, ignore_index=True)
+    bodies = pd.concat(c.bodies, ignore_index=True) if c.bodies else None
+    common, own = _common_notes(c.per_shot)
+    table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in c.errors},
                         delay_us=float((overrides or {}).get("delay_us") or 0.0), bodies=bodies,
-                        calibrations={e["file"]: e["calibration"] for e in per_shot if "calibration" in e},
+                        calibrations={e["file"]: e["calibration"] for e in c.per_shot if "calibration" in e},
                         strobe_interval_us=strobe_interval_us)
-    summary = {
-        "schema_version": schema.SHOTS_SUMMARY.schema,
-        "kind": "shots",
-        "inputs": [str(p) for p in (shots.inputs if shots.from_folder else shots.paths)],
-        "n_shots": len(shots.paths),
-        "n_measured": len(measured),
-        "labels": shots.label_names,
-        "label_sources": shots.label_sources,
-        "label_columns": label_columns(shots.label_names),
-        "drop_volume_median_nl": _median(table["drop_volume_nl"]),
-        "drop_volume_min_nl": _extreme(table["drop_volume_nl"], np.min),
-        "drop_volume_max_nl": _extreme(table["drop_volume_nl"], np.max),
-        "drop_sphere_diameter_median_um": _median(table["drop_sphere_diameter_um"]),
-        "n_satellites_median": _median(table["n_satellites"].astype(float)),
-        "trajectory_angle_median_mrad": _median(table["trajectory_angle_mrad"]),
-        "attached_volume_median_nl": _median(table["attached_volume_nl"]),
-        "quality_counts": dict(Counter(table["quality"])),
-        "errors": errors,
-        "notes": common,
-        "shots": per_shot,
-        "shared_calibration": ({**rigs[0].to_dict(), "others": [r.to_dict() for r in rigs[1:]]} if rigs
-                               else {"reference": None, "calibrated_from": [], "left_out": [], "others": [],
-                                     "reason": no_rig}),
-        **({"waveform": waveform} if waveform is not None else {}),
-        "software": software_versions(),
-        "config": asdict(config),
-    }
-    outlines = [o for part, _, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
-    outlines_camera = [o for _, part, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
-    result = ShotsResult(table, frames, summary, bodies, outlines, outlines_camera)
+    summary = _shots_summary(shots, c, table, common, rigs, no_rig, waveform, config)
+    result = ShotsResult(table, frames, summary, bodies, *_stacked_outlines(c.outlines))
     if out_dir is not None:
         from dropvision.output.result_writer import check_shots_result, write_shots_result
 
