@@ -521,11 +521,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-
-    p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
+def _add_fit(sub) -> None:
+    """`identify fit`'s options."""
     f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder, or models of a table's outputs")
     f.add_argument("dataset", help="a dataset folder (of (u1, u2) or of a waveform template), or a .csv/.parquet "
                    "table (with --inputs/--outputs; with them a campaign dataset folder is its shots.parquet)")
@@ -545,6 +542,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(f)
     f.set_defaults(func=cmd_fit)
 
+
+def _add_predict(sub) -> None:
+    """`identify predict`'s options."""
     q = sub.add_parser("predict", help="predict drop volume/velocity with uncertainty")
     q.add_argument("model")
     q.add_argument("--u1", type=_positive("--u1"), default=None, help="stroke velocity (um/ms)")
@@ -563,6 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(q)
     q.set_defaults(func=cmd_predict)
 
+
+def _add_design(sub) -> None:
+    """`identify design`'s options."""
     d = sub.add_parser("design", help="find (u1, u2) for a target drop volume (and velocity)")
     d.add_argument("model")
     d.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
@@ -580,6 +583,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_design)
 
+
+def _add_tune(sub) -> None:
+    """`identify tune`'s options."""
     t = sub.add_parser("tune", help="closed loop: propose (u1, u2), fire a rig, measure, correct, until on target")
     t.add_argument("model")
     t.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
@@ -618,6 +624,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(t)
     t.set_defaults(func=cmd_tune)
 
+
+def _add_paper(sub) -> None:
+    """`identify paper`'s options."""
     r = sub.add_parser("paper", help="published colour-ink model of the paper")
     r.add_argument("--u1", type=_positive("--u1"), required=True)
     r.add_argument("--u2", type=_positive("--u2"), required=True)
@@ -632,6 +641,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true")
     r.set_defaults(func=cmd_paper)
 
+
+def _add_report(sub) -> None:
+    """`identify report`'s options."""
     g = sub.add_parser("report", help="figures and an HTML page of a model and its training dataset")
     g.add_argument("model")
     g.add_argument("--dataset", required=True, help="the training dataset folder")
@@ -644,6 +656,13 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     g.set_defaults(func=cmd_report)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add in (_add_fit, _add_predict, _add_design, _add_tune, _add_paper, _add_report):
+        add(sub)
     return p
 
 
