@@ -414,6 +414,40 @@ class _Box:
     centroid_xy: tuple[float, float] | None
 
 
+def _full_labels(labels, shape, ox: int, oy: int) -> np.ndarray:
+    """`log_frame`'s class image checked and, given in a region of interest at ``(ox, oy)``, placed
+    in a frame of ``shape`` (padded with background)."""
+    labels = np.asarray(labels)
+    if (ox, oy) != (0, 0) and labels.ndim == 2 and shape is not None:
+        if ox < 0 or oy < 0 or oy + labels.shape[0] > shape[0] or ox + labels.shape[1] > shape[1]:
+            raise ValueError(f"log_frame: labels {labels.shape} at roi_origin_xy {(ox, oy)} "
+                             f"do not fit in the image shape {shape}")
+        full = np.zeros(shape, dtype=labels.dtype)
+        full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
+        labels = full
+    if labels.ndim != 2 or (shape is not None and labels.shape != shape):
+        raise ValueError(f"log_frame: labels shape {labels.shape} must be 2-D and equal "
+                         f"the image shape {shape}")
+    if labels.dtype.kind not in "iub":
+        raise ValueError(f"log_frame: labels must be an integer array, got {labels.dtype}")
+    if labels.size and (labels.min() < 0 or labels.max() > max(CLASSES)):
+        raise ValueError(f"log_frame: labels must hold class ids 0..{max(CLASSES)}, got "
+                         f"range {labels.min()}..{labels.max()}")
+    return labels
+
+
+def _frame_log_text(index, delay_us, file, quality) -> tuple[str, str]:
+    """A frame's line of the text log and its level (WARN for a quality other than ok)."""
+    text = f"frame {int(index)} delay {float(delay_us):g} us {file}".rstrip()
+    level = "INFO"
+    if isinstance(quality, str) and quality and quality.lower() != "ok":
+        text += f": {quality}"
+        level = "WARN"
+    elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
+        text += f": quality {float(quality):g}"
+    return text, level
+
+
 def _body_boxes(bodies: list[Any], ox: int = 0, oy: int = 0) -> list[_Box]:
     out = []
     for i, body in enumerate(bodies):
@@ -784,49 +818,12 @@ class RerunLogger:
         rec.set_time("frame", sequence=int(index))
         rec.set_time("delay", duration=np.timedelta64(delay_ns(delay_us), "ns"))
 
-        shape = None
-        if image is not None:
-            image = np.asarray(image)
-            if image.ndim != 2:
-                raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
-            shape = image.shape
-            if self.options.raw:
-                rec.log("/frame/raw", rr.Image(image))
-            # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
-            from dropvision.io.orientation import from_canonical
-            rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
-                                        color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
-            rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
+        shape = None if image is None else self._log_frame_image(image)
         if transmission is not None:
-            transmission = np.asarray(transmission)
-            if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
-                raise ValueError(f"log_frame: transmission shape {transmission.shape} must be 2-D "
-                                 f"and equal the image shape {shape}")
-            shape = shape or transmission.shape
-            if transmission.dtype != np.uint8:
-                transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
-                                        * 255.0).astype(np.uint8)
-            rec.log("/frame/transmission", rr.Image(transmission, color_model="L").compress(
-                jpeg_quality=TRANSMISSION_JPEG_QUALITY))
-            rec.log("/frame/transmission", rr.EncodedImage.from_fields(draw_order=-5.0))
+            shape = self._log_frame_transmission(transmission, shape)
         ox, oy = (int(v) for v in roi_origin_xy)
         if labels is not None:
-            labels = np.asarray(labels)
-            if (ox, oy) != (0, 0) and labels.ndim == 2 and shape is not None:
-                if ox < 0 or oy < 0 or oy + labels.shape[0] > shape[0] or ox + labels.shape[1] > shape[1]:
-                    raise ValueError(f"log_frame: labels {labels.shape} at roi_origin_xy {(ox, oy)} "
-                                     f"do not fit in the image shape {shape}")
-                full = np.zeros(shape, dtype=labels.dtype)
-                full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
-                labels = full
-            if labels.ndim != 2 or (shape is not None and labels.shape != shape):
-                raise ValueError(f"log_frame: labels shape {labels.shape} must be 2-D and equal "
-                                 f"the image shape {shape}")
-            if labels.dtype.kind not in "iub":
-                raise ValueError(f"log_frame: labels must be an integer array, got {labels.dtype}")
-            if labels.size and (labels.min() < 0 or labels.max() > max(CLASSES)):
-                raise ValueError(f"log_frame: labels must hold class ids 0..{max(CLASSES)}, got "
-                                 f"range {labels.min()}..{labels.max()}")
+            labels = _full_labels(labels, shape, ox, oy)
             shape = shape or labels.shape
             rec.log("/frame/segmentation", rr.SegmentationImage(labels.astype(np.uint8), opacity=0.45))
         if shape is not None and self._shape is None:
@@ -845,9 +842,46 @@ class RerunLogger:
         boxes = None if bodies is None else _body_boxes(list(bodies), ox, oy)
         if boxes is not None:
             self._log_bodies(boxes, shape or self._shape)
-
         if row is None:
             row = {}
+        self._log_frame_row(row, boxes)
+        text, level = _frame_log_text(index, delay_us, _get(ref, ("file",), ""), row.get("quality"))
+        rec.log("/log", rr.TextLog(text, level=level))
+
+    def _log_frame_image(self, image: np.ndarray) -> tuple:
+        """The raw frame (only with ``raw=True``) and the frame as the camera stored it; its shape."""
+        rr, rec = self._rr, self.stream
+        image = np.asarray(image)
+        if image.ndim != 2:
+            raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
+        if self.options.raw:
+            rec.log("/frame/raw", rr.Image(image))
+        # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
+        from dropvision.io.orientation import from_canonical
+        rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
+                                    color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+        rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
+        return image.shape
+
+    def _log_frame_transmission(self, transmission: np.ndarray, shape) -> tuple:
+        """The transmission as an 8-bit JPEG (`log_frame`); the frame's shape."""
+        rr, rec = self._rr, self.stream
+        transmission = np.asarray(transmission)
+        if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
+            raise ValueError(f"log_frame: transmission shape {transmission.shape} must be 2-D "
+                             f"and equal the image shape {shape}")
+        shape = shape or transmission.shape
+        if transmission.dtype != np.uint8:
+            transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
+                                    * 255.0).astype(np.uint8)
+        rec.log("/frame/transmission", rr.Image(transmission, color_model="L").compress(
+            jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+        rec.log("/frame/transmission", rr.EncodedImage.from_fields(draw_order=-5.0))
+        return shape
+
+    def _log_frame_row(self, row: Mapping[str, Any], boxes) -> None:
+        """The frame's main drop (its point and the track so far) and its frame-table series."""
+        rr, rec = self._rr, self.stream
         point = self._drop_point_px(row, boxes)
         if point is not None:
             self._track_px.append(point)
@@ -861,16 +895,6 @@ class RerunLogger:
             value = _finite(row.get(column))
             if value is not None and not self._single:  # one frame: its values go to /table (log_table)
                 rec.log(path, rr.Scalars(value))
-        file = _get(ref, ("file",), "")
-        quality = row.get("quality")
-        text = f"frame {int(index)} delay {float(delay_us):g} us {file}".rstrip()
-        level = "INFO"
-        if isinstance(quality, str) and quality and quality.lower() != "ok":
-            text += f": {quality}"
-            level = "WARN"
-        elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
-            text += f": quality {float(quality):g}"
-        rec.log("/log", rr.TextLog(text, level=level))
 
     def log_measured_frame(self, ref: Any, image: np.ndarray, transmission: np.ndarray, seg: Segmentation,
                            nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody],
