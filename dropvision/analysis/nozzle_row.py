@@ -71,6 +71,9 @@ ROOT_ROWS_PX = 3.0
 ROOT_MARGIN_PX = 3
 #: ... its standard error at least this (px): a bulge's outline placed to a tenth of a pixel.
 ROOT_FLOOR_PX = 0.1
+#: The liquid's interior level: its bodies eroded by this (px; a row's drops are small, a nozzle's
+#: calibration erodes by 4).
+ROW_LEVEL_ERODE_PX = 2
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
 WEAK_K = 3.0
 WEAK_FLOOR = 0.01
@@ -759,6 +762,7 @@ def _row_photometry(frames, plate_hint: Plate, scan) -> _Photometry:
     """Background from up to five frames spread over the sequence, then the first frame's plate,
     liquid level, edge threshold, noise and edge blur."""
     from dropvision.calibrate.background import estimate_background
+    from dropvision.calibrate.calibration import interior_level
     from dropvision.calibrate.calibration_pass import transmission_noise
     from dropvision.frame.edges import edge_threshold
 
@@ -768,10 +772,12 @@ def _row_photometry(frames, plate_hint: Plate, scan) -> _Photometry:
     inv_bg = (1.0 / np.maximum(bg, 1e-6)).astype(np.float32)
     t0 = frames[0][2].astype(np.float32) * inv_bg
     plate = find_plate(t0) or plate_hint
-    # the liquid's interior level and the edge level: the eroded bodies of the first frame
+    # the liquid's interior level (the calibration's estimator on the first frame's bodies: filled,
+    # eroded by ROW_LEVEL_ERODE_PX, lens spot excluded; 0.1 where fewer than 20 pixels remain) and the
+    # edge level
     nl, lab, stats, _ = _components(t0, plate, 0.5)
-    inner = cv2.erode((lab > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    level = float(np.median(t0[inner])) if inner.any() else 0.1
+    level = interior_level(t0, lab > 0, erode_px=ROW_LEVEL_ERODE_PX)
+    level = level if np.isfinite(level) else 0.1
     thr = edge_threshold(level)
     # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
     # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
