@@ -724,19 +724,49 @@ class _Photometry:
     sigma: float
 
 
-def _read_frames(seq) -> tuple[list, list[dict]]:
-    """A row sequence's readable frames ``(index, ref, image)`` and its unreadable ones (error rows)."""
-    frames, errors = [], []
+def _reference_frames(seq) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The first readable frame's image and the background's frames: up to five spread evenly over
+    the sequence (the unreadable ones left out).  Only these are held in memory: the frames are
+    measured one at a time (`_measure_frames`)."""
+    n = len(seq)
+    first = None
+    for k in range(n):
+        fr = seq.read(k)
+        if fr.error is None:
+            first = (k, fr.image)
+            break
+    if first is None:
+        from dropvision.io.sequence import SequenceError
+        raise SequenceError(f"{seq.meta.path}: no readable frame of the printhead row")
+    pick = []
+    for i in np.unique(np.linspace(0, n - 1, min(5, n)).astype(int)):
+        if i <= first[0]:
+            if i == first[0]:
+                pick.append(first[1])
+            continue
+        fr = seq.read(int(i))
+        if fr.error is None:
+            pick.append(fr.image)
+    return first[1], pick
+
+
+def _measure_frames(seq, ph: "_Photometry", px: float):
+    """Every frame's bodies and drop lines, one frame in memory at a time: (bodies, lines, the
+    unreadable frames' error rows, the number measured, their delays)."""
+    bodies: list[Body] = []
+    lines: list[Line] = []
+    errors, delays, n_measured = [], set(), 0
     for k in range(len(seq)):
         fr = seq.read(k)
         if fr.error is not None:
             errors.append({"file": fr.ref.file, "page": fr.ref.page, "delay_us": fr.ref.delay_us, "reason": fr.error})
             continue
-        frames.append((k, fr.ref, fr.image))
-    if not frames:
-        from dropvision.io.sequence import SequenceError
-        raise SequenceError(f"{seq.meta.path}: no readable frame of the printhead row")
-    return frames, errors
+        bs = _frame_bodies(k, fr.ref, fr.image, ph.inv_bg, ph.plate, ph.thr, ph.sigma, ph.level, ph.noise_t, px)
+        bodies.extend(bs)
+        lines.extend(_lines(bs))
+        delays.add(fr.ref.delay_us)
+        n_measured += 1
+    return bodies, lines, errors, n_measured, delays
 
 
 def _edge_blur_px(img0, t0, inv_bg, lab, stats, thr: float, level: float) -> float:
@@ -758,19 +788,18 @@ def _edge_blur_px(img0, t0, inv_bg, lab, stats, thr: float, level: float) -> flo
     return float(np.median(sig)) if sig else 1.0
 
 
-def _row_photometry(frames, plate_hint: Plate, scan) -> _Photometry:
-    """Background from up to five frames spread over the sequence, then the first frame's plate,
-    liquid level, edge threshold, noise and edge blur."""
+def _row_photometry(first: np.ndarray, pick: list[np.ndarray], plate_hint: Plate, scan) -> _Photometry:
+    """Background from ``pick`` (`_reference_frames`), then the first frame's plate, liquid level,
+    edge threshold, noise and edge blur."""
     from dropvision.calibrate.background import estimate_background
     from dropvision.calibrate.calibration import interior_level
     from dropvision.calibrate.calibration_pass import transmission_noise
     from dropvision.frame.edges import edge_threshold
 
-    pick = [frames[i][2] for i in np.unique(np.linspace(0, len(frames) - 1, min(5, len(frames))).astype(int))]
     # a scan's drops sit at one place in every frame: no static dust looked for (it would be the liquid)
     bg = estimate_background(pick, static_dust=len(pick) >= 3 and scan is None).background
     inv_bg = (1.0 / np.maximum(bg, 1e-6)).astype(np.float32)
-    t0 = frames[0][2].astype(np.float32) * inv_bg
+    t0 = first.astype(np.float32) * inv_bg
     plate = find_plate(t0) or plate_hint
     # the liquid's interior level (the calibration's estimator on the first frame's bodies: filled,
     # eroded by ROW_LEVEL_ERODE_PX, lens spot excluded; 0.1 where fewer than 20 pixels remain) and the
@@ -783,7 +812,7 @@ def _row_photometry(frames, plate_hint: Plate, scan) -> _Photometry:
     # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
     noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
     # edge blur: the edge-spread functions of the first frame's large bodies
-    sigma = _edge_blur_px(frames[0][2], t0, inv_bg, lab, stats, thr, level)
+    sigma = _edge_blur_px(first, t0, inv_bg, lab, stats, thr, level)
     return _Photometry(inv_bg, t0, plate, level, thr, noise_t, sigma)
 
 
@@ -902,22 +931,16 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
 
     meta = seq.meta
     px = float(meta.pixel_size_um)
-    frames, errors = _read_frames(seq)
-    ph = _row_photometry(frames, plate_hint, scan)
+    ph = _row_photometry(*_reference_frames(seq), plate_hint, scan)
     plate = ph.plate
-    bodies: list[Body] = []
-    lines: list[Line] = []
-    for k, ref, img in frames:
-        bs = _frame_bodies(k, ref, img, ph.inv_bg, plate, ph.thr, ph.sigma, ph.level, ph.noise_t, px)
-        bodies.extend(bs)
-        lines.extend(_lines(bs))
+    bodies, lines, errors, n_measured, delays = _measure_frames(seq, ph, px)
     notes = []
     if scan is not None:
         seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
     else:
         seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
             lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, ph.t0.shape[1])
-    single = len({ref.delay_us for _, ref, _ in frames}) < 2
+    single = len(delays) < 2
     note = _angle_note(single, scan, own, seen, pitch_src)
     if note is not None:
         notes.append(note)
@@ -934,7 +957,7 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
     nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
     nozzles = nozzles[NOZZLES.column_names].astype({"nozzle": "int64", "n_frames": "int64"})
     ftab, btab = _line_and_body_tables(lines, bodies)
-    summary = _row_summary(meta, scan, len(seq), len(frames), ids, nozzles, pitch_um, pitch_src, ph, errors, notes)
+    summary = _row_summary(meta, scan, len(seq), n_measured, ids, nozzles, pitch_um, pitch_src, ph, errors, notes)
     return nozzles, ftab, btab, summary
 
 
