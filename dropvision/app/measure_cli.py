@@ -210,7 +210,7 @@ def register(subparsers) -> None:
     for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
                       ("angle-limit-mrad", "mrad")):
         p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
-                       help=f"a printhead row's pass/fail limit ({unit}; default: sequence.json "
+                       help=f"a printhead row's pass/fail limit ({unit.replace('%', '%%')}; default: sequence.json "
                        f"{key.replace('-', '_')}): nozzles.parquet pass, summary.json head_pass")
     p.add_argument("--report", type=Path, default=None, metavar="DIR",
                    help="a printhead row: write a report page there (index.html with the nozzle map, the first frame "
