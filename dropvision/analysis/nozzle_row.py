@@ -1085,6 +1085,74 @@ def read_reference(path) -> "pd.DataFrame":
     return ref
 
 
+def _aligned_reference(nozzles, reference, reference_path):
+    """The reference table indexed by this row's nozzle numbers: (table, the shift of its numbers,
+    the note on an alignment by position or None)."""
+    from dropvision.io.sequence import SequenceError
+
+    shift, aligned = 0, None
+    mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
+    if mine != theirs:
+        # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
+        # numbered one less; its nozzles' columns on the pitch grid say which is which
+        shift = _align_by_position(nozzles, reference)
+        if shift is None:
+            raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
+                                f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
+                                "scan's by label) and their columns do not line up on one pitch grid: compare "
+                                "heads with the same nozzles in the same place")
+        aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
+                   f"this row's j {shift:+d}")
+    return reference.set_index(reference.nozzle.astype(int) + shift), shift, aligned
+
+
+def _judge_nozzle(r, limits: dict, ref, shift: int, med: dict) -> tuple[list[str], list[str], set]:
+    """One nozzle against the limits (`judge_row`'s rules): (why it fails, notes, quantities not judged);
+    ``ref``: the aligned reference table or None (the row's medians ``med`` and the plate normal)."""
+    i = int(r.nozzle)
+    fails, notes, not_judged = [], [], set()
+    if r.state == "missing":
+        return ["missing: no drop"], notes, not_judged
+
+    def ref_value(col):
+        return float(ref.at[i, col]) if i in ref.index else float("nan")
+
+    for key, col, unit in (("volume_tolerance_percent", "volume_nl", "nl"),
+                           ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
+        if key not in limits:
+            continue
+        tgt = ref_value(col) if ref is not None else med[col]
+        what = f"reference nozzle {i - shift}" if ref is not None else "the row's median"
+        if ref is not None and i not in ref.index:
+            what = "the reference head, which has no nozzle at its place,"
+        if not np.isfinite(r[col]):
+            notes.append(f"{col} not measured: not judged")
+            not_judged.add(col)
+            continue
+        if not np.isfinite(tgt) or tgt == 0:
+            fails.append(f"{col}: {what} has no value to compare with")
+            continue
+        dev = 100.0 * (r[col] / tgt - 1.0)
+        if abs(dev) > limits[key]:
+            fails.append(f"{col} {r[col]:.4g} {unit} is {dev:+.2f} % from {what} {tgt:.4g} "
+                         f"(limit {limits[key]:g} %)")
+    if "angle_limit_mrad" in limits:
+        a = float(r.angle_mrad)
+        tgt = ref_value("angle_mrad") if ref is not None else 0.0
+        lim = limits["angle_limit_mrad"]
+        if not np.isfinite(a):
+            notes.append("angle_mrad not measured: not judged")
+            not_judged.add("angle_mrad")
+        elif not np.isfinite(tgt):
+            fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
+                         if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
+        elif abs(a - tgt) > lim:
+            fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
+                         f"{'reference nozzle ' + str(i - shift) if ref is not None else 'the plate normal'} "
+                         f"(limit {lim:g} mrad)")
+    return fails, notes, not_judged
+
+
 def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dict | None:
     """``pass`` and ``pass_reason`` of each nozzle (in place) against ``limits`` (`row_limits`), and
     the head's verdict for summary.json (None where no limit is given: ``pass`` is null).
@@ -1094,31 +1162,14 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
     matched by nozzle number) else the median of the row's live nozzles; |angle - reference angle|
     (no reference: |angle|) within the angle limit.  A quantity not measured (velocity of a single
     delay) is not judged, and the reason says so.  The head passes when every nozzle passes."""
-    from dropvision.io.sequence import SequenceError
-
     checks = [k for k in LIMIT_KEYS if k in limits]
     if not checks:
         nozzles["pass"] = pd_na_bool(len(nozzles))
         nozzles["pass_reason"] = "no limits given"
         return None
-    shift, aligned = 0, None
+    ref, shift, aligned = None, 0, None
     if reference is not None:
-        mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
-        if mine != theirs:
-            # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
-            # numbered one less; its nozzles' columns on the pitch grid say which is which
-            shift = _align_by_position(nozzles, reference)
-            if shift is None:
-                raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
-                                    f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
-                                    "scan's by label) and their columns do not line up on one pitch grid: compare "
-                                    "heads with the same nozzles in the same place")
-            aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
-                       f"this row's j {shift:+d}")
-        ref = reference.set_index(reference.nozzle.astype(int) + shift)
-
-    def ref_value(i, col):
-        return float(ref.at[i, col]) if i in ref.index else float("nan")
+        ref, shift, aligned = _aligned_reference(nozzles, reference, reference_path)
     live = nozzles.state != "missing"
     med = {}
     for c in ("volume_nl", "velocity_m_s"):
@@ -1126,44 +1177,8 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
         med[c] = float(np.median(x[np.isfinite(x)])) if np.isfinite(x).any() else float("nan")
     passes, reasons, not_judged = [], [], set()
     for _, r in nozzles.iterrows():
-        i = int(r.nozzle)
-        fails, notes = [], []
-        if r.state == "missing":
-            fails.append("missing: no drop")
-        else:
-            for key, col, unit in (("volume_tolerance_percent", "volume_nl", "nl"),
-                                   ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
-                if key not in limits:
-                    continue
-                tgt = ref_value(i, col) if reference is not None else med[col]
-                what = f"reference nozzle {i - shift}" if reference is not None else "the row's median"
-                if reference is not None and i not in ref.index:
-                    what = "the reference head, which has no nozzle at its place,"
-                if not np.isfinite(r[col]):
-                    notes.append(f"{col} not measured: not judged")
-                    not_judged.add(col)
-                    continue
-                if not np.isfinite(tgt) or tgt == 0:
-                    fails.append(f"{col}: {what} has no value to compare with")
-                    continue
-                dev = 100.0 * (r[col] / tgt - 1.0)
-                if abs(dev) > limits[key]:
-                    fails.append(f"{col} {r[col]:.4g} {unit} is {dev:+.2f} % from {what} {tgt:.4g} "
-                                 f"(limit {limits[key]:g} %)")
-            if "angle_limit_mrad" in limits:
-                a = float(r.angle_mrad)
-                tgt = ref_value(i, "angle_mrad") if reference is not None else 0.0
-                lim = limits["angle_limit_mrad"]
-                if not np.isfinite(a):
-                    notes.append("angle_mrad not measured: not judged")
-                    not_judged.add("angle_mrad")
-                elif not np.isfinite(tgt):
-                    fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
-                                 if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
-                elif abs(a - tgt) > lim:
-                    fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
-                                 f"{'reference nozzle ' + str(i - shift) if reference is not None else 'the plate normal'} "
-                                 f"(limit {lim:g} mrad)")
+        fails, notes, unjudged = _judge_nozzle(r, limits, ref, shift, med)
+        not_judged |= unjudged
         passes.append(not fails)
         reasons.append("; ".join(fails + notes))
     nozzles["pass"] = np.array(passes, bool)
