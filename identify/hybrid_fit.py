@@ -501,6 +501,27 @@ def _fitted_controls(u1, u2, masks: dict, notes: list) -> np.ndarray:
     return every[keep]
 
 
+def _hybrid_model(ds: Dataset, efit, c_arr, selections, arx_sel, controls, *, adjuster_reference: str,
+                  ecm_method: str, notes: list) -> HybridModel:
+    """The fitted model (intervals still to come): the ECM, the three chosen polynomials, the ARX
+    structure, the training controls and the software versions."""
+    sel_p, sel_v, sel_q = selections
+    versions = software_versions()
+    versions["identify"] = __version__
+    cov = getattr(efit, "coeff_cov", None)
+    return HybridModel(
+        dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
+        nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, u3_um_per_ms=ds.u3_um_per_ms, hold_us=ds.hold_us,
+        ecm_coefficients=EcmCoefficients(*c_arr[0]),
+        ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
+        pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
+        arx_structure=_arx_structure(arx_sel), ecm_parameters=_param_dict(efit), controls=controls,
+        adjuster_reference=adjuster_reference, versions=versions,
+        extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
+        ecm_level=efit.level, notes=notes,
+    )
+
+
 def fit_hybrid(
     ds: Dataset, *, orders=DEFAULT_ORDERS, folds: int = 10, seed: int = 0, ecm_method: str = "oe",
     adjuster_reference: str = "ecm", arx: bool = True, arx_ranges: dict | None = None,
@@ -568,21 +589,8 @@ def fit_hybrid(
     flexible = _flexible_fits(u1, u2, chosen)
     flexible_u1 = _flexible_fits(u1, u2, chosen, order=flexible_u1_order)
     bar.close()
-    versions = software_versions()
-    versions["identify"] = __version__
-    arx_struct = _arx_structure(arx_sel)
-    cov = getattr(efit, "coeff_cov", None)
-    model = HybridModel(
-        dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
-        nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, u3_um_per_ms=ds.u3_um_per_ms, hold_us=ds.hold_us,
-        ecm_coefficients=EcmCoefficients(*c_arr[0]),
-        ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
-        pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
-        arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=_fitted_controls(u1, u2, masks, notes),
-        adjuster_reference=adjuster_reference, versions=versions,
-        extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
-        ecm_level=efit.level, notes=notes,
-    )
+    model = _hybrid_model(ds, efit, c_arr, (sel_p, sel_v, sel_q), arx_sel, _fitted_controls(u1, u2, masks, notes),
+                          adjuster_reference=adjuster_reference, ecm_method=ecm_method, notes=notes)
     mall = mp & mv & mq
     if not mall.all():
         notes.append(f"intervals: drop scatter and cross-validation from the {int(mall.sum())} of {len(mall)} "
