@@ -507,6 +507,43 @@ _CHAR_WIDTH = 0.42
 # --- the class image of a measured frame ------------------------------------------------------
 
 
+def _parts_by_box(bodies: Sequence[DetachedBody], rejected: Sequence[DetachedBody],
+                  compact_ratio: float) -> dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]]:
+    """The detached bodies (with their class id) by bounding box: the parts of one silhouette share one."""
+    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
+    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
+           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
+           DetachedClass.SATELLITE: CLASS_SATELLITE}
+    for j, d in enumerate(bodies):
+        cls = ids[detached_class(d, j, compact_ratio)]
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
+    for d in rejected:
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
+    return parts
+
+
+def _split_silhouette(seg: Segmentation, b, found: list, labels: np.ndarray) -> list[dict]:
+    """One silhouette, several parts (a satellite touching the main drop, split at the waist): each
+    touching part's pixels on its side of the main drop's rows take its class (in ``labels``, in
+    place); one box per part around its own pixels."""
+    mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
+    sub = labels[b.y0:b.y1, b.x0:b.x1]
+    rows = np.arange(b.y0, b.y1)[:, None]
+    whole = next((d for d, _ in found if not d.touching), None)
+    for d, cls in found:
+        if d is whole or whole is None:
+            continue
+        side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
+        sub[mine & side] = cls
+    boxes = []
+    for d, cls in found:
+        rr, cc = np.nonzero(mine & (sub == cls))
+        box = b.bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
+                                            b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
+        boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+    return boxes
+
+
 def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody] = (),
                 rejected: Sequence[DetachedBody] = (), opaque: np.ndarray | None = None, *,
                 compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
@@ -545,15 +582,7 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         half-open), with ``"volume_nl"`` for detached bodies; a split silhouette gives one box
         per part, each around its own pixels.
     """
-    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
-    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
-           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
-           DetachedClass.SATELLITE: CLASS_SATELLITE}
-    for j, d in enumerate(bodies):
-        cls = ids[detached_class(d, j, compact_ratio)]
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
-    for d in rejected:
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
+    parts = _parts_by_box(bodies, rejected, compact_ratio)
     classes = np.zeros(len(seg.bodies) + 1, np.uint8)
     for b in seg.bodies:
         found = parts.get(b.bbox)
@@ -571,26 +600,11 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         found = parts.get(bbox) if not b.nozzle else None
         if not found:
             boxes.append({"bbox": bbox, "class_id": int(classes[b.label])})
-            continue
-        if len(found) == 1:
+        elif len(found) == 1:
             d, cls = found[0]
             boxes.append({"bbox": bbox, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
-            continue
-        # one silhouette, several parts (a satellite touching the main drop, split at the waist)
-        mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
-        sub = labels[b.y0:b.y1, b.x0:b.x1]
-        rows = np.arange(b.y0, b.y1)[:, None]
-        whole = next((d for d, _ in found if not d.touching), None)
-        for d, cls in found:
-            if d is whole or whole is None:
-                continue
-            side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
-            sub[mine & side] = cls
-        for d, cls in found:
-            rr, cc = np.nonzero(mine & (sub == cls))
-            box = bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
-                                              b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
-            boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+        else:
+            boxes.extend(_split_silhouette(seg, b, found, labels))
     if opaque is not None:
         labels[opaque & (labels == 0)] = CLASS_SPECK
     return labels, boxes
