@@ -233,6 +233,86 @@ def _flexible_scatter(model: HybridModel, flexible: dict | None, output: str, u1
     return (float(r @ r) / dof, int(dof)) if dof >= 1 else None
 
 
+def _cv_chain_errors(model: HybridModel, u1, u2, measured: dict, targets: dict, *, folds: int, seed: int):
+    """Grouped K-fold cross-validation of the whole chain: per output the error at each training
+    control (nan where no fold was fitted), and per output the leverage of the folds' polynomials
+    that predicted each control (averaged over its polynomials) and its ratio to the full fit's."""
+    from dataclasses import replace
+
+    n = len(u1)
+    groups = np.column_stack([u1, u2])
+    cv_err = {k: np.full(n, np.nan) for k in INTERVAL_OUTPUTS}
+    # leverage at each training control of the fold's polynomial that predicted it, and of the full fit
+    h_fold = {k: np.full(n, np.nan) for k in targets}
+    h_full = {k: _leverage(getattr(model, k), u1, u2, u1, u2) for k in targets}
+    for idx in grouped_kfold(groups, folds, seed, layout="round_robin"):
+        train = np.setdiff1d(np.arange(n), idx)
+        try:
+            polys = {k: fit_polynomial(u1[train], u2[train], targets[k][train], getattr(model, k).n1,
+                                       getattr(model, k).n2, name=k) for k in targets}
+        except PolynomialRankError:
+            continue
+        g = replace(model, **polys).predict_grid(u1[idx], u2[idx])
+        for k in INTERVAL_OUTPUTS:
+            cv_err[k][idx] = g[k].to_numpy() - measured[k][idx]
+        for k in targets:
+            h_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
+    # per output, the polynomials its parameter variance comes from (volume: both, averaged)
+    fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
+    fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
+    return cv_err, fold_leverage, fold_ratio
+
+
+def _control_mc_variance(model: HybridModel, ctrl: np.ndarray, mc_samples: int, seed: int) -> dict:
+    """Per output, the parameter Monte Carlo variance at each training control."""
+    var_mc = {k: np.empty(len(ctrl)) for k in INTERVAL_OUTPUTS}
+    for j, (a, b) in enumerate(ctrl):
+        res = model.monte_carlo(a, b, samples=mc_samples, seed=seed)
+        for k in INTERVAL_OUTPUTS:
+            var_mc[k][j] = np.var(res.samples[k], ddof=1)
+    return var_mc
+
+
+def _drop_scatter(model: HybridModel, k: str, fit, u1, u2, y, resid, *, rep_dof: int, inv, counts, se,
+                  flexible, seed: int) -> tuple[float, int, str]:
+    """Output ``k``'s drop-to-drop variance, its degrees of freedom and its source
+    (`_fit_intervals`' ``drop_std``)."""
+    from identify.discrepancy import SCATTER_LIKELIHOOD_RATIO_THRESHOLD, smooth_scatter_variance
+
+    n, p = len(u1), len(fit.terms)
+    if rep_dof >= 2:
+        means = np.bincount(inv, weights=y) / counts
+        return float(np.sum((y - means[inv]) ** 2) / rep_dof), rep_dof, "repeats"
+    if se is not None and np.all(np.isfinite(se)):
+        # within-sequence noise; the residual dof keep the Student-t of the prediction modest
+        return float(np.mean(np.asarray(se, float) ** 2)), max(1, n - p), "sequence_se"
+    dof = max(1, n - p)
+    drop_var, source = float(resid @ resid) / dof, "residuals"
+    est = smooth_scatter_variance(u1, u2, resid, design_matrix(*fit.normalised(u1, u2), fit.terms), seed=seed)
+    if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
+        drop_var, source = est[0], "smooth_scatter"
+    flex = _flexible_scatter(model, flexible, k, u1, u2, y)
+    if flex is not None and flex[0] < drop_var:
+        drop_var, dof, source = flex[0], flex[1], "flexible_residuals"
+    return drop_var, dof, source
+
+
+def _reference_notes(flexible, flexible_u1) -> list[str]:
+    """The notes on the flexible references the chosen polynomials' bias is estimated against."""
+    notes = []
+    if flexible:
+        notes.append("intervals: the chosen polynomials' bias is estimated against more flexible ones (" +
+                     ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible.items()) +
+                     "); where it exceeds the model discrepancy at a control, it replaces it (model_std_source "
+                     "'polynomial_bias')")
+    if flexible_u1:
+        notes.append("intervals: and against references flexible in u1 (" +
+                     ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible_u1.items()) +
+                     "), counted at a control where that bias is significant (pointwise test at 5 %); "
+                     "then per output the larger of the two references' biases is used")
+    return notes
+
+
 def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_target, *, folds: int,
                    seed: int, notes: list, mc_samples: int = 400, standard_errors: dict | None = None,
                    measurement: dict | None = None, flexible: dict | None = None,
@@ -275,10 +355,7 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
     :func:`identify.montecarlo.pinchoff_volume_cross_covariance`) and ``measurement`` (the
     systematic measurement uncertainty, :func:`identify.measurement_uncertainty.measurement_uncertainty`).
     """
-    from dataclasses import replace
-
-    from identify.discrepancy import SCATTER_LIKELIHOOD_RATIO_THRESHOLD, cv_misfit_variance, fit_discrepancy, \
-        smooth_scatter_variance
+    from identify.discrepancy import cv_misfit_variance, fit_discrepancy
 
     fits = {k: getattr(model, name) for k, name in OWN_POLYNOMIAL.items()}
     n = len(u1)
@@ -291,58 +368,20 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
                      "sees uneven misfit) + measurement; one drop (prediction): mean drop + drop_std",
            "pinchoff_volume_cross_covariance": cross.tolist(), "scatter": {}}
     model.intervals = {"pinchoff_volume_cross_covariance": out["pinchoff_volume_cross_covariance"]}
-    # grouped K-fold CV of the whole chain
-    groups = np.column_stack([u1, u2])
-    cv_err = {k: np.full(n, np.nan) for k in INTERVAL_OUTPUTS}
     targets = {"pinchoff": measured["pinchoff_us"], "volume_adjuster": vol_target, "velocity_adjuster": vel_target}
-    # leverage at each training control of the fold's polynomial that predicted it, and of the full fit
-    h_fold = {k: np.full(n, np.nan) for k in targets}
-    h_full = {k: _leverage(getattr(model, k), u1, u2, u1, u2) for k in targets}
-    for idx in grouped_kfold(groups, folds, seed, layout="round_robin"):
-        train = np.setdiff1d(np.arange(n), idx)
-        try:
-            polys = {k: fit_polynomial(u1[train], u2[train], targets[k][train], getattr(model, k).n1,
-                                       getattr(model, k).n2, name=k) for k in targets}
-        except PolynomialRankError:
-            continue
-        g = replace(model, **polys).predict_grid(u1[idx], u2[idx])
-        for k in INTERVAL_OUTPUTS:
-            cv_err[k][idx] = g[k].to_numpy() - measured[k][idx]
-        for k in targets:
-            h_fold[k][idx] = _leverage(polys[k], u1[train], u2[train], u1[idx], u2[idx])
-    # per output, the polynomials its parameter variance comes from (volume: both, averaged)
-    fold_leverage = {k: np.mean([h_fold[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
-    fold_ratio = {k: np.mean([h_fold[name] / h_full[name] for name in ps], axis=0) for k, ps in POLYNOMIALS_OF.items()}
+    cv_err, fold_leverage, fold_ratio = _cv_chain_errors(model, u1, u2, measured, targets, folds=folds, seed=seed)
     # parameter variance at the training controls
-    ctrl, inv, counts = np.unique(groups, axis=0, return_inverse=True, return_counts=True)
+    ctrl, inv, counts = np.unique(np.column_stack([u1, u2]), axis=0, return_inverse=True, return_counts=True)
     inv = np.asarray(inv).ravel()
-    var_mc = {k: np.empty(len(ctrl)) for k in INTERVAL_OUTPUTS}
-    for j, (a, b) in enumerate(ctrl):
-        res = model.monte_carlo(a, b, samples=mc_samples, seed=seed)
-        for k in INTERVAL_OUTPUTS:
-            var_mc[k][j] = np.var(res.samples[k], ddof=1)
+    var_mc = _control_mc_variance(model, ctrl, mc_samples, seed)
     rep_dof = int(np.sum(counts - 1))
     for k in INTERVAL_OUTPUTS:
         y = np.asarray(measured[k], float)
         resid = y - pred[k].to_numpy()
         p = len(fits[k].terms)
         se = None if standard_errors is None else standard_errors.get(k)
-        if rep_dof >= 2:
-            means = np.bincount(inv, weights=y) / counts
-            drop_var, dof, source = float(np.sum((y - means[inv]) ** 2) / rep_dof), rep_dof, "repeats"
-        elif se is not None and np.all(np.isfinite(se)):
-            # within-sequence noise; the residual dof keep the Student-t of the prediction modest
-            drop_var, dof, source = float(np.mean(np.asarray(se, float) ** 2)), max(1, n - p), "sequence_se"
-        else:
-            dof = max(1, n - p)
-            drop_var, source = float(resid @ resid) / dof, "residuals"
-            est = smooth_scatter_variance(u1, u2, resid, design_matrix(*fits[k].normalised(u1, u2), fits[k].terms),
-                                          seed=seed)
-            if est is not None and est[2] >= SCATTER_LIKELIHOOD_RATIO_THRESHOLD and est[0] < drop_var:
-                drop_var, source = est[0], "smooth_scatter"
-            flex = _flexible_scatter(model, flexible, k, u1, u2, y)
-            if flex is not None and flex[0] < drop_var:
-                drop_var, dof, source = flex[0], flex[1], "flexible_residuals"
+        drop_var, dof, source = _drop_scatter(model, k, fits[k], u1, u2, y, resid, rep_dof=rep_dof, inv=inv,
+                                              counts=counts, se=se, flexible=flexible, seed=seed)
         e = cv_err[k]
         ok = np.isfinite(e)
         cv_mse = float(np.mean(e[ok] ** 2)) if ok.any() else float("nan")
@@ -366,16 +405,9 @@ def _fit_intervals(model: HybridModel, u1, u2, measured: dict, vol_target, vel_t
         out["measurement"] = dict(measurement)
     if flexible:
         out["flexible"] = {name: f.to_dict() for name, f in flexible.items()}
-        notes.append("intervals: the chosen polynomials' bias is estimated against more flexible ones (" +
-                      ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible.items()) +
-                      "); where it exceeds the model discrepancy at a control, it replaces it (model_std_source "
-                      "'polynomial_bias')")
     if flexible_u1:
         out["flexible_u1"] = {name: f.to_dict() for name, f in flexible_u1.items()}
-        notes.append("intervals: and against references flexible in u1 (" +
-                     ", ".join(f"{name} order ({f.n1}, {f.n2})" for name, f in flexible_u1.items()) +
-                     "), counted at a control where that bias is significant (pointwise test at 5 %); "
-                     "then per output the larger of the two references' biases is used")
+    notes.extend(_reference_notes(flexible, flexible_u1))
     notes.extend(_interval_notes(out["scatter"], fits))
     return out
 
@@ -469,6 +501,27 @@ def _fitted_controls(u1, u2, masks: dict, notes: list) -> np.ndarray:
     return every[keep]
 
 
+def _hybrid_model(ds: Dataset, efit, c_arr, selections, arx_sel, controls, *, adjuster_reference: str,
+                  ecm_method: str, notes: list) -> HybridModel:
+    """The fitted model (intervals still to come): the ECM, the three chosen polynomials, the ARX
+    structure, the training controls and the software versions."""
+    sel_p, sel_v, sel_q = selections
+    versions = software_versions()
+    versions["identify"] = __version__
+    cov = getattr(efit, "coeff_cov", None)
+    return HybridModel(
+        dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
+        nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, u3_um_per_ms=ds.u3_um_per_ms, hold_us=ds.hold_us,
+        ecm_coefficients=EcmCoefficients(*c_arr[0]),
+        ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
+        pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
+        arx_structure=_arx_structure(arx_sel), ecm_parameters=_param_dict(efit), controls=controls,
+        adjuster_reference=adjuster_reference, versions=versions,
+        extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
+        ecm_level=efit.level, notes=notes,
+    )
+
+
 def fit_hybrid(
     ds: Dataset, *, orders=DEFAULT_ORDERS, folds: int = 10, seed: int = 0, ecm_method: str = "oe",
     adjuster_reference: str = "ecm", arx: bool = True, arx_ranges: dict | None = None,
@@ -536,21 +589,8 @@ def fit_hybrid(
     flexible = _flexible_fits(u1, u2, chosen)
     flexible_u1 = _flexible_fits(u1, u2, chosen, order=flexible_u1_order)
     bar.close()
-    versions = software_versions()
-    versions["identify"] = __version__
-    arx_struct = _arx_structure(arx_sel)
-    cov = getattr(efit, "coeff_cov", None)
-    model = HybridModel(
-        dead_time_us=ds.dead_time_us, sample_interval_us=ds.sample_interval_us,
-        nozzle_inner_diameter_um=ds.nozzle_inner_diameter_um, u3_um_per_ms=ds.u3_um_per_ms, hold_us=ds.hold_us,
-        ecm_coefficients=EcmCoefficients(*c_arr[0]),
-        ecm_coeff_cov=None if cov is None else np.asarray(cov, float),
-        pinchoff=sel_p.fit, volume_adjuster=sel_v.fit, velocity_adjuster=sel_q.fit,
-        arx_structure=arx_struct, ecm_parameters=_param_dict(efit), controls=_fitted_controls(u1, u2, masks, notes),
-        adjuster_reference=adjuster_reference, versions=versions,
-        extra={"ecm_method": ecm_method, "notes": notes, "n_sequences": ds.n_sequences},
-        ecm_level=efit.level, notes=notes,
-    )
+    model = _hybrid_model(ds, efit, c_arr, (sel_p, sel_v, sel_q), arx_sel, _fitted_controls(u1, u2, masks, notes),
+                          adjuster_reference=adjuster_reference, ecm_method=ecm_method, notes=notes)
     mall = mp & mv & mq
     if not mall.all():
         notes.append(f"intervals: drop scatter and cross-validation from the {int(mall.sum())} of {len(mall)} "

@@ -461,6 +461,120 @@ def _gp(obs: list, prior_sd: float, lengthscale: float, at: np.ndarray):
     return r @ w, np.maximum(p2 - np.sum(k * w.T, axis=1), 0.0)
 
 
+def _check_tune_options(model: TabularModel, tolerance_percent, min_probability, prior_bias_percent, lengthscale,
+                        shots) -> None:
+    """`tune_table`'s options and the model's input names checked (TabularError naming the bad one)."""
+    _check_options(tolerance_percent, min_probability)
+    for name, option, v in (("prior_bias_percent", None, prior_bias_percent),
+                            ("lengthscale", "--bias-lengthscale", lengthscale)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+            raise TabularParameterError(name, f"must be a positive number, got {v!r}", option=option)
+    if isinstance(shots, bool) or int(shots) != shots or shots < 1:
+        raise TabularParameterError("shots", f"must be an integer >= 1, got {shots!r}")
+    clash = [n for n in model.inputs if n in FIXED_COLUMNS]
+    if clash:
+        raise TabularError(f"the model's input {clash[0]!r} has the name of a tuning column; rename it in the table")
+
+
+def _tuning_result(model: TabularModel, tg, records: list, *, converged: bool, final: bool, what: str, shots: int,
+                   tolerance_percent: float, min_probability: float, meta: dict) -> TableTuningResult:
+    """The run so far, with its one-line message (met, in progress, or not met)."""
+    last = records[-1]
+    got = ", ".join(f"{t.output} {last[t.output]:.4g}" + (f" ({last[t.output + '_error_percent']:+.2f} %)"
+                                                            if t.kind == "continuous" else "") for t in tg)
+    where = ", ".join(f"{n} = {last[n]:g}" for n in model.inputs)
+    if converged:
+        msg = f"target {what} met in {len(records)} shot(s): {where} measured {got}"
+    elif not final:
+        msg = f"in progress: {len(records)} of at most {int(shots)} shot(s) fired; last: {where} measured {got}"
+    else:
+        msg = f"target {what} not met in {len(records)} shot(s); last: {where} measured {got}"
+    return TableTuningResult(shots=list(records), inputs=list(model.inputs), targets={t.output: t.value for t in tg},
+                             tolerance_percent=float(tolerance_percent), min_probability=float(min_probability),
+                             converged=converged, message=msg, meta=dict(meta))
+
+
+def _belief(tg, surface: _Surface, obs: dict, prior_sd: dict, lengthscale: float, Z: np.ndarray):
+    """The rig's offset from the model learnt from the shots so far: per continuous output its mean
+    and variance over the candidates (`_gp`), per count output the probability of the target count."""
+    offsets, var, count_p = {}, {}, {}
+    for t in tg:
+        if t.kind == "continuous":
+            m, v = _gp(obs[t.output], prior_sd[t.output], lengthscale, Z)
+            offsets[t.output], var[t.output] = m, v
+        else:
+            p = surface.p[t.output].copy()
+            if obs[t.output]:
+                xs = np.array([x for x, _, _ in obs[t.output]])
+                hits = np.array([h for _, h, _ in obs[t.output]])
+                w = np.exp(-0.5 * np.sum((Z[:, None, :] - xs[None, :, :]) ** 2, axis=-1) / lengthscale**2)
+                p = (COUNT_PRIOR_SHOTS * p + w @ hits) / (COUNT_PRIOR_SHOTS + w.sum(axis=1))
+            count_p[t.output] = p
+    return offsets, var, count_p
+
+
+def _fire(rig: Callable, name: str, settings: dict, k: int):
+    """The rig's answer to shot ``k`` (its failure one TabularError naming the rig and the shot)."""
+    try:
+        return rig(dict(settings), k)
+    except (TabularError, OSError):
+        raise
+    except Exception as exc:  # noqa: BLE001 - the lab's own code failed: one line naming the rig and shot
+        raise TabularError(f"rig {name}: shot {k}: the rig failed ({type(exc).__name__}: {exc})") from exc
+
+
+def _continuous_record(t, i: int, value: float, surface: _Surface, offsets, var, obs: dict, prior_sd: dict,
+                       lengthscale: float, Z: np.ndarray, tolerance_percent: float, tol: float):
+    """A continuous target's columns of the shot at candidate ``i`` measuring ``value`` (the shot
+    joins ``obs``): (columns, within tolerance, the corrected prediction within tolerance)."""
+    o = t.output
+    log = surface.log[o]
+    q_lo, q_hi = surface.q[o]
+    f = float(surface.fit[o][i])
+    back = math.exp if log else (lambda z: z)
+    mu, sd = f + float(offsets[o][i]), math.sqrt(float(surface.drop_sd[o][i] ** 2 + var[o][i]))
+    z = (math.log(value) if value > 0 else float("nan")) if log else value
+    # a robust update: a shot farther than ROBUST_Z standard deviations from what was
+    # expected counts as that far (the heavy tails of real scatter: a failed detection
+    # must not teach the loop a bias) until a second one nearby confirms it (_gp)
+    r_obs = z - f if math.isfinite(z) else float("nan")
+    s_obs = float(surface.drop_sd[o][i])
+    expect_sd = math.sqrt(s_obs**2 + float(var[o][i]))
+    innovation = r_obs - float(offsets[o][i])
+    s_gross, sign = s_obs, 0
+    if math.isfinite(innovation) and abs(innovation) > ROBUST_Z * expect_sd:
+        s_gross = math.sqrt((abs(innovation) / ROBUST_Z) ** 2 - float(var[o][i]))
+        sign = 1 if innovation > 0 else -1
+    obs[o].append((Z[i], r_obs, s_obs, s_gross, sign))
+    after, after_var = _gp(obs[o], prior_sd[o], lengthscale, Z[i:i + 1])
+    err = 100.0 * (value / t.value - 1.0) if math.isfinite(value) else float("nan")
+    within = math.isfinite(err) and abs(err) <= tolerance_percent
+    fit_ok = abs(back(mu) / t.value - 1.0) <= tol
+    bias = math.expm1 if log else (lambda b: b / abs(t.value))
+    cols = {
+        f"{o}_target": t.value,
+        f"{o}_predicted": back(f),
+        f"{o}_corrected": back(mu),
+        f"{o}_one_drop_low": back(mu + q_lo / MAD_TO_STD * sd),
+        f"{o}_one_drop_high": back(mu + q_hi / MAD_TO_STD * sd),
+        o: value,
+        f"{o}_error_percent": err,
+        f"{o}_bias_percent": 100.0 * bias(float(after[0])),
+        f"{o}_bias_se_percent": 100.0 * math.sqrt(float(after_var[0])) * (1.0 if log else 1.0 / abs(t.value)),
+    }
+    return cols, within, fit_ok
+
+
+def _count_record(model: TabularModel, t, i: int, value, surface: _Surface, count_p: dict, obs: dict, Z: np.ndarray):
+    """A count target's columns of the shot at candidate ``i`` (the shot joins ``obs``): (columns, hit)."""
+    o = t.output
+    kk = int(t.value)
+    hit = float(value == kk or (kk == model.counts[o].classes[-1] and value >= kk))
+    obs[o].append((Z[i], hit, 0.0))
+    return {f"{o}_target": t.value, f"{o}_p{kk}_predicted": float(surface.p[o][i]),
+            f"{o}_p{kk}_corrected": float(count_p[o][i]), o: value}, bool(hit)
+
+
 def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, tolerance_percent: float = 2.0,
                min_probability: float = 0.9, prior_bias_percent: float = 2.0, lengthscale: float = 0.25,
                seed: int = 0, rig_name: str | None = None, model_path=None,
@@ -500,16 +614,7 @@ def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, t
     from dvcore.versions import software_versions
     from identify.tuning import file_sha256
 
-    _check_options(tolerance_percent, min_probability)
-    for name, option, v in (("prior_bias_percent", None, prior_bias_percent),
-                            ("lengthscale", "--bias-lengthscale", lengthscale)):
-        if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-            raise TabularParameterError(name, f"must be a positive number, got {v!r}", option=option)
-    if isinstance(shots, bool) or int(shots) != shots or shots < 1:
-        raise TabularParameterError("shots", f"must be an integer >= 1, got {shots!r}")
-    clash = [n for n in model.inputs if n in FIXED_COLUMNS]
-    if clash:
-        raise TabularError(f"the model's input {clash[0]!r} has the name of a tuning column; rename it in the table")
+    _check_tune_options(model, tolerance_percent, min_probability, prior_bias_percent, lengthscale, shots)
     tg = parse_targets(model, targets)
     tol = tolerance_percent / 100.0
     X = candidates(model, seed=seed)
@@ -521,117 +626,45 @@ def tune_table(model: TabularModel, rig: Callable, targets, *, shots: int = 5, t
                 for t in tg if t.kind == "continuous"}
     obs = {t.output: [] for t in tg}
     records: list = []
-    converged = False
     name = rig_name or getattr(rig, "__name__", type(rig).__name__)
     meta = {"seed": int(seed), "shot_budget": int(shots), "prior_bias_percent": float(prior_bias_percent),
             "bias_lengthscale": float(lengthscale), "candidates": int(len(X)), "rig": str(name),
             "model_file": None if model_path is None else str(model_path),
             "model_sha256": None if model_path is None else file_sha256(model_path),
             "versions": software_versions()}
-    what = _describe(tg, tol)
-
-    def result(final: bool) -> TableTuningResult:
-        last = records[-1]
-        got = ", ".join(f"{t.output} {last[t.output]:.4g}" + (f" ({last[t.output + '_error_percent']:+.2f} %)"
-                                                                if t.kind == "continuous" else "") for t in tg)
-        where = ", ".join(f"{n} = {last[n]:g}" for n in model.inputs)
-        if converged:
-            msg = f"target {what} met in {len(records)} shot(s): {where} measured {got}"
-        elif not final:
-            msg = f"in progress: {len(records)} of at most {int(shots)} shot(s) fired; last: {where} measured {got}"
-        else:
-            msg = f"target {what} not met in {len(records)} shot(s); last: {where} measured {got}"
-        return TableTuningResult(shots=list(records), inputs=list(model.inputs), targets={t.output: t.value for t in tg},
-                                 tolerance_percent=float(tolerance_percent), min_probability=float(min_probability),
-                                 converged=converged, message=msg, meta=dict(meta))
-
+    common = dict(what=_describe(tg, tol), shots=shots, tolerance_percent=tolerance_percent,
+                  min_probability=min_probability, meta=meta)
     for k in range(1, int(shots) + 1):
-        offsets, var, count_p = {}, {}, {}
-        for t in tg:
-            if t.kind == "continuous":
-                m, v = _gp(obs[t.output], prior_sd[t.output], lengthscale, Z)
-                offsets[t.output], var[t.output] = m, v
-            else:
-                p = surface.p[t.output].copy()
-                if obs[t.output]:
-                    xs = np.array([x for x, _, _ in obs[t.output]])
-                    hits = np.array([h for _, h, _ in obs[t.output]])
-                    w = np.exp(-0.5 * np.sum((Z[:, None, :] - xs[None, :, :]) ** 2, axis=-1) / lengthscale**2)
-                    p = (COUNT_PRIOR_SHOTS * p + w @ hits) / (COUNT_PRIOR_SHOTS + w.sum(axis=1))
-                count_p[t.output] = p
+        offsets, var, count_p = _belief(tg, surface, obs, prior_sd, lengthscale, Z)
         prob, counts = _probability(surface, tg, tol, offsets, var, count_p)
         near = None if not records else np.array([records[-1][n] for n in model.inputs])
         i, constrained = _choose(prob, counts, min_probability, X, near, span)
         settings = {n: float(v) for n, v in zip(model.inputs, X[i])}
         outside, _ = model.region.check(X[i:i + 1], train)
-        try:
-            answer = rig(dict(settings), k)
-        except (TabularError, OSError):
-            raise
-        except Exception as exc:  # noqa: BLE001 - the lab's own code failed: one line naming the rig and shot
-            raise TabularError(f"rig {name}: shot {k}: the rig failed ({type(exc).__name__}: {exc})") from exc
-        measured = _measured(model, tg, answer, f"rig {name}: shot {k}")
+        measured = _measured(model, tg, _fire(rig, name, settings, k), f"rig {name}: shot {k}")
         rec: dict = {"shot": k, **settings}
         within = True
         fit_ok = True
         for t in tg:
-            o = t.output
-            value = measured[o]
             if t.kind == "continuous":
-                log = surface.log[o]
-                q_lo, q_hi = surface.q[o]
-                f = float(surface.fit[o][i])
-                back = math.exp if log else (lambda z: z)
-                mu, sd = f + float(offsets[o][i]), math.sqrt(float(surface.drop_sd[o][i] ** 2 + var[o][i]))
-                z = (math.log(value) if value > 0 else float("nan")) if log else value
-                # a robust update: a shot farther than ROBUST_Z standard deviations from what was
-                # expected counts as that far (the heavy tails of real scatter: a failed detection
-                # must not teach the loop a bias) until a second one nearby confirms it (_gp)
-                r_obs = z - f if math.isfinite(z) else float("nan")
-                s_obs = float(surface.drop_sd[o][i])
-                expect_sd = math.sqrt(s_obs**2 + float(var[o][i]))
-                innovation = r_obs - float(offsets[o][i])
-                s_gross, sign = s_obs, 0
-                if math.isfinite(innovation) and abs(innovation) > ROBUST_Z * expect_sd:
-                    s_gross = math.sqrt((abs(innovation) / ROBUST_Z) ** 2 - float(var[o][i]))
-                    sign = 1 if innovation > 0 else -1
-                obs[o].append((Z[i], r_obs, s_obs, s_gross, sign))
-                after, after_var = _gp(obs[o], prior_sd[o], lengthscale, Z[i:i + 1])
-                err = 100.0 * (value / t.value - 1.0) if math.isfinite(value) else float("nan")
-                within = within and math.isfinite(err) and abs(err) <= tolerance_percent
-                fit_ok = fit_ok and abs(back(mu) / t.value - 1.0) <= tol
-                bias = math.expm1 if log else (lambda b: b / abs(t.value))
-                rec.update({
-                    f"{o}_target": t.value,
-                    f"{o}_predicted": back(f),
-                    f"{o}_corrected": back(mu),
-                    f"{o}_one_drop_low": back(mu + q_lo / MAD_TO_STD * sd),
-                    f"{o}_one_drop_high": back(mu + q_hi / MAD_TO_STD * sd),
-                    o: value,
-                    f"{o}_error_percent": err,
-                    f"{o}_bias_percent": 100.0 * bias(float(after[0])),
-                    f"{o}_bias_se_percent": 100.0 * math.sqrt(float(after_var[0])) * (1.0 if log else 1.0 / abs(t.value)),
-                })
+                cols, ok, fit = _continuous_record(t, i, measured[t.output], surface, offsets, var, obs, prior_sd,
+                                                   lengthscale, Z, tolerance_percent, tol)
+                within, fit_ok = within and ok, fit_ok and fit
             else:
-                kk = int(t.value)
-                hit = float(value == kk or (kk == model.counts[o].classes[-1] and value >= kk))
-                obs[o].append((Z[i], hit, 0.0))
-                within = within and bool(hit)
-                rec.update({f"{o}_target": t.value, f"{o}_p{kk}_predicted": float(surface.p[o][i]),
-                            f"{o}_p{kk}_corrected": float(count_p[o][i]), o: value})
+                cols, hit = _count_record(model, t, i, measured[t.output], surface, count_p, obs, Z)
+                within = within and hit
+            rec.update(cols)
         for key, v in measured.items():  # the other outputs of the model the rig measured, then its own values
             if key not in rec:
                 rec[key if key in model.outputs else f"rig_{key}"] = v
         rec.update({"probability_on_target": float(prob[i]), "feasible": bool(fit_ok and constrained),
                     "outside_training_region": bool(outside[0]), "within_tolerance": bool(within)})
         records.append(rec)
-        if within:
-            converged = True
         if progress is not None:
-            progress(result(final=False) if not within else result(final=True))
+            progress(_tuning_result(model, tg, records, converged=bool(within), final=bool(within), **common))
         if within:
             break
-    return result(final=True)
+    return _tuning_result(model, tg, records, converged=bool(within), final=True, **common)
 
 
 def write_table_tuning(result: TableTuningResult, out_dir, *, inputs=(), overwrite: bool = False) -> Path:

@@ -71,6 +71,9 @@ ROOT_ROWS_PX = 3.0
 ROOT_MARGIN_PX = 3
 #: ... its standard error at least this (px): a bulge's outline placed to a tenth of a pixel.
 ROOT_FLOOR_PX = 0.1
+#: The liquid's interior level: its bodies eroded by this (px; a row's drops are small, a nozzle's
+#: calibration erodes by 4).
+ROW_LEVEL_ERODE_PX = 2
 #: States: weak beyond WEAK_K robust SDs (at least WEAK_FLOOR of the median); deviated beyond DEVIATED_MRAD.
 WEAK_K = 3.0
 WEAK_FLOOR = 0.01
@@ -538,24 +541,21 @@ def _end_gaps(meta, nozzle_count, c0: float, pitch: float, kmin: int, n_noz: int
     return kmin - a, count, list(range(a)) + list(range(count - (m - a), count))
 
 
-def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
-                 width_px: int = 10**9):
-    """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
-    its standard error (function), nozzle ids, pitch µm, pitch source)."""
-    tracks = _link(lines, _tracks(lines))
-    for tr in tracks:
-        _fit_trajectory(tr, plate, px)
+def _adopt(f: Track, tr: Track) -> None:
+    """``tr``'s liquid at the plate becomes flying track ``f``'s root (in frames where ``f``'s drop left its column)."""
+    f.extra_roots.extend(ln.main for ln in tr.lines)
+    for ln in tr.lines:
+        if not np.isfinite(ln.main.root_col_px):
+            ln.main.root_col_px = ln.main.col_px
+
+
+def _adopt_lone_roots(tracks: list[Track]) -> list[Track]:
+    """The tracks that are nozzles: liquid at the plate alone in its column joins the flying track
+    it belongs to (`_adopt`)."""
     # liquid at the plate alone in its column (its drop flew into a neighbour's column, or left the
     # frame) is that nozzle's root when a drop's trajectory meets the plate there, not a nozzle of its own
     flying = [tr for tr in tracks if any(not ln.main.attached for ln in tr.lines)]
     fly_ids = {id(tr) for tr in flying}
-
-    def adopt(f, tr):
-        f.extra_roots.extend(ln.main for ln in tr.lines)
-        for ln in tr.lines:
-            if not np.isfinite(ln.main.root_col_px):
-                ln.main.root_col_px = ln.main.col_px
-
     kept, alone = [], []
     for tr in tracks:
         if id(tr) in fly_ids or not flying:
@@ -564,7 +564,7 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         col = float(np.median([ln.main.col_px for ln in tr.lines]))
         near = min(flying, key=lambda f: abs(f.plate_col - col))
         if abs(near.plate_col - col) <= max(1.5 * max(ln.main.size_px for ln in tr.lines), 10.0):
-            adopt(near, tr)
+            _adopt(near, tr)
         else:
             alone.append((col, tr))
     # ... and in one frame a drop with no liquid at the plate above it came from the nearest liquid with
@@ -576,33 +576,26 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
         f = min(orphans, key=lambda f: abs(f.plate_col - col)) if orphans else None
         room = min((abs(c - col) for c in others), default=float("inf"))
         if f is not None and abs(f.plate_col - col) < 0.5 * room:
-            adopt(f, tr)
+            _adopt(f, tr)
             f.plate_col = float(np.median([b.root_col_px for b in f.extra_roots]))
             orphans = [o for o in orphans if o is not f]
         else:
             kept.append(tr)
-    tracks = kept
+    return kept
+
+
+def _given_pitch(meta, nozzle_pitch_um):
+    """The pitch (µm) given on the command line or in sequence.json (None: not given); a bad one is an error."""
     given = nozzle_pitch_um if nozzle_pitch_um is not None else meta.extra.get("nozzle_pitch_um")
     if given is not None and not (isinstance(given, (int, float)) and np.isfinite(given) and given > 0):
         from dropvision.io.sequence import SequenceError
         raise SequenceError(f"{meta.path / 'sequence.json'}: nozzle_pitch_um must be a number > 0, got {given!r}")
-    pitch_src = (pitch_source or "sequence.json") if given is not None else \
-        "estimated from the found nozzles (smallest spacing, least-squares grid)"
-    cols = np.array([tr.plate_col for tr in tracks])
-    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
-    # grid is fitted to those places where two or more nozzles show them
-    roots = [_root_col(tr) for tr in tracks]
-    have = np.array([np.isfinite(r[0]) for r in roots], bool)
-    if have.sum() >= 2:
-        cols = np.where(have, [r[0] for r in roots], cols)
-        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
-    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
-    kmin = int(kk.min()) if kk.size else 0
-    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
-    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
-    for tr, k in zip(tracks, kk):
-        tr.nozzle = int(k - kmin)
-    # two tracks on one grid position: the nearer keeps it (the other's bodies stay unassigned)
+    return given
+
+
+def _one_track_per_position(tracks: list[Track], c0: float, pitch: float, kmin: int, notes: list) -> dict:
+    """Nozzle -> track; two tracks on one grid position: the nearer keeps it (the other's bodies
+    counted as that nozzle's, its drops not in its statistics)."""
     seen: dict = {}
     for tr in tracks:
         g = c0 + pitch * (tr.nozzle + kmin)
@@ -621,23 +614,59 @@ def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_so
                          "nozzle's, its drops not in its statistics")
         else:
             seen[tr.nozzle] = tr
-    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
-    # standard error of each grid position: the drops' scatter about the grid (their angles' spread times
-    # their distance from the plate) through the fitted offset and, with no pitch given, the fitted pitch
+    return seen
+
+
+def _grid_se(kk: np.ndarray, inl: np.ndarray, grid_rms: float, pitch_given: bool, kmin: int):
+    """The standard error (px) of each grid position, as a function of the nozzle id."""
+    # the drops' scatter about the grid (their angles' spread times their distance from the plate)
+    # through the fitted offset and, with no pitch given, the fitted pitch
     k_in = kk[inl].astype(float)
     # the residuals' rms has few degrees of freedom (one per nozzle less the fitted offset, and pitch):
     # the standard deviation of the Student-t distribution it implies, sqrt(dof / (dof - 2)) x its
     # value (dof at least 3), is the grid's standard uncertainty
-    dof = max(int(k_in.size) - (2 if given is None else 1), 3)
+    dof = max(int(k_in.size) - (1 if pitch_given else 2), 3)
     s_grid = (grid_rms if np.isfinite(grid_rms) else 0.5) * math.sqrt(dof / (dof - 2))
     sxx = float(np.sum((k_in - k_in.mean()) ** 2)) if k_in.size else 0.0
 
     def grid_se(i: int) -> float:
         if k_in.size == 0:
             return 0.5
-        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if given is None and sxx > 0 else 0.0)
+        v = 1.0 / k_in.size + ((i + kmin - k_in.mean()) ** 2 / sxx if not pitch_given and sxx > 0 else 0.0)
         return s_grid * math.sqrt(v)
 
+    return grid_se
+
+
+def _row_nozzles(lines, plate: Plate, px: float, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count=None,
+                 width_px: int = 10**9):
+    """A row's tracks (by trajectory) on the pitch grid: (track per nozzle, grid column per nozzle,
+    its standard error (function), nozzle ids, pitch µm, pitch source, the nozzles' own places at
+    the plate, the nozzles missing at the row's ends)."""
+    tracks = _link(lines, _tracks(lines))
+    for tr in tracks:
+        _fit_trajectory(tr, plate, px)
+    tracks = _adopt_lone_roots(tracks)
+    given = _given_pitch(meta, nozzle_pitch_um)
+    pitch_src = (pitch_source or "sequence.json") if given is not None else \
+        "estimated from the found nozzles (smallest spacing, least-squares grid)"
+    cols = np.array([tr.plate_col for tr in tracks])
+    # the liquid at the plate gives a nozzle's place directly (independent of its drops' angles): the
+    # grid is fitted to those places where two or more nozzles show them
+    roots = [_root_col(tr) for tr in tracks]
+    have = np.array([np.isfinite(r[0]) for r in roots], bool)
+    if have.sum() >= 2:
+        cols = np.where(have, [r[0] for r in roots], cols)
+        pitch_src = pitch_src.replace("found nozzles", "liquid at the plate of the found nozzles")
+    c0, pitch, kk, inl, grid_rms = _grid(cols, None if given is None else float(given) / px)
+    kmin = int(kk.min()) if kk.size else 0
+    n_noz = int(kk.max() - kmin + 1) if kk.size else 0
+    kmin, n_noz, ends = _end_gaps(meta, nozzle_count, c0, pitch, kmin, n_noz, width_px, notes)
+    for tr, k in zip(tracks, kk):
+        tr.nozzle = int(k - kmin)
+    seen = _one_track_per_position(tracks, c0, pitch, kmin, notes)
+    grid_cols = c0 + pitch * (np.arange(n_noz) + kmin)
+    grid_se = _grid_se(kk, inl, grid_rms, given is not None, kmin)
     own = {tr.nozzle: r for tr, r in zip(tracks, roots) if tr.nozzle is not None and np.isfinite(r[0])}
     return (seen, {i: float(grid_cols[i]) for i in range(n_noz)}, grid_se, list(range(n_noz)), float(pitch * px),
             pitch_src, own, ends)
@@ -680,86 +709,181 @@ def _scan_nozzles(lines, scan: dict, plate: Plate, px: float):
             "a scan: one nozzle per frame, brought to one place by the stage", {}, [])
 
 
-def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
-                scan: dict | None = None, nozzle_count: int | None = None):
-    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
-    ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
-    import pandas as pd
+@dataclass(frozen=True)
+class _Photometry:
+    """A row's photometric reference from its first frame: the inverse background, the first frame's
+    transmission, the plate, the liquid's interior level, the edge threshold, the transmission's
+    noise and the edge blur (px)."""
 
-    from dropvision.calibrate.background import estimate_background
-    from dropvision.calibrate.blur import esf_sigma_px
-    from dropvision.frame.edges import edge_threshold
-    from dropvision.frame.volume import outline
+    inv_bg: np.ndarray
+    t0: np.ndarray
+    plate: Plate
+    level: float
+    thr: float
+    noise_t: float
+    sigma: float
 
-    meta = seq.meta
-    px = float(meta.pixel_size_um)
+
+def _reference_frames(seq) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The first readable frame's image and the background's frames: up to five spread evenly over
+    the sequence (the unreadable ones left out).  Only these are held in memory: the frames are
+    measured one at a time (`_measure_frames`)."""
     n = len(seq)
-    frames, errors = [], []
+    first = None
     for k in range(n):
+        fr = seq.read(k)
+        if fr.error is None:
+            first = (k, fr.image)
+            break
+    if first is None:
+        from dropvision.io.sequence import SequenceError
+        raise SequenceError(f"{seq.meta.path}: no readable frame of the printhead row")
+    pick = []
+    for i in np.unique(np.linspace(0, n - 1, min(5, n)).astype(int)):
+        if i <= first[0]:
+            if i == first[0]:
+                pick.append(first[1])
+            continue
+        fr = seq.read(int(i))
+        if fr.error is None:
+            pick.append(fr.image)
+    return first[1], pick
+
+
+def _measure_frames(seq, ph: "_Photometry", px: float):
+    """Every frame's bodies and drop lines, one frame in memory at a time: (bodies, lines, the
+    unreadable frames' error rows, the number measured, their delays)."""
+    bodies: list[Body] = []
+    lines: list[Line] = []
+    errors, delays, n_measured = [], set(), 0
+    for k in range(len(seq)):
         fr = seq.read(k)
         if fr.error is not None:
             errors.append({"file": fr.ref.file, "page": fr.ref.page, "delay_us": fr.ref.delay_us, "reason": fr.error})
             continue
-        frames.append((k, fr.ref, fr.image))
-    if not frames:
-        from dropvision.io.sequence import SequenceError
-        raise SequenceError(f"{meta.path}: no readable frame of the printhead row")
-    pick = [frames[i][2] for i in np.unique(np.linspace(0, len(frames) - 1, min(5, len(frames))).astype(int))]
-    # a scan's drops sit at one place in every frame: no static dust looked for (it would be the liquid)
-    bg = estimate_background(pick, static_dust=len(pick) >= 3 and scan is None).background
-    inv_bg = (1.0 / np.maximum(bg, 1e-6)).astype(np.float32)
-    t0 = frames[0][2].astype(np.float32) * inv_bg
-    plate = find_plate(t0) or plate_hint
-    # the liquid's interior level and the edge level: the eroded bodies of the first frame
-    nl, lab, stats, _ = _components(t0, plate, 0.5)
-    inner = cv2.erode((lab > 0).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
-    level = float(np.median(t0[inner])) if inner.any() else 0.1
-    thr = edge_threshold(level)
-    # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
-    # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
-    from dropvision.calibrate.calibration_pass import transmission_noise
+        bs = _frame_bodies(k, fr.ref, fr.image, ph.inv_bg, ph.plate, ph.thr, ph.sigma, ph.level, ph.noise_t, px)
+        bodies.extend(bs)
+        lines.extend(_lines(bs))
+        delays.add(fr.ref.delay_us)
+        n_measured += 1
+    return bodies, lines, errors, n_measured, delays
 
-    noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
-    # edge blur: the edge-spread functions of the first frame's large bodies
+
+def _edge_blur_px(img0, t0, inv_bg, lab, stats, thr: float, level: float) -> float:
+    """Edge blur (px): the median edge-spread sigma of the first frame's six largest bodies (1.0 if none)."""
+    from dropvision.calibrate.blur import esf_sigma_px
+    from dropvision.frame.edges import body_edges
+    from dropvision.frame.volume import outline
+
     sig = []
     for j in np.argsort(-stats[1:, cv2.CC_STAT_AREA])[:6] + 1:
         x0, y0, bw, bh, area = stats[j]
         if area < 50:
             continue
-        from dropvision.frame.edges import body_edges
-        ed = body_edges(frames[0][2], inv_bg, lab, j, (x0, y0, x0 + bw, y0 + bh), thr)
+        ed = body_edges(img0, inv_bg, lab, j, (x0, y0, x0 + bw, y0 + bh), thr)
         rows, left, right = outline(ed)
         s = esf_sigma_px(t0, rows, left, right, level)
         if np.isfinite(s):
             sig.append(s)
-    sigma = float(np.median(sig)) if sig else 1.0
-    bodies: list[Body] = []
-    lines: list[Line] = []
-    for k, ref, img in frames:
-        bs = _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px)
-        bodies.extend(bs)
-        lines.extend(_lines(bs))
-    notes = []
-    if scan is not None:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
+    return float(np.median(sig)) if sig else 1.0
+
+
+def _row_photometry(first: np.ndarray, pick: list[np.ndarray], plate_hint: Plate, scan) -> _Photometry:
+    """Background from ``pick`` (`_reference_frames`), then the first frame's plate, liquid level,
+    edge threshold, noise and edge blur."""
+    from dropvision.calibrate.background import estimate_background
+    from dropvision.calibrate.calibration import interior_level
+    from dropvision.calibrate.calibration_pass import transmission_noise
+    from dropvision.frame.edges import edge_threshold
+
+    # a scan's drops sit at one place in every frame: no static dust looked for (it would be the liquid)
+    bg = estimate_background(pick, static_dust=len(pick) >= 3 and scan is None).background
+    inv_bg = (1.0 / np.maximum(bg, 1e-6)).astype(np.float32)
+    t0 = first.astype(np.float32) * inv_bg
+    plate = find_plate(t0) or plate_hint
+    # the liquid's interior level (the calibration's estimator on the first frame's bodies: filled,
+    # eroded by ROW_LEVEL_ERODE_PX, lens spot excluded; 0.1 where fewer than 20 pixels remain) and the
+    # edge level
+    nl, lab, stats, _ = _components(t0, plate, 0.5)
+    level = interior_level(t0, lab > 0, erode_px=ROW_LEVEL_ERODE_PX)
+    level = level if np.isfinite(level) else 0.1
+    thr = edge_threshold(level)
+    # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
+    # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
+    noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
+    # edge blur: the edge-spread functions of the first frame's large bodies
+    sigma = _edge_blur_px(first, t0, inv_bg, lab, stats, thr, level)
+    return _Photometry(inv_bg, t0, plate, level, thr, noise_t, sigma)
+
+
+def _angle_note(single: bool, scan, own: dict, seen: dict, pitch_src: str) -> str | None:
+    """The note on how a single frame's angles are measured (None for a sequence of delays or a scan)."""
+    if single and scan is None and own and len(own) == len(seen):
+        return ("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
+                "or a ligament's root) to its drop, from the plate's normal")
+    if single and scan is None:
+        return ("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
+                "a tilt common to the row" + ("" if "estimated" not in pitch_src else
+                                              " (and, with the pitch estimated, a fan linear across it)")
+                + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
+                + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
+                "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
+                "measures each trajectory on its own")
+    return None
+
+
+_MISSING = dict(volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan, velocity_uncertainty_m_s=np.nan,
+                angle_mrad=np.nan, angle_uncertainty_mrad=np.nan, satellites=0.0, satellite_volume_nl=np.nan,
+                n_frames=0)
+
+
+def _single_frame_angle(m: Body, i: int, plate: Plate, own: dict, grid_col: dict, grid_se, tilt: float):
+    """A single frame's angle (mrad) of nozzle ``i``'s main drop ``m`` and its uncertainty: from the
+    nozzle's own place at the plate, else from its grid position."""
+    if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
+        c_i, se_i = own[i]
+        dz = m.row_px - plate.row_at(c_i)
+        ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
     else:
-        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
-            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, t0.shape[1])
-    single = len({ref.delay_us for _, ref, _ in frames}) < 2
+        c_i, se_i = grid_col[i], grid_se(i)
+        dz = m.row_px - plate.row_at(c_i)
+        # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
+        ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
+    return ang, math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
+
+
+def _nozzle_stats(tr: Track, i: int, single: bool, plate: Plate, own: dict, grid_col: dict, grid_se) -> dict:
+    """A live nozzle's volume, velocity, angle (each with its uncertainty), satellites and frame count;
+    its bodies take its id."""
+    for ln in tr.lines:
+        for b in ln.bodies + ln.roots:
+            b.nozzle = i
+    for b in tr.extra_roots:
+        b.nozzle = i
+    mains = [ln.main for ln in tr.lines]
+    vols = np.array([b.volume_nl for b in mains])
+    us = np.array([b.volume_uncertainty_nl for b in mains])
+    vol = float(vols.mean())
+    u_vol = math.hypot(float(us.mean()), float(vols.std(ddof=1)) / math.sqrt(vols.size) if vols.size > 1 else 0.0)
+    nsat = np.array([len(ln.bodies) - 1 for ln in tr.lines], float)
+    sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
     # a trajectory's angle from the plate's normal: a plate tilted by atan(slope) in the image (the camera
     # rolled) turns its normal by as much
     tilt = math.atan(plate.slope)
-    if single and scan is None and own and len(own) == len(seen):
-        notes.append("one delay: each nozzle's angle is measured from where its liquid leaves the plate (a meniscus "
-                     "or a ligament's root) to its drop, from the plate's normal")
-    elif single and scan is None:
-        notes.append("one delay: each nozzle's angle is measured from the pitch grid fitted to the drops themselves, so "
-                     "a tilt common to the row" + ("" if "estimated" not in pitch_src else
-                                                   " (and, with the pitch estimated, a fan linear across it)")
-                     + " cannot be told from the grid's offset" + ("" if "estimated" not in pitch_src else " and pitch")
-                     + " in one frame: the angles are relative to the row's mean direction; their uncertainty "
-                     "includes the grid's (the row's angle spread over the nozzles, Student-t); a sequence of delays "
-                     "measures each trajectory on its own")
+    if single or not np.isfinite(tr.angle_mrad):
+        ang, ang_u = _single_frame_angle(mains[0], i, plate, own, grid_col, grid_se, tilt)
+    else:
+        ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
+    return dict(volume_nl=vol, volume_uncertainty_nl=u_vol,
+                velocity_m_s=float("nan") if single else tr.velocity_m_s,
+                velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
+                angle_mrad=float(ang), angle_uncertainty_mrad=float(ang_u),
+                satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
+                n_frames=len(tr.lines))
+
+
+def _nozzle_rows(ids, seen, grid_col, grid_se, own, ends, plate: Plate, single: bool, scan) -> list[dict]:
+    """One row per nozzle of the grid: its place, and its statistics or why it is missing."""
     rows = []
     for i in ids:
         tr = seen.get(i)
@@ -767,58 +891,19 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         if tr is None:
             why = ("no drop where the others have one" + ("" if scan is not None else " (a gap in the pitch)")
                    if i not in ends else "no drop at the row's end (nozzle_count)")
-            row.update(state="missing", reason=why,
-                       volume_nl=np.nan, volume_uncertainty_nl=np.nan, velocity_m_s=np.nan,
-                       velocity_uncertainty_m_s=np.nan, angle_mrad=np.nan, angle_uncertainty_mrad=np.nan,
-                       satellites=0.0, satellite_volume_nl=np.nan, n_frames=0)
-            rows.append(row)
-            continue
-        for ln in tr.lines:
-            for b in ln.bodies + ln.roots:
-                b.nozzle = i
-        for b in tr.extra_roots:
-            b.nozzle = i
-        mains = [ln.main for ln in tr.lines]
-        vols = np.array([b.volume_nl for b in mains])
-        us = np.array([b.volume_uncertainty_nl for b in mains])
-        vol = float(vols.mean())
-        u_vol = math.hypot(float(us.mean()), float(vols.std(ddof=1)) / math.sqrt(vols.size) if vols.size > 1 else 0.0)
-        nsat = np.array([len(ln.bodies) - 1 for ln in tr.lines], float)
-        sat_vol = [sum(b.volume_nl for b in ln.bodies[1:]) for ln in tr.lines if len(ln.bodies) > 1]
-        if single or not np.isfinite(tr.angle_mrad):
-            m = mains[0]
-            if i in own:  # from the nozzle's own place at the plate: an angle from the plate's normal
-                c_i, se_i = own[i]
-                dz = m.row_px - plate.row_at(c_i)
-                ang = (math.atan2(m.col_px - c_i, dz) + tilt) * 1e3
-            else:
-                c_i, se_i = grid_col[i], grid_se(i)
-                dz = m.row_px - plate.row_at(c_i)
-                # from the grid fitted to the drops (no tilt to add), or to the others' liquid at the plate
-                ang = (math.atan2(m.col_px - c_i, dz) + (tilt if own else 0.0)) * 1e3
-            ang_u = math.hypot(se_i, 0.05) / max(dz, 1.0) * 1e3
+            row.update(state="missing", reason=why, **_MISSING)
         else:
-            ang, ang_u = tr.angle_mrad + tilt * 1e3, tr.angle_u_mrad
-        row.update(volume_nl=vol, volume_uncertainty_nl=u_vol,
-                   velocity_m_s=float("nan") if single else tr.velocity_m_s,
-                   velocity_uncertainty_m_s=float("nan") if single else tr.velocity_u_m_s,
-                   angle_mrad=float(ang), angle_uncertainty_mrad=float(ang_u),
-                   satellites=float(np.median(nsat)), satellite_volume_nl=float(np.mean(sat_vol)) if sat_vol else 0.0,
-                   n_frames=len(tr.lines))
+            row.update(_nozzle_stats(tr, i, single, plate, own, grid_col, grid_se))
         rows.append(row)
-    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
-    # neighbour's meniscus): the nearest nozzle's column
-    if scan is None and grid_col:
-        gc = np.array([grid_col[i] for i in ids])
-        for b in bodies:
-            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
-                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
-    _states(rows)
-    nozzles = pd.DataFrame(rows)
-    nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
-    live = nozzles[nozzles.state != "missing"]
-    vcv, vcv_u = _cv(live.volume_nl.to_numpy(float), live.volume_uncertainty_nl.to_numpy(float))
-    ucv, ucv_u = _cv(live.velocity_m_s.to_numpy(float), live.velocity_uncertainty_m_s.to_numpy(float))
+    return rows
+
+
+def _line_and_body_tables(lines, bodies):
+    """The row's frames table (one row per drop line, its main drop) and bodies table."""
+    import pandas as pd
+
+    from dvcore.schema import ROW_BODIES, ROW_FRAMES
+
     frame_rows, body_rows = [], []
     for ln in lines:
         m = ln.main
@@ -830,26 +915,73 @@ def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None,
         body_rows.append({"file": b.file, "delay_us": b.delay_us, "nozzle": b.nozzle, "body_class": b.body_class,
                           "area_px": b.area_px, "volume_nl": b.volume_nl, "volume_uncertainty_nl": b.volume_uncertainty_nl,
                           "row_px": b.row_px, "col_px": b.col_px})
-    from dvcore.schema import NOZZLES, ROW_BODIES, ROW_FRAMES
-
-    nozzles = nozzles[NOZZLES.column_names].astype({"nozzle": "int64", "n_frames": "int64"})
     ftab = pd.DataFrame(frame_rows, columns=ROW_FRAMES.column_names).astype({"nozzle": "Int64"})
     ftab = ftab.sort_values(["delay_us", "file", "col_px"], kind="stable").reset_index(drop=True)
     btab = pd.DataFrame(body_rows, columns=ROW_BODIES.column_names).astype({"nozzle": "Int64", "area_px": "int64"})
+    return ftab, btab
+
+
+def measure_row(seq, plate_hint: Plate, *, nozzle_pitch_um: float | None = None, pitch_source: str | None = None,
+                scan: dict | None = None, nozzle_count: int | None = None):
+    """Measure every nozzle of a row sequence: (nozzles, frames, bodies tables, summary dict).
+    ``scan``: file -> nozzle label (`scan_labels`): one nozzle per frame."""
+    import pandas as pd
+
+    from dvcore.schema import NOZZLES
+
+    meta = seq.meta
+    px = float(meta.pixel_size_um)
+    ph = _row_photometry(*_reference_frames(seq), plate_hint, scan)
+    plate = ph.plate
+    bodies, lines, errors, n_measured, delays = _measure_frames(seq, ph, px)
+    notes = []
+    if scan is not None:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _scan_nozzles(lines, scan, plate, px)
+    else:
+        seen, grid_col, grid_se, ids, pitch_um, pitch_src, own, ends = _row_nozzles(
+            lines, plate, px, meta, nozzle_pitch_um, pitch_source, notes, nozzle_count, ph.t0.shape[1])
+    single = len(delays) < 2
+    note = _angle_note(single, scan, own, seen, pitch_src)
+    if note is not None:
+        notes.append(note)
+    rows = _nozzle_rows(ids, seen, grid_col, grid_se, own, ends, plate, single, scan)
+    # liquid at the plate belongs to the nozzle at its place (a crosstalk drop's line can pass a
+    # neighbour's meniscus): the nearest nozzle's column
+    if scan is None and grid_col:
+        gc = np.array([grid_col[i] for i in ids])
+        for b in bodies:
+            if b.attached and b.body_class == "attached" and np.isfinite(b.root_col_px):
+                b.nozzle = ids[int(np.argmin(np.abs(gc - b.root_col_px)))]
+    _states(rows)
+    nozzles = pd.DataFrame(rows)
+    nozzles["pass"], nozzles["pass_reason"] = pd_na_bool(len(nozzles)), "no limits given"  # `judge_row`
+    nozzles = nozzles[NOZZLES.column_names].astype({"nozzle": "int64", "n_frames": "int64"})
+    ftab, btab = _line_and_body_tables(lines, bodies)
+    summary = _row_summary(meta, scan, len(seq), n_measured, ids, nozzles, pitch_um, pitch_src, ph, errors, notes)
+    return nozzles, ftab, btab, summary
+
+
+def _row_summary(meta, scan, n: int, n_measured: int, ids, nozzles, pitch_um, pitch_src, ph: _Photometry,
+                 errors, notes) -> dict:
+    """summary.json of a row (`dvcore.schema.ROW_SUMMARY`, less the pass/fail and provenance keys)."""
+    live = nozzles[nozzles.state != "missing"]
+    vcv, vcv_u = _cv(live.volume_nl.to_numpy(float), live.volume_uncertainty_nl.to_numpy(float))
+    ucv, ucv_u = _cv(live.velocity_m_s.to_numpy(float), live.velocity_uncertainty_m_s.to_numpy(float))
     counts = {s: int((nozzles.state == s).sum()) for s in STATES}
-    summary = {
+    plate = ph.plate
+    return {
         "schema_version": "dropvision.row-summary/1", "kind": "printhead-row", "sequence": str(meta.path),
         "layout": "scan" if scan is not None else "row",
-        "n_frames": n, "n_measured": len(frames), "n_nozzles": len(ids), "n_live": int(len(ids) - counts["missing"]),
+        "n_frames": n, "n_measured": n_measured, "n_nozzles": len(ids), "n_live": int(len(ids) - counts["missing"]),
         "state_counts": counts,
         "pitch_um": pitch_um, "pitch_source": pitch_src,
-        "plate_row_px": float(plate.row_at((t0.shape[1] - 1) / 2.0)), "plate_slope_mrad": float(math.atan(plate.slope) * 1e3),
+        "plate_row_px": float(plate.row_at((ph.t0.shape[1] - 1) / 2.0)),
+        "plate_slope_mrad": float(math.atan(plate.slope) * 1e3),
         "volume_cv": vcv, "volume_cv_uncertainty": vcv_u, "velocity_cv": ucv, "velocity_cv_uncertainty": ucv_u,
         "limits": {"weak_k": WEAK_K, "weak_floor": WEAK_FLOOR, "deviated_mrad": DEVIATED_MRAD},
-        "edge_blur_px": sigma, "liquid_level": level, "edge_threshold": thr,
+        "edge_blur_px": ph.sigma, "liquid_level": ph.level, "edge_threshold": ph.thr,
         "errors": errors, "notes": notes,
     }
-    return nozzles, ftab, btab, summary
 
 
 def _states(rows: list[dict]) -> None:
@@ -953,6 +1085,74 @@ def read_reference(path) -> "pd.DataFrame":
     return ref
 
 
+def _aligned_reference(nozzles, reference, reference_path):
+    """The reference table indexed by this row's nozzle numbers: (table, the shift of its numbers,
+    the note on an alignment by position or None)."""
+    from dropvision.io.sequence import SequenceError
+
+    shift, aligned = 0, None
+    mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
+    if mine != theirs:
+        # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
+        # numbered one less; its nozzles' columns on the pitch grid say which is which
+        shift = _align_by_position(nozzles, reference)
+        if shift is None:
+            raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
+                                f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
+                                "scan's by label) and their columns do not line up on one pitch grid: compare "
+                                "heads with the same nozzles in the same place")
+        aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
+                   f"this row's j {shift:+d}")
+    return reference.set_index(reference.nozzle.astype(int) + shift), shift, aligned
+
+
+def _judge_nozzle(r, limits: dict, ref, shift: int, med: dict) -> tuple[list[str], list[str], set]:
+    """One nozzle against the limits (`judge_row`'s rules): (why it fails, notes, quantities not judged);
+    ``ref``: the aligned reference table or None (the row's medians ``med`` and the plate normal)."""
+    i = int(r.nozzle)
+    fails, notes, not_judged = [], [], set()
+    if r.state == "missing":
+        return ["missing: no drop"], notes, not_judged
+
+    def ref_value(col):
+        return float(ref.at[i, col]) if i in ref.index else float("nan")
+
+    for key, col, unit in (("volume_tolerance_percent", "volume_nl", "nl"),
+                           ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
+        if key not in limits:
+            continue
+        tgt = ref_value(col) if ref is not None else med[col]
+        what = f"reference nozzle {i - shift}" if ref is not None else "the row's median"
+        if ref is not None and i not in ref.index:
+            what = "the reference head, which has no nozzle at its place,"
+        if not np.isfinite(r[col]):
+            notes.append(f"{col} not measured: not judged")
+            not_judged.add(col)
+            continue
+        if not np.isfinite(tgt) or tgt == 0:
+            fails.append(f"{col}: {what} has no value to compare with")
+            continue
+        dev = 100.0 * (r[col] / tgt - 1.0)
+        if abs(dev) > limits[key]:
+            fails.append(f"{col} {r[col]:.4g} {unit} is {dev:+.2f} % from {what} {tgt:.4g} "
+                         f"(limit {limits[key]:g} %)")
+    if "angle_limit_mrad" in limits:
+        a = float(r.angle_mrad)
+        tgt = ref_value("angle_mrad") if ref is not None else 0.0
+        lim = limits["angle_limit_mrad"]
+        if not np.isfinite(a):
+            notes.append("angle_mrad not measured: not judged")
+            not_judged.add("angle_mrad")
+        elif not np.isfinite(tgt):
+            fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
+                         if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
+        elif abs(a - tgt) > lim:
+            fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
+                         f"{'reference nozzle ' + str(i - shift) if ref is not None else 'the plate normal'} "
+                         f"(limit {lim:g} mrad)")
+    return fails, notes, not_judged
+
+
 def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dict | None:
     """``pass`` and ``pass_reason`` of each nozzle (in place) against ``limits`` (`row_limits`), and
     the head's verdict for summary.json (None where no limit is given: ``pass`` is null).
@@ -962,31 +1162,14 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
     matched by nozzle number) else the median of the row's live nozzles; |angle - reference angle|
     (no reference: |angle|) within the angle limit.  A quantity not measured (velocity of a single
     delay) is not judged, and the reason says so.  The head passes when every nozzle passes."""
-    from dropvision.io.sequence import SequenceError
-
     checks = [k for k in LIMIT_KEYS if k in limits]
     if not checks:
         nozzles["pass"] = pd_na_bool(len(nozzles))
         nozzles["pass_reason"] = "no limits given"
         return None
-    shift, aligned = 0, None
+    ref, shift, aligned = None, 0, None
     if reference is not None:
-        mine, theirs = set(nozzles.nozzle.astype(int)), set(reference.nozzle.astype(int))
-        if mine != theirs:
-            # numbered from each head's first live nozzle: a reference whose first nozzle is missing is
-            # numbered one less; its nozzles' columns on the pitch grid say which is which
-            shift = _align_by_position(nozzles, reference)
-            if shift is None:
-                raise SequenceError(f"{reference_path}: the reference head's nozzles {_span(theirs)} are not this "
-                                    f"row's {_span(mine)} (a row's nozzles are numbered from its first live one, a "
-                                    "scan's by label) and their columns do not line up on one pitch grid: compare "
-                                    "heads with the same nozzles in the same place")
-            aligned = (f"the reference head's nozzles matched by their place on the pitch grid: its nozzle j is "
-                       f"this row's j {shift:+d}")
-        ref = reference.set_index(reference.nozzle.astype(int) + shift)
-
-    def ref_value(i, col):
-        return float(ref.at[i, col]) if i in ref.index else float("nan")
+        ref, shift, aligned = _aligned_reference(nozzles, reference, reference_path)
     live = nozzles.state != "missing"
     med = {}
     for c in ("volume_nl", "velocity_m_s"):
@@ -994,44 +1177,8 @@ def judge_row(nozzles, limits: dict, reference=None, reference_path=None) -> dic
         med[c] = float(np.median(x[np.isfinite(x)])) if np.isfinite(x).any() else float("nan")
     passes, reasons, not_judged = [], [], set()
     for _, r in nozzles.iterrows():
-        i = int(r.nozzle)
-        fails, notes = [], []
-        if r.state == "missing":
-            fails.append("missing: no drop")
-        else:
-            for key, col, unit in (("volume_tolerance_percent", "volume_nl", "nl"),
-                                   ("velocity_tolerance_percent", "velocity_m_s", "m/s")):
-                if key not in limits:
-                    continue
-                tgt = ref_value(i, col) if reference is not None else med[col]
-                what = f"reference nozzle {i - shift}" if reference is not None else "the row's median"
-                if reference is not None and i not in ref.index:
-                    what = "the reference head, which has no nozzle at its place,"
-                if not np.isfinite(r[col]):
-                    notes.append(f"{col} not measured: not judged")
-                    not_judged.add(col)
-                    continue
-                if not np.isfinite(tgt) or tgt == 0:
-                    fails.append(f"{col}: {what} has no value to compare with")
-                    continue
-                dev = 100.0 * (r[col] / tgt - 1.0)
-                if abs(dev) > limits[key]:
-                    fails.append(f"{col} {r[col]:.4g} {unit} is {dev:+.2f} % from {what} {tgt:.4g} "
-                                 f"(limit {limits[key]:g} %)")
-            if "angle_limit_mrad" in limits:
-                a = float(r.angle_mrad)
-                tgt = ref_value(i, "angle_mrad") if reference is not None else 0.0
-                lim = limits["angle_limit_mrad"]
-                if not np.isfinite(a):
-                    notes.append("angle_mrad not measured: not judged")
-                    not_judged.add("angle_mrad")
-                elif not np.isfinite(tgt):
-                    fails.append(f"angle_mrad: reference nozzle {i - shift} has no value to compare with"
-                                 if i in ref.index else "angle_mrad: the reference head has no nozzle at its place")
-                elif abs(a - tgt) > lim:
-                    fails.append(f"angle {a:+.2f} mrad is {a - tgt:+.2f} mrad from "
-                                 f"{'reference nozzle ' + str(i - shift) if reference is not None else 'the plate normal'} "
-                                 f"(limit {lim:g} mrad)")
+        fails, notes, unjudged = _judge_nozzle(r, limits, ref, shift, med)
+        not_judged |= unjudged
         passes.append(not fails)
         reasons.append("; ".join(fails + notes))
     nozzles["pass"] = np.array(passes, bool)

@@ -315,6 +315,85 @@ def double_exposure_velocity(drop_z_um: float, drop_volume_nl: float, drop_volum
     return v, u_v, "", float(other["volume_nl"])
 
 
+def _shot_pixel_sizes(names: list[str], calibrations: dict[str, dict] | None) -> tuple[np.ndarray, np.ndarray]:
+    """Each shot's pixel size (µm; nan where its calibration has none) and that size's uncertainty."""
+    calibrations = calibrations or {}
+    pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_um", np.nan) or np.nan) for n in names])
+    u_pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_uncertainty_um", 0.0) or 0.0)
+                        for n in names])
+    u_pixel[~np.isfinite(pixel)] = np.nan
+    return pixel, u_pixel
+
+
+def _shot_geometry(f: pd.DataFrame) -> dict[str, np.ndarray]:
+    """The shots' main-drop columns and what they give: sphere diameter, trajectory angle, tail length."""
+    volume = f["drop_volume_nl"].to_numpy(dtype=float)
+    u_volume = f["drop_volume_uncertainty_nl"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sphere = np.cbrt(6.0 * volume * 1e6 / math.pi)  # 1 nl = 1e6 µm³
+        u_sphere = sphere * u_volume / (3.0 * volume)
+        x, z = f["drop_x_um"].to_numpy(dtype=float), f["drop_z_um"].to_numpy(dtype=float)
+        angle = 1000.0 * np.arctan2(x, z)
+    length, width = f["drop_length_um"].to_numpy(dtype=float), f["drop_diameter_um"].to_numpy(dtype=float)
+    with np.errstate(invalid="ignore"):
+        tail = np.maximum(length - width, 0.0)  # the main body's length beyond a round head as wide as it
+    return {"volume": volume, "u_volume": u_volume, "sphere": sphere, "u_sphere": u_sphere, "x": x, "z": z,
+            "angle": angle, "length": length, "width": width, "tail": tail}
+
+
+def _angle_refused(quality: str, x: float, z: float) -> str | None:
+    """Why a shot has no trajectory angle (None: it has one)."""
+    if schema.Quality.NO_NOZZLE in quality.split("; "):
+        return "no trajectory angle: the nozzle is not found in the frame"
+    if not (np.isfinite(x) and np.isfinite(z)):
+        return "no trajectory angle: no main drop"
+    return None
+
+
+def _shot_notes(f, names, g: dict, shots: ShotInput, notes, unmeasured, missing, pixel, u_pixel, bodies,
+                strobe_interval_us) -> dict:
+    """Per shot: its quality (a joined tail), velocity (a double exposure), satellites less a double
+    exposure's second image, angle (nan where refused) and its notes."""
+    volume, u_volume, x, z, angle = g["volume"], g["u_volume"], g["x"], g["z"], g["angle"].copy()
+    velocity = np.full(len(names), np.nan)
+    n_sat = f["n_satellites"].astype("Int64").to_numpy().copy()
+    sat_volume = (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float).copy()
+    u_velocity = np.full(len(names), np.nan)
+    inflight = f["inflight"].astype(bool).to_numpy()
+    quality = f["quality"].astype(str).to_numpy().copy()
+    row_notes = []
+    for i, name in enumerate(names):
+        own = list(notes.get(name, []))
+        if missing[i]:
+            row_notes.append(unmeasured.get(name, "not measured"))
+            continue
+        if np.isfinite(volume[i]) and not inflight[i]:  # measured, but not compact: its tail is joined
+            quality[i] = schema.Quality.TAIL if quality[i] == schema.Quality.OK else f"{quality[i]}; {schema.Quality.TAIL}"
+            own.append(f"the main drop's tail is joined to it: {g['tail'][i]:.0f} um beyond its head "
+                       f"({g['length'][i]:.0f} um long, {g['width'][i]:.0f} um wide): not in flight; its volume "
+                       "holds the tail")
+        interval = shots.labels.get(name, {}).get(STROBE_INTERVAL_LABEL, strobe_interval_us)
+        if interval is not None:
+            rel = u_pixel[i] / pixel[i] if np.isfinite(pixel[i]) and pixel[i] > 0 else 0.0
+            shot_bodies = None if bodies is None else bodies[bodies["file"] == name]
+            velocity[i], u_velocity[i], why, second_nl = double_exposure_velocity(
+                z[i], volume[i], u_volume[i], shot_bodies, float(interval),
+                pixel[i] if np.isfinite(pixel[i]) else 1.0, rel)
+            if np.isfinite(second_nl):  # the main drop's second image is no satellite
+                n_sat[i] -= 1
+                sat_volume[i] -= second_nl
+            own.append(why or (f"double exposure {float(interval):g} us apart: velocity from the main drop's two "
+                               "images (its second image is not counted as a satellite; other satellites are seen "
+                               "twice and counted twice)"))
+        refused = _angle_refused(str(f["quality"].iloc[i]), x[i], z[i])
+        if refused is not None:
+            angle[i] = np.nan
+            own.append(refused)
+        row_notes.append("; ".join(own))
+    return {"velocity": velocity, "u_velocity": u_velocity, "n_sat": n_sat, "sat_volume": sat_volume,
+            "inflight": inflight, "quality": quality, "angle": angle, "notes": row_notes}
+
+
 def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[str]],
                 unmeasured: dict[str, str] | None = None, delay_us: float = 0.0, *,
                 bodies: pd.DataFrame | None = None, calibrations: dict[str, dict] | None = None,
@@ -357,82 +436,33 @@ def shots_table(frames: pd.DataFrame, shots: ShotInput, notes: dict[str, list[st
     f.loc[missing, "quality"] = schema.Quality.NOT_MEASURED
     f.loc[missing, "delay_us"] = delay_us
     f.loc[missing, "inflight"] = False
-    volume = f["drop_volume_nl"].to_numpy(dtype=float)
-    u_volume = f["drop_volume_uncertainty_nl"].to_numpy(dtype=float)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sphere = np.cbrt(6.0 * volume * 1e6 / math.pi)  # 1 nl = 1e6 µm³
-        u_sphere = sphere * u_volume / (3.0 * volume)
-        x, z = f["drop_x_um"].to_numpy(dtype=float), f["drop_z_um"].to_numpy(dtype=float)
-        angle = 1000.0 * np.arctan2(x, z)
-    length, width = f["drop_length_um"].to_numpy(dtype=float), f["drop_diameter_um"].to_numpy(dtype=float)
-    with np.errstate(invalid="ignore"):
-        tail = np.maximum(length - width, 0.0)  # the main body's length beyond a round head as wide as it
-    calibrations = calibrations or {}
-    pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_um", np.nan) or np.nan) for n in names])
-    u_pixel = np.array([float((calibrations.get(n) or {}).get("pixel_size_uncertainty_um", 0.0) or 0.0)
-                        for n in names])
-    u_pixel[~np.isfinite(pixel)] = np.nan
-    velocity = np.full(len(names), np.nan)
-    n_sat = f["n_satellites"].astype("Int64").to_numpy().copy()
-    sat_volume = (f["detached_volume_nl"] - f["drop_volume_nl"]).to_numpy(dtype=float).copy()
-    u_velocity = np.full(len(names), np.nan)
-    inflight = f["inflight"].astype(bool).to_numpy()
-    quality = f["quality"].astype(str).to_numpy().copy()
-    row_notes = []
-    for i, name in enumerate(names):
-        own = list(notes.get(name, []))
-        if missing[i]:
-            row_notes.append(unmeasured.get(name, "not measured"))
-            continue
-        if np.isfinite(volume[i]) and not inflight[i]:  # measured, but not compact: its tail is joined
-            quality[i] = schema.Quality.TAIL if quality[i] == schema.Quality.OK else f"{quality[i]}; {schema.Quality.TAIL}"
-            own.append(f"the main drop's tail is joined to it: {tail[i]:.0f} um beyond its head ({length[i]:.0f} um "
-                       f"long, {width[i]:.0f} um wide): not in flight; its volume holds the tail")
-        interval = shots.labels.get(name, {}).get(STROBE_INTERVAL_LABEL, strobe_interval_us)
-        if interval is not None:
-            rel = u_pixel[i] / pixel[i] if np.isfinite(pixel[i]) and pixel[i] > 0 else 0.0
-            shot_bodies = None if bodies is None else bodies[bodies["file"] == name]
-            velocity[i], u_velocity[i], why, second_nl = double_exposure_velocity(
-                z[i], volume[i], u_volume[i], shot_bodies, float(interval),
-                pixel[i] if np.isfinite(pixel[i]) else 1.0, rel)
-            if np.isfinite(second_nl):  # the main drop's second image is no satellite
-                n_sat[i] -= 1
-                sat_volume[i] -= second_nl
-            own.append(why or (f"double exposure {float(interval):g} us apart: velocity from the main drop's two "
-                               "images (its second image is not counted as a satellite; other satellites are seen "
-                               "twice and counted twice)"))
-        codes = str(f["quality"].iloc[i]).split("; ")
-        if schema.Quality.NO_NOZZLE in codes:
-            angle[i] = np.nan
-            own.append("no trajectory angle: the nozzle is not found in the frame")
-        elif not (np.isfinite(x[i]) and np.isfinite(z[i])):
-            angle[i] = np.nan
-            own.append("no trajectory angle: no main drop")
-        row_notes.append("; ".join(own))
+    g = _shot_geometry(f)
+    pixel, u_pixel = _shot_pixel_sizes(names, calibrations)
+    s = _shot_notes(f, names, g, shots, notes, unmeasured, missing, pixel, u_pixel, bodies, strobe_interval_us)
     out = pd.DataFrame({
         "file": names,
         "delay_us": f["delay_us"].to_numpy(dtype=float),
-        "drop_volume_nl": volume,
-        "drop_volume_uncertainty_nl": u_volume,
-        "drop_sphere_diameter_um": sphere,
-        "drop_sphere_diameter_uncertainty_um": u_sphere,
-        "drop_length_um": length,
-        "drop_diameter_um": width,
-        "tail_length_um": tail,
-        "drop_velocity_m_s": velocity,
-        "drop_velocity_uncertainty_m_s": u_velocity,
-        "n_satellites": n_sat,
-        "satellites_volume_nl": sat_volume,
-        "drop_z_um": z,
-        "drop_x_um": x,
-        "trajectory_angle_mrad": angle,
+        "drop_volume_nl": g["volume"],
+        "drop_volume_uncertainty_nl": g["u_volume"],
+        "drop_sphere_diameter_um": g["sphere"],
+        "drop_sphere_diameter_uncertainty_um": g["u_sphere"],
+        "drop_length_um": g["length"],
+        "drop_diameter_um": g["width"],
+        "tail_length_um": g["tail"],
+        "drop_velocity_m_s": s["velocity"],
+        "drop_velocity_uncertainty_m_s": s["u_velocity"],
+        "n_satellites": s["n_sat"],
+        "satellites_volume_nl": s["sat_volume"],
+        "drop_z_um": g["z"],
+        "drop_x_um": g["x"],
+        "trajectory_angle_mrad": s["angle"],
         "attached_volume_nl": f["attached_volume_nl"].to_numpy(dtype=float),
         "attached_volume_uncertainty_nl": f["attached_volume_uncertainty_nl"].to_numpy(dtype=float),
         "pixel_size_um": pixel,
         "pixel_size_uncertainty_um": u_pixel,
-        "inflight": inflight,
-        "quality": quality,
-        "notes": row_notes,
+        "inflight": s["inflight"],
+        "quality": s["quality"],
+        "notes": s["notes"],
     })
     out["n_satellites"] = out["n_satellites"].astype("Int64")
     for label, column in label_columns(shots.label_names).items():
@@ -521,6 +551,101 @@ def _extreme(values, fn) -> float | None:
     return float(fn(v)) if v.size else None
 
 
+@dataclass
+class _Collected:
+    """The measured shots' parts, in the shots' order (`_collect`)."""
+
+    frames: list = field(default_factory=list)
+    bodies: list = field(default_factory=list)
+    outlines: list = field(default_factory=list)
+    per_shot: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    measured: list = field(default_factory=list)
+
+
+_SHOT_SOURCES = ("orientation", "orientation_source", "pixel_size_source", "nozzle_outer_diameter_source",
+                 "nozzle_inner_diameter_source", "delay_source", "waveform_source", "bit_depth_source")
+
+
+def _collect(outcomes, shots: ShotInput) -> _Collected:
+    """Each shot's outcome of `measure_each`: its tables' parts and summary entry, or its error."""
+    c = _Collected()
+    for out in outcomes:
+        name = out.name
+        if out.error is not None:
+            c.errors.append({"file": name, "reason": out.error})
+            c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": out.error})
+            continue
+        res = out.result
+        s = res.summary
+        if len(res.frames) != 1:
+            reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
+            c.errors.append({"file": name, "reason": reason})
+            c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": reason})
+            continue
+        c.frames.append(res.frames.assign(file=name))
+        if res.bodies is not None and len(res.bodies):
+            c.bodies.append(res.bodies.assign(file=name))
+            c.outlines.append((res.outlines, res.outlines_camera, len(res.bodies)))
+        cal = dict(s["calibration"])
+        c.per_shot.append({"file": name, "labels": shots.labels.get(name, {}),
+                           **{k: s.get(k) for k in _SHOT_SOURCES},
+                           "shared_calibration": out.shared,
+                           "notes": list(s.get("notes") or []) + list(cal.get("notes") or [])
+                           + ([out.note] if out.note else []),
+                           "calibration": cal})
+        c.measured.append(name)
+    return c
+
+
+def _common_notes(per_shot: list[dict]) -> tuple[list[str], dict[str, list[str]]]:
+    """The notes every measured shot has (the summary's) and each shot's own others."""
+    all_notes = [entry["notes"] for entry in per_shot if "notes" in entry]
+    common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
+    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
+    return common, own
+
+
+def _shots_summary(shots: ShotInput, c: _Collected, table, common, rigs, no_rig, waveform,
+                   config: MeasureConfig) -> dict:
+    """summary.json of a folder of shots (`dvcore.schema.SHOTS_SUMMARY`)."""
+    return {
+        "schema_version": schema.SHOTS_SUMMARY.schema,
+        "kind": "shots",
+        "inputs": [str(p) for p in (shots.inputs if shots.from_folder else shots.paths)],
+        "n_shots": len(shots.paths),
+        "n_measured": len(c.measured),
+        "labels": shots.label_names,
+        "label_sources": shots.label_sources,
+        "label_columns": label_columns(shots.label_names),
+        "drop_volume_median_nl": _median(table["drop_volume_nl"]),
+        "drop_volume_min_nl": _extreme(table["drop_volume_nl"], np.min),
+        "drop_volume_max_nl": _extreme(table["drop_volume_nl"], np.max),
+        "drop_sphere_diameter_median_um": _median(table["drop_sphere_diameter_um"]),
+        "n_satellites_median": _median(table["n_satellites"].astype(float)),
+        "trajectory_angle_median_mrad": _median(table["trajectory_angle_mrad"]),
+        "attached_volume_median_nl": _median(table["attached_volume_nl"]),
+        "quality_counts": dict(Counter(table["quality"])),
+        "errors": c.errors,
+        "notes": common,
+        "shots": c.per_shot,
+        "shared_calibration": ({**rigs[0].to_dict(), "others": [r.to_dict() for r in rigs[1:]]} if rigs
+                               else {"reference": None, "calibrated_from": [], "left_out": [], "others": [],
+                                     "reason": no_rig}),
+        **({"waveform": waveform} if waveform is not None else {}),
+        "software": software_versions(),
+        "config": asdict(config),
+    }
+
+
+def _stacked_outlines(parts: list) -> tuple[list, list]:
+    """The shots' body outlines (canonical and camera frame) in bodies.parquet's order (an empty
+    outline per body of a shot that has none)."""
+    outlines = [o for part, _, n in parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    outlines_camera = [o for _, part, n in parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
+    return outlines, outlines_camera
+
+
 def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), *, overrides: dict | None = None,
                   option_labels: dict | None = None, label_pattern: str | None = None, csv: bool = False,
                   overwrite: bool = False, shared_calibration: bool = True,
@@ -576,82 +701,24 @@ def measure_shots(paths, out_dir=None, config: MeasureConfig = MeasureConfig(), 
     waveform = label_waveform(shots, overrides, option_labels)  # before any image is measured
     if out_dir is not None:
         check_output_dir(out_dir, inputs=shots.inputs, overwrite=overwrite)
-    frames_parts, bodies_parts, per_shot, errors, measured = [], [], [], [], []
-    outline_parts: list = []
     # pandas (with pyarrow's allocator thread) only after the worker processes are forked
     outcomes, rigs, no_rig = measure_each(shots, config, overrides=overrides, option_labels=option_labels,
                                          shared=shared_calibration, workers=workers)
     import pandas as pd
-    for out in outcomes:
-        name = out.name
-        if out.error is not None:
-            errors.append({"file": name, "reason": out.error})
-            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": out.error})
-            continue
-        res = out.result
-        s = res.summary
-        if len(res.frames) != 1:
-            reason = s["errors"][0]["reason"] if s.get("errors") else "not measured"
-            errors.append({"file": name, "reason": reason})
-            per_shot.append({"file": name, "labels": shots.labels.get(name, {}), "error": reason})
-            continue
-        frames_parts.append(res.frames.assign(file=name))
-        if res.bodies is not None and len(res.bodies):
-            bodies_parts.append(res.bodies.assign(file=name))
-            outline_parts.append((res.outlines, res.outlines_camera, len(res.bodies)))
-        cal = dict(s["calibration"])
-        per_shot.append({"file": name, "labels": shots.labels.get(name, {}),
-                         **{k: s.get(k) for k in ("orientation", "orientation_source", "pixel_size_source",
-                                                  "nozzle_outer_diameter_source", "nozzle_inner_diameter_source",
-                                                  "delay_source", "waveform_source", "bit_depth_source")},
-                         "shared_calibration": out.shared,
-                         "notes": list(s.get("notes") or []) + list(cal.get("notes") or [])
-                         + ([out.note] if out.note else []),
-                         "calibration": cal})
-        measured.append(name)
-    if not measured:
-        first = errors[0] if errors else {"file": "?", "reason": "no image"}
-        raise SequenceError(f"{first['file']}: no shot could be measured ({len(errors)} image(s); first problem: "
+    c = _collect(outcomes, shots)
+    if not c.measured:
+        first = c.errors[0] if c.errors else {"file": "?", "reason": "no image"}
+        raise SequenceError(f"{first['file']}: no shot could be measured ({len(c.errors)} image(s); first problem: "
                             f"{first['reason']})")
-    frames = pd.concat(frames_parts, ignore_index=True)
-    bodies = pd.concat(bodies_parts, ignore_index=True) if bodies_parts else None
-    all_notes = [entry["notes"] for entry in per_shot if "notes" in entry]
-    common = [n for n in all_notes[0] if all(n in other for other in all_notes[1:])]
-    own = {entry["file"]: [n for n in entry["notes"] if n not in common] for entry in per_shot if "notes" in entry}
-    table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in errors},
+    frames = pd.concat(c.frames, ignore_index=True)
+    bodies = pd.concat(c.bodies, ignore_index=True) if c.bodies else None
+    common, own = _common_notes(c.per_shot)
+    table = shots_table(frames, shots, own, {e["file"]: e["reason"] for e in c.errors},
                         delay_us=float((overrides or {}).get("delay_us") or 0.0), bodies=bodies,
-                        calibrations={e["file"]: e["calibration"] for e in per_shot if "calibration" in e},
+                        calibrations={e["file"]: e["calibration"] for e in c.per_shot if "calibration" in e},
                         strobe_interval_us=strobe_interval_us)
-    summary = {
-        "schema_version": schema.SHOTS_SUMMARY.schema,
-        "kind": "shots",
-        "inputs": [str(p) for p in (shots.inputs if shots.from_folder else shots.paths)],
-        "n_shots": len(shots.paths),
-        "n_measured": len(measured),
-        "labels": shots.label_names,
-        "label_sources": shots.label_sources,
-        "label_columns": label_columns(shots.label_names),
-        "drop_volume_median_nl": _median(table["drop_volume_nl"]),
-        "drop_volume_min_nl": _extreme(table["drop_volume_nl"], np.min),
-        "drop_volume_max_nl": _extreme(table["drop_volume_nl"], np.max),
-        "drop_sphere_diameter_median_um": _median(table["drop_sphere_diameter_um"]),
-        "n_satellites_median": _median(table["n_satellites"].astype(float)),
-        "trajectory_angle_median_mrad": _median(table["trajectory_angle_mrad"]),
-        "attached_volume_median_nl": _median(table["attached_volume_nl"]),
-        "quality_counts": dict(Counter(table["quality"])),
-        "errors": errors,
-        "notes": common,
-        "shots": per_shot,
-        "shared_calibration": ({**rigs[0].to_dict(), "others": [r.to_dict() for r in rigs[1:]]} if rigs
-                               else {"reference": None, "calibrated_from": [], "left_out": [], "others": [],
-                                     "reason": no_rig}),
-        **({"waveform": waveform} if waveform is not None else {}),
-        "software": software_versions(),
-        "config": asdict(config),
-    }
-    outlines = [o for part, _, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
-    outlines_camera = [o for _, part, n in outline_parts for o in (part or [np.zeros((0, 2), np.float32)] * n)]
-    result = ShotsResult(table, frames, summary, bodies, outlines, outlines_camera)
+    summary = _shots_summary(shots, c, table, common, rigs, no_rig, waveform, config)
+    result = ShotsResult(table, frames, summary, bodies, *_stacked_outlines(c.outlines))
     if out_dir is not None:
         from dropvision.output.result_writer import check_shots_result, write_shots_result
 

@@ -210,7 +210,7 @@ def register(subparsers) -> None:
     for key, unit in (("volume-tolerance-percent", "%"), ("velocity-tolerance-percent", "%"),
                       ("angle-limit-mrad", "mrad")):
         p.add_argument(f"--{key}", type=float, default=None, metavar=unit.upper() if unit == "mrad" else "PCT",
-                       help=f"a printhead row's pass/fail limit ({unit}; default: sequence.json "
+                       help=f"a printhead row's pass/fail limit ({unit.replace('%', '%%')}; default: sequence.json "
                        f"{key.replace('-', '_')}): nozzles.parquet pass, summary.json head_pass")
     p.add_argument("--report", type=Path, default=None, metavar="DIR",
                    help="a printhead row: write a report page there (index.html with the nozzle map, the first frame "
@@ -231,18 +231,26 @@ def _row_views(args, res, folder, overrides, labels, only, logger) -> None:
     from dropvision.io.sequence import open_sequence
 
     seq = open_sequence(folder, overrides=overrides, labels=labels, only_files=only)
-    try:
-        frames = []
-        for k in range(len(seq) if logger is not None else 1):
+    first: list = []  # the first readable frame's image (the report's), kept as the frames stream by
+
+    def frames(count: int):
+        for k in range(count):
             fr = seq.read(k)
             if fr.error is None:
-                frames.append((k, fr.ref.delay_us, fr.image))
+                if not first:
+                    first.append(fr.image)
+                yield k, fr.ref.delay_us, fr.image
+
+    try:  # the frames logged one at a time, none held
+        if logger is not None:
+            log_row(logger, res.nozzles, res.bodies, res.summary, frames(len(seq)))
+        elif args.report is not None:
+            for _ in frames(1):
+                pass
     finally:
         seq.close()
-    if logger is not None:
-        log_row(logger, res.nozzles, res.bodies, res.summary, frames)
     if args.report is not None:
-        write_row_report(args.report, res.nozzles, res.bodies, res.summary, frames[0][2] if frames else None,
+        write_row_report(args.report, res.nozzles, res.bodies, res.summary, first[0] if first else None,
                          overwrite=args.overwrite)
 
 

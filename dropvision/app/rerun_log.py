@@ -414,6 +414,40 @@ class _Box:
     centroid_xy: tuple[float, float] | None
 
 
+def _full_labels(labels, shape, ox: int, oy: int) -> np.ndarray:
+    """`log_frame`'s class image checked and, given in a region of interest at ``(ox, oy)``, placed
+    in a frame of ``shape`` (padded with background)."""
+    labels = np.asarray(labels)
+    if (ox, oy) != (0, 0) and labels.ndim == 2 and shape is not None:
+        if ox < 0 or oy < 0 or oy + labels.shape[0] > shape[0] or ox + labels.shape[1] > shape[1]:
+            raise ValueError(f"log_frame: labels {labels.shape} at roi_origin_xy {(ox, oy)} "
+                             f"do not fit in the image shape {shape}")
+        full = np.zeros(shape, dtype=labels.dtype)
+        full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
+        labels = full
+    if labels.ndim != 2 or (shape is not None and labels.shape != shape):
+        raise ValueError(f"log_frame: labels shape {labels.shape} must be 2-D and equal "
+                         f"the image shape {shape}")
+    if labels.dtype.kind not in "iub":
+        raise ValueError(f"log_frame: labels must be an integer array, got {labels.dtype}")
+    if labels.size and (labels.min() < 0 or labels.max() > max(CLASSES)):
+        raise ValueError(f"log_frame: labels must hold class ids 0..{max(CLASSES)}, got "
+                         f"range {labels.min()}..{labels.max()}")
+    return labels
+
+
+def _frame_log_text(index, delay_us, file, quality) -> tuple[str, str]:
+    """A frame's line of the text log and its level (WARN for a quality other than ok)."""
+    text = f"frame {int(index)} delay {float(delay_us):g} us {file}".rstrip()
+    level = "INFO"
+    if isinstance(quality, str) and quality and quality.lower() != "ok":
+        text += f": {quality}"
+        level = "WARN"
+    elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
+        text += f": quality {float(quality):g}"
+    return text, level
+
+
 def _body_boxes(bodies: list[Any], ox: int = 0, oy: int = 0) -> list[_Box]:
     out = []
     for i, body in enumerate(bodies):
@@ -473,6 +507,43 @@ _CHAR_WIDTH = 0.42
 # --- the class image of a measured frame ------------------------------------------------------
 
 
+def _parts_by_box(bodies: Sequence[DetachedBody], rejected: Sequence[DetachedBody],
+                  compact_ratio: float) -> dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]]:
+    """The detached bodies (with their class id) by bounding box: the parts of one silhouette share one."""
+    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
+    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
+           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
+           DetachedClass.SATELLITE: CLASS_SATELLITE}
+    for j, d in enumerate(bodies):
+        cls = ids[detached_class(d, j, compact_ratio)]
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
+    for d in rejected:
+        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
+    return parts
+
+
+def _split_silhouette(seg: Segmentation, b, found: list, labels: np.ndarray) -> list[dict]:
+    """One silhouette, several parts (a satellite touching the main drop, split at the waist): each
+    touching part's pixels on its side of the main drop's rows take its class (in ``labels``, in
+    place); one box per part around its own pixels."""
+    mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
+    sub = labels[b.y0:b.y1, b.x0:b.x1]
+    rows = np.arange(b.y0, b.y1)[:, None]
+    whole = next((d for d, _ in found if not d.touching), None)
+    for d, cls in found:
+        if d is whole or whole is None:
+            continue
+        side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
+        sub[mine & side] = cls
+    boxes = []
+    for d, cls in found:
+        rr, cc = np.nonzero(mine & (sub == cls))
+        box = b.bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
+                                            b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
+        boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+    return boxes
+
+
 def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody] = (),
                 rejected: Sequence[DetachedBody] = (), opaque: np.ndarray | None = None, *,
                 compact_ratio: float = 2.0) -> tuple[np.ndarray, list[dict]]:
@@ -511,15 +582,7 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         half-open), with ``"volume_nl"`` for detached bodies; a split silhouette gives one box
         per part, each around its own pixels.
     """
-    parts: dict[tuple[int, int, int, int], list[tuple[DetachedBody, int]]] = {}
-    ids = {DetachedClass.BORDER: CLASS_BORDER, DetachedClass.MAIN_DROP: CLASS_DROP,
-           DetachedClass.TOUCHING: CLASS_TOUCHING, DetachedClass.TAIL: CLASS_TAIL,
-           DetachedClass.SATELLITE: CLASS_SATELLITE}
-    for j, d in enumerate(bodies):
-        cls = ids[detached_class(d, j, compact_ratio)]
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, cls))
-    for d in rejected:
-        parts.setdefault(tuple(int(v) for v in d.bbox), []).append((d, CLASS_OUT_OF_FOCUS))
+    parts = _parts_by_box(bodies, rejected, compact_ratio)
     classes = np.zeros(len(seg.bodies) + 1, np.uint8)
     for b in seg.bodies:
         found = parts.get(b.bbox)
@@ -537,26 +600,11 @@ def class_image(seg: Segmentation, nozzle_body: DarkBody | None, bodies: Sequenc
         found = parts.get(bbox) if not b.nozzle else None
         if not found:
             boxes.append({"bbox": bbox, "class_id": int(classes[b.label])})
-            continue
-        if len(found) == 1:
+        elif len(found) == 1:
             d, cls = found[0]
             boxes.append({"bbox": bbox, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
-            continue
-        # one silhouette, several parts (a satellite touching the main drop, split at the waist)
-        mine = seg.labels[b.y0:b.y1, b.x0:b.x1] == b.label
-        sub = labels[b.y0:b.y1, b.x0:b.x1]
-        rows = np.arange(b.y0, b.y1)[:, None]
-        whole = next((d for d, _ in found if not d.touching), None)
-        for d, cls in found:
-            if d is whole or whole is None:
-                continue
-            side = rows > whole.bottom_row if d.bottom_row > whole.bottom_row else rows < whole.top_row
-            sub[mine & side] = cls
-        for d, cls in found:
-            rr, cc = np.nonzero(mine & (sub == cls))
-            box = bbox if rr.size == 0 else (b.x0 + int(cc.min()), b.y0 + int(rr.min()),
-                                              b.x0 + int(cc.max()) + 1, b.y0 + int(rr.max()) + 1)
-            boxes.append({"bbox": box, "class_id": int(cls), "volume_nl": float(d.volume_nl)})
+        else:
+            boxes.extend(_split_silhouette(seg, b, found, labels))
     if opaque is not None:
         labels[opaque & (labels == 0)] = CLASS_SPECK
     return labels, boxes
@@ -784,49 +832,12 @@ class RerunLogger:
         rec.set_time("frame", sequence=int(index))
         rec.set_time("delay", duration=np.timedelta64(delay_ns(delay_us), "ns"))
 
-        shape = None
-        if image is not None:
-            image = np.asarray(image)
-            if image.ndim != 2:
-                raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
-            shape = image.shape
-            if self.options.raw:
-                rec.log("/frame/raw", rr.Image(image))
-            # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
-            from dropvision.io.orientation import from_canonical
-            rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
-                                        color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
-            rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
+        shape = None if image is None else self._log_frame_image(image)
         if transmission is not None:
-            transmission = np.asarray(transmission)
-            if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
-                raise ValueError(f"log_frame: transmission shape {transmission.shape} must be 2-D "
-                                 f"and equal the image shape {shape}")
-            shape = shape or transmission.shape
-            if transmission.dtype != np.uint8:
-                transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
-                                        * 255.0).astype(np.uint8)
-            rec.log("/frame/transmission", rr.Image(transmission, color_model="L").compress(
-                jpeg_quality=TRANSMISSION_JPEG_QUALITY))
-            rec.log("/frame/transmission", rr.EncodedImage.from_fields(draw_order=-5.0))
+            shape = self._log_frame_transmission(transmission, shape)
         ox, oy = (int(v) for v in roi_origin_xy)
         if labels is not None:
-            labels = np.asarray(labels)
-            if (ox, oy) != (0, 0) and labels.ndim == 2 and shape is not None:
-                if ox < 0 or oy < 0 or oy + labels.shape[0] > shape[0] or ox + labels.shape[1] > shape[1]:
-                    raise ValueError(f"log_frame: labels {labels.shape} at roi_origin_xy {(ox, oy)} "
-                                     f"do not fit in the image shape {shape}")
-                full = np.zeros(shape, dtype=labels.dtype)
-                full[oy:oy + labels.shape[0], ox:ox + labels.shape[1]] = labels
-                labels = full
-            if labels.ndim != 2 or (shape is not None and labels.shape != shape):
-                raise ValueError(f"log_frame: labels shape {labels.shape} must be 2-D and equal "
-                                 f"the image shape {shape}")
-            if labels.dtype.kind not in "iub":
-                raise ValueError(f"log_frame: labels must be an integer array, got {labels.dtype}")
-            if labels.size and (labels.min() < 0 or labels.max() > max(CLASSES)):
-                raise ValueError(f"log_frame: labels must hold class ids 0..{max(CLASSES)}, got "
-                                 f"range {labels.min()}..{labels.max()}")
+            labels = _full_labels(labels, shape, ox, oy)
             shape = shape or labels.shape
             rec.log("/frame/segmentation", rr.SegmentationImage(labels.astype(np.uint8), opacity=0.45))
         if shape is not None and self._shape is None:
@@ -845,9 +856,46 @@ class RerunLogger:
         boxes = None if bodies is None else _body_boxes(list(bodies), ox, oy)
         if boxes is not None:
             self._log_bodies(boxes, shape or self._shape)
-
         if row is None:
             row = {}
+        self._log_frame_row(row, boxes)
+        text, level = _frame_log_text(index, delay_us, _get(ref, ("file",), ""), row.get("quality"))
+        rec.log("/log", rr.TextLog(text, level=level))
+
+    def _log_frame_image(self, image: np.ndarray) -> tuple:
+        """The raw frame (only with ``raw=True``) and the frame as the camera stored it; its shape."""
+        rr, rec = self._rr, self.stream
+        image = np.asarray(image)
+        if image.ndim != 2:
+            raise ValueError(f"log_frame: image must be 2-D, got shape {image.shape}")
+        if self.options.raw:
+            rec.log("/frame/raw", rr.Image(image))
+        # the frame as the camera stored it: the main view, the overlays placed on it by /frame's transform
+        from dropvision.io.orientation import from_canonical
+        rec.log("/camera", rr.Image(camera_preview(from_canonical(image, self._orientation)),
+                                    color_model="L").compress(jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+        rec.log("/camera", rr.EncodedImage.from_fields(draw_order=-10.0))
+        return image.shape
+
+    def _log_frame_transmission(self, transmission: np.ndarray, shape) -> tuple:
+        """The transmission as an 8-bit JPEG (`log_frame`); the frame's shape."""
+        rr, rec = self._rr, self.stream
+        transmission = np.asarray(transmission)
+        if transmission.ndim != 2 or (shape is not None and transmission.shape != shape):
+            raise ValueError(f"log_frame: transmission shape {transmission.shape} must be 2-D "
+                             f"and equal the image shape {shape}")
+        shape = shape or transmission.shape
+        if transmission.dtype != np.uint8:
+            transmission = np.round(np.clip(np.nan_to_num(transmission, nan=0.0), 0.0, 1.0)
+                                    * 255.0).astype(np.uint8)
+        rec.log("/frame/transmission", rr.Image(transmission, color_model="L").compress(
+            jpeg_quality=TRANSMISSION_JPEG_QUALITY))
+        rec.log("/frame/transmission", rr.EncodedImage.from_fields(draw_order=-5.0))
+        return shape
+
+    def _log_frame_row(self, row: Mapping[str, Any], boxes) -> None:
+        """The frame's main drop (its point and the track so far) and its frame-table series."""
+        rr, rec = self._rr, self.stream
         point = self._drop_point_px(row, boxes)
         if point is not None:
             self._track_px.append(point)
@@ -861,16 +909,6 @@ class RerunLogger:
             value = _finite(row.get(column))
             if value is not None and not self._single:  # one frame: its values go to /table (log_table)
                 rec.log(path, rr.Scalars(value))
-        file = _get(ref, ("file",), "")
-        quality = row.get("quality")
-        text = f"frame {int(index)} delay {float(delay_us):g} us {file}".rstrip()
-        level = "INFO"
-        if isinstance(quality, str) and quality and quality.lower() != "ok":
-            text += f": {quality}"
-            level = "WARN"
-        elif _finite(quality) is not None and not isinstance(quality, (bool, np.bool_)):
-            text += f": quality {float(quality):g}"
-        rec.log("/log", rr.TextLog(text, level=level))
 
     def log_measured_frame(self, ref: Any, image: np.ndarray, transmission: np.ndarray, seg: Segmentation,
                            nozzle_body: DarkBody | None, bodies: Sequence[DetachedBody],

@@ -248,7 +248,9 @@ def _check_finite(summary: dict, path) -> None:
                              "a corrupt or hand-edited model file?")
 
 
-def cmd_predict(args) -> int:
+def _predict_other_kind(args) -> int | None:
+    """`identify predict` of a template model, a table model's --set or --table (their exit code);
+    None: a hybrid model at --u1/--u2."""
     from identify.app.template_cli import cmd_predict_template, is_template_model
 
     if is_template_model(args.model):  # a waveform template's parameters (issue 31)
@@ -264,17 +266,13 @@ def cmd_predict(args) -> int:
         from identify.app.tabular_cli import cmd_predict_table
 
         return cmd_predict_table(args)
-    if args.u1 is None or args.u2 is None:
-        raise UsageError("the following arguments are required: --u1, --u2 (or --table ROWS.csv --out FILE "
-                         "with a table model, or --set NAME=VALUE ... with a template or table model)")
-    _check_samples(args.samples)
-    m = _load_model(args.model)
-    want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
-    res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
-    _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res, model=m))
-    mc = res.summary()
-    iv = m.interval_prediction(args.u1, args.u2, level=args.level, mc=res)
-    nominal = m.nominal(args.u1, args.u2)  # raw values; checked below (region, physics)
+    return None
+
+
+def _prediction_summary(m, args, mc: dict, iv: dict, nominal: dict) -> tuple[dict, dict]:
+    """`identify predict --json`'s entries (``dvcore.schema.PREDICTION``) from the Monte Carlo
+    summary, the intervals and the nominal values, and the prediction's check (region, physics: an
+    impossible output's values blanked)."""
     # Same keys as `identify paper`: nominal pinch-off and grown volume, Monte Carlo spreads of
     # the in-flight volume and jetting velocity (and of the first two under *_mc keys).
     summary = {
@@ -305,9 +303,17 @@ def cmd_predict(args) -> int:
         for key in _IMPOSSIBLE_ENTRIES[k]:
             summary[key] = _without_values(summary[key])
     summary.update(check)
-    if args.json:
-        print(json.dumps({"schema": PREDICTION_SCHEMA, **summary}))
-        return 0
+    return summary, check
+
+
+_PREDICTED = (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
+              ("jetting_velocity_m_s", "jetting_velocity_m_s"))
+
+
+def _print_prediction(m, args, summary: dict, check: dict, iv: dict, nominal: dict) -> None:
+    """The prediction as text: warnings on stderr, the table and its notes on stdout."""
+    from identify.hybrid import describe_measurement, widening_reason
+
     for note in check["notes"]:
         print(f"warning: {note}", file=sys.stderr)
     pct = f"{100 * args.level:g} %"
@@ -318,8 +324,7 @@ def cmd_predict(args) -> int:
         print(f"  {k:30s} {shown}")
     print(f"  {'quantity':30s} {'mean':>9s}   {'mean drop ' + pct + ' (confidence)':>30s}   "
           f"{'one drop ' + pct + ' (prediction)':>30s}   widest term (mean drop / one drop)")
-    for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
-                   ("jetting_velocity_m_s", "jetting_velocity_m_s")):
+    for k, key in _PREDICTED:
         e = summary[key]
         if k in check["impossible"]:
             print(f"  {k:30s} {'n/a':>9s}   (impossible, see the warning)")
@@ -327,20 +332,37 @@ def cmd_predict(args) -> int:
         pred = f"[{e['one_drop_low']:.5g}, {e['one_drop_high']:.5g}]" if e["one_drop_available"] else "n/a"
         print(f"  {k:30s} {e['mean']:9.5g}   {'[%.5g, %.5g]' % (e['mean_drop_low'], e['mean_drop_high']):>30s}   "
               f"{pred:>30s} {OUTPUT_UNITS[k]:3s} {e['mean_drop_dominant_term']} / {e['one_drop_dominant_term']}")
-    for k, key in (("pinchoff_us", "pinchoff_us_intervals"), ("inflight_volume_nl", "inflight_volume_nl"),
-                   ("jetting_velocity_m_s", "jetting_velocity_m_s")):
-        from identify.hybrid import widening_reason
-
+    for k, key in _PREDICTED:
         why = None if k in check["impossible"] else widening_reason(k, summary[key])
         if why:
             print(f"note: {why}")
     print(f"note: {INTERVAL_NOTE}")
-    from identify.hybrid import describe_measurement
-
     print(f"note: {describe_measurement(m)}")
     if not iv["inflight_volume_nl"]["one_drop_available"]:
         print("note: this model file has no drop scatter (fitted before intervals existed): refit it for the "
               "prediction interval", file=sys.stderr)
+
+
+def cmd_predict(args) -> int:
+    other = _predict_other_kind(args)
+    if other is not None:
+        return other
+    if args.u1 is None or args.u2 is None:
+        raise UsageError("the following arguments are required: --u1, --u2 (or --table ROWS.csv --out FILE "
+                         "with a table model, or --set NAME=VALUE ... with a template or table model)")
+    _check_samples(args.samples)
+    m = _load_model(args.model)
+    want_band = any(getattr(args, k, None) for k in ("rerun", "rerun_spawn", "rerun_connect"))
+    res = m.monte_carlo(args.u1, args.u2, samples=args.samples, seed=args.seed, band=want_band)
+    _with_recording(args, lambda rec, lg: lg.log_prediction(rec, res, model=m))
+    mc = res.summary()
+    iv = m.interval_prediction(args.u1, args.u2, level=args.level, mc=res)
+    nominal = m.nominal(args.u1, args.u2)  # raw values; checked below (region, physics)
+    summary, check = _prediction_summary(m, args, mc, iv, nominal)
+    if args.json:
+        print(json.dumps({"schema": PREDICTION_SCHEMA, **summary}))
+        return 0
+    _print_prediction(m, args, summary, check, iv, nominal)
     return 0
 
 
@@ -499,11 +521,8 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-
-    p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
-    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
+def _add_fit(sub) -> None:
+    """`identify fit`'s options."""
     f = sub.add_parser("fit", help="identify a hybrid model from a dataset folder, or models of a table's outputs")
     f.add_argument("dataset", help="a dataset folder (of (u1, u2) or of a waveform template), or a .csv/.parquet "
                    "table (with --inputs/--outputs; with them a campaign dataset folder is its shots.parquet)")
@@ -523,6 +542,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(f)
     f.set_defaults(func=cmd_fit)
 
+
+def _add_predict(sub) -> None:
+    """`identify predict`'s options."""
     q = sub.add_parser("predict", help="predict drop volume/velocity with uncertainty")
     q.add_argument("model")
     q.add_argument("--u1", type=_positive("--u1"), default=None, help="stroke velocity (um/ms)")
@@ -541,6 +563,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(q)
     q.set_defaults(func=cmd_predict)
 
+
+def _add_design(sub) -> None:
+    """`identify design`'s options."""
     d = sub.add_parser("design", help="find (u1, u2) for a target drop volume (and velocity)")
     d.add_argument("model")
     d.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
@@ -558,6 +583,9 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--json", action="store_true")
     d.set_defaults(func=cmd_design)
 
+
+def _add_tune(sub) -> None:
+    """`identify tune`'s options."""
     t = sub.add_parser("tune", help="closed loop: propose (u1, u2), fire a rig, measure, correct, until on target")
     t.add_argument("model")
     t.add_argument("--volume-nl", type=_positive("--volume-nl"), default=None,
@@ -596,6 +624,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_rerun_args(t)
     t.set_defaults(func=cmd_tune)
 
+
+def _add_paper(sub) -> None:
+    """`identify paper`'s options."""
     r = sub.add_parser("paper", help="published colour-ink model of the paper")
     r.add_argument("--u1", type=_positive("--u1"), required=True)
     r.add_argument("--u2", type=_positive("--u2"), required=True)
@@ -610,6 +641,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--json", action="store_true")
     r.set_defaults(func=cmd_paper)
 
+
+def _add_report(sub) -> None:
+    """`identify report`'s options."""
     g = sub.add_parser("report", help="figures and an HTML page of a model and its training dataset")
     g.add_argument("model")
     g.add_argument("--dataset", required=True, help="the training dataset folder")
@@ -622,6 +656,13 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--overwrite", action="store_true",
                    help="write into an existing --out that holds other files (those are kept)")
     g.set_defaults(func=cmd_report)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _Parser(prog="identify", description="Hybrid drop-formation models (Wang & Chiu)")
+    sub = p.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for add in (_add_fit, _add_predict, _add_design, _add_tune, _add_paper, _add_report):
+        add(sub)
     return p
 
 

@@ -51,3 +51,14 @@ def test_numbers_are_printed_to_meaningful_digits(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "pixel_size " in out
     assert not re.search(r"\d\.\d{6,}", out), out  # at most 4-5 significant digits anywhere
+
+
+def test_every_commands_help_prints():
+    """`dropvision measure --help` raised (a bare % in an option's help): every command's help formats."""
+    from identify.app.cli import build_parser as identify_parser
+
+    for parser in (build_parser(), identify_parser()):
+        commands = parser._subparsers._group_actions[0].choices
+        assert len(commands) >= 6
+        for name, sub in commands.items():
+            assert sub.prog.split()[-1] in sub.format_help(), name
