@@ -21,7 +21,7 @@ import numpy as np
 from dvcore import __version__
 from dropvision.calibrate.calibration import CalibrationError
 from dropvision.calibrate.inspection import nozzle_outer_width_px
-from dropvision.io.overrides import how_to_give
+from dropvision.io.overrides import from_command_line, how_to_give
 from dropvision.io.sequence import SEQUENCE_JSON, SequenceError, check_overrides, open_sequence
 from dropvision.io.sequence_writer import write_sequence_json
 
@@ -86,8 +86,6 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         spread = [seq.read(int(i)) for i in np.unique(np.round(np.linspace(0, n - 1, min(n, 7))).astype(int))]
         frames = [fr for fr in spread if fr.image is not None]
     first = frames[0] if frames else None
-    src = meta.sources
-    to_give: list[str] = []
     width_px, nozzle_note, nozzle_frames = None, "", 0
     if first is not None:
         try:
@@ -95,6 +93,15 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
                                                             max_value=2 ** meta.bit_depth - 1)
         except CalibrationError as exc:
             nozzle_note = f"not found in {len(frames)} frame(s) from {first.ref.file} ({exc})"
+    doc, to_give = _document(meta, given, labels, width_px)
+    lines = _summary_lines(folder, meta, given, width_px, nozzle_frames, nozzle_note, to_give)
+    return FolderDescription(folder, doc, to_give, lines, width_px)
+
+
+def _document(meta, given: dict, labels: dict, width_px) -> tuple[dict, list[str]]:
+    """The sequence.json that ``dropvision init`` writes for a folder, and what is left TO GIVE (null)."""
+    src = meta.sources
+    to_give: list[str] = []
     doc: dict = {}
     if "pixel_size_um" in given:
         doc["pixel_size_um"] = given["pixel_size_um"]
@@ -113,7 +120,7 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
     else:
         doc["waveform"] = None
         to_give.append("waveform: u1_um_per_ms and u2_um at least (" + (
-            "--u1-um-per-ms, --u2-um" if how_to_give("x", labels).startswith("--") else "waveform={...}")
+            "--u1-um-per-ms, --u2-um" if from_command_line(labels) else "waveform={...}")
             + "; needed by "
                        "dropvision campaign and identify, not by measure)")
     if "ink" in given:
@@ -126,7 +133,7 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         doc.update({k: given[k] for k in rate_keys if k in given})
     else:
         listed = sorted(meta.frames, key=lambda f: f.listed_index)
-        assumed = (src.get("delay") or "").startswith("assumed")
+        assumed = meta.delay_assumed
         # a value TO GIVE is written null (measure then assumes 0 us and says so), never a made-up 0.0
         doc["frames"] = [{"file": f.file, **({} if f.page is None else {"page": f.page}),
                           "delay_us": None if assumed else f.delay_us} for f in listed]
@@ -142,7 +149,13 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         "nozzle_outer_width_px": None if width_px is None else round(float(width_px), 2),  # a measured width: 0.01 px
         "to_give": to_give,
     }
-    # the one-screen summary
+    return doc, to_give
+
+
+def _summary_lines(folder, meta, given: dict, width_px, nozzle_frames: int, nozzle_note: str,
+                   to_give: list[str]) -> list[str]:
+    """The one-screen summary of what the images say and what is to give."""
+    src = meta.sources
     delays = meta.delays_us
     n = len(meta.frames)
     files = sorted({f.file for f in meta.frames})
@@ -173,7 +186,7 @@ def describe_folder(folder, overrides: dict | None = None, labels: dict | None =
         lines.append(f"  waveform   u1 {meta.waveform['u1_um_per_ms']:g} um/ms, u2 {meta.waveform['u2_um']:g} um")
     for item in to_give:
         lines.append(f"  TO GIVE    {item}")
-    return FolderDescription(folder, doc, to_give, lines, width_px)
+    return lines
 
 
 def init_sequence(folder, overrides: dict | None = None, labels: dict | None = None, *,
@@ -195,7 +208,7 @@ def init_sequence(folder, overrides: dict | None = None, labels: dict | None = N
         The folder holds a sequence.json (without ``overwrite``), or `describe_folder` fails.
     """
     json_path = Path(folder) / SEQUENCE_JSON
-    give = "--overwrite" if how_to_give("x", labels).startswith("--") else "overwrite=True"  # the caller's words
+    give = "--overwrite" if from_command_line(labels) else "overwrite=True"  # the caller's words
     if not overwrite and (json_path.exists() or json_path.is_symlink()):
         raise SequenceError(f"{json_path}: exists; dropvision init never replaces a sequence.json "
                             f"({give} replaces it)")

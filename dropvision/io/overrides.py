@@ -180,10 +180,15 @@ def validate_diameters(d_in, d_out, where: str) -> tuple[float | None, float | N
 CALLER_KEY = "_caller"
 
 
+def from_command_line(labels: dict | None) -> bool:
+    """Whether the caller is the command line (its option labels carry ``CALLER_KEY``), not Python."""
+    return (labels or {}).get(CALLER_KEY) == "command line"
+
+
 def how_to_give(key: str, labels: dict | None) -> str:
     """How the caller gives sequence.json key ``key``: the option (``--pixel-size-um``) on the command
     line, the keyword argument (``pixel_size_um=``) in Python."""
-    if (labels or {}).get(CALLER_KEY) == "command line":
+    if from_command_line(labels):
         return "--" + key.replace("_", "-")
     return f"{key}="
 

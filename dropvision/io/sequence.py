@@ -438,9 +438,10 @@ def _document_keys(d: _Document) -> _Keys:
 
 
 def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: bool, only_files,
-                 labels: dict) -> tuple[list, str]:
+                 labels: dict) -> tuple[list, str, bool]:
     """The listed frames (a recording at frame_rate_hz, sequence.json's frames, or the folder's
-    images) with their delays, and where the delays come from (``sources["delay"]``)."""
+    images) with their delays, where the delays come from (``sources["delay"]``), and whether the
+    delay of a lone frame was assumed (0 µs: ``SequenceMeta.delay_assumed``)."""
     doc, folder = d.doc, d.folder
     only = None if only_files is None else frozenset(str(f) for f in only_files)
     rate = read_frame_rate(doc, d.where_of("frame_rate_hz")) if doc is not None else None
@@ -469,7 +470,8 @@ def _list_frames(d: _Document, given: dict, refused: dict, allow_outside_links: 
         listed[0].delay_us = 0.0
         delay_source = ("assumed 0 us: one frame without a delay in its name or metadata "
                         "(give delay_us: --delay-us on the command line, or sequence.json frames)")
-    return listed, delay_source
+        return listed, delay_source, True
+    return listed, delay_source, False
 
 
 def _given_pixel_size(d: _Document, listed: list, refused: dict, d_out: float | None, require_pixel_size: bool,
@@ -631,7 +633,7 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                # who opened it (`dropvision.io.overrides.how_to_give`): later messages name its options or arguments
                "caller": labels.get("_caller")}
     refused: dict[str, str] = {}
-    listed, sources["delay"] = _list_frames(d, given, refused, allow_outside_links, only_files, labels)
+    listed, sources["delay"], delay_assumed = _list_frames(d, given, refused, allow_outside_links, only_files, labels)
     pixel_size_um, source = _given_pixel_size(d, listed, refused, keys.d_out, require_pixel_size, labels)
     refs, reordered = _frame_refs(listed)
 
@@ -660,10 +662,11 @@ def open_sequence(path, *, allow_outside_links: bool = False, overrides: dict | 
                         None if tip_c is None else float(tip_c),
                         None if axis_c is None else float(axis_c),
                         orientation, keys.waveform, keys.ink, tuple(refs), canonical_shape, bit_depth,
-                        reordered, keys.extra, source, sources, orientation_assumed=orientation_assumed)
+                        reordered, keys.extra, source, sources, orientation_assumed=orientation_assumed,
+                        delay_assumed=delay_assumed)
     seq = Sequence(meta, first_img.dtype, refused)
     if pixel_size_um is None:
-        from dropvision.calibrate.inspection import pixel_size_from_nozzle_width  # the calibration's rule, loaded when needed
+        from dropvision.calibrate.inspection import pixel_size_from_nozzle_width  # loaded when needed
 
         seq.meta = pixel_size_from_nozzle_width(seq.meta, _nozzle_frames(seq, first_img, first_ref), first_ref.file,
                                                 d.where_of("nozzle_outer_diameter_um"))

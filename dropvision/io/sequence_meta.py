@@ -92,6 +92,8 @@ class SequenceMeta:
     orientation_assumed: bool = False
     #: The pixel size is the nozzle's outer diameter over its measured width (no pixel size given).
     pixel_size_from_nozzle: bool = False
+    #: One frame without a delay anywhere: 0 µs is assumed (``sources["delay"]`` says so).
+    delay_assumed: bool = False
 
     @property
     def delays_us(self) -> np.ndarray:
