@@ -39,7 +39,7 @@ docs: $(DOCS_STAMP)
 
 # the quick loop while changing code: every test but those marked slow (pyproject.toml), under 60 s on 2 cores
 test-fast: $(TEST_STAMP)
-	$(BIN)/python -m pytest -n 2 -q -m "not slow"
+	$(BIN)/python -m pytest -n 2 -q -m "not slow and not docs"
 
 # needs the demo's out/*.rrd (the tool says so, exit 2, when there are none) and a Vulkan driver
 screenshots: $(STAMP)
