@@ -54,6 +54,7 @@ from typing import Callable
 import numpy as np
 import pandas as pd
 
+from dvcore.robust import MAD_TO_SIGMA
 from identify.tabular import TabularError, TabularModel, TabularParameterError
 
 __all__ = ["Target", "parse_targets", "candidates", "TableDesign", "design_table", "TableTuningResult",
@@ -69,8 +70,6 @@ COUNT_PRIOR_SHOTS = 2.0
 #: A shot's offset farther than this many standard deviations from the expected one is down-weighted
 #: to count as this far (a robust, Huber-like update).
 ROBUST_Z = 3.0
-#: Median absolute deviation to standard deviation of a normal law.
-MAD_TO_STD = 1.4826
 #: The columns of a tuning table that are not named after the model's inputs and outputs.
 FIXED_COLUMNS = ("shot", "probability_on_target", "feasible", "outside_training_region", "within_tolerance")
 
@@ -176,7 +175,7 @@ class _Surface:
             if t.kind == "continuous":
                 parts = model.fitted_scale(t.output, X)
                 self.fit[t.output] = parts["fit"]
-                self.drop_sd[t.output] = MAD_TO_STD * parts["scale"]
+                self.drop_sd[t.output] = MAD_TO_SIGMA * parts["scale"]
                 self.fit_sd[t.output] = parts["fit_std"]
                 self.log[t.output] = parts["log"]
                 self.q[t.output] = (parts["q_lo"], parts["q_hi"])
@@ -555,8 +554,8 @@ def _continuous_record(t, i: int, value: float, surface: _Surface, offsets, var,
         f"{o}_target": t.value,
         f"{o}_predicted": back(f),
         f"{o}_corrected": back(mu),
-        f"{o}_one_drop_low": back(mu + q_lo / MAD_TO_STD * sd),
-        f"{o}_one_drop_high": back(mu + q_hi / MAD_TO_STD * sd),
+        f"{o}_one_drop_low": back(mu + q_lo / MAD_TO_SIGMA * sd),
+        f"{o}_one_drop_high": back(mu + q_hi / MAD_TO_SIGMA * sd),
         o: value,
         f"{o}_error_percent": err,
         f"{o}_bias_percent": 100.0 * bias(float(after[0])),

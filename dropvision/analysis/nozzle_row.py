@@ -52,7 +52,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from dropvision.robust import robust_sigma
+from dvcore.robust import MAD_TO_SIGMA, robust_sigma
 
 #: A plate spans at least this fraction of the frame's top row.
 PLATE_MIN_WIDTH = 0.9
@@ -124,7 +124,7 @@ def find_plate(t: np.ndarray, threshold: float = 0.5) -> Plate | None:
             return None
         coef = np.polyfit(cols[keep], edge[keep], 1)
         res = edge - np.polyval(coef, cols)
-        keep = np.abs(res) < max(3.0 * 1.4826 * np.median(np.abs(res[keep])), 0.3)
+        keep = np.abs(res) < max(3.0 * MAD_TO_SIGMA * np.median(np.abs(res[keep])), 0.3)
     straight = np.abs(res) < 3.0
     if straight.sum() < PLATE_MIN_STRAIGHT * w:
         return None
@@ -471,14 +471,14 @@ def _grid(cols: np.ndarray, pitch_px: float | None) -> tuple[float, float, np.nd
                              for i in range(c.size)]))
     c0 = float(np.median(c - p * k))  # robust start: a deviated nozzle does not pull it
     res = c - (c0 + p * k)
-    inl = np.abs(res) <= max(3.0 * 1.4826 * float(np.median(np.abs(res))), 1.0)
+    inl = np.abs(res) <= max(3.0 * MAD_TO_SIGMA * float(np.median(np.abs(res))), 1.0)
     for _ in range(3):
         if pitch_px is None and np.unique(k[inl]).size >= 2:
             p, c0 = np.polyfit(k[inl], c[inl], 1)
         else:
             c0 = float(np.mean(c[inl] - p * k[inl]))
         res = c - (c0 + p * k)
-        s = 1.4826 * float(np.median(np.abs(res[inl])))
+        s = MAD_TO_SIGMA * float(np.median(np.abs(res[inl])))
         inl = np.abs(res) <= max(3.0 * s, 1.0)
     dof = int(inl.sum()) - (2 if pitch_px is None else 1)
     rms = float(np.sqrt(np.sum(res[inl] ** 2) / dof)) if dof > 0 else float("nan")

@@ -37,7 +37,7 @@ from dropvision.analysis.plausibility import (attached_volume_outliers, check_no
                                      growth_short_at_max_stroke, implausible_velocity, mean_at_last_attached_delay,
                                      pinchoff_before_dead_time, pinchoff_before_stroke_end)
 from dropvision.quality import UNTRUSTED_INTENSITY_FLAGS
-from dropvision.robust import robust_sigma
+from dvcore.robust import robust_sigma
 from dropvision.analysis.tracking import DropTrack, LineFit, fit_line, track_main_drop
 from dvcore import schema
 from dvcore.versions import software_versions
@@ -470,7 +470,7 @@ LOCAL_SCATTER_DIFFERENCES = 21
 #: = k / 2.31`` independent values.
 THIRD_DIFFERENCE_SHARE = 1.0 + 2.0 * (0.75 ** 2 + 0.3 ** 2 + 0.05 ** 2)
 #: Asymptotic efficiency of the median absolute deviation against the standard deviation for
-#: Gaussian values (`dropvision.robust.robust_sigma`): a spread read off ``k`` values by it is as
+#: Gaussian values (`dvcore.robust.robust_sigma`): a spread read off ``k`` values by it is as
 #: sure as a standard deviation of ``0.37 k``.
 MAD_EFFICIENCY = 0.3675
 

@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 
-from dropvision.robust import robust_sigma
+from dvcore.robust import MAD_TO_SIGMA, robust_sigma
 from dropvision.frame.segmentation import fill_holes
 
 if TYPE_CHECKING:
@@ -103,7 +103,7 @@ def _fit_smooth(values: np.ndarray, valid: np.ndarray, degree: int, step: int) -
     for _ in range(4):
         coef, *_ = np.linalg.lstsq(a[keep], v[keep], rcond=None)
         r = v - a @ coef
-        sigma = 1.4826 * np.median(np.abs(r[keep])) + 1e-3 * np.median(v)
+        sigma = MAD_TO_SIGMA * np.median(np.abs(r[keep])) + 1e-3 * np.median(v)
         new = np.abs(r) < 4 * sigma
         if np.array_equal(new, keep):
             break

@@ -34,6 +34,7 @@ import cv2
 import numpy as np
 
 import dropvision.quality as q
+from dvcore.robust import MAD_TO_SIGMA
 from dropvision.calibrate.background import NoNozzleError, median_by_selection
 from dropvision.calibrate.blur import edge_sigma_px, esf_sigma_px
 from dropvision.frame.bodies import hanging_columns, measure_attached
@@ -1002,7 +1003,7 @@ def transmission_noise(transmission: np.ndarray, default: float) -> float:
     bright = transmission > 0.9
     d = np.diff(transmission, axis=1)[bright[:, 1:] & bright[:, :-1]]
     if d.size > 100:  # np.median's values, by selection within a bracket (speed only)
-        return float(1.4826 * median_by_selection(np.abs(d - median_by_selection(d))) / np.sqrt(2.0))
+        return float(MAD_TO_SIGMA * median_by_selection(np.abs(d - median_by_selection(d))) / np.sqrt(2.0))
     return default
 
 

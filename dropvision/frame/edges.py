@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dropvision.robust import robust_sigma
+from dvcore.robust import robust_sigma
 
 #: Edge level used when nothing is known of the interior (an opaque interior, level 0).
 DEFAULT_EDGE_THRESHOLD = 0.5

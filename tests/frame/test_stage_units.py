@@ -23,7 +23,7 @@ from dropvision.frame.bodies import TIP_MEDIAN_FACTOR, DetachedBody, _plane_sigm
 from dropvision.calibrate.blur import esf_sigma_px
 from dropvision.calibrate.calibration_pass import attached_half_width_px
 from dropvision.analysis.pinchoff import end_tails_transmission, isolated_detached, pinchoff_delay
-from dropvision.robust import robust_sigma
+from dvcore.robust import robust_sigma
 from dropvision.analysis.sequence_summary import frame_scatter_ratio, grown_uncertainty
 from test_measure_draw import cylinder, render
 

@@ -1,4 +1,4 @@
-"""Robust statistics shared by the measurement layer."""
+"""Robust statistics shared by both packages (the Gaussian scale of a median absolute deviation)."""
 
 from __future__ import annotations
 
