@@ -109,16 +109,20 @@ def test_the_rules_decide_before_the_progress_bar(monkeypatch):
     the fork); where they allow it the workers are forked, also before the bar."""
     calls = []
     monkeypatch.setattr(P, "processes_usable", lambda n, w, min_items: calls.append("decided") or True)
+    before: set = set()
 
     def bar(n):
-        calls.append(("bar", n, len(multiprocessing.active_children())))
+        # the children forked by this call (an earlier pool's workers may still be exiting)
+        calls.append(("bar", n, len({c.pid for c in multiprocessing.active_children()} - before)))
         return None
 
+    before = {c.pid for c in multiprocessing.active_children()}
     out = list(P.map_in_order(_square_and_pid, range(10), 2, progress=bar))
     assert calls == ["decided", ("bar", 10, 2)]
     assert os.getpid() not in {pid for _, pid in out}
     calls.clear()
     monkeypatch.setattr(P, "processes_usable", lambda n, w, min_items: calls.append("decided") and False)
+    before = {c.pid for c in multiprocessing.active_children()}
     out = list(P.map_in_order(_square_and_pid, range(10), 2, progress=bar))
     assert calls == ["decided", ("bar", 10, 0)] and {pid for _, pid in out} == {os.getpid()}
 
