@@ -1,13 +1,15 @@
 """Accuracy of `dropvision measure` against the synthesizer's exact truth, over a sweep.
 
     python tools/accuracy_report.py [--full] [--tier clean|realism|all] [--case NAME ...] [--seeds N]
-                                    [--seed-offset K] [--out report.csv]
+                                    [--phases] [--seed-offset K] [--out report.csv]
 
 Each run ends with a table of the stated uncertainties against the truth: per case, the median
 |error| / u and the share within +-2u of the attached, grown and main-drop volumes (`*` where the
 median is outside [0.3, 1.0] or the share below 0.95); ``--case`` runs single cases, ``--seeds``
 and ``--seed-offset`` other noise draws of the same cases (with several seeds, each case's median
-over them: a single-frame case has one frame a seed).
+over them: a single-frame case has one frame a seed), ``--phases`` with them other sub-pixel
+positions of the nozzle (`with_phase`: the frames of one sequence share where its tip plane cuts a
+row, and only other sequences sample that error).
 
 Renders each case of the sweep (waveforms, noise, blur, tilt, bit depth, fall-off, dust,
 satellites, repeated frames) into a temporary folder, measures it and compares with
@@ -41,6 +43,7 @@ raised).
 from __future__ import annotations
 
 import argparse
+import math
 import json
 import sys
 import tempfile
@@ -341,12 +344,35 @@ def run_case(kw: dict, workdir) -> dict:
     return out
 
 
+#: Default nozzle position of the synthesizer (its tip row; the axis column is the frame's middle less 0.4 px).
+_DEFAULT_TIP_ROW = 59.4
+
+
+def with_phase(kw: dict, k: int, rig: str | None = None) -> dict:
+    """``kw`` with the nozzle's sub-pixel position of draw ``k``: the tip row and axis column at
+    fractions ``(0.4 + 0.618 k) mod 1`` and ``(0.6 + 0.382 k) mod 1`` of a pixel past their
+    presets' whole pixels (draw 0 keeps the presets' .4 / .6).  Where the tip plane cuts a row is an
+    error common to a whole sequence: the frames of one sequence draw it once, and only sequences
+    of other phases judge its uncertainty."""
+    from dropvision.synth.config import RIGS
+
+    base = {**RIGS.get(rig, {}), **kw} if rig is not None else dict(kw)
+    tip = float(base.get("tip_row", _DEFAULT_TIP_ROW))
+    axis = base.get("axis_col")
+    if axis is None:
+        axis = base.get("width_px", 640) / 2.0 - 0.4
+    return {**kw, "tip_row": math.floor(tip) + (0.4 + 0.618034 * k) % 1.0,
+            "axis_col": math.floor(float(axis)) + (0.6 + 0.381966 * k) % 1.0}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--full", action="store_true", help="640x1024 frames every 10 us (slower)")
     ap.add_argument("--tier", choices=("clean", "realism", "all"), default="all",
                     help="clean sweep, realism tier (rig presets), or both (default)")
-    ap.add_argument("--seeds", type=int, default=1, help="realism tier: render each case with this many seeds")
+    ap.add_argument("--seeds", type=int, default=1, help="render each case with this many seeds")
+    ap.add_argument("--phases", action="store_true",
+                    help="with --seeds: each seed also moves the nozzle by a fraction of a pixel (`with_phase`)")
     ap.add_argument("--seed-offset", type=int, default=0,
                     help="add this to every case's seed (another noise draw of the same cases)")
     ap.add_argument("--case", action="append", default=[], metavar="NAME",
@@ -363,8 +389,11 @@ def main(argv=None) -> int:
             if args.case and name not in args.case:
                 continue
             for k in range(args.seeds):
+                kwk = {**kw, "seed": kw.get("seed", 0) + 100 * k + args.seed_offset}
+                if args.phases:
+                    kwk = with_phase(kwk, k, kw.get("rig", name))
                 with tempfile.TemporaryDirectory() as tmp:
-                    r = run_realism_case(name, {**kw, "seed": kw.get("seed", 0) + 100 * k + args.seed_offset}, tmp)
+                    r = run_realism_case(name, kwk, tmp)
                 r["case"] = name if args.seeds == 1 else f"{name}#{k}"
                 rrows.append(r)
                 print(f"realism {r['case']}: " + ", ".join(f"{key} {v:.3g}" if isinstance(v, float) else f"{key} {v}"
@@ -382,15 +411,18 @@ def main(argv=None) -> int:
     for name, kw in cases(args.full).items():
         if args.case and name not in args.case:
             continue
-        kw = {**kw, "seed": kw.get("seed", 0) + args.seed_offset}
-        with tempfile.TemporaryDirectory() as tmp:
-            r = run_case(kw, tmp)
-        r["case"] = name
-        rows.append(r)
-        print(f"{name}: grown max {r['grown_max_pct']:.3f} % median {r['grown_median_pct']:.3f} %, drop max "
-              f"{r['drop_max_pct']:.3f} %, in-flight {r['inflight_pct']:+.3f} %, velocity {r['velocity_pct']:+.3f} %, "
-              f"pinch-off {'ok' if r['pinchoff_ok'] else 'WRONG'}, satellites {'ok' if r['satellites_ok'] else 'WRONG'}, "
-              f"dust {'ok' if r['dust_ok'] else 'WRONG'} ({r['measure_s']:.2f} s)", flush=True)
+        for k in range(args.seeds):
+            kwk = {**kw, "seed": kw.get("seed", 0) + 100 * k + args.seed_offset}
+            if args.phases:
+                kwk = with_phase(kwk, k)
+            with tempfile.TemporaryDirectory() as tmp:
+                r = run_case(kwk, tmp)
+            r["case"] = name if args.seeds == 1 else f"{name}#{k}"
+            rows.append(r)
+            print(f"{r['case']}: grown max {r['grown_max_pct']:.3f} % median {r['grown_median_pct']:.3f} %, drop max "
+                  f"{r['drop_max_pct']:.3f} %, in-flight {r['inflight_pct']:+.3f} %, velocity {r['velocity_pct']:+.3f} %, "
+                  f"pinch-off {'ok' if r['pinchoff_ok'] else 'WRONG'}, satellites {'ok' if r['satellites_ok'] else 'WRONG'}, "
+                  f"dust {'ok' if r['dust_ok'] else 'WRONG'} ({r['measure_s']:.2f} s)", flush=True)
     table = pd.DataFrame(rows).set_index("case") if rows else pd.DataFrame()
     with pd.option_context("display.width", 200, "display.max_columns", 50):
         print(table.T.to_string(float_format=lambda v: f"{v:.4g}"))

@@ -56,6 +56,8 @@ class Geometry:
         (`dropvision.calibrate.nozzle.protruding_columns`).
     face_liquid_seen : bool
         Liquid was seen hanging from that face in focus in a calibration frame: a dark bump there is liquid.
+    nozzle_outer_px : float
+        The nozzle's outer width at its tip (px; NaN without a nozzle).
     """
 
     row0_px: int
@@ -70,6 +72,7 @@ class Geometry:
     face_row0_px: float = float("nan")
     face_slope: float = 0.0
     face_liquid_seen: bool = False
+    nozzle_outer_px: float = float("nan")
 
     @classmethod
     def from_calibration(cls, cal: Calibration, config: MeasureConfig, attached_half_width_px: float = 0.0,
@@ -102,7 +105,8 @@ class Geometry:
         face_row0, face_slope = face if face is not None else (float("nan"), 0.0)
         return cls(row0_px=row0, col0_px=col0, col1_px=col1, frame_height_px=h, frame_width_px=w,
                    tip_row=cal.tip_row, axis_col=cal.axis_col, tilt_rad=cal.tilt_rad, pixel_size_um=cal.pixel_size_um,
-                   face_row0_px=face_row0, face_slope=face_slope, face_liquid_seen=face_liquid_seen)
+                   face_row0_px=face_row0, face_slope=face_slope, face_liquid_seen=face_liquid_seen,
+                   nozzle_outer_px=float(cal.nozzle_outer_diameter_px))
 
     def crop(self, image: np.ndarray) -> np.ndarray:
         """The region of interest of a full frame (a view)."""

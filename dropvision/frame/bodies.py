@@ -220,12 +220,14 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
             return nothing_hangs(ed, integrate(ed, geo.tilt_rad, geo.tip_roi, 0.0).volume_px3 * geo.nl_per_px3)
     span = plane_span_chord_px(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
     clip_to_tip_plane(ed, geo.tip_roi, geo.axis_roi, geo.tilt_rad)
-    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px), plane_span_px=span)
+    walls_in_focus = not (np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0)
+    # the walls' width, against which the row holding the tip plane is judged (in-focus walls only)
+    walls = geo.nozzle_outer_px if walls_in_focus and not np.isfinite(geo.face_row0_px) else float("nan")
+    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px, walls), plane_span_px=span)
     # with the holder's face line known, the halo's rows were placed against their own background
     # (`edges_in_the_halo`): the halo no longer moves them, and their noise is in the random part
     near = (0.0 if np.isfinite(geo.face_row0_px)
             else out_of_focus_nozzle_px3(bv, ctx.blur.nozzle_sigma_px) * geo.nl_per_px3)
-    walls_in_focus = not (np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0)
     halo = face_halo_px3(bv, ctx.blur.calibrated_sigma_px) * geo.nl_per_px3 if walls_in_focus else 0.0
     return AttachedLiquid(volume_nl=bv.volume_px3 * geo.nl_per_px3, bottom_row=bv.bottom_row,
                           neck_px=neck_chord_px(ed, geo.tip_roi), leaves=body.y1 >= roi.shape[0], edges=ed,

@@ -140,6 +140,28 @@ def test_row_weights_integrate_the_length_below_the_plane(top):
     assert vo.row_weights(rows, None).tolist() == [1.0] * rows.size
 
 
+def test_plane_row_showing_the_walls_is_given_to_the_next_row():
+    # the plane 0.02 px above row 9's centre; row 9 still dark across the walls (76 px) although its
+    # centre lies below: its 0.52 of a row goes to row 10, the liquid, as when its centre lies above
+    rows = np.arange(9, 14)
+    top = 8.98
+    walls = _edges(rows, [76.0, 35.0, 26.0, 18.0, 8.0])
+    liquid = _edges(rows, [42.0, 35.0, 26.0, 18.0, 8.0])
+    assert vo.plane_row_holds_wall(walls, top, 76.0) and not vo.plane_row_holds_wall(liquid, top, 76.0)
+    quarter_pi = math.pi / 4
+    rest = quarter_pi * (26.0**2 + 18.0**2 + 8.0**2)
+    assert vo.integrate(walls, 0.0, top, 0.0, 76.0).volume_px3 == pytest.approx(
+        quarter_pi * 35.0**2 * (1.0 + 9.5 - top) + rest, rel=1e-12)
+    assert vo.integrate(liquid, 0.0, top, 0.0, 76.0).volume_px3 == pytest.approx(
+        quarter_pi * (42.0**2 * (9.5 - top) + 35.0**2) + rest, rel=1e-12)
+    # without the walls' width (an out-of-focus holder) or with liquid wider than the walls below
+    # the face, the row is the liquid's: the rule of `row_weights` alone
+    assert not vo.plane_row_holds_wall(walls, top, float("nan"))
+    assert not vo.plane_row_holds_wall(_edges(rows, [80.0, 78.0, 70.0, 60.0, 40.0]), top, 76.0)
+    # a plane above the row's centre: row_weights gives the row away already
+    assert not vo.plane_row_holds_wall(walls, 9.2, 76.0)
+
+
 def test_integrate_cylinder_exact_with_tilt_and_plane():
     ed = _edges(np.arange(20, 60), np.full(40, 14.0), centre=33.25)
     bv = vo.integrate(ed)
@@ -276,7 +298,8 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     body = sg.find_nozzle_body(seg.bodies, 80.0)
     ctx = SimpleNamespace(
-        geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan),
+        geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan,
+                                 nozzle_outer_px=40.0),
         photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=np.nan,
                                    noise_transmission=0.0, smoothing_sigma_px=0.0),
         blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
