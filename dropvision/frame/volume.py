@@ -83,6 +83,50 @@ def plane_row_holds_wall(edges: RowEdges, top_px: float | None, wall_chord_px: f
     return bool(c0 - below > 0.5 * (wall_chord_px - below))
 
 
+def plane_end_px3(edges: RowEdges, weights: np.ndarray, top_px: float | None, tilt_rad: float = 0.0) -> float:
+    """Volume (px^3) to add to the first row below a plane for the slice's change across the piece it stands for.
+
+    The first weighted row (centre ``s`` px below the plane) stands for the whole piece from the
+    plane down to its lower boundary, ``s + 1/2`` long (`row_weights`), but its slice is the one at
+    ``s``, not at the piece's middle ``(s + 1/2) / 2``.  Where the slice changes fast (a resting
+    meniscus 3 px tall: its chord 42 px at the orifice, 35 and 26 px one and two rows down), the
+    midpoint rule's error there is the piece's length times the slope of the slice area (the next
+    row's less this row's) times ``s`` less the middle: on the synthetic meniscus with the plane
+    0.25 px below a row centre, -0.010 nl of its 0.24 nl.  The slice is taken as linear through the
+    two rows (one run each); 0 without a plane or such rows, where the line would give a negative
+    slice at the plane, or where a tilted plane rises more than half a row across the first row
+    (`clip_to_tip_plane` cuts those rows, and `plane_cut_uncertainty_px3` states their slab).
+    """
+    if top_px is None or edges.row.size == 0:
+        return 0.0
+    on = weights > 0
+    if not np.any(on):
+        return 0.0
+    first = int(edges.row[on].min())
+    this, nxt = edges.row == first, edges.row == first + 1
+    if this.sum() != 1 or nxt.sum() != 1 or weights[nxt][0] != 1.0:
+        return 0.0
+    c0, c1 = float(edges.chord_px[this][0]), float(edges.chord_px[nxt][0])
+    if abs(math.tan(tilt_rad)) * c0 > 0.5 or c0 <= 0 or c1 <= 0:
+        return 0.0
+    cos_t = math.cos(tilt_rad)
+    a0, a1 = math.pi * 0.25 * c0 * c0 * cos_t, math.pi * 0.25 * c1 * c1 * cos_t
+    s = first - top_px
+    length = float(weights[this][0])  # s + 1/2
+    if a0 + (a0 - a1) * s < 0:
+        return 0.0
+    return float(length * (a0 - a1) * (s - 0.5) * 0.5)
+
+
+def _on_first_row(edges: RowEdges, weights: np.ndarray, px3: float) -> np.ndarray:
+    """``px3`` placed on the first weighted row's run (zeros elsewhere; all zeros for 0)."""
+    out = np.zeros(edges.row.size)
+    if px3 != 0.0:
+        on = weights > 0
+        out[np.flatnonzero(on & (edges.row == edges.row[on].min()))[0]] = px3
+    return out
+
+
 @dataclass
 class BodyVolume:
     """Disc-integrated volume and centroid of one body (pixel units, region coordinates)."""
@@ -183,6 +227,7 @@ def integrate(
     a = slice_areas_px2(edges, tilt_rad) * wts
     area = float(np.sum(np.maximum(edges.chord_px, 0.0) * wts))
     chord2 = float(np.sum(np.maximum(edges.chord_px, 0.0) ** 2 * wts))
+    a = a + _on_first_row(edges, wts, plane_end_px3(edges, wts, top_px, tilt_rad))
     vol = float(a.sum())
     c_vol = 0.0
     m_row = float((a * edges.row).sum())

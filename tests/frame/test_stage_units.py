@@ -150,16 +150,44 @@ def test_plane_row_showing_the_walls_is_given_to_the_next_row():
     assert vo.plane_row_holds_wall(walls, top, 76.0) and not vo.plane_row_holds_wall(liquid, top, 76.0)
     quarter_pi = math.pi / 4
     rest = quarter_pi * (26.0**2 + 18.0**2 + 8.0**2)
+
+    def piece(c0, c1, s0):
+        """The first row's piece, from the plane to the row's lower boundary (s0 + 1/2 long), at its
+        middle on the line through the first two rows' slices (`plane_end_px3`)."""
+        a0, a1 = quarter_pi * c0**2, quarter_pi * c1**2
+        return (s0 + 0.5) * (a0 + (a1 - a0) * ((s0 + 0.5) / 2 - s0))
+
     assert vo.integrate(walls, 0.0, top, 0.0, 76.0).volume_px3 == pytest.approx(
-        quarter_pi * 35.0**2 * (1.0 + 9.5 - top) + rest, rel=1e-12)
+        piece(35.0, 26.0, 10 - top) + rest, rel=1e-12)
     assert vo.integrate(liquid, 0.0, top, 0.0, 76.0).volume_px3 == pytest.approx(
-        quarter_pi * (42.0**2 * (9.5 - top) + 35.0**2) + rest, rel=1e-12)
+        piece(42.0, 35.0, 9 - top) + quarter_pi * 35.0**2 + rest, rel=1e-12)
     # without the walls' width (an out-of-focus holder) or with liquid wider than the walls below
     # the face, the row is the liquid's: the rule of `row_weights` alone
     assert not vo.plane_row_holds_wall(walls, top, float("nan"))
     assert not vo.plane_row_holds_wall(_edges(rows, [80.0, 78.0, 70.0, 60.0, 40.0]), top, 76.0)
     # a plane above the row's centre: row_weights gives the row away already
     assert not vo.plane_row_holds_wall(walls, 9.2, 76.0)
+
+
+@pytest.mark.parametrize("top", [9.7, 9.5, 10.2, 10.45])
+def test_first_row_below_the_plane_stands_for_its_piece_middle(top):
+    # a body whose slice area falls linearly, A(s) = 1000 - 100 s px^2 at s px below the plane: the
+    # midpoint rule is exact row by row, and the first row's piece (from the plane to its lower
+    # boundary) is integrated at its middle by the line through the first two rows
+    rows = np.arange(9, 19)
+    s = rows - top
+    area = np.clip(1000.0 - 100.0 * s, 0.0, None)
+    ed = _edges(rows, np.sqrt(4.0 * area / math.pi))
+    end = 18.5 - top
+    exact = 1000.0 * end - 50.0 * end * end
+    assert vo.integrate(ed, 0.0, top).volume_px3 == pytest.approx(exact, rel=1e-9)
+    # the uncorrected midpoint rule is off by the first piece's slope term (none with the plane on a
+    # row boundary, s = 1/2)
+    w = vo.row_weights(rows, top)
+    first = np.flatnonzero(w > 0)[0]
+    s0, length = s[first], w[first]
+    assert float(np.sum(area * w)) == pytest.approx(exact - length * 100.0 * (s0 - 0.5) / 2.0, rel=1e-9)
+    assert abs(length * 100.0 * (s0 - 0.5) / 2.0) > 1.0 or top == 9.5
 
 
 def test_integrate_cylinder_exact_with_tilt_and_plane():
