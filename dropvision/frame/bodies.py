@@ -134,7 +134,11 @@ class AttachedLiquid:
     common_uncertainty_nl, plane_uncertainty_nl : float
         Its parts from the edges' common error (blur correction included) and from the tip
         plane: a grown volume, a difference of two attached volumes, keeps only the difference
-        of the first and none of the second.
+        of the first and, of the second, the difference of its position part.
+    plane_position_uncertainty_nl : float
+        The tip plane's part from its place alone, the slice there times the plane's uncertainty
+        (`dropvision.frame.volume.plane_cut_uncertainty_px3` without a tilt): the same plane cuts
+        every frame, but a frame whose liquid is wider there than the rest's moves by more.
     """
 
     volume_nl: float
@@ -145,6 +149,7 @@ class AttachedLiquid:
     volume_uncertainty_nl: float = float("nan")
     common_uncertainty_nl: float = float("nan")
     plane_uncertainty_nl: float = float("nan")
+    plane_position_uncertainty_nl: float = float("nan")
     face_halo_nl: float = 0.0
 
 
@@ -236,6 +241,8 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                           plane_uncertainty_nl=float(np.hypot(plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx),
                                                                                          geo.tilt_rad) * geo.nl_per_px3,
                                                               near)),
+                          plane_position_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx))
+                          * geo.nl_per_px3,
                           face_halo_nl=float(halo))
 
 
@@ -303,7 +310,7 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
     face's halo below the face line (as much liquid could hide in it); ``edges`` kept for the viewer."""
     return AttachedLiquid(volume_nl=0.0, bottom_row=float("nan"), neck_px=float("nan"), leaves=False, edges=edges,
                           volume_uncertainty_nl=float(hidden_nl), common_uncertainty_nl=0.0,
-                          plane_uncertainty_nl=float(hidden_nl))
+                          plane_uncertainty_nl=float(hidden_nl), plane_position_uncertainty_nl=float(hidden_nl))
 
 
 #: The tip plane is the median of the wall annulus's 50 % crossings, at least two columns a side

@@ -526,6 +526,20 @@ def test_face_halo_counts_what_spreads_wider_than_the_rest():
     assert uah == pytest.approx([ua[0], math.hypot(ua[1], 0.003), ua[2]], rel=1e-9)
 
 
+def test_grown_volume_keeps_the_planes_position_part_where_the_liquid_is_wider_there():
+    """The tip plane's place moves every frame's volume by its slice there times the plane's error:
+    a grown volume keeps the difference of those parts from the rest's (0.030 - 0.020 nl at 10 us),
+    none where the slice is the rest's; the attached volumes are untouched."""
+    d, att = np.array([0.0, 10.0, 20.0]), np.array([1.0, 2.0, 3.0])
+    u, c, p = np.array([0.05, 0.06, 0.07]), np.array([0.03, 0.04, 0.05]), np.array([0.02, 0.04, 0.03])
+    grown = np.array([0.0, 1.0, 2.0])
+    u0, ug, ua = grown_uncertainty(d, att, u, c, p, grown)
+    u0p, ugp, uap = grown_uncertainty(d, att, u, c, p, grown, plane_position_u_nl=np.array([0.020, 0.030, 0.020]))
+    assert u0p == pytest.approx(u0) and ugp[0] == pytest.approx(ug[0]) and ugp[2] == pytest.approx(ug[2])
+    assert ugp[1] == pytest.approx(math.hypot(ug[1], 0.010), rel=1e-9)
+    assert uap == pytest.approx(ua, rel=1e-12)
+
+
 def test_face_halo_px3_by_hand():
     """pi (c/2)^2 sigma / 2 over the top chord c: 40 px at a blur of 1.2 px: pi 400 0.6; none without a blur."""
     from dropvision.frame.bodies import face_halo_px3
