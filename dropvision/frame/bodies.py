@@ -228,7 +228,8 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     walls_in_focus = not (np.isfinite(ctx.blur.nozzle_sigma_px) and ctx.blur.nozzle_sigma_px > 0)
     # the walls' width, against which the row holding the tip plane is judged (in-focus walls only)
     walls = geo.nozzle_outer_px if walls_in_focus and not np.isfinite(geo.face_row0_px) else float("nan")
-    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px, walls), plane_span_px=span)
+    bv = replace(integrate(ed, geo.tilt_rad, geo.tip_roi, ctx.blur.correction_sigma_px, walls, axis_col=geo.axis_roi),
+                 plane_span_px=span)
     # with the holder's face line known, the halo's rows were placed against their own background
     # (`edges_in_the_halo`): the halo no longer moves them, and their noise is in the random part
     near = (0.0 if np.isfinite(geo.face_row0_px)
