@@ -168,6 +168,9 @@ class Calibration:
     #: The tip row and the axis column were given (sequence.json or an option), not measured: nothing replaces them.
     tip_row_given: bool = False
     axis_col_given: bool = False
+    #: The wall crossings the tip plane is the median of (`dropvision.calibrate.nozzle.find_tip`; 0: not
+    #: from the walls' crossings).
+    tip_crossings: int = 0
 
     @property
     def pixel_size_relative_uncertainty(self) -> float:
@@ -321,7 +324,7 @@ def calibrate_frames(first: np.ndarray, spread: list[np.ndarray], pixel_size_um:
         nozzle_outer_diameter_um_measured=float(scale.outer_diameter_um),
         pixel_size_disagreement_percent=scale.disagreement_percent, background=bg, notes=notes,
         pixel_size_ratio=scale.ratio, pixel_size_ratio_uncertainty=scale.ratio_uncertainty, clipped=lit.clipped,
-        pixel_size_from_nozzle=from_nozzle)
+        pixel_size_from_nozzle=from_nozzle, tip_crossings=int(place.tip_crossings))
 
 
 @dataclass(frozen=True)
@@ -447,22 +450,23 @@ class TipAndAxis:
     axis_source: str
     tilt_rad: float
     tilt_source: str
+    tip_crossings: int = 0  # the wall crossings the plane is the median of (`find_tip`; 0: none)
 
 
 def tip_and_axis(t_first: np.ndarray, nozzle, threshold: float, inner_radius_px: float | None, *,
                  tip_row: float | None = None, axis_col: float | None = None) -> TipAndAxis:
     """The tip plane (`find_tip`) and the axis of the nozzle's outer walls' midline fit; a given
     ``tip_row`` or ``axis_col`` replaces what was found (the axis then taken at the given tip)."""
-    tip, tip_src = find_tip(t_first, nozzle, threshold, inner_radius_px)
+    tip, tip_src, crossings = find_tip(t_first, nozzle, threshold, inner_radius_px)
     axis = nozzle.axis_col(tip)
     axis_src = "nozzle outer walls midline fit"
     if tip_row is not None:
-        tip, tip_src = float(tip_row), "user (sequence.json nozzle_tip_row)"
+        tip, tip_src, crossings = float(tip_row), "user (sequence.json nozzle_tip_row)", 0
         axis = nozzle.axis_col(tip)
     if axis_col is not None:
         axis, axis_src = float(axis_col), "user (sequence.json axis_col)"
     return TipAndAxis(tip_row=tip, tip_source=tip_src, axis_col=axis, axis_source=axis_src,
-                      tilt_rad=nozzle.tilt_rad, tilt_source="nozzle outer walls midline fit")
+                      tilt_rad=nozzle.tilt_rad, tilt_source="nozzle outer walls midline fit", tip_crossings=crossings)
 
 
 def liquid_interior_level(spread: list[np.ndarray], bg: BackgroundModel, tip_row: float, threshold: float,

@@ -840,7 +840,8 @@ class InFocusAxis:
         """``cal`` with these values, its notes followed by these."""
         return replace(cal, axis_col=self.axis_col, axis_source=self.axis_source, tip_row=self.tip_row,
                        tip_source=self.tip_source, liquid_level=self.liquid_level, threshold=self.threshold,
-                       notes=cal.notes + self.notes)
+                       notes=cal.notes + self.notes,
+                       tip_crossings=cal.tip_crossings if self.tip_row == cal.tip_row else 0)
 
 
 def in_focus_axis(cal: Calibration, images, t_first: np.ndarray, geometry: Geometry,

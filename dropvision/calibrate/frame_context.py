@@ -58,6 +58,8 @@ class Geometry:
         Liquid was seen hanging from that face in focus in a calibration frame: a dark bump there is liquid.
     nozzle_outer_px : float
         The nozzle's outer width at its tip (px; NaN without a nozzle).
+    tip_crossings : int
+        The wall crossings the tip plane is the median of (``Calibration.tip_crossings``; 0: not so placed).
     """
 
     row0_px: int
@@ -73,6 +75,7 @@ class Geometry:
     face_slope: float = 0.0
     face_liquid_seen: bool = False
     nozzle_outer_px: float = float("nan")
+    tip_crossings: int = 0
 
     @classmethod
     def from_calibration(cls, cal: Calibration, config: MeasureConfig, attached_half_width_px: float = 0.0,
@@ -106,7 +109,7 @@ class Geometry:
         return cls(row0_px=row0, col0_px=col0, col1_px=col1, frame_height_px=h, frame_width_px=w,
                    tip_row=cal.tip_row, axis_col=cal.axis_col, tilt_rad=cal.tilt_rad, pixel_size_um=cal.pixel_size_um,
                    face_row0_px=face_row0, face_slope=face_slope, face_liquid_seen=face_liquid_seen,
-                   nozzle_outer_px=float(cal.nozzle_outer_diameter_px))
+                   nozzle_outer_px=float(cal.nozzle_outer_diameter_px), tip_crossings=int(cal.tip_crossings))
 
     def crop(self, image: np.ndarray) -> np.ndarray:
         """The region of interest of a full frame (a view)."""

@@ -362,8 +362,8 @@ def find_tip(
     nozzle: Nozzle,
     threshold: float,
     inner_radius_px: float | None = None,
-) -> tuple[float, str]:
-    """Sub-pixel row of the nozzle tip plane at the axis, and how it was found.
+) -> tuple[float, str, int]:
+    """Sub-pixel row of the nozzle tip plane at the axis, how it was found, and of how many crossings.
 
     Parameters
     ----------
@@ -380,6 +380,10 @@ def find_tip(
     tip_row : float
     source : str
         ``"wall annulus 50 % crossing"`` or ``"silhouette leaves the straight walls"``.
+    crossings : int
+        With the wall annulus: twice the fewer columns of a side whose crossings the side's
+        median is taken over (the plane is the mean of the two medians: of independent edge
+        errors it keeps ``sqrt(pi / 2 / crossings)`` of one edge's); 0 otherwise.
     """
     t = np.asarray(transmission, np.float32)
     h, w = t.shape
@@ -388,7 +392,7 @@ def find_tip(
     end = nozzle.straight_end_row
     lo = r_out * 0.6 if inner_radius_px is None else inner_radius_px + 1.5
     hi = r_out - 2.5
-    tips = {}
+    tips, counts = {}, {}
     if hi > lo:
         offsets = np.linspace(lo, hi, max(2, int(hi - lo) + 1))
         for side in (-1, 1):
@@ -403,8 +407,9 @@ def find_tip(
                     vals.append(y + (c - nozzle.axis_col(y)) * tan)
             if len(vals) >= 2:
                 tips[side] = float(np.median(vals))
+                counts[side] = len(vals)
     if len(tips) == 2 and abs(tips[-1] - tips[1]) < 1.0 and abs(0.5 * (tips[-1] + tips[1]) - end) < 4:
-        return 0.5 * (tips[-1] + tips[1]), "wall annulus 50 % crossing"
+        return 0.5 * (tips[-1] + tips[1]), "wall annulus 50 % crossing", 2 * min(counts.values())
     # silhouette departure from the straight wall lines: the deviation of the outer edges from
     # the fitted wall lines, extrapolated linearly back to zero from its first rows above 0.3 px
     rows = np.arange(end + 1, min(h, end + 60))
@@ -419,7 +424,7 @@ def find_tip(
         c0 = int(max(0, np.floor(cl - r_out)))
         c1 = int(min(w, np.ceil(cr + r_out)))
         if not np.any(row[c0:c1]):
-            return float(y - 0.5), "silhouette leaves the straight walls (ends)"
+            return float(y - 0.5), "silhouette leaves the straight walls (ends)", 0
         rr, s, e = runs(row[None, c0:c1])
         ed = subpixel_edges(t[y:y + 1, c0:c1], np.ones((1, c1 - c0), np.float32), np.zeros_like(s), s, e, threshold)
         dev = max(abs(ed.left_px.min() + c0 - cl), abs(ed.right_px.max() + c0 - cr))
@@ -436,10 +441,10 @@ def find_tip(
         slope, icpt = np.polyfit(ys[k], devs[k], 1)
         if slope > 0:
             y0 = -icpt / slope
-            return float(np.clip(y0, end - 1.0, ys[k[0]])), "silhouette leaves the straight walls"
+            return float(np.clip(y0, end - 1.0, ys[k[0]])), "silhouette leaves the straight walls", 0
     if sel.any():
-        return float(ys[np.argmax(sel)] - 0.5), "silhouette leaves the straight walls"
-    return float(end + 0.5), "end of the straight walls"
+        return float(ys[np.argmax(sel)] - 0.5), "silhouette leaves the straight walls", 0
+    return float(end + 0.5), "end of the straight walls", 0
 
 
 def outer_diameter_uncertainty_px(nozzle: Nozzle, edge_position_floor_px: float) -> float:

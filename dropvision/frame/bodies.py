@@ -316,8 +316,17 @@ def nothing_hangs(edges: RowEdges, hidden_nl: float) -> AttachedLiquid:
 
 #: The tip plane is the median of the wall annulus's 50 % crossings, at least two columns a side
 #: (`dropvision.calibrate.nozzle.find_tip`): of at least 4 edges' independent errors the median keeps at most
-#: ``sqrt(pi / 2) / sqrt(4)`` of one edge's.
+#: ``sqrt(pi / 2) / sqrt(4)`` of one edge's (`tip_median_factor` with the crossings counted).
 TIP_MEDIAN_FACTOR = math.sqrt(math.pi / 2.0) / 2.0
+
+
+def tip_median_factor(crossings: int) -> float:
+    """Share of one edge's independent error that the tip plane keeps: the mean of two sides'
+    medians over ``crossings`` wall crossings in all, ``sqrt(pi / 2 / crossings)`` (a median's
+    variance is pi/2 a mean's); `TIP_MEDIAN_FACTOR`, its value at 4 crossings, where fewer or none
+    were counted (a tip found otherwise, or given).  On the synthetic low-contrast rig, 26
+    crossings: 0.25 of an edge's, not 0.63."""
+    return math.sqrt(math.pi / 2.0 / crossings) if crossings >= 4 else TIP_MEDIAN_FACTOR
 
 
 #: An out-of-focus holder's face line is fitted to each column's lowest dark row, a whole row
@@ -328,13 +337,14 @@ FACE_ROW_RMS_PX = 1.0 / math.sqrt(3.0)
 
 def _plane_sigma_px(ctx: FrameContext) -> float:
     """How well the tip plane is placed (px): as an edge, the common error (`common_edge_sigma_px`)
-    and the median of its crossings' own errors (`TIP_MEDIAN_FACTOR` x `edge_noise_total_px`); with
+    and the median of its crossings' own errors (`tip_median_factor` x `edge_noise_total_px`); with
     the walls out of focus, the plane placed on the holder's face line to its whole rows
     (`FACE_ROW_RMS_PX`), or to the walls' blur where no face line is known."""
     nb = ctx.blur.nozzle_sigma_px if np.isfinite(ctx.blur.nozzle_sigma_px) else 0.0
     if nb > 0 and np.isfinite(ctx.geometry.face_row0_px):
         nb = FACE_ROW_RMS_PX
-    return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (TIP_MEDIAN_FACTOR * edge_noise_total_px(ctx)) ** 2
+    median = tip_median_factor(ctx.geometry.tip_crossings)
+    return float(math.sqrt(common_edge_sigma_px(ctx) ** 2 + (median * edge_noise_total_px(ctx)) ** 2
                            + nb * nb))
 
 

@@ -94,6 +94,8 @@ def test_calibration_recovers_tip_axis_tilt(tilt):
     assert cal.liquid_level == pytest.approx(0.12, abs=0.03)
     assert abs(cal.pixel_size_disagreement_percent) < 0.5
     assert cal.tip_source.startswith("wall annulus")
+    # the wall annulus between the bore (12 px) + 1.5 and the outer wall (20 px) - 2.5: 5 columns a side
+    assert cal.tip_crossings == 10
 
 
 def test_pendant_tip_from_silhouette():

@@ -327,7 +327,7 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     body = sg.find_nozzle_body(seg.bodies, 80.0)
     ctx = SimpleNamespace(
         geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan,
-                                 nozzle_outer_px=40.0),
+                                 nozzle_outer_px=40.0, tip_crossings=0),
         photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=np.nan,
                                    noise_transmission=0.0, smoothing_sigma_px=0.0),
         blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
@@ -347,13 +347,35 @@ def test_tip_plane_on_an_out_of_focus_face_placed_to_its_whole_rows():
     RMS 1/sqrt(3) px), not to the walls' blur; without a face line, to the blur."""
     def ctx(face_row0_px):
         return SimpleNamespace(
-            geometry=SimpleNamespace(face_row0_px=face_row0_px),
+            geometry=SimpleNamespace(face_row0_px=face_row0_px, tip_crossings=0),
             blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=5.5, edge_position_sigma_px=0.05,
                                  edge_noise_px=0.04, clip_light=None),
             config=SimpleNamespace(edge_position_floor_px=0.0))
     shared = 0.05 ** 2 + (TIP_MEDIAN_FACTOR * 0.04) ** 2
     assert _plane_sigma_px(ctx(120.0)) == pytest.approx(math.sqrt(shared + 1.0 / 3.0), rel=1e-12)
     assert _plane_sigma_px(ctx(float("nan"))) == pytest.approx(math.sqrt(shared + 5.5 ** 2), rel=1e-12)
+
+
+def test_tip_plane_keeps_the_share_of_an_edge_error_its_crossings_leave():
+    """The tip plane is the mean of two sides' medians over the wall crossings (`find_tip`): a Monte
+    Carlo of 20000 planes from 26 crossings (13 a side) of unit errors against sqrt(pi / 2 / 26);
+    4 crossings, or none counted, the bound `TIP_MEDIAN_FACTOR`; the calibration counts them."""
+    from dropvision.frame.bodies import tip_median_factor
+    rng = np.random.default_rng(3)
+    e = rng.normal(size=(20000, 2, 13))
+    planes = np.median(e, axis=2).mean(axis=1)
+    assert tip_median_factor(26) == pytest.approx(math.sqrt(math.pi / 52.0), rel=1e-12)
+    assert np.std(planes) == pytest.approx(tip_median_factor(26), rel=0.04)
+    assert tip_median_factor(4) == pytest.approx(TIP_MEDIAN_FACTOR, rel=1e-12) == tip_median_factor(0)
+
+    def ctx(crossings):
+        return SimpleNamespace(
+            geometry=SimpleNamespace(face_row0_px=float("nan"), tip_crossings=crossings),
+            blur=SimpleNamespace(correction_sigma_px=0.0, nozzle_sigma_px=0.0, edge_position_sigma_px=0.05,
+                                 edge_noise_px=0.3, clip_light=None),
+            config=SimpleNamespace(edge_position_floor_px=0.0))
+    assert _plane_sigma_px(ctx(26)) == pytest.approx(math.hypot(0.05, 0.3 * math.sqrt(math.pi / 52.0)), rel=1e-9)
+    assert _plane_sigma_px(ctx(0)) == pytest.approx(math.hypot(0.05, 0.3 * TIP_MEDIAN_FACTOR), rel=1e-9)
 
 
 # --- bodies beside the path, edge spread, attached half-width -----------------------------------
