@@ -305,6 +305,26 @@ MUTANTS: tuple[Mutant, ...] = (
            "    if body.touching:\n        return DetachedClass.TOUCHING", "    if False:\n        return DetachedClass.TOUCHING",
            ("tests/app/test_rerun.py::test_class_image_rejected_and_touching_bodies",),
            "the one body-class rule (bodies.detached_class) forgets a body split off the main drop"),
+    # --- issue 29, the tip plane's cut and its uncertainty -------------------------------------
+    Mutant("plane_row_wall_rule_off", "dropvision/frame/volume.py",
+           "            liquid &= rows != i0\n", "            pass\n",
+           ("tests/analysis/test_measure_accuracy.py::test_attached_volume_with_the_tip_plane_close_above_a_row_centre",),
+           "the row holding the tip plane read as liquid although its chord is the walls'"),
+    Mutant("plane_cut_horizontal", "dropvision/frame/volume.py",
+           "    if abs(sin) > 1e-12:\n        rk = np.sqrt(ak / np.pi)",
+           "    if False:\n        rk = np.sqrt(ak / np.pi)",
+           STAGE, "the discs near a tilted tip plane counted whole above the first whole row's boundary"),
+    Mutant("plane_end_line_dropped", "dropvision/frame/volume.py",
+           "    ak[up] = np.pi * (r2_at[0] + (r2_at[0] - r2_at[1]) / (s2 - s1) * (s1 - sk[up]))",
+           "    ak[up] = np.pi * r2_at[0]",
+           STAGE, "above the first edges the slice held at the first row's, not on the line through two"),
+    Mutant("grown_plane_position_dropped", "dropvision/analysis/sequence_summary.py",
+           "+ (position - p0) ** 2 + rand ** 2", "+ rand ** 2",
+           STAGE, "a grown volume drops the plane's position part where its liquid is wider at the plane"),
+    Mutant("tip_crossings_ignored", "dropvision/frame/bodies.py",
+           "return math.sqrt(math.pi / 2.0 / crossings) if crossings >= 4 else TIP_MEDIAN_FACTOR",
+           "return TIP_MEDIAN_FACTOR",
+           STAGE, "the tip plane's random part from the 4-crossing bound whatever the crossings"),
 )
 
 
