@@ -225,14 +225,16 @@ def cut_at_plane(edges: RowEdges, top_px: float, axis_col: float, tilt_rad: floa
     # the top part on the rows its discs' centres lie in (the first row of liquid for those above it)
     disc_row = np.maximum(np.floor(top_px + sk * cos + 0.5).astype(int), first)
     slice_area = np.pi * 0.25 * chord * chord * cos
+    run_chord = np.maximum(edges.chord_px, 0.0)
     for r in np.unique(disc_row):
-        on = np.flatnonzero(edges.row == r)
-        if on.size == 0:
-            continue
         share = float(slab[disc_row == r].sum())
-        vol[on[0]] += share
-        k = np.flatnonzero(rows == r)
-        run_w[on[0]] += share / float(slice_area[k[0]]) if k.size and slice_area[k[0]] > 0 else 0.0
+        if not np.any(liquid & (rows == r)):  # no liquid run there: the nearest row of liquid takes it
+            r = int(rows[idx[np.argmin(np.abs(rows[idx] - r))]])
+        on = np.flatnonzero(edges.row == r)
+        on = on[np.argmax(run_chord[on])]  # the row's widest run (not a wall's remnant beside it)
+        vol[on] += share
+        k = np.flatnonzero(rows == r)[0]
+        run_w[on] += share / float(slice_area[k]) if slice_area[k] > 0 else 0.0
     return vol, run_w
 
 
