@@ -209,8 +209,7 @@ def cut_at_plane(edges: RowEdges, top_px: float, axis_col: float, tilt_rad: floa
     ak = np.where(cnt > 0, np.pi * (tot / np.maximum(cnt, 1)) ** 2, 0.0)
     up = sk < s1
     ak[up] = np.pi * (r2_at[0] + (r2_at[0] - r2_at[1]) / (s2 - s1) * (s1 - sk[up]))
-    ak = np.maximum(ak, 0.0)
-    ak *= 1.0  # discs: no cos factor (perpendicular to the axis)
+    ak = np.maximum(ak, 0.0)  # discs perpendicular to the axis: no cos(tilt) factor
     # each disc's share above the horizontal y = y_J: y = top + s cos + n sin over the disc's n
     if abs(sin) > 1e-12:
         rk = np.sqrt(ak / np.pi)
