@@ -309,6 +309,8 @@ def _probe(timeout: float) -> tuple[bool, str]:
             raise ViewerBroken(f"the viewer probe failed: {type(exc).__name__}: {exc}") from exc
     if not isinstance(png, bytes) or not png.startswith(b"\x89PNG"):
         raise ViewerBroken(f"the viewer's screenshot is no PNG: {png[:16]!r}")
+    if rc is None:  # a timeout like any other: it had to be killed (a machine too busy to quit in time)
+        return (False, "the viewer took its screenshot but did not quit within 20 s (killed)")
     if rc != 0:
         raise ViewerBroken(f"the viewer exited with status {rc}")
     return (True, adapter.split(": ", 1)[-1].strip())
