@@ -157,6 +157,9 @@ class Calibration:
     #: rest_meniscus_width_px`; NaN: not measured).
     rest_meniscus_width_px: float = float("nan")
     rest_meniscus_delay_us: float = float("nan")
+    #: That width is the walls' outer width (to the two edges' blur): the liquid is pinned at the outer
+    #: edge (a pendant drop on a needle, a wetted face), and the width says nothing of the inner diameter.
+    rest_meniscus_at_outer_edge: bool = False
     #: The pixel size is the needle's (nozzle's) outer diameter over its outer width measured here
     #: (no pixel size given): nothing to check it against, and its uncertainty is stated.
     pixel_size_from_nozzle: bool = False
@@ -171,6 +174,9 @@ class Calibration:
     #: The wall crossings the tip plane is the median of (`dropvision.calibrate.nozzle.find_tip`; 0: not
     #: from the walls' crossings).
     tip_crossings: int = 0
+    #: The nozzle walls' own blur (Gaussian sigma, px) when they are out of focus (0: in focus): their
+    #: outer width is read to about that on each side (`dropvision.analysis.plausibility.check_pixel_size`).
+    nozzle_sigma_px: float = 0.0
 
     @property
     def pixel_size_relative_uncertainty(self) -> float:

@@ -142,7 +142,8 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         # the walls no longer judge a frame's blur or contrast, nor give the jet's axis
         if walls.nozzle is not None:
             cal = replace(cal, nozzle_out_of_focus=True, notes=cal.notes + (focus.note,),
-                          tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD, tilt_source=AXIS_ALONG_COLUMNS_SOURCE)
+                          tilt_rad=AXIS_ALONG_COLUMNS_TILT_RAD, tilt_source=AXIS_ALONG_COLUMNS_SOURCE,
+                          nozzle_sigma_px=float(focus.nozzle_sigma_px))
         axis = in_focus_axis(cal, images, t_first, geometry, photometry, config, focus)
         cal, face = axis.applied_to(cal), axis.face
         # the region of interest and its photometric reference (without the walls) anew
@@ -159,8 +160,13 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
         notes = (FACE_LIQUID_SEEN_NOTE,)
     rest = {}
     if walls.nozzle is not None and not focus.nozzle_out_of_focus:
-        rest = dict(rest_meniscus_width_px=rest_meniscus_width_px(first, ctx),
-                    rest_meniscus_delay_us=float(meta.delays_us[frames.first_index]))
+        width = rest_meniscus_width_px(first, ctx)
+        # as wide as the walls at the plane: pinned at their outer edge (a pendant drop, a wetted face),
+        # not at the orifice's inner edge; its two edges placed to about the blur each
+        outside = bool(np.isfinite(width) and width >= cal.nozzle_outer_diameter_px
+                       - 2.0 * max(float(ctx.blur.correction_sigma_px), 0.5))
+        rest = dict(rest_meniscus_width_px=width, rest_meniscus_delay_us=float(meta.delays_us[frames.first_index]),
+                    rest_meniscus_at_outer_edge=outside)
     cal = replace(cal, **unc.calibration_fields(), notes=cal.notes + notes, **rest)
     return cal, focus.calibrated_sigma_px, ctx
 
@@ -896,8 +902,12 @@ def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) 
 
     The attached liquid's outline in the rows wholly below the tip plane (at most ``rows``); a cap's
     squared chord is nearly linear in the depth, so the squared chords are fitted by a line and
-    read at the plane.  NaN with fewer than 2 such rows (a meniscus flat at, or inside, the orifice)
-    or none at all.
+    read at the plane.  With the axis tilted, each edge is read at its own depth along the axis and
+    its distance from it (the discs of `dropvision.frame.volume.cut_at_plane`), the plane's low side
+    only below the rows the walls reach under the tip row: the rows' horizontal chords there hold
+    the walls' clipped remnant (on the synthetic tilted nozzle at some tip phases: 50.8 and 61.2 px
+    for a 42.3 px orifice, and a correct pixel size called wrong).  NaN with fewer than 2 such rows
+    (a meniscus flat at, or inside, the orifice) or none at all.
     """
     geo, photo = ctx.geometry, ctx.photometry
     roi = ctx.region(image)
@@ -908,11 +918,27 @@ def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) 
     att = measure_attached(roi, ctx, seg, body, 1.0)
     r, left, right = outline(att.edges)
     below = r > geo.tip_roi + 0.5
-    r, chord = r[below][:rows], (right - left)[below][:rows]
+    r, left, right = r[below][:rows], left[below][:rows], right[below][:rows]
     if r.size < 2:
         return float("nan")
-    sq = float(np.polyval(np.polyfit(r.astype(float), chord * chord, 1), geo.tip_roi))
-    return float(np.sqrt(sq) * math.cos(geo.tilt_rad)) if sq > 0 else float("nan")
+    tan = math.tan(geo.tilt_rad)
+    if abs(tan) < 1e-12:
+        sq = float(np.polyval(np.polyfit(r.astype(float), (right - left) ** 2, 1), geo.tip_roi))
+        return float(np.sqrt(sq)) if sq > 0 else float("nan")
+    cos, sin = math.cos(geo.tilt_rad), math.sin(geo.tilt_rad)
+    dy = r - geo.tip_roi
+    reach = abs(tan) * geo.nozzle_outer_px if np.isfinite(geo.nozzle_outer_px) else abs(tan) * float(np.max(right - left))
+    depth, r2 = [], []
+    for x, sign in ((right, 1.0), (left, -1.0)):
+        dx = x - geo.axis_roi
+        use = np.ones(r.size, bool) if (sign > 0) == (tan > 0) else dy >= reach + 0.5
+        depth.append((dy * cos + dx * sin)[use])
+        r2.append(((sign * (dx * cos - dy * sin)) ** 2)[use])
+    depth, r2 = np.concatenate(depth), np.concatenate(r2)
+    if np.unique(np.round(depth, 6)).size < 2:
+        return float("nan")
+    sq = float(np.polyval(np.polyfit(depth, r2, 1), 0.0))
+    return float(2.0 * np.sqrt(sq)) if sq > 0 else float("nan")
 
 
 def liquid_seen_hanging(images, ctx: FrameContext) -> bool:

@@ -273,3 +273,62 @@ def test_doubled_pixel_size_in_a_tiff_stack_description_is_flagged(tmp_path):
     res = measure_sequence(seq)
     assert res.summary["calibration"]["pixel_size_um"] == pytest.approx(2 * cfg.pixel_size_um)
     _inner_mismatch(res)
+
+
+def _cal(**kw):
+    from types import SimpleNamespace
+    base = dict(pixel_size_ratio=1.0, pixel_size_ratio_uncertainty=0.001, nozzle_outer_diameter_px=76.0,
+                nozzle_out_of_focus=False, nozzle_sigma_px=0.0, rest_meniscus_width_px=float("nan"),
+                rest_meniscus_delay_us=0.0, rest_meniscus_at_outer_edge=False, pixel_size_um=4.73)
+    return SimpleNamespace(**{**base, **kw})
+
+
+@pytest.mark.parametrize("ratio, flagged", [(0.921, False), (1.08, False), (0.5, True), (1.3, True)])
+def test_out_of_focus_walls_judge_the_pixel_size_to_their_blur(ratio, flagged):
+    """Walls 8 px out of focus give their outer width to about 2 x 8 px of 76 (21 %): 0.921 (the
+    synthetic blurred holder at one tip phase, a correct pixel size) is a note, a factor of 2 or
+    1.3 still a flag; in focus, 0.921 is a flag."""
+    from types import SimpleNamespace
+
+    from dropvision.analysis.plausibility import blurred_width_fraction, check_pixel_size
+    from dropvision.config import MeasureConfig
+
+    meta = SimpleNamespace(nozzle_outer_diameter_um=360.0, nozzle_inner_diameter_um=None)
+    blurred = _cal(pixel_size_ratio=ratio, nozzle_out_of_focus=True, nozzle_sigma_px=8.0)
+    assert blurred_width_fraction(blurred) == pytest.approx(16.0 / 76.0)
+    found = check_pixel_size(blurred, meta, MeasureConfig(), 3)
+    assert any(f.flag == "pixel_size_mismatch" for f in found) == flagged
+    if not flagged:
+        assert any("out-of-focus walls allow" in (f.note or "") for f in found)
+    in_focus = check_pixel_size(_cal(pixel_size_ratio=ratio), meta, MeasureConfig(), 3)
+    assert any(f.flag == "pixel_size_mismatch" for f in in_focus)
+
+
+def test_a_meniscus_pinned_at_the_outer_edge_says_nothing_of_the_inner_diameter():
+    """A resting liquid as wide as the walls at the plane (a pendant drop on a needle: 71.7 px for a
+    72 px needle) is not the orifice: the inner-diameter check does not apply (it read 0.60 x)."""
+    from types import SimpleNamespace
+
+    from dropvision.analysis.plausibility import inner_diameter_ratio
+
+    meta = SimpleNamespace(nozzle_inner_diameter_um=432.0)
+    pendant = _cal(rest_meniscus_width_px=71.7, pixel_size_um=10.0, rest_meniscus_at_outer_edge=True)
+    assert np.isnan(inner_diameter_ratio(pendant, meta, dead_time_us=220.0))
+    inside = _cal(rest_meniscus_width_px=71.7, pixel_size_um=10.0)
+    assert inner_diameter_ratio(inside, meta, dead_time_us=220.0) == pytest.approx(432.0 / 717.0)
+
+
+@pytest.mark.parametrize("tip_row", [59.018, 59.254])
+def test_tilted_resting_meniscus_is_the_inner_diameter(tip_row, tmp_path):
+    """A nozzle tilted by 1.5 deg, its tip plane at two sub-pixel phases: the resting meniscus's width
+    is read along the axis (each edge at its own depth) and is the 200 um orifice (42.3 px) within 1 %;
+    the rows' horizontal chords read 61.2 and 50.8 px there and called the pixel size wrong."""
+    from dropvision.config import MeasureConfig
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    cfg = SynthConfig(u1_um_per_ms=80, u2_um=22, tilt_deg=1.5, tip_row=tip_row, axis_col=159.98, seed=13,
+                      width_px=320, height_px=800, delays_us=tuple(float(d) for d in range(0, 601, 20)))
+    write_synthetic_sequence(cfg, tmp_path / "seq", progress=False)
+    res = measure_sequence(tmp_path / "seq", config=MeasureConfig(workers=1))
+    assert res.summary["calibration"]["rest_meniscus_width_px"] == pytest.approx(200.0 / 4.73, rel=0.01)
+    assert not res.frames.quality.str.contains("pixel_size_mismatch").any()
