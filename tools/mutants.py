@@ -307,7 +307,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "the one body-class rule (bodies.detached_class) forgets a body split off the main drop"),
     # --- issue 29, the tip plane's cut and its uncertainty -------------------------------------
     Mutant("plane_row_wall_rule_off", "dropvision/frame/volume.py",
-           "            liquid &= rows != i0\n", "            pass\n",
+           "        liquid &= rows != math.floor(top_px + 0.5)\n", "        pass\n",
            ("tests/analysis/test_measure_accuracy.py::test_attached_volume_with_the_tip_plane_close_above_a_row_centre",),
            "the row holding the tip plane read as liquid although its chord is the walls'"),
     Mutant("plane_cut_reads_walls", "dropvision/frame/volume.py",

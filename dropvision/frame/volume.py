@@ -63,24 +63,29 @@ def plane_row_holds_wall(edges: RowEdges, top_px: float | None, wall_chord_px: f
     With the plane close above a row's centre the row is half wall: the walls' face, blurred and
     placed to a fraction of a pixel, darkens it past the edge level or not, and its chord is the
     nozzle's outer width or the liquid's as the tip's estimate moves by hundredths of a pixel (on the
-    synthetic sweep with the tip plane 0.02 px above a row centre: +0.10 to +0.15 nl on a 0.24 nl
+    synthetic sweep with the tip plane within 0.02 px of a row centre: +0.10 to +0.15 nl on a 0.24 nl
     meniscus, the whole walls' excess at half weight).  The row's chord is taken for the walls'
     when it lies nearer the walls' outer width ``wall_chord_px`` (the calibrated nozzle at its tip,
     in focus) than the chord of the row below (the liquid), the walls being the wider.  No walls'
     width (NaN: an out-of-focus holder, whose face line places its rows), no row below, or a plane
     row whose centre lies above the plane (`row_weights` gives it away already): False.
     """
-    if top_px is None or edges.row.size == 0 or not np.isfinite(wall_chord_px):
-        return False
-    i0 = math.floor(top_px + 0.5)
-    if i0 < top_px:
+    if top_px is None or edges.row.size == 0:
         return False
     rows, left, right = outline(edges)
-    chord = dict(zip(rows.tolist(), (right - left).tolist()))
-    c0, below = chord.get(i0), chord.get(i0 + 1)
-    if c0 is None or below is None or not wall_chord_px > below:
+    return _plane_row_is_walls(rows, right - left, top_px, wall_chord_px)
+
+
+def _plane_row_is_walls(rows: np.ndarray, width: np.ndarray, top_px: float, wall_chord_px: float) -> bool:
+    """`plane_row_holds_wall`'s rule on the rows' widths as the caller reads them (the chords, or
+    `cut_at_plane`'s twice the high side's distance from the axis)."""
+    i0 = math.floor(top_px + 0.5)
+    if i0 < top_px or not np.isfinite(wall_chord_px):
         return False
-    return bool(c0 - below > 0.5 * (wall_chord_px - below))
+    k0, k1 = np.flatnonzero(rows == i0), np.flatnonzero(rows == i0 + 1)
+    if not (k0.size and k1.size and wall_chord_px > width[k1[0]]):
+        return False
+    return bool(width[k0[0]] - width[k1[0]] > 0.5 * (wall_chord_px - width[k1[0]]))
 
 
 def plane_end_px3(edges: RowEdges, weights: np.ndarray, top_px: float | None, tilt_rad: float = 0.0) -> float:
@@ -154,18 +159,14 @@ def cut_at_plane(edges: RowEdges, top_px: float, axis_col: float, tilt_rad: floa
     rows, left, right = outline(edges)
     chord = right - left
     liquid = (rows >= top_px) & (chord > 0)
-    i0 = math.floor(top_px + 0.5)
     # the row holding the plane, read where the cut reads it (the high side's half-width, twice):
     # the walls' when nearer their width than the next row's (`plane_row_holds_wall`)
     if abs(tan) < 1e-12:
         width = chord
     else:
         width = 2.0 * np.abs((right if tan > 0 else left) - (axis_col + (rows - top_px) * tan))
-    if i0 >= top_px and np.isfinite(wall_chord_px):
-        k0, k1 = np.flatnonzero(rows == i0), np.flatnonzero(rows == i0 + 1)
-        if k0.size and k1.size and wall_chord_px > width[k1[0]] \
-                and width[k0[0]] - width[k1[0]] > 0.5 * (wall_chord_px - width[k1[0]]):
-            liquid &= rows != i0
+    if _plane_row_is_walls(rows, width, top_px, wall_chord_px):
+        liquid &= rows != math.floor(top_px + 0.5)
     idx = np.flatnonzero(liquid)
     if idx.size < 2 or rows[idx[1]] != rows[idx[0]] + 1:
         return None
