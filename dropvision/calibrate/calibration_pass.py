@@ -50,7 +50,7 @@ from dropvision.calibrate.nozzle import (bottom_profile, find_nozzle, fit_face_l
                                top_bodies)
 from dropvision.frame.segmentation import dark_mask, find_nozzle_body, segment
 from dropvision.io.sequence import SequenceError, pixel_size_from_nozzle
-from dropvision.frame.volume import outline
+from dropvision.frame.volume import axis_edge_points, outline
 
 
 #: The frames' transmission noise taken when the first calibration frame has too few bright pixels to measure it.
@@ -925,16 +925,9 @@ def rest_meniscus_width_px(image: np.ndarray, ctx: FrameContext, rows: int = 4) 
     if abs(tan) < 1e-12:
         sq = float(np.polyval(np.polyfit(r.astype(float), (right - left) ** 2, 1), geo.tip_roi))
         return float(np.sqrt(sq)) if sq > 0 else float("nan")
-    cos, sin = math.cos(geo.tilt_rad), math.sin(geo.tilt_rad)
-    dy = r - geo.tip_roi
-    reach = abs(tan) * geo.nozzle_outer_px if np.isfinite(geo.nozzle_outer_px) else abs(tan) * float(np.max(right - left))
-    depth, r2 = [], []
-    for x, sign in ((right, 1.0), (left, -1.0)):
-        dx = x - geo.axis_roi
-        use = np.ones(r.size, bool) if (sign > 0) == (tan > 0) else dy >= reach + 0.5
-        depth.append((dy * cos + dx * sin)[use])
-        r2.append(((sign * (dx * cos - dy * sin)) ** 2)[use])
-    depth, r2 = np.concatenate(depth), np.concatenate(r2)
+    reach = abs(tan) * (geo.nozzle_outer_px if np.isfinite(geo.nozzle_outer_px) else float(np.max(right - left)))
+    sides = axis_edge_points(r, left, right, geo.tip_roi, geo.axis_roi, geo.tilt_rad, reach)
+    depth, r2 = np.concatenate([sd[0] for sd in sides]), np.concatenate([sd[1] for sd in sides])
     if np.unique(np.round(depth, 6)).size < 2:
         return float("nan")
     sq = float(np.polyval(np.polyfit(depth, r2, 1), 0.0))

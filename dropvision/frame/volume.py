@@ -133,6 +133,29 @@ def _segment_fraction(v: np.ndarray) -> np.ndarray:
     return (np.arccos(v) - v * np.sqrt(1.0 - v * v)) / np.pi
 
 
+def axis_edge_points(rows: np.ndarray, left: np.ndarray, right: np.ndarray, top_px: float, axis_col: float,
+                     tilt_rad: float, reach_px) -> list[tuple[np.ndarray, np.ndarray, bool]]:
+    """Each side's edges in axis coordinates: ``(s, r^2, high)`` per side (right, left), the depth
+    ``s`` below the tip plane through (``top_px``, ``axis_col``) perpendicular to the tilted axis and
+    the squared distance ``r^2`` from the axis, sorted by depth, ``high`` for the plane's high side
+    (both sides without a tilt).  The low side's edges are kept only in rows ``reach_px + 1/2`` or
+    more below the tip row (``reach_px``: how far the walls reach below it, per row or one value):
+    above, the walls' remnant is its edge (`clip_to_tip_plane`).  Edges on the axis's other side
+    (``r <= 0``) are left out."""
+    tan, cos, sin = math.tan(tilt_rad), math.cos(tilt_rad), math.sin(tilt_rad)
+    dy = np.asarray(rows, float) - top_px
+    sides = []
+    for x, sign in ((right, 1.0), (left, -1.0)):
+        dx = np.asarray(x, float) - axis_col
+        s = dy * cos + dx * sin
+        r = sign * (dx * cos - dy * sin)
+        high = abs(tan) < 1e-12 or (sign > 0) == (tan > 0)
+        use = (r > 0) if high else (r > 0) & (dy >= np.asarray(reach_px, float) + 0.5)
+        order = np.argsort(s[use], kind="stable")
+        sides.append((s[use][order], r[use][order] ** 2, high))
+    return sides
+
+
 def cut_at_plane(edges: RowEdges, top_px: float, axis_col: float, tilt_rad: float,
                  wall_chord_px: float = float("nan")) -> tuple[np.ndarray, np.ndarray] | None:
     """Slice volumes (px^3 per run) and row weights of liquid below a tip plane that may be tilted.
@@ -174,19 +197,8 @@ def cut_at_plane(edges: RowEdges, top_px: float, axis_col: float, tilt_rad: floa
     # the top part ends below the rows the walls may reach under the tip row (`clip_to_tip_plane`)
     reach = abs(tan) * np.maximum(chord, wall_chord_px if np.isfinite(wall_chord_px) else 0.0)
     y_j = float(max(first, math.floor(top_px + float(np.max(reach[idx[:2]])) + 0.5)) + 0.5)
-    # each side's edges in axis coordinates: depth s below the plane, distance r from the axis
-    dy = rows - top_px
-    sides = []
-    for x, sign in ((right, 1.0), (left, -1.0)):
-        dx = x - axis_col
-        s = dy * cos + dx * sin
-        r = sign * (dx * cos - dy * sin)
-        high = abs(tan) < 1e-12 or (sign > 0) == (tan > 0)
-        use = liquid & (r > 0) & (rows <= y_j + 1.5)
-        if not high:
-            use &= rows >= top_px + reach + 0.5
-        order = np.argsort(s[use], kind="stable")
-        sides.append((s[use][order], r[use][order] ** 2, high))
+    near = liquid & (rows <= y_j + 1.5)
+    sides = axis_edge_points(rows[near], left[near], right[near], top_px, axis_col, tilt_rad, reach[near])
     highs = [sd for sd in sides if sd[2] and sd[0].size >= 2]
     if not highs:
         return None
