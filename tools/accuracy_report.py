@@ -7,7 +7,8 @@ Each run ends with a table of the stated uncertainties against the truth: per ca
 |error| / u and the share within +-2u of the attached, grown and main-drop volumes (`*` where the
 median is outside [0.3, 1.0] or the share below 0.95); ``--case`` runs single cases, ``--seeds``
 and ``--seed-offset`` other noise draws of the same cases (with several seeds, each case's median
-over them: a single-frame case has one frame a seed), ``--phases`` with them other sub-pixel
+over them and the share within +-2u of all their frames pooled, `seeds_cell`: a single-frame case
+has one frame a seed, and 30 seeds say more than 6), ``--phases`` with them other sub-pixel
 positions of the nozzle (`with_phase`: the frames of one sequence share where its tip plane cuts a
 row, and only other sequences sample that error).
 
@@ -242,20 +243,35 @@ def print_uncertainty_table(table: pd.DataFrame) -> None:
             cells.append(f"{z:.2f} ({cov:.3f}, {int(n)}){mark}")
         print(f"  {case}: " + " / ".join(cells))
     seeded = table.index.to_series().str.rsplit("#", n=1)
-    if seeded.str.len().eq(2).any():  # several seeds: each case's median over its seeds (one frame each: pooled)
-        print("over the seeds: median of the seeds' median |err|/u (lowest +-2u coverage, seeds)")
+    if seeded.str.len().eq(2).any():
+        print("over the seeds: median of the seeds' median |err|/u (+-2u coverage of all their frames "
+              "pooled, frames; lowest seed's coverage)")
         for name, grp in table.groupby(seeded.str[0], sort=False):
             cells = []
             for col in COVERAGE_COLUMNS:
-                key = col[:-3]
-                done = grp[grp[f"{key}_cov_n"].fillna(0) > 0] if f"{key}_cov_n" in grp else grp.iloc[0:0]
-                if done.empty:
+                cell = seeds_cell(grp, col[:-3])
+                if cell is None:
                     cells.append("-")
                     continue
-                z, cov = float(done[f"{key}_z50"].median()), float(done[f"{key}_cov2"].min())
+                z, cov, n, lowest = cell
                 mark = "*" if not (0.3 <= z <= 1.0) or cov < 0.95 else ""
-                cells.append(f"{z:.2f} ({cov:.3f}, {len(done)}){mark}")
+                cells.append(f"{z:.2f} ({cov:.3f}, {n}; {lowest:.3f}){mark}")
             print(f"  {name}: " + " / ".join(cells))
+
+
+def seeds_cell(grp: pd.DataFrame, key: str) -> tuple[float, float, int, float] | None:
+    """One case's cell over its seeds (rows of `uncertainty_coverage`): the median of the seeds'
+    median |err|/u, the +-2u coverage of all their frames pooled (each seed's share weighted by
+    its frames: the criterion's measure; a single-frame case's seeds have one frame each, so
+    their lowest share is 0 or 1 and says nothing), the pooled frame count and the lowest
+    seed's share; None where no seed compared a frame."""
+    n = grp[f"{key}_cov_n"].fillna(0) if f"{key}_cov_n" in grp else pd.Series(0, index=grp.index)
+    done = grp[n > 0]
+    if done.empty:
+        return None
+    w = n[n > 0].astype(float)
+    pooled = float((done[f"{key}_cov2"] * w).sum() / w.sum())
+    return float(done[f"{key}_z50"].median()), pooled, int(w.sum()), float(done[f"{key}_cov2"].min())
 
 
 def run_realism_case(name: str, kw: dict, workdir, transform=None) -> dict:

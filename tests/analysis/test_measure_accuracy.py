@@ -307,3 +307,17 @@ def test_attached_volume_with_the_tip_plane_close_above_a_row_centre(tip_row, tm
     assert np.all(np.isfinite(u)) and np.all(u > 0)
     assert np.max(np.abs(err)) < 0.03, err  # 12 % of the meniscus; was +0.10 ... +0.15 nl
     assert np.mean(np.abs(err) <= 2.0 * u) >= 0.9, (err, u)
+
+
+def test_seeds_cell_pools_the_frames_of_all_seeds(capsys):
+    """Over several seeds a case's coverage is the share of all its seeds' frames within +-2u
+    (each seed's share weighted by its frames), not the lowest seed's share: a single-frame case
+    has one frame a seed, so its lowest share is 0 as soon as one frame of thirty lies outside."""
+    table = pd.DataFrame({"drop_volume_cov2": [1.0, 0.0, 0.9], "drop_volume_cov_n": [1, 1, 10],
+                          "drop_volume_z50": [0.5, 2.4, 0.7], "attached_volume_cov_n": [0, 0, 0]},
+                         index=["a#0", "a#1", "a#2"])
+    z, pooled, n, lowest = ar.seeds_cell(table, "drop_volume")
+    assert (z, n, lowest) == (0.7, 12, 0.0) and pooled == pytest.approx(10.0 / 12.0)
+    assert ar.seeds_cell(table, "attached_volume") is None and ar.seeds_cell(table, "grown_volume") is None
+    ar.print_uncertainty_table(table)
+    assert "a: - / - / 0.70 (0.833, 12; 0.000)*" in capsys.readouterr().out
