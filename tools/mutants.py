@@ -324,6 +324,10 @@ MUTANTS: tuple[Mutant, ...] = (
            "return math.sqrt(math.pi / 2.0 / crossings) if crossings >= 4 else TIP_MEDIAN_FACTOR",
            "return TIP_MEDIAN_FACTOR",
            STAGE, "the tip plane's random part from the 4-crossing bound whatever the crossings"),
+    Mutant("wall_blur_rows_near_ends", "dropvision/calibrate/blur.py",
+           "    if keep.all():\n        return sigma\n", "    if True:\n        return sigma\n",
+           ("tests/frame/test_measure_frame.py",),
+           "the walls' blur fitted on every wall row, a holder's face and the tip within a few sigmas"),
 )
 
 

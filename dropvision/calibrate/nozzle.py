@@ -46,6 +46,9 @@ class Nozzle:
         Mean horizontal outer width (multiply by cos(tilt) for the diameter).
     straight_end_row : int
         Last row of the straight part.
+    straight_start_row : int
+        First row of the straight part (0: the walls reach the frame's top edge; more where a
+        holder's face or a wider body lies above them).
     interior_level : float
         Median transmission inside the nozzle.
     """
@@ -62,6 +65,7 @@ class Nozzle:
     outline_rows: np.ndarray | None = None
     outline_left: np.ndarray | None = None
     outline_right: np.ndarray | None = None
+    straight_start_row: int = 0
 
     @property
     def tilt_rad(self) -> float:
@@ -354,7 +358,7 @@ def find_nozzle(transmission: np.ndarray, threshold: float = DEFAULT_EDGE_THRESH
     orows = np.nonzero((first > 0) & (last < w) & (last > first))[0]
     outline = subpixel_edges(t, ones, orows, first[orows], last[orows], threshold)
     return Nozzle(rows, left, right, float(coef[1]), float(coef[0]), float(np.mean(right - left)), int(b - 1), level,
-                  orows, outline.left_px, outline.right_px)
+                  orows, outline.left_px, outline.right_px, straight_start_row=int(a))
 
 
 def find_tip(

@@ -114,6 +114,57 @@ def test_edge_sigma_from_nozzle_walls(blur):
     assert edge_sigma_px(t, nz) == pytest.approx(np.hypot(blur, np.sqrt(1 / 12)), abs=0.08)
 
 
+def _nozzle_below_a_block(block_rows: int, blur: float, n: int = 96, k: int = 8) -> np.ndarray:
+    """A 40 px nozzle (transmission 0.1) from the top edge to row 40.4, under a block 160 px wide
+    reaching down to ``block_rows`` (0: none), exact pixel coverage (``k`` x ``k`` sub-samples) and
+    a Gaussian blur of ``blur`` px."""
+    import cv2
+
+    yy, xx = (np.mgrid[0:n * k, 0:160 * k] + 0.5) / k - 0.5
+    dark = ((np.abs(xx - 80.3) < 20.0) & (yy < 40.4)) | ((np.abs(xx - 80.3) < 80.0) & (yy < block_rows - 0.5))
+    cov = dark.reshape(n, k, 160, k).mean(axis=(1, 3))
+    return cv2.GaussianBlur((1.0 - 0.9 * cov).astype(np.float32), (0, 0), blur)
+
+
+@pytest.mark.parametrize("protrusion", [6, 8, 12, 20])
+def test_edge_sigma_of_walls_below_a_holder_block(protrusion):
+    """Walls protruding a few rows below a holder block: their rows near the block's face (and near
+    the tip) hold the blur of those perpendicular edges, and a fit over all of them read a wider
+    blur (here 1.50, 1.27, 1.16 px for 1.04 px at 6, 8, 12 rows; 1.05 at 20); the rows
+    `wall_rows_clear_of_ends` keeps (3 sigmas from both ends) read the walls' own blur as without
+    the block (1.05-1.06 px).  The old fit fails the first two cases' check."""
+    from dropvision.calibrate.blur import esf_sigma_px, wall_rows_clear_of_ends
+
+    expected = np.hypot(1.0, np.sqrt(1 / 12))
+    t = _nozzle_below_a_block(41 - protrusion, 1.0)
+    nz = find_nozzle(t, 0.55)
+    assert nz.straight_start_row == 41 - protrusion and 38 <= nz.straight_end_row <= 40
+    keep = wall_rows_clear_of_ends(nz, 3.0 * expected)
+    assert keep.any()
+    assert edge_sigma_px(t, nz) == pytest.approx(expected, abs=0.03)
+    if protrusion <= 8:  # all the walls' rows: the block's and the tip's blur in the fit
+        assert esf_sigma_px(t, nz.rows, nz.left_px, nz.right_px, nz.interior_level) > expected + 0.08
+    free = _nozzle_below_a_block(0, 1.0)
+    nz_free = find_nozzle(free, 0.55)
+    assert nz_free.straight_start_row == 0
+    assert edge_sigma_px(free, nz_free) == pytest.approx(expected, abs=0.03)
+
+
+def test_wall_rows_clear_of_ends_by_hand():
+    """Rows 10-20 of walls starting at row 10 (a face at 9.5) and ending at row 20 (the tip past
+    20.5): 3 px clears rows 13-17; 6 px clears none, so the rows farthest from both ends (15);
+    walls from the frame's top edge have no face above them."""
+    from dropvision.calibrate.blur import wall_rows_clear_of_ends
+    from dropvision.calibrate.nozzle import Nozzle
+
+    rows = np.arange(10, 21)
+    nz = Nozzle(rows, rows * 0.0, rows * 0.0 + 40, 20.0, 0.0, 40.0, 20, 0.1, straight_start_row=10)
+    assert list(rows[wall_rows_clear_of_ends(nz, 3.0)]) == [13, 14, 15, 16, 17]
+    assert list(rows[wall_rows_clear_of_ends(nz, 6.0)]) == [15]
+    top = Nozzle(rows, rows * 0.0, rows * 0.0 + 40, 20.0, 0.0, 40.0, 20, 0.1)
+    assert list(rows[wall_rows_clear_of_ends(top, 3.0)]) == list(range(10, 18))
+
+
 def test_opaque_dust_is_never_liquid():
     dust = [(150, 30, 3, 0.1)]  # opaque speck off the axis
     frames = [render(bodies=[cap(12, 3)] + ([sphere(z, 15)] if z else []), dust=dust, seed=i, noise=0.01)
