@@ -328,6 +328,14 @@ MUTANTS: tuple[Mutant, ...] = (
            "    if keep.all():\n        return sigma\n", "    if True:\n        return sigma\n",
            ("tests/frame/test_measure_frame.py",),
            "the walls' blur fitted on every wall row, a holder's face and the tip within a few sigmas"),
+    Mutant("background_noise_as_misfit", "dropvision/calibrate/background.py",
+           "    return float(math.sqrt(max(spread * spread - noise * noise, 0.0)))\n", "    return spread\n",
+           ("tests/calibrate/test_calibration_fast.py",),
+           "the background's misfit read with the blocks' own noise in it (every body's edges moved by noise)"),
+    Mutant("drop_scatter_ignored", "dropvision/analysis/sequence_summary.py",
+           "    drop_u = widened_drop_uncertainty(drop_u,", "    drop_u = (lambda u, *_: u)(drop_u,",
+           ("tests/analysis/test_measure_accuracy.py::test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide",),
+           "the in-flight drops' own scatter ignored: their random part the edges' noise alone"),
 )
 
 

@@ -16,6 +16,8 @@ known (`dropvision.analysis.pinchoff.pinchoff_delay`):
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,6 +86,9 @@ class DropTrack:
         Satellites, touching ones included (float, NaN where unknown; 0 in attached frames).
     drop_volume_uncertainty_nl, detached_volume_uncertainty_nl : ndarray
         Standard uncertainties of the two volumes (nl).
+    drop_volume_random_uncertainty_nl : ndarray
+        The main drop volume's part from its edges' own noise (nl; its touching bodies' in
+        quadrature: `dropvision.frame.bodies.DetachedBody.random_uncertainty_nl`).
     inflight : ndarray of bool
         Main drop compact and trusted.
     """
@@ -98,6 +103,7 @@ class DropTrack:
     inflight: np.ndarray
     drop_volume_uncertainty_nl: np.ndarray | None = None
     detached_volume_uncertainty_nl: np.ndarray | None = None
+    drop_volume_random_uncertainty_nl: np.ndarray | None = None
 
 
 #: The quality codes `track_main_drop` gives, in the order a frame gets them.
@@ -136,6 +142,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
     nsat = np.full(m, np.nan)
     inflight = np.zeros(m, bool)
     drop_u = np.full(m, np.nan)
+    drop_r = np.full(m, np.nan)
     det_u = np.full(m, np.nan)
     reasons: list[list[str]] = [[] for _ in range(m)]
     for k, r in enumerate(records):
@@ -160,6 +167,9 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             drop_vol[k] = b.volume_nl + sum(o.volume_nl for o in others if o.touching)
             # one edge error for every body of the frame: the uncertainties add up
             drop_u[k] = b.volume_uncertainty_nl + sum(o.volume_uncertainty_nl for o in others if o.touching)
+            # their edges' own noise is independent: in quadrature
+            drop_r[k] = math.sqrt(b.random_uncertainty_nl ** 2
+                                  + sum(o.random_uncertainty_nl ** 2 for o in others if o.touching))
             drop_z[k], drop_x[k] = b.z_um, b.x_um
             length[k], diam[k] = b.length_um, b.diameter_um
             if not sat_bad:
@@ -182,7 +192,7 @@ def track_main_drop(records: list[FrameRecord], attached: np.ndarray, config: Me
             reasons[k].append(q.TAIL)
     found = [Finding(code, frames_of([code in own for own in reasons])) for code in TRACK_FLAGS
              if any(code in own for own in reasons)]
-    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u), found
+    return DropTrack(drop_vol, det_vol, drop_z, drop_x, length, diam, nsat, inflight, drop_u, det_u, drop_r), found
 
 
 def main_drop_doubts(record: FrameRecord, config: MeasureConfig) -> list[str]:

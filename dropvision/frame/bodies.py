@@ -75,6 +75,8 @@ class DetachedBody:
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
     touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
     volume_uncertainty_nl: float = float("nan")  # standard uncertainty (`volume.volume_uncertainty_px3`)
+    #: its part from the edges' own noise, independent from frame to frame (`body_random_uncertainty_nl`)
+    random_uncertainty_nl: float = float("nan")
     off_path: bool = False  # beside the jet's path (`off_path_reason`): a speck, not liquid of this firing
     #: outer boundary, (row, col) pixel centres of the canonical frame (`dropvision.frame.outline.body_outline`)
     outline: np.ndarray | None = field(default=None, repr=False, compare=False)
@@ -409,6 +411,14 @@ def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> f
     return float(math.hypot(edges, tilt_model_uncertainty_px3(volume, geo.tilt_rad, closed)))
 
 
+def body_random_uncertainty_nl(volume: BodyVolume, ctx: FrameContext) -> float:
+    """The part (nl) of `body_volume_uncertainty_nl` from the edges' own noise
+    (`dropvision.frame.volume.random_volume_uncertainty_px3`): independent from frame to frame, the
+    part a sequence's own scatter can show too narrow (`dropvision.analysis.sequence_summary.drop_scatter_ratio`)."""
+    geo = ctx.geometry
+    return float(random_volume_uncertainty_px3(volume, edge_noise_total_px(ctx), geo.tilt_rad)) * geo.nl_per_px3
+
+
 def body_volume_uncertainty_nl(volume: BodyVolume, ctx: FrameContext, plane: bool = False) -> float:
     """Standard uncertainty (nl) of a body's volume: the sequence's common edge-position error
     (`dropvision.frame.volume.volume_uncertainty_px3`), the edges' own noise
@@ -512,5 +522,6 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
         row_px=volume.centroid_row + geo.row0_px, col_px=volume.centroid_col + geo.col0_px,
         volume_uncertainty_nl=body_volume_uncertainty_nl(volume, ctx),
+        random_uncertainty_nl=body_random_uncertainty_nl(volume, ctx),
         outline=body_outline(seg.labels, b.label, b.bbox, ctx.geometry.row0_px, ctx.geometry.col0_px),
     )

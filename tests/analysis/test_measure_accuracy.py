@@ -257,20 +257,24 @@ def test_interpolation_error_is_the_rms_of_linear_crossings(sigma_px):
 @pytest.mark.filterwarnings("ignore::dropvision.io.sequence.RGBConvertedWarning")
 @pytest.mark.slow
 def test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide(tmp_path):
-    """On two sweep cases (one tilted 1.5 deg), shortened to their in-flight frames, the main drop's
-    median |error| / stated uncertainty lies in [0.3, 1.0] (0.67 for a calibrated Gaussian; the
-    fixed 0.05 px edge floor gave ~0.1) and +-2u covers >= 95 % of the frames, pooled (each short
-    case alone lies at the narrow end: 0.97 and 1.02; 0.83 and 0.77 on the full cases); the report's
-    figures (`accuracy_report.uncertainty_coverage`) are the same medians."""
+    """On two sweep cases (one tilted 1.5 deg), shortened to their in-flight frames, each drawn at
+    three sub-pixel places of the nozzle (`accuracy_report.with_phase`, other noise), the main
+    drop's median |error| / stated uncertainty lies in [0.3, 1.0] (0.67 for a calibrated Gaussian;
+    the fixed 0.05 px edge floor gave ~0.1) and +-2u covers >= 95 % of the frames, pooled; the
+    report's figures (`accuracy_report.uncertainty_coverage`) are the same medians.  A sequence's
+    frames share its common errors (the walls' blur read at their one sub-pixel place, the
+    background's misfit): one draw of each case judged them once, its median 0.97-1.02 at the
+    narrow end however the terms were drawn."""
     from dropvision.config import MeasureConfig
     from dropvision.measurement import measure_sequence
     from dropvision.synth import SynthConfig, write_synthetic_sequence
 
     z = []
-    for name in ("u70_u25_8bit", "u80_u22_tilt1.5_falloff0.3_12bit_tiff"):
-        kw = dict(ar.cases()[name])
+    for name, k in [(n, k) for n in ("u70_u25_8bit", "u80_u22_tilt1.5_falloff0.3_12bit_tiff") for k in range(3)]:
+        kw = ar.with_phase(dict(ar.cases()[name]), k)
+        kw["seed"] = kw.get("seed", 0) + 100 * k
         kw["delays_us"] = (0.0, 20.0, 40.0) + tuple(float(d) for d in range(1100, 1501, 40))
-        seq = tmp_path / name
+        seq = tmp_path / f"{name}@{k}"
         write_synthetic_sequence(SynthConfig(**kw), seq, progress=False)
         res = measure_sequence(seq, config=MeasureConfig(workers=1))
         m = res.frames.merge(pd.read_csv(seq / "truth_frames.csv"), on=["file", "delay_us", "repeat"],
@@ -281,7 +285,7 @@ def test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide(tmp_path):
         assert r["drop_volume_cov_n"] == zc.size > 0 and r["drop_volume_z50"] == pytest.approx(float(np.median(zc)))
         z += list(zc)
     z = np.asarray(z)
-    assert z.size >= 16 and np.isfinite(z).all(), z
+    assert z.size >= 48 and np.isfinite(z).all(), z
     assert 0.3 <= float(np.median(z)) <= 1.0, np.round(z, 2)
     assert float(np.mean(z <= 2.0)) >= 0.95, np.round(z, 2)
 

@@ -65,6 +65,7 @@ class Body:
     touching: bool = False
     long: bool = False
     top_chord_ratio: float = 1.0
+    random_uncertainty_nl: float = float("nan")
 
     def elongated(self, compact_ratio: float) -> bool:
         return self.long
@@ -79,8 +80,8 @@ class Record:
 
 
 def _sequence():
-    main = Body(10.0, 0.2, z_um=100.0, x_um=1.0, length_um=30.0, diameter_um=25.0)
-    touching = Body(1.0, 0.05, touching=True)
+    main = Body(10.0, 0.2, z_um=100.0, x_um=1.0, length_um=30.0, diameter_um=25.0, random_uncertainty_nl=0.12)
+    touching = Body(1.0, 0.05, touching=True, random_uncertainty_nl=0.05)
     apart = Body(0.5, 0.03)
     return [
         Record(10.0, [], neck_px=1.0),  # attached, neck under ambiguous_gap_px 1.5: ambiguous
@@ -99,6 +100,8 @@ def test_track_main_drop_by_hand():
     # main drop: its own volume plus the touching satellite's (10 + 1), uncertainties added (0.2 + 0.05)
     np.testing.assert_array_equal(drop.drop_volume_nl, [nan, nan, nan, nan, 11.0, 12.0])
     np.testing.assert_allclose(drop.drop_volume_uncertainty_nl, [nan, nan, nan, nan, 0.25, 0.3], rtol=1e-12)
+    # their random parts, the edges' own noise, independent: in quadrature (0.12, 0.05 -> 0.13)
+    np.testing.assert_allclose(drop.drop_volume_random_uncertainty_nl, [nan, nan, nan, nan, 0.13, nan], rtol=1e-12)
     # detached: 0 where attached or no drop, every body of the frame (10 + 1 + 0.5) where trusted
     np.testing.assert_array_equal(drop.detached_volume_nl, [0.0, 0.0, 0.0, nan, 11.5, 12.0])
     np.testing.assert_allclose(drop.detached_volume_uncertainty_nl, [0.0, 0.0, 0.0, nan, 0.28, 0.3], rtol=1e-12)

@@ -525,6 +525,34 @@ def test_local_scatter_ratio_reads_each_part_of_the_sequence():
     assert not local_scatter_ratio(delay[:20], v[:20], model[:20], use[:20]).any()
 
 
+def test_drop_scatter_ratio_reads_the_in_flight_drops_own_scatter():
+    """In-flight drops keep their volume: their consecutive differences over the modelled random
+    parts (0.01 nl) read the scatter's ratio to the model, 3 here (within 15 %), whatever the
+    frames' sizes (random parts 0.005-0.02 nl, scatter 3 times each); a satellite merging into the
+    drop (a step of 0.5 nl) is one outlying difference; frames not in flight are left out; fewer
+    than 5 differences read nothing.  The widened uncertainty keeps the rest of it: a 0.02 nl
+    uncertainty with a 0.01 nl random part at ratio 3 becomes sqrt(0.02^2 + 8 x 0.01^2) = 0.0346 nl;
+    at a ratio of 1 or less, or without random parts, it is kept."""
+    from dropvision.analysis.sequence_summary import drop_scatter_ratio, widened_drop_uncertainty
+
+    rng = np.random.default_rng(5)
+    n = 300
+    r = rng.choice([0.005, 0.01, 0.02], n)
+    v = 20.0 + rng.normal(0.0, 3.0 * r)
+    v[150:] += 0.5
+    inflight = np.ones(n, bool)
+    inflight[:10] = False
+    v[:10] = 5.0  # attached frames' values, not read
+    assert drop_scatter_ratio(v, r, inflight) == pytest.approx(3.0, rel=0.15)
+    assert drop_scatter_ratio(v[:15], r[:15], inflight[:15]) == 0.0  # 5 in-flight frames: 4 differences
+    assert drop_scatter_ratio(v, None, inflight) == 0.0
+    u = np.array([0.02, 0.02, np.nan])
+    rr = np.array([0.01, 0.0, 0.01])
+    np.testing.assert_allclose(widened_drop_uncertainty(u, rr, 3.0), [np.sqrt(0.0012), 0.02, np.nan])
+    np.testing.assert_array_equal(widened_drop_uncertainty(u, rr, 0.8), u)
+    np.testing.assert_array_equal(widened_drop_uncertainty(u, None, 3.0), u)
+
+
 def test_student_factor_against_the_t_table():
     """t(0.975, nu) / 1.96 with nu = 0.3675 k / 2.31 for k third differences: k 25 (nu 3.98) against
     the table's 2.776 / 1.96 at nu 4; k 126 (nu 20.0) against 2.086 / 1.96 at nu 20; 1 for many."""
