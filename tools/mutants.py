@@ -334,7 +334,7 @@ MUTANTS: tuple[Mutant, ...] = (
            "the background's misfit read with the blocks' own noise in it (every body's edges moved by noise)"),
     Mutant("drop_scatter_ignored", "dropvision/analysis/sequence_summary.py",
            "    drop_u = widened_drop_uncertainty(drop_u,", "    drop_u = (lambda u, *_: u)(drop_u,",
-           ("tests/analysis/test_measure_accuracy.py::test_drop_uncertainty_is_neither_narrow_nor_many_times_too_wide",),
+           ("tests/analysis/test_measure_accuracy.py::test_in_flight_scatter_widens_the_drops_uncertainty",),
            "the in-flight drops' own scatter ignored: their random part the edges' noise alone"),
 )
 

@@ -325,3 +325,30 @@ def test_seeds_cell_pools_the_frames_of_all_seeds(capsys):
     assert ar.seeds_cell(table, "attached_volume") is None and ar.seeds_cell(table, "grown_volume") is None
     ar.print_uncertainty_table(table)
     assert "a: - / - / 0.70 (0.833, 12; 0.000)*" in capsys.readouterr().out
+
+
+def test_in_flight_scatter_widens_the_drops_uncertainty(tmp_path, monkeypatch):
+    """The 8-bit sweep case's in-flight drops scatter more from frame to frame than their edges'
+    noise foresees (the silhouette's sampling moves as they fly): the sequence reads that ratio
+    (`sequence_summary.drop_scatter_ratio`, > 1 here) and every drop's uncertainty is widened by it,
+    ``sqrt(u^2 + (ratio^2 - 1) r^2)``; read as 0, the same frames keep their own."""
+    import dropvision.analysis.sequence_summary as summary
+    from dropvision.config import MeasureConfig
+    from dropvision.measurement import measure_sequence
+    from dropvision.synth import SynthConfig, write_synthetic_sequence
+
+    kw = dict(ar.cases()["u70_u25_8bit"])
+    kw["delays_us"] = (0.0, 20.0, 40.0) + tuple(float(d) for d in range(1100, 1501, 40))
+    write_synthetic_sequence(SynthConfig(**kw), tmp_path / "seq", progress=False)
+    read = []
+    real = summary.drop_scatter_ratio
+    monkeypatch.setattr(summary, "drop_scatter_ratio", lambda *a: read.append(real(*a)) or read[-1])
+    widened = measure_sequence(tmp_path / "seq", config=MeasureConfig(workers=1)).frames
+    monkeypatch.setattr(summary, "drop_scatter_ratio", lambda *a: 0.0)
+    own = measure_sequence(tmp_path / "seq", config=MeasureConfig(workers=1)).frames
+    assert len(read) == 1 and read[0] > 1.1
+    sel = widened["drop_volume_nl"].notna()
+    assert sel.sum() >= 8
+    ratio = (widened["drop_volume_uncertainty_nl"] / own["drop_volume_uncertainty_nl"])[sel]
+    assert (ratio > 1.02).all(), ratio.round(3).tolist()
+    np.testing.assert_array_equal(widened["drop_volume_nl"], own["drop_volume_nl"])
