@@ -270,8 +270,8 @@ class Track:
 
 def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) -> list[Body]:
     from dropvision.frame.edges import body_edges
-    from dropvision.frame.volume import (NL_PER_UM3, edge_definition_px, integrate, interpolation_error_px,
-                                   random_volume_uncertainty_px3, volume_uncertainty_px3)
+    from dropvision.frame.volume import (NL_PER_UM3, asymmetry_uncertainty_px3, edge_definition_px, integrate,
+                                   interpolation_error_px, random_volume_uncertainty_px3, volume_uncertainty_px3)
 
     t = img.astype(np.float32) * inv_bg
     h, w = t.shape
@@ -294,7 +294,8 @@ def _frame_bodies(k, ref, img, inv_bg, plate, thr, sigma, level, noise_t, px) ->
         definition = edge_definition_px(vol, level, noise_t)
         slope = ed.slope_t_per_px if np.isfinite(ed.slope_t_per_px) and ed.slope_t_per_px > 0 else 0.3
         u = math.hypot(volume_uncertainty_px3(vol, interpolation_error_px(sigma), definition_px=definition),
-                       random_volume_uncertainty_px3(vol, noise_t / slope))
+                       random_volume_uncertainty_px3(vol, noise_t / slope),
+                       0.0 if attached else asymmetry_uncertainty_px3(ed))  # a free drop: one of revolution
         scale = px ** 3 * NL_PER_UM3
         root = float("nan")
         if attached:  # where the liquid leaves the plate: the first rows below the edge, weighted by darkness

@@ -31,7 +31,7 @@ from dropvision.frame.edges import RowEdges, body_edges, edge_shift_px
 from dropvision.calibrate.nozzle import Protrusion, protruding_columns
 from dropvision.frame.outline import body_outline
 from dropvision.frame.volume import (
-    asymmetry_px3,
+    asymmetry_uncertainty_px3,
     equivalent_diameter_um,
     BodyVolume,
     clip_to_tip_plane,
@@ -75,9 +75,8 @@ class DetachedBody:
     edge_blur_px: float = float("nan")
     reason: str = ""  # why it is not a drop or satellite (out-of-focus bodies)
     touching: bool = False  # split off the main drop at a waist: counted, its volume in the main drop's
-    #: standard uncertainty (`body_volume_uncertainty_nl`; with its sides' departure from mirror images,
-    #: `dropvision.frame.volume.asymmetry_px3`, over sqrt(3): the true slices anywhere between with and
-    #: without it, the measured ones at one end, as for the band of edge levels)
+    #: standard uncertainty (`body_volume_uncertainty_nl`, with its sides' departure from mirror images:
+    #: `dropvision.frame.volume.asymmetry_uncertainty_px3`)
     volume_uncertainty_nl: float = float("nan")
     #: its part from the edges' own noise, independent from frame to frame (`body_random_uncertainty_nl`)
     random_uncertainty_nl: float = float("nan")
@@ -526,7 +525,7 @@ def describe_detached(ctx: FrameContext, seg: Segmentation, body: DarkBody, edge
         on_dust=on_dust, bbox=b.bbox, area_px=int(b.area_px),
         row_px=volume.centroid_row + geo.row0_px, col_px=volume.centroid_col + geo.col0_px,
         volume_uncertainty_nl=float(np.hypot(body_volume_uncertainty_nl(volume, ctx),
-                                             asymmetry_px3(edges) / math.sqrt(3.0) * geo.nl_per_px3)),
+                                             asymmetry_uncertainty_px3(edges) * geo.nl_per_px3)),
         random_uncertainty_nl=body_random_uncertainty_nl(volume, ctx),
         outline=body_outline(seg.labels, b.label, b.bbox, ctx.geometry.row0_px, ctx.geometry.col0_px),
     )
