@@ -811,7 +811,8 @@ def _row_photometry(first: np.ndarray, pick: list[np.ndarray], plate_hint: Plate
     thr = edge_threshold(level)
     # noise of the transmission: the bright background's pixel-to-pixel scatter below the plate
     # (the calibration's estimator: bright neighbouring pairs only, not the liquid hanging there)
-    noise_t = transmission_noise(t0[max(0, int(plate.row_at(0)) + 2):, :], 0.0)
+    below = max(0, int(plate.row_at(0)) + 2)
+    noise_t = transmission_noise(t0[below:, :], 0.0, first[below:, :])
     # edge blur: the edge-spread functions of the first frame's large bodies
     sigma = _edge_blur_px(first, t0, inv_bg, lab, stats, thr, level)
     return _Photometry(inv_bg, t0, plate, level, thr, noise_t, sigma)

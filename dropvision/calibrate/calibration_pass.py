@@ -34,7 +34,7 @@ import cv2
 import numpy as np
 
 import dropvision.quality as q
-from dvcore.robust import MAD_TO_SIGMA
+from dvcore.robust import MAD_TO_SIGMA, NOISE_LAG_PX, pair_noise_sigma
 from dropvision.calibrate.background import NoNozzleError, median_by_selection
 from dropvision.calibrate.blur import edge_sigma_px, esf_sigma_px
 from dropvision.frame.bodies import hanging_columns, measure_attached
@@ -123,7 +123,7 @@ def calibrate_sequence(seq, config: MeasureConfig = MeasureConfig(), *, decoded:
     # the walls as the reference: the region, the frames' noise and smoothing, the walls' sharpness
     geometry = Geometry.from_calibration(cal, config, attached_half_width_px=walls.attached_half_width_px)
     noise = noise_smoothing(geometry.crop(t_first), walls.sigma_px if config.blur_correction else 0.0, config,
-                            default_noise_transmission=DEFAULT_NOISE_TRANSMISSION)
+                            default_noise_transmission=DEFAULT_NOISE_TRANSMISSION, image_roi=geometry.crop(first))
     photometry = PhotometricReference.from_calibration(
         cal, geometry, first.dtype, max_value, noise_transmission=noise.noise_transmission,
         smoothing_sigma_px=noise.smoothing_sigma_px,
@@ -428,7 +428,7 @@ class NoiseSmoothing:
 
 
 def noise_smoothing(transmission_roi: np.ndarray, sigma_px: float, config: MeasureConfig, *,
-                    default_noise_transmission: float) -> NoiseSmoothing:
+                    default_noise_transmission: float, image_roi: np.ndarray | None = None) -> NoiseSmoothing:
     """Noise of the first calibration frame, and the smoothing noisy (low-contrast) frames get.
 
     Parameters
@@ -441,12 +441,14 @@ def noise_smoothing(transmission_roi: np.ndarray, sigma_px: float, config: Measu
         Frames noisier than ``smooth_noise_limit`` are smoothed by ``smooth_px``.
     default_noise_transmission : float
         The noise taken when the frame has too few bright pixels to measure it.
+    image_roi : ndarray, optional
+        The first calibration frame's raw values over the region (`transmission_noise`).
 
     Returns
     -------
     NoiseSmoothing
     """
-    noise = transmission_noise(transmission_roi, default_noise_transmission)
+    noise = transmission_noise(transmission_roi, default_noise_transmission, image_roi)
     if noise > config.smooth_noise_limit:
         smooth_px = float(config.smooth_px)
         return NoiseSmoothing(noise_transmission=noise, smoothing_sigma_px=smooth_px,
@@ -1005,26 +1007,42 @@ def _nozzle_edge_spread(first: np.ndarray, geometry: Geometry, photometry: Photo
             else nozzle_edge_spread_px(roi, photo.inv_background, seg.labels, body, floor=photo.liquid_level))
 
 
-def transmission_noise(transmission: np.ndarray, default: float) -> float:
+def transmission_noise(transmission: np.ndarray, default: float, image: np.ndarray | None = None) -> float:
     """Robust spread (std) of the transmission noise of bright background pixels.
+
+    Pixels `dvcore.robust.NOISE_LAG_PX` apart along a row, both bright, share their expectation:
+    their differences' spread over sqrt(2) is one pixel's noise (neighbours would miss the part a
+    colour camera's or a JPEG coder's 2x2 cells share).  With the raw ``image`` of integer counts,
+    the spread is read on the counts (`dvcore.robust.quantized_sigma`: a noise of about one count
+    is not a median absolute deviation of integers, which sticks at 1.05 counts from 0.7 to 1.3)
+    and scaled by the transmission of one count.
 
     Parameters
     ----------
     transmission : ndarray
         Frame over background (region of interest).
     default : float
-        Returned when fewer than 100 neighbouring bright pairs exist.
+        Returned when fewer than 100 bright pairs exist.
+    image : ndarray, optional
+        The frame's raw values over the same region (``transmission`` is ``image`` over the
+        background).
 
     Returns
     -------
     float
-        Noise standard deviation, in transmission units (MAD of horizontal differences).
+        Noise standard deviation, in transmission units.
     """
+    g = NOISE_LAG_PX
     bright = transmission > 0.9
-    d = np.diff(transmission, axis=1)[bright[:, 1:] & bright[:, :-1]]
-    if d.size > 100:  # np.median's values, by selection within a bracket (speed only)
-        return float(MAD_TO_SIGMA * median_by_selection(np.abs(d - median_by_selection(d))) / np.sqrt(2.0))
-    return default
+    pair = bright[:, g:] & bright[:, :-g]
+    if np.count_nonzero(pair) <= 100:
+        return default
+    if image is not None and np.issubdtype(image.dtype, np.integer):
+        counts = image.astype(np.float32)[:, :-g][pair]
+        per_count = float(median_by_selection(transmission[:, :-g][pair] / np.maximum(counts, 1.0)))
+        return pair_noise_sigma(image[:, g:][pair], image[:, :-g][pair], per_count)
+    d = (transmission[:, g:] - transmission[:, :-g])[pair]  # np.median's values, by selection (speed only)
+    return float(MAD_TO_SIGMA * median_by_selection(np.abs(d - median_by_selection(d))) / np.sqrt(2.0))
 
 
 def wall_reference(nozzle, tip_row: float, background: np.ndarray, t_first: np.ndarray, sigma_px: float,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dvcore.robust import robust_sigma
+from dvcore.robust import NOISE_LAG_PX, pair_noise_sigma
 
 #: Edge level used when nothing is known of the interior (an opaque interior, level 0).
 DEFAULT_EDGE_THRESHOLD = 0.5
@@ -268,12 +268,15 @@ def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: t
     samples.  A mean would dilute an out-of-focus mist droplet's shadow lying over a tenth of the
     outline.
 
-    The samples' noise is read off themselves: the robust spread (1.4826 MAD) of the differences
-    between neighbouring samples along each side of the outline, over sqrt(2).  What changes from
-    row to row is noise (the sensor's, and a JPEG coder's ringing beside a strong edge, which the
-    frame's noise measured on flat background does not hold: 2x it on a quality-85 JPEG); a mist
-    shadow or a halo lying over a stretch of the outline changes slowly along it and stays in the
-    level.  NaN with fewer than 10 differences.
+    The samples' noise is read off themselves: the spread of the differences between samples two
+    runs apart along each side of the outline, over sqrt(2) (`dvcore.robust.pair_noise_sigma`: on
+    the raw counts, so that a noise of about one count is not read as a median absolute deviation
+    of integers; two apart, `dvcore.robust.NOISE_LAG_PX`, so that a colour camera's or a JPEG
+    coder's 2x2 cells do not hide it).  What changes from row to row is noise (the sensor's, and a
+    JPEG coder's ringing beside a strong edge, which the frame's noise measured on flat background
+    does not hold: 1.5-2x it on a quality-85 JPEG); a mist shadow or a halo lying over a stretch of
+    the outline changes slowly along it and stays in the level.  NaN with fewer than 10
+    differences.
 
     An edge's width along its row is its contrast over its slope there, ``2 (1 - threshold) /
     slope`` (about 2.5 Gaussian sigmas across a steep edge, more along the row where the edge is
@@ -291,12 +294,16 @@ def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: t
     c[n:] += k[n:]
     c = np.minimum(np.maximum(c, 0), w - 1)
     rr = np.concatenate([rows, rows])
-    t = image[rr, c] * inv_background[rr, c] * scale
+    raw = image[rr, c]
+    per_count = inv_background[rr, c] * scale  # the transmission of one count of the raw value
+    t = raw * per_count
     bright = t >= threshold
-    # neighbouring samples along each side (the runs come in row order), both of them background
-    d = np.concatenate([np.diff(t[:n])[bright[:n][1:] & bright[:n][:-1]],
-                        np.diff(t[n:])[bright[n:][1:] & bright[n:][:-1]]])
-    noise = robust_sigma(d) / math.sqrt(2.0) if d.size >= 10 else float("nan")
+    # samples NOISE_LAG_PX runs apart along each side (the runs come in row order), both background
+    g = NOISE_LAG_PX
+    pairs = [(raw[side][g:][both], raw[side][:-g][both])
+             for side in (slice(0, n), slice(n, 2 * n)) for both in [bright[side][g:] & bright[side][:-g]]]
+    noise = pair_noise_sigma(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]),
+                             float(np.median(per_count[bright])) if bright.any() else 1.0)
     t = t[bright]
     if t.size == 0:
         return float("nan"), noise
