@@ -144,6 +144,15 @@ class AttachedLiquid:
         The tip plane's part from its place alone, the slice there times the plane's uncertainty
         (`dropvision.frame.volume.plane_cut_uncertainty_px3` without a tilt): the same plane cuts
         every frame, but a frame whose liquid is wider there than the rest's moves by more.
+    face_halo_nl : float
+        The in-focus walls' halo below their face (`face_halo_px3`).
+    halo_band_nl : float
+        The part of ``common_uncertainty_nl`` from the band of edge levels
+        (`dropvision.frame.volume.edge_definition_px`) when every row of the liquid lies within the
+        nozzle's halo (3 blur sigmas below its tip), so that the band's bright end is the halo's
+        level, not the background's (0 otherwise).  Every later frame's liquid holds the same rows
+        under the same halo at the same level: a grown volume does not keep it
+        (`dropvision.analysis.sequence_summary.grown_uncertainty`).
     """
 
     volume_nl: float
@@ -156,6 +165,7 @@ class AttachedLiquid:
     plane_uncertainty_nl: float = float("nan")
     plane_position_uncertainty_nl: float = float("nan")
     face_halo_nl: float = 0.0
+    halo_band_nl: float = 0.0
 
 
 def out_of_focus_nozzle_px3(volume: BodyVolume, nozzle_blur_px: float) -> float:
@@ -214,9 +224,12 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
     geo, photo = ctx.geometry, ctx.photometry
     # the background beside the liquid is read below the nozzle's halo (3 blur sigmas under its tip)
     halo_px = 3.0 * max(ctx.blur.correction_sigma_px if np.isfinite(ctx.blur.correction_sigma_px) else 0.0, 0.5)
+    below_halo = int(math.ceil(geo.tip_roi + halo_px)) if np.isfinite(geo.tip_roi) else 0
     ed = body_edges(roi, photo.inv_background, seg.labels, body.label, body.bbox,
                     photo.threshold, gain, row_min=max(0, int(math.floor(geo.tip_roi)) - 1),
-                    bright_row_min=int(math.ceil(geo.tip_roi + halo_px)) if np.isfinite(geo.tip_roi) else 0)
+                    bright_row_min=below_halo)
+    # no row below the halo: the band's bright end was read in it (`dropvision.frame.edges.subpixel_edges`)
+    in_halo = bool(below_halo > 0 and ed.row.size and int(ed.row.max()) < below_halo)
     # an out-of-focus holder: only what hangs below its face is liquid
     if np.isfinite(geo.face_row0_px):
         found = hanging_columns(roi, ctx, seg, body, gain)
@@ -249,7 +262,8 @@ def measure_attached(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body
                                                               near)),
                           plane_position_uncertainty_nl=plane_cut_uncertainty_px3(bv, _plane_sigma_px(ctx))
                           * geo.nl_per_px3,
-                          face_halo_nl=float(halo))
+                          face_halo_nl=float(halo),
+                          halo_band_nl=_definition_px3(bv, ctx) * geo.nl_per_px3 if in_halo else 0.0)
 
 
 def hanging_columns(roi: np.ndarray, ctx: FrameContext, seg: Segmentation, body: DarkBody,
@@ -401,6 +415,13 @@ def sample_noise_t(ctx: FrameContext) -> float:
     if np.isfinite(smooth) and smooth > 0:
         noise /= max(2.0 * math.sqrt(math.pi) * smooth, 1.0)
     return noise
+
+
+def _definition_px3(volume: BodyVolume, ctx: FrameContext) -> float:
+    """The body's own band of edge levels (`dropvision.frame.volume.edge_definition_px`) as a
+    volume (px^3): the part of `_common_px3` it adds in quadrature."""
+    definition = edge_definition_px(volume, ctx.photometry.liquid_level, sample_noise_t(ctx))
+    return volume_uncertainty_px3(volume, definition, ctx.geometry.tilt_rad, blur_fraction=0.0)
 
 
 def _common_px3(volume: BodyVolume, ctx: FrameContext, closed: bool = True) -> float:

@@ -61,6 +61,7 @@ class FrameRecord:
     attached_plane_uncertainty_nl: float = float("nan")
     attached_plane_position_uncertainty_nl: float = float("nan")  # see AttachedLiquid
     attached_face_halo_nl: float = 0.0  # see AttachedLiquid.face_halo_nl
+    attached_halo_band_nl: float = 0.0  # see AttachedLiquid.halo_band_nl
     attached_bottom_row: float = float("nan")
     neck_px: float = float("nan")
     bodies: list[DetachedBody] = field(default_factory=list)
@@ -126,6 +127,7 @@ def measure_frame(image: np.ndarray, ctx: FrameContext, ref=None, logger=None) -
             rec.attached_plane_uncertainty_nl = att.plane_uncertainty_nl
             rec.attached_plane_position_uncertainty_nl = att.plane_position_uncertainty_nl
             rec.attached_face_halo_nl = att.face_halo_nl
+            rec.attached_halo_band_nl = att.halo_band_nl
         rec.attached_bottom_row = att.bottom_row
         rec.neck_px = att.neck_px
         if np.isfinite(rec.attached_bottom_row):

@@ -341,6 +341,35 @@ def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
     assert att.common_uncertainty_nl == pytest.approx(math.pi * 31 * 60.2 * 0.05 * 2e-6, rel=1e-3)
 
 
+@pytest.mark.parametrize("length_px, in_halo", [(1.2, True), (60.2, False)])
+def test_attached_liquid_within_the_halo_names_its_band(length_px, in_halo):
+    """A body darker (0.12) than the calibrated liquid (0.2) states a band of edge levels.  Liquid
+    hanging 1.2 px below the tip (every row within the nozzle's halo, 1.5 px here) read that band
+    against the halo: `AttachedLiquid.halo_band_nl` holds it (within its common part); liquid
+    reaching below the halo reads its background there: none."""
+    img = render(shape=(130, 160), bodies=[cylinder(0.0, length_px, 15.5)], tip_row=40.3, axis_col=80.0,
+                 nozzle_r_out=20.0, spot=0.0, blur_px=0.0, bits=16)
+    bg = 0.8 * 65535
+    thr = edg.edge_threshold(0.2)
+    b_img = np.full(img.shape, bg, np.float32)
+    seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
+    body = sg.find_nozzle_body(seg.bodies, 80.0)
+    ctx = SimpleNamespace(
+        geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan,
+                                 nozzle_outer_px=40.0, tip_crossings=0),
+        photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=0.2,
+                                   noise_transmission=0.0, smoothing_sigma_px=0.0),
+        blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
+                             edge_position_sigma_px=0.0, edge_noise_px=0.0, clip_light=None),
+        config=SimpleNamespace(edge_position_floor_px=0.0))
+    att = measure_attached(img, ctx, seg, body, 1.0)
+    assert att.common_uncertainty_nl > 0
+    if in_halo:
+        assert 0.9 * att.common_uncertainty_nl < att.halo_band_nl <= att.common_uncertainty_nl * (1 + 1e-9)
+    else:
+        assert att.halo_band_nl == 0.0
+
+
 def test_tip_plane_on_an_out_of_focus_face_placed_to_its_whole_rows():
     """With the walls out of focus (blur 5.5 px), a tip plane on the holder's face line is placed to
     that line's whole rows (each column's lowest dark row: the 50 % crossing up to one row below,
@@ -581,6 +610,26 @@ def test_grown_volume_keeps_what_a_frame_spreads_wider_than_the_rest(term, value
     assert u0t == pytest.approx(u0) and ugt[0] == pytest.approx(ug[0]) and ugt[2] == pytest.approx(ug[2])
     assert ugt[1] == pytest.approx(math.hypot(ug[1], 0.003), rel=1e-9)
     assert uat == pytest.approx([ua[0], math.hypot(ua[1], 0.003) if attached_too else ua[1], ua[2]], rel=1e-9)
+
+
+def test_grown_volume_keeps_none_of_the_rest_meniscus_halo_band():
+    """A rest meniscus wholly within the nozzle's halo states a band of edge levels read against the
+    halo (0.045 nl of its common 0.046 nl); a later frame's liquid, read below the halo, states
+    0.005 nl.  The same rows lie under the same halo in both: the grown volume's common part is the
+    difference of what is left, 0.0091 - 0.005 nl, not 0.046 - 0.005 nl; the attached volumes and
+    the meniscus keep their whole uncertainty."""
+    d, att = np.array([0.0, 10.0, 20.0]), np.array([0.24, 0.24, 2.0])
+    c = np.array([0.046, 0.046, 0.005])
+    band = np.array([0.045, 0.045, 0.0])
+    u, p = np.hypot(c, 0.001), np.zeros(3)
+    grown = np.array([0.0, 0.0, 1.76])
+    u0, ug, ua = grown_uncertainty(d, att, u, c, p, grown)
+    u0b, ugb, uab = grown_uncertainty(d, att, u, c, p, grown, halo_band_nl=band)
+    left = math.sqrt(0.046 ** 2 - 0.045 ** 2)
+    assert ug[2] == pytest.approx(math.sqrt(0.041 ** 2 + 0.001 ** 2 + 0.001 ** 2), rel=1e-9)
+    assert ugb[2] == pytest.approx(math.sqrt((left - 0.005) ** 2 + 0.001 ** 2 + 0.001 ** 2), rel=1e-9)
+    assert ugb[1] == pytest.approx(ug[1]) and u0b == u0
+    np.testing.assert_array_equal(uab, ua)
 
 
 def test_face_halo_px3_by_hand():
