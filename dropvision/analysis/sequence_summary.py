@@ -347,7 +347,7 @@ def volume_uncertainties(s: SequenceValues, cal: Calibration) -> VolumeUncertain
     # the main drop's random part at least the in-flight drops' own scatter (`drop_scatter_ratio`)
     drop_u = widened_drop_uncertainty(drop_u, s.drop.drop_volume_random_uncertainty_nl,
                                       drop_scatter_ratio(s.drop.drop_volume_nl, s.drop.drop_volume_random_uncertainty_nl,
-                                                         s.drop.inflight))
+                                                         s.drop.inflight, delay))
     # a pixel size measured off the needle (none given): its uncertainty scales every volume by its cube
     rel3 = 3.0 * float(getattr(cal, "pixel_size_relative_uncertainty", 0.0))
     if rel3 > 0:
@@ -500,12 +500,16 @@ def student_factor(k: int) -> float:
     return t / z
 
 
-def drop_scatter_ratio(volume_nl, random_nl, inflight) -> float:
+def drop_scatter_ratio(volume_nl, random_nl, inflight, delay_us=None) -> float:
     """The in-flight main drops' own scatter over what their edges' noise foresees, read off the sequence.
 
     A drop in flight keeps its volume: the differences between consecutive in-flight frames (in
-    the frames' order) are the frames' random errors, each over its expected spread ``sqrt(r_i^2 +
-    r_(i+1)^2)`` from the frames' modelled random parts ``random_nl``.  Their robust spread: 1
+    the order of their delays ``delay_us``; the frames' order without them) at different delays are
+    the frames' random errors, each over its expected spread ``sqrt(r_i^2 + r_(i+1)^2)`` from the
+    frames' modelled random parts ``random_nl``.  Repeats at one delay put the drop at the same
+    place: their differences miss its sampling (below).  On the synthetic sweep with three repeats
+    a delay (12 delays in flight, 11 steps between them: a coarse reading) the frames' order read
+    0.89-1.33 over 6 seeds, the steps 0.59-1.89.  Their robust spread: 1
     where the model holds, a satellite merging into the drop one outlying difference; 0 with
     fewer than 5 differences (a single frame, a short flight).
 
@@ -522,10 +526,14 @@ def drop_scatter_ratio(volume_nl, random_nl, inflight) -> float:
     v = np.asarray(volume_nl, float)
     r = np.asarray(random_nl, float) if random_nl is not None else np.full(v.size, np.nan)
     ok = np.asarray(inflight, bool) & np.isfinite(v) & np.isfinite(r) & (r > 0)
-    v, r = v[ok], r[ok]
-    if v.size < 6:
+    d = np.arange(v.size, dtype=float) if delay_us is None else np.asarray(delay_us, float)
+    order = np.argsort(d[ok], kind="stable")
+    v, r, d = v[ok][order], r[ok][order], d[ok][order]
+    # repeats at one delay put the drop at the same place: their differences miss its sampling
+    step = np.diff(d) != 0
+    if np.count_nonzero(step) < 5:
         return 0.0
-    z = np.diff(v) / np.sqrt(r[1:] ** 2 + r[:-1] ** 2)
+    z = (np.diff(v) / np.sqrt(r[1:] ** 2 + r[:-1] ** 2))[step]
     return robust_sigma(z)
 
 

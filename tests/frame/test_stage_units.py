@@ -554,6 +554,26 @@ def test_local_scatter_ratio_reads_each_part_of_the_sequence():
     assert not local_scatter_ratio(delay[:20], v[:20], model[:20], use[:20]).any()
 
 
+def test_drop_scatter_ratio_reads_across_delays_not_repeats():
+    """Three repeats at each delay put the drop at one place: their differences hold the edges'
+    noise (ratio 1 here) but not the silhouette's sampling, which changes from one delay to the
+    next (3 times the noise here).  Read across delays (frames in any order) the ratio is 3 (within
+    20 %: 2.7-3.3 over 8 seeds); in the frames' order, two differences in three are repeats' and
+    it read 1.2-1.4."""
+    from dropvision.analysis.sequence_summary import drop_scatter_ratio
+
+    rng = np.random.default_rng(9)
+    delays = np.repeat(np.arange(200) * 20.0, 3)
+    place = np.repeat(rng.normal(0.0, np.sqrt(9.0 - 1.0) * 0.01, 200), 3)  # the sampling error, per delay
+    v = 20.0 + place + rng.normal(0.0, 0.01, delays.size)
+    r = np.full(delays.size, 0.01)
+    inflight = np.ones(delays.size, bool)
+    shuffle = rng.permutation(delays.size)
+    assert drop_scatter_ratio(v[shuffle], r[shuffle], inflight, delays[shuffle]) == pytest.approx(3.0, rel=0.2)
+    assert drop_scatter_ratio(v, r, inflight) < 2.0
+    assert drop_scatter_ratio(v[:15], r[:15], inflight[:15], delays[:15]) == 0.0  # 5 delays: 4 steps
+
+
 def test_drop_scatter_ratio_reads_the_in_flight_drops_own_scatter():
     """In-flight drops keep their volume: their consecutive differences over the modelled random
     parts (0.01 nl) read the scatter's ratio to the model, 3 here (within 15 %), whatever the
