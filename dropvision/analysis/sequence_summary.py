@@ -527,6 +527,7 @@ def drop_scatter_ratio(volume_nl, random_nl, inflight, delay_us=None) -> float:
     r = np.asarray(random_nl, float) if random_nl is not None else np.full(v.size, np.nan)
     ok = np.asarray(inflight, bool) & np.isfinite(v) & np.isfinite(r) & (r > 0)
     d = np.arange(v.size, dtype=float) if delay_us is None else np.asarray(delay_us, float)
+    ok &= np.isfinite(d)
     order = np.argsort(d[ok], kind="stable")
     v, r, d = v[ok][order], r[ok][order], d[ok][order]
     # repeats at one delay put the drop at the same place: their differences miss its sampling

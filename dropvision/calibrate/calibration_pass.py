@@ -1022,7 +1022,7 @@ def transmission_noise(transmission: np.ndarray, default: float, image: np.ndarr
     transmission : ndarray
         Frame over background (region of interest).
     default : float
-        Returned when fewer than 100 bright pairs exist.
+        Returned when 100 bright pairs or fewer exist.
     image : ndarray, optional
         The frame's raw values over the same region (``transmission`` is ``image`` over the
         background).
