@@ -314,26 +314,32 @@ def test_plane_span_is_the_liquids_chord_not_the_walls(tilt_deg):
 # --- attached liquid: a drawn cylinder below the tip plane --------------------------------------
 
 
-def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
-    """Liquid cylinder of radius 15.5 px hanging 60.2 px below the tip plane at row 40.3,
-    edges on pixel boundaries (axis at a pixel centre, bottom at 100.5): exact coverage gives
-    exact chords, so the volume below the tip plane is pi 15.5^2 60.2 px^3 to rounding."""
-    img = render(shape=(130, 160), bodies=[cylinder(0.0, 60.2, 15.5)], tip_row=40.3, axis_col=80.0,
+def _attached_cylinder(length_px: float, level: float, liquid_level: float, edge_sigma_px: float):
+    """`measure_attached` of a liquid cylinder of radius 15.5 px hanging ``length_px`` below the tip
+    plane at row 40.3 (16-bit, no blur), segmented at the edge level of ``level``, with the
+    calibrated liquid level ``liquid_level`` and a common edge error of ``edge_sigma_px``."""
+    img = render(shape=(130, 160), bodies=[cylinder(0.0, length_px, 15.5)], tip_row=40.3, axis_col=80.0,
                  nozzle_r_out=20.0, spot=0.0, blur_px=0.0, bits=16)
-    level, bg = 0.12, 0.8 * 65535
     thr = edg.edge_threshold(level)
-    b_img = np.full(img.shape, bg, np.float32)
+    b_img = np.full(img.shape, 0.8 * 65535, np.float32)
     seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
     body = sg.find_nozzle_body(seg.bodies, 80.0)
     ctx = SimpleNamespace(
         geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan,
                                  nozzle_outer_px=40.0, tip_crossings=0),
-        photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=np.nan,
+        photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=liquid_level,
                                    noise_transmission=0.0, smoothing_sigma_px=0.0),
         blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
-                             edge_position_sigma_px=0.05, edge_noise_px=0.0, clip_light=None),
+                             edge_position_sigma_px=edge_sigma_px, edge_noise_px=0.0, clip_light=None),
         config=SimpleNamespace(edge_position_floor_px=0.0))
-    att = measure_attached(img, ctx, seg, body, 1.0)
+    return measure_attached(img, ctx, seg, body, 1.0)
+
+
+def test_attached_volume_of_a_drawn_cylinder_within_0_1_percent():
+    """Liquid cylinder of radius 15.5 px hanging 60.2 px below the tip plane at row 40.3,
+    edges on pixel boundaries (axis at a pixel centre, bottom at 100.5): exact coverage gives
+    exact chords, so the volume below the tip plane is pi 15.5^2 60.2 px^3 to rounding."""
+    att = _attached_cylinder(60.2, level=0.12, liquid_level=np.nan, edge_sigma_px=0.05)
     expected_nl = math.pi * 15.5**2 * 60.2 * 2e-6
     assert att.volume_nl == pytest.approx(expected_nl, rel=1e-3)
     assert att.bottom_row == 100.0 and not att.leaves
@@ -347,22 +353,7 @@ def test_attached_liquid_within_the_halo_names_its_band(length_px, in_halo):
     hanging 1.2 px below the tip (every row within the nozzle's halo, 1.5 px here) read that band
     against the halo: `AttachedLiquid.halo_band_nl` holds it (within its common part); liquid
     reaching below the halo reads its background there: none."""
-    img = render(shape=(130, 160), bodies=[cylinder(0.0, length_px, 15.5)], tip_row=40.3, axis_col=80.0,
-                 nozzle_r_out=20.0, spot=0.0, blur_px=0.0, bits=16)
-    bg = 0.8 * 65535
-    thr = edg.edge_threshold(0.2)
-    b_img = np.full(img.shape, bg, np.float32)
-    seg = sg.segment(sg.dark_mask(img, sg.threshold_image(b_img, thr, img.dtype)))
-    body = sg.find_nozzle_body(seg.bodies, 80.0)
-    ctx = SimpleNamespace(
-        geometry=SimpleNamespace(tip_roi=40.3, axis_roi=80.0, tilt_rad=0.0, nl_per_px3=2e-6, face_row0_px=np.nan,
-                                 nozzle_outer_px=40.0, tip_crossings=0),
-        photometry=SimpleNamespace(inv_background=1 / b_img, threshold=thr, liquid_level=0.2,
-                                   noise_transmission=0.0, smoothing_sigma_px=0.0),
-        blur=SimpleNamespace(correction_sigma_px=0.0, calibrated_sigma_px=0.0, nozzle_sigma_px=0.0,
-                             edge_position_sigma_px=0.0, edge_noise_px=0.0, clip_light=None),
-        config=SimpleNamespace(edge_position_floor_px=0.0))
-    att = measure_attached(img, ctx, seg, body, 1.0)
+    att = _attached_cylinder(length_px, level=0.2, liquid_level=0.2, edge_sigma_px=0.0)
     assert att.common_uncertainty_nl > 0
     if in_halo:
         assert 0.9 * att.common_uncertainty_nl < att.halo_band_nl <= att.common_uncertainty_nl * (1 + 1e-9)
