@@ -298,11 +298,12 @@ def _bright_level(image, inv_background, rows, s, e, threshold: float, slopes: t
     per_count = inv_background[rr, c] * scale  # the transmission of one count of the raw value
     t = raw * per_count
     bright = t >= threshold
-    # samples NOISE_LAG_PX runs apart along each side (the runs come in row order), both background
+    # each sample and the one NOISE_LAG_PX runs before it on its side (the runs come in row order),
+    # both background
     g = NOISE_LAG_PX
-    pairs = [(raw[side][g:][both], raw[side][:-g][both])
-             for side in (slice(0, n), slice(n, 2 * n)) for both in [bright[side][g:] & bright[side][:-g]]]
-    noise = pair_noise_sigma(np.concatenate([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs]),
+    i = np.r_[g:n, n + g:2 * n]
+    pair = bright[i] & bright[i - g]
+    noise = pair_noise_sigma(raw[i[pair]], raw[i[pair] - g],
                              float(np.median(per_count[bright])) if bright.any() else 1.0)
     t = t[bright]
     if t.size == 0:
